@@ -1,0 +1,1 @@
+"""Log providers: where the frames a session serves come from."""

@@ -1,0 +1,1 @@
+"""The XVIZ v2 JSON Schema files, installed as package data of ``xviz_server``."""

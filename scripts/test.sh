@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Set up everything the test suite needs on a fresh machine, then run it.
+# Needs only python3 (>= 3.10) and node/npm; extra arguments go to pytest.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+source scripts/venv.sh
+python -m pip install --quiet --disable-pip-version-check -e ".[test]"
+npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
+exec python -m pytest "$@"

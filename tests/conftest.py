@@ -1,0 +1,31 @@
+"""Shared fixtures: where the real data lives."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+
+def _shared_dir() -> Path:
+    configured = os.environ.get("XVIZ_SHARED_DIR")
+    return Path(configured) if configured else Path(__file__).resolve().parents[2] / "shared"
+
+
+SHARED_DIR = _shared_dir()
+KITTI_LOG = SHARED_DIR / "data" / "kitti-2011_09_26_drive_0001-head"
+FIXTURES = SHARED_DIR / "conformance" / "fixtures"
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    """The project's shared folder: conformance corpus and real KITTI data."""
+    assert SHARED_DIR.is_dir(), f"shared data not found at {SHARED_DIR}; set XVIZ_SHARED_DIR"
+    return SHARED_DIR
+
+
+@pytest.fixture(scope="session")
+def kitti_log(shared_dir: Path) -> Path:
+    """The official 25-frame KITTI GLB log."""
+    return shared_dir / "data" / "kitti-2011_09_26_drive_0001-head"

@@ -1,0 +1,69 @@
+"""Encoding and decoding of XVIZ messages: JSON and GLB.
+
+This layer is pure: bytes in, envelopes out, and back. An envelope is a
+plain ``dict`` (``{"type": "xviz/<name>", "data": {...}}``) whose large
+arrays may be numpy arrays and whose images may be ``bytes`` or
+``memoryview`` objects.
+"""
+
+from __future__ import annotations
+
+import enum
+from typing import Any, Mapping
+
+from ..exceptions import DecodeError
+from .glb import decode_glb, encode_glb, is_glb
+from .json import decode_json, encode_json
+
+__all__ = [
+    "Format",
+    "encode",
+    "decode",
+    "detect_format",
+    "encode_glb",
+    "decode_glb",
+    "encode_json",
+    "decode_json",
+]
+
+PBE_MAGIC = b"PBE1"
+
+
+class Format(str, enum.Enum):
+    """Wire format of a message; the values are XVIZ's ``message_format`` names."""
+
+    JSON = "JSON"
+    BINARY = "BINARY"
+
+    @property
+    def suffix(self) -> str:
+        """File extension of a message in this format in a log directory."""
+        return ".json" if self is Format.JSON else ".glb"
+
+
+def detect_format(data: bytes | bytearray | memoryview | str) -> Format:
+    """Tell a GLB message from a JSON one by its first bytes.
+
+    Raises :class:`~xviz_server.exceptions.DecodeError` for protobuf (PBE)
+    messages, which are not supported.
+    """
+    if isinstance(data, str):
+        return Format.JSON
+    head = bytes(data[:4])
+    if is_glb(head):
+        return Format.BINARY
+    if head == PBE_MAGIC:
+        raise DecodeError("protobuf (PBE1) XVIZ messages are not supported; use GLB or JSON", offset=0)
+    return Format.JSON
+
+
+def encode(message: Mapping[str, Any], fmt: Format) -> bytes:
+    """Encode an envelope in the given format."""
+    return encode_glb(message) if fmt is Format.BINARY else encode_json(message)
+
+
+def decode(data: bytes | bytearray | memoryview | str) -> Any:
+    """Decode a message of either format, told apart by its first bytes."""
+    if detect_format(data) is Format.BINARY:
+        return decode_glb(data)
+    return decode_json(data)

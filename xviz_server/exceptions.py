@@ -1,0 +1,69 @@
+"""Every exception that xviz-server raises on purpose.
+
+All of them derive from :class:`XVIZError`, so a caller can catch the whole
+family in one place. Each message is written for the person who has to act on
+it: it names the file, offset, field or request that is wrong and says why.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "XVIZError",
+    "DecodeError",
+    "EncodeError",
+    "MessageError",
+    "SchemaValidationError",
+]
+
+
+class XVIZError(Exception):
+    """Base class of every error raised by xviz-server."""
+
+
+class DecodeError(XVIZError):
+    """Bytes or text could not be decoded as an XVIZ message.
+
+    ``offset`` is the byte offset of the problem when it is known.
+    """
+
+    def __init__(self, message: str, *, offset: int | None = None) -> None:
+        super().__init__(message)
+        self.offset = offset
+
+
+class EncodeError(XVIZError):
+    """A message could not be encoded (for example an unsupported value type)."""
+
+
+class MessageError(XVIZError):
+    """A session message from a client is malformed or has a wrong field.
+
+    ``message_type`` is the XVIZ type (``"transform_log"`` ...) when known and
+    ``request_id`` the id the client gave its request, so that the error sent
+    back can name both.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        message_type: str | None = None,
+        request_id: str | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.message_type = message_type
+        self.request_id = request_id
+
+
+class SchemaValidationError(XVIZError):
+    """A message does not conform to the XVIZ v2 JSON schema.
+
+    ``problems`` lists one human-readable line per violation, each starting
+    with the JSON path of the offending value.
+    """
+
+    def __init__(self, schema: str, problems: list[str]) -> None:
+        lines = "\n".join(f"  {p}" for p in problems)
+        super().__init__(f"does not match XVIZ schema {schema!r}:\n{lines}")
+        self.schema = schema
+        self.problems = problems

@@ -1,0 +1,266 @@
+"""The XVIZ session messages a server receives and sends, as pydantic models.
+
+The models follow what real clients send rather than the letter of the
+schema: ``session_type`` in any case, numeric request ids, the filter named
+either ``desired_streams`` or ``requested_streams``, unknown fields ignored.
+State updates are not modelled: they stay plain data (dicts and numpy
+arrays) on the hot path.
+
+:func:`parse_client_message` turns a decoded message into a model or raises
+:class:`~xviz_server.exceptions.MessageError` with a sentence that names the
+message, its request id and the field at fault.
+"""
+
+from __future__ import annotations
+
+import enum
+from typing import Any, ClassVar, Literal, Mapping, Union
+
+import pydantic
+from pydantic import AliasChoices, ConfigDict, Field, field_validator, model_validator
+
+from .codec import Format
+from .exceptions import MessageError
+
+__all__ = [
+    "SessionType",
+    "Start",
+    "TransformLog",
+    "TransformPointInTime",
+    "Reconfigure",
+    "TransformLogDone",
+    "Error",
+    "LogInfo",
+    "StreamMetadata",
+    "Metadata",
+    "ClientMessage",
+    "unwrap",
+    "envelope",
+    "parse_client_message",
+]
+
+XVIZ_NAMESPACE = "xviz/"
+
+
+class SessionType(str, enum.Enum):
+    """``LOG`` sessions replay a recorded log on request; ``LIVE`` ones are pushed updates."""
+
+    LOG = "LOG"
+    LIVE = "LIVE"
+
+
+_ENUM_WORDS = frozenset({"LOG", "LIVE", "JSON", "BINARY", "FULL", "DELTA"})
+
+
+def _upper(value: Any) -> Any:
+    """Accept the protocol's enum words in any case (``live``, ``Binary``)."""
+    if isinstance(value, str) and value.upper() in _ENUM_WORDS:
+        return value.upper()
+    return value
+
+
+class _Message(pydantic.BaseModel):
+    """A session message; ``TYPE`` is its name without the ``xviz/`` prefix."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore", coerce_numbers_to_str=True)
+    TYPE: ClassVar[str]
+
+    def to_envelope(self) -> dict[str, Any]:
+        """This message as an envelope, without the fields that are unset."""
+        return envelope(self.TYPE, self.model_dump(mode="json", exclude_none=True))
+
+
+_Timestamp = Field(default=None, allow_inf_nan=False)
+_StreamFilter = Field(
+    default=None, validation_alias=AliasChoices("desired_streams", "requested_streams")
+)
+
+
+class Start(_Message):
+    """``xviz/start``: opens a session; every field may also come from the URL query."""
+
+    TYPE = "start"
+    version: str | None = None
+    profile: str | None = None
+    session_type: SessionType | None = None
+    message_format: Format | None = None
+    log: str | None = None
+
+    _case = field_validator("session_type", "message_format", mode="before")(_upper)
+
+
+class TransformLog(_Message):
+    """``xviz/transform_log``: asks for the state updates of a time range."""
+
+    TYPE = "transform_log"
+    id: str
+    start_timestamp: float | None = _Timestamp
+    end_timestamp: float | None = _Timestamp
+    desired_streams: list[str] | None = _StreamFilter
+
+    @model_validator(mode="after")
+    def _ordered(self) -> TransformLog:
+        start, end = self.start_timestamp, self.end_timestamp
+        if start is not None and end is not None and start > end:
+            raise ValueError(f"start_timestamp {start} is after end_timestamp {end}")
+        return self
+
+
+class TransformPointInTime(_Message):
+    """``xviz/transform_point_in_time``: asks for the complete state at one instant."""
+
+    TYPE = "transform_point_in_time"
+    id: str
+    query_timestamp: float = Field(allow_inf_nan=False)
+    desired_streams: list[str] | None = _StreamFilter
+
+
+class Reconfigure(_Message):
+    """``xviz/reconfigure``: changes what the session is sent from now on.
+
+    ``DELTA`` merges ``config_update`` into the current configuration
+    (JSON merge patch); ``FULL`` replaces it.
+    """
+
+    TYPE = "reconfigure"
+    update_type: Literal["FULL", "DELTA"]
+    config_update: dict[str, Any]
+
+    _case = field_validator("update_type", mode="before")(_upper)
+
+
+class TransformLogDone(_Message):
+    """``xviz/transform_log_done``: ends the reply to the request with this id."""
+
+    TYPE = "transform_log_done"
+    id: str
+
+
+class Error(_Message):
+    """``xviz/error``: what went wrong, in a sentence that names the request and log."""
+
+    TYPE = "error"
+    message: str
+
+
+class LogInfo(pydantic.BaseModel):
+    """``log_info`` of a metadata message; times are in seconds."""
+
+    model_config = ConfigDict(extra="allow")
+    start_time: float | None = None
+    end_time: float | None = None
+
+
+class StreamMetadata(pydantic.BaseModel):
+    """The description of one stream in a metadata message."""
+
+    model_config = ConfigDict(extra="allow")
+    category: str | None = None
+    primitive_type: str | None = None
+    scalar_type: str | None = None
+
+
+class Metadata(_Message):
+    """``xviz/metadata``: the fields of a log's metadata that the server itself reads.
+
+    Every other field is kept, so that the message can be sent on as it came.
+    """
+
+    TYPE = "metadata"
+    model_config = ConfigDict(frozen=True, extra="allow")
+    version: str | None = None
+    log_info: LogInfo | None = None
+    streams: dict[str, StreamMetadata] = Field(default_factory=dict)
+
+
+ClientMessage = Union[Start, TransformLog, TransformPointInTime, Reconfigure]
+
+CLIENT_MESSAGES: dict[str, type[_Message]] = {
+    model.TYPE: model for model in (Start, TransformLog, TransformPointInTime, Reconfigure)
+}
+
+
+def envelope(name: str, data: Any) -> dict[str, Any]:
+    """Wrap ``data`` as the message ``xviz/<name>``."""
+    return {"type": XVIZ_NAMESPACE + name, "data": data}
+
+
+def unwrap(message: Any) -> tuple[str, Any]:
+    """Return the type (``"xviz/..."``) and data of a decoded message.
+
+    Bare messages without an envelope are recognised the way clients do:
+    metadata by its ``version``, a state update by ``update_type`` and
+    ``updates``.
+    """
+    if not isinstance(message, Mapping):
+        raise MessageError(
+            f"a message must be a JSON object like {{\"type\": \"xviz/<name>\", \"data\": {{...}}}}, "
+            f"not {type(message).__name__}"
+        )
+    if "type" in message and "data" in message:
+        kind = message["type"]
+        if not isinstance(kind, str):
+            raise MessageError(f"message 'type' must be a string like \"xviz/transform_log\", not {kind!r}")
+        return kind, message["data"]
+    if "version" in message:
+        return XVIZ_NAMESPACE + "metadata", message
+    if "update_type" in message and "updates" in message:
+        return XVIZ_NAMESPACE + "state_update", message
+    raise MessageError(
+        "a message must be an envelope {\"type\": \"xviz/<name>\", \"data\": {...}}; "
+        f"this one has the keys {sorted(message)}"
+    )
+
+
+def parse_client_message(message: Any) -> ClientMessage:
+    """Parse a decoded message from a client into its model.
+
+    Raises :class:`~xviz_server.exceptions.MessageError` for an unknown type
+    or a field that is missing or wrong, naming the message type, the request
+    id when there is one, and each field at fault.
+    """
+    kind, data = unwrap(message)
+    name = kind.removeprefix(XVIZ_NAMESPACE)
+    model = CLIENT_MESSAGES.get(name) if kind.startswith(XVIZ_NAMESPACE) else None
+    if model is None:
+        known = ", ".join(XVIZ_NAMESPACE + n for n in CLIENT_MESSAGES)
+        raise MessageError(f"unknown message type {kind!r}; a client may send {known}", message_type=kind)
+    request_id = data.get("id") if isinstance(data, Mapping) else None
+    request_id = None if request_id is None else str(request_id)
+    try:
+        return model.model_validate(data)  # type: ignore[return-value]
+    except pydantic.ValidationError as exc:
+        subject = kind if request_id is None else f"{kind} (id {request_id!r})"
+        problems = "; ".join(_describe(error) for error in exc.errors())
+        raise MessageError(f"{subject}: {problems}", message_type=name, request_id=request_id) from None
+
+
+def _describe(error: Mapping[str, Any]) -> str:
+    """One validation error as a phrase: which field, what is wrong, what came."""
+    field = ".".join(str(part) for part in error["loc"])
+    kind = error["type"]
+    if kind == "missing":
+        return f"'{field}' is required"
+    if kind == "model_type" or (kind == "dict_type" and not field):
+        return f"the data must be a JSON object, not {_shown(error['input'])}"
+    if kind == "value_error":
+        message = str(error["ctx"]["error"]) if "ctx" in error else error["msg"]
+        return message if not field else f"'{field}': {message}"
+    expected = {
+        "float_type": "a number",
+        "float_parsing": "a number",
+        "finite_number": "a finite number",
+        "string_type": "a string",
+        "list_type": "a list",
+        "dict_type": "a JSON object",
+        "enum": "one of " + str(error.get("ctx", {}).get("expected", "")),
+        "literal_error": "one of " + str(error.get("ctx", {}).get("expected", "")),
+    }.get(kind)
+    if expected is None:
+        return f"'{field}': {error['msg']}"
+    return f"'{field}' must be {expected}, not {_shown(error['input'])}"
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
