@@ -15,8 +15,8 @@ from jsonschema import Draft202012Validator
 from conftest import SHARED_DIR
 from helpers import assert_same_message
 from xviz_server.codec import decode_glb
-from xviz_server.exceptions import SchemaValidationError, XVIZError
-from xviz_server.validation import ARRAY_ROWS, UnknownSchemaError, XVIZValidator, get_validator
+from xviz_server.exceptions import SchemaValidationError, UnknownSchemaError, XVIZError
+from xviz_server.validation import ARRAY_ROWS, XVIZValidator, get_validator
 
 SCHEMA_DIR = Path(__file__).resolve().parents[1] / "schema"
 CORPUS = SHARED_DIR / "conformance" / "schema-examples"

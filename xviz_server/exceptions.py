@@ -13,6 +13,10 @@ __all__ = [
     "EncodeError",
     "MessageError",
     "SchemaValidationError",
+    "UnknownSchemaError",
+    "LogNotFound",
+    "LogError",
+    "FrameError",
 ]
 
 
@@ -67,3 +71,36 @@ class SchemaValidationError(XVIZError):
         super().__init__(f"does not match XVIZ schema {schema!r}:\n{lines}")
         self.schema = schema
         self.problems = problems
+
+
+class UnknownSchemaError(XVIZError, KeyError):
+    """No XVIZ schema has the requested name; the message suggests close names."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+class LogNotFound(XVIZError):
+    """A client named a log that the server does not serve (or may not name)."""
+
+    def __init__(self, message: str, *, name: str, available: list[str]) -> None:
+        super().__init__(message)
+        self.name = name
+        self.available = available
+
+
+class LogError(XVIZError):
+    """A log exists but cannot be served: no metadata, unreadable, unsupported format."""
+
+    def __init__(self, message: str, *, log: str) -> None:
+        super().__init__(message)
+        self.log = log
+
+
+class FrameError(XVIZError):
+    """One frame of a log cannot be read or decoded; the rest of the log may be fine."""
+
+    def __init__(self, message: str, *, log: str, frame: int) -> None:
+        super().__init__(message)
+        self.log = log
+        self.frame = frame

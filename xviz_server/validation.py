@@ -43,12 +43,12 @@ from jsonschema.exceptions import ValidationError, best_match
 from referencing import Registry
 from referencing.jsonschema import DRAFT202012
 
-from .exceptions import SchemaValidationError, XVIZError
+from .exceptions import SchemaValidationError, UnknownSchemaError
 
 if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
-__all__ = ["ARRAY_ROWS", "XVIZValidator", "UnknownSchemaError", "get_validator"]
+__all__ = ["ARRAY_ROWS", "XVIZValidator", "get_validator"]
 
 #: Rows of a numpy array that are validated.
 ARRAY_ROWS = 64
@@ -60,13 +60,6 @@ _short = reprlib.Repr()
 _short.maxstring = _short.maxother = 40
 _short.maxlist = _short.maxdict = 3
 _short.maxlevel = 2
-
-
-class UnknownSchemaError(XVIZError, KeyError):
-    """No XVIZ schema has the requested name."""
-
-    def __str__(self) -> str:
-        return str(self.args[0])
 
 
 class XVIZValidator:
