@@ -3,12 +3,84 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
+import logging
 import sys
-from typing import Sequence
+import types
+import typing
+from pathlib import Path
+from typing import Any, Callable, Coroutine, Sequence
+
+import pydantic
 
 from . import __version__
+from .settings import Settings
 
 __all__ = ["main"]
+
+
+def _run_async(coroutine: Coroutine[Any, Any, Any]) -> Any:
+    """Run on uvloop where it is installed, else on the standard event loop."""
+    try:
+        import uvloop
+    except ImportError:
+        return asyncio.run(coroutine)
+    return uvloop.run(coroutine)
+
+
+def _option_type(annotation: Any) -> Callable[[str], Any]:
+    """The argparse type of a settings field: the non-``None`` member of an optional."""
+    if isinstance(annotation, types.UnionType) or typing.get_origin(annotation) is typing.Union:
+        (annotation,) = [arg for arg in typing.get_args(annotation) if arg is not type(None)]
+    return annotation
+
+
+def _add_settings_options(parser: argparse.ArgumentParser) -> None:
+    """One option per :class:`Settings` field, named like it (``--cache-mb``)."""
+    for name, field in Settings.model_fields.items():
+        flag = "--" + name.replace("_", "-")
+        env = f"XVIZ_{name.upper()}"
+        if field.annotation is bool:
+            parser.add_argument(
+                flag, action=argparse.BooleanOptionalAction, default=None, help=f"{field.description} (env {env})"
+            )
+        else:
+            default = "" if field.default is None else f"; default {field.default}"
+            parser.add_argument(
+                flag,
+                type=_option_type(field.annotation),
+                default=None,
+                metavar=name.split("_")[-1].upper(),
+                help=f"{field.description} (env {env}{default})",
+            )
+
+
+def _settings(args: argparse.Namespace) -> Settings:
+    given = {name: getattr(args, name) for name in Settings.model_fields if getattr(args, name) is not None}
+    return Settings(**given)
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from .server import run
+
+    try:
+        settings = _settings(args)
+    except pydantic.ValidationError as exc:
+        for error in exc.errors():
+            option = "--" + "-".join(str(part) for part in error["loc"]).replace("_", "-")
+            print(f"xviz-server serve: {option}: {error['msg']}", file=sys.stderr)
+        return 2
+    data_dir = settings.data_dir
+    if data_dir is None:
+        from .demo import default_cache_dir, ensure_demo_log
+
+        data_dir = ensure_demo_log(default_cache_dir())
+        logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo log in %s", data_dir)
+    elif not data_dir.is_dir():
+        print(f"xviz-server serve: --data-dir {data_dir} is not a directory", file=sys.stderr)
+        return 2
+    _run_async(run(settings, data_dir))
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -17,7 +89,16 @@ def build_parser() -> argparse.ArgumentParser:
         description="Serve XVIZ v2 logs, raw datasets and live feeds to streetscape.gl and scripted clients.",
     )
     parser.add_argument("--version", action="version", version=f"xviz-server {__version__}")
-    parser.add_subparsers(dest="command", metavar="COMMAND")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    serve = commands.add_parser(
+        "serve",
+        help="serve logs over WebSocket",
+        description="Serve the XVIZ logs found under --data-dir (or the built-in demo log) to "
+        "streetscape.gl and scripted clients; every option can also be set by its environment variable.",
+    )
+    _add_settings_options(serve)
+    serve.set_defaults(run=_serve)
     return parser
 
 
@@ -28,6 +109,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("websockets").setLevel(logging.WARNING)
     return args.run(args)
 
 

@@ -1,0 +1,170 @@
+"""Static logs: directories of pre-encoded frames in the reference layout.
+
+A log directory holds ``0-frame.json`` (the index), ``1-frame.(json|glb)``
+(the metadata message) and ``<i+2>-frame.(json|glb)`` (message ``i``, a
+state update). The provider serves every such directory under a root; a
+log's name is its path relative to the root, with ``/`` separators (or the
+root's own name when the root itself is a log). Symbolic links inside the
+root are followed.
+
+An index that is missing, unreadable or disagrees with the frame files is
+rebuilt by reading every frame once; the rebuilt index is kept for the life
+of the server.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import orjson
+
+from ..codec import Format, decode, detect_format
+from ..exceptions import DecodeError, FrameError, LogError, MessageError
+from ..frames import is_heavy, span
+from ..index import TimeIndex
+from ..messages import unwrap
+from ..work import Workers
+
+__all__ = ["StaticLogProvider", "StaticLog"]
+
+logger = logging.getLogger(__name__)
+
+FRAME_FILE = re.compile(r"(\d+)-frame\.(json|glb|pbe)")
+INDEX_FILE = "0-frame.json"
+_FORMATS = {"json": Format.JSON, "glb": Format.BINARY}
+
+
+def _frame_files(directory: Path) -> dict[int, Path]:
+    """Message files of a log directory by file number (0 index, 1 metadata, 2+ frames)."""
+    files = {}
+    with os.scandir(directory) as entries:
+        for entry in entries:
+            match = FRAME_FILE.fullmatch(entry.name)
+            if match and entry.is_file():
+                files[int(match.group(1))] = Path(entry.path)
+    return files
+
+
+class StaticLogProvider:
+    """Every log directory under ``root``."""
+
+    def __init__(self, root: Path, workers: Workers) -> None:
+        self.root = Path(root)
+        self._workers = workers
+        self._logs: dict[str, Path] = {}
+
+    def scan(self) -> list[str]:
+        logs: dict[str, Path] = {}
+        seen: set[str] = set()
+        for directory, subdirectories, files in os.walk(self.root, followlinks=True):
+            real = os.path.realpath(directory)
+            if real in seen:  # a symbolic link loop
+                subdirectories.clear()
+                continue
+            seen.add(real)
+            subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
+            if any(FRAME_FILE.fullmatch(name) for name in files):
+                relative = Path(directory).relative_to(self.root).as_posix()
+                logs[self.root.name if relative == "." else relative] = Path(directory)
+        self._logs = logs
+        return sorted(logs)
+
+    async def open(self, name: str) -> StaticLog:
+        directory = self._logs.get(name)
+        if directory is None:
+            raise LogError(f"log {name!r} is not under {self.root}", log=name)
+        files = await self._workers.io(_frame_files, directory)
+        return StaticLog(name, directory, files, self._workers)
+
+
+class StaticLog:
+    """One log directory."""
+
+    def __init__(self, name: str, directory: Path, files: dict[int, Path], workers: Workers) -> None:
+        self.name = name
+        self.directory = directory
+        self._files = files
+        self._workers = workers
+        metadata_file = files.get(1)
+        if metadata_file is None:
+            raise LogError(
+                f"log {name!r} has no metadata file (1-frame.glb or 1-frame.json) in {directory}", log=name
+            )
+        suffix = metadata_file.suffix[1:]
+        if suffix not in _FORMATS:
+            raise LogError(
+                f"log {name!r} is stored as protobuf ({metadata_file.name}), which this server does not read; "
+                "convert it to GLB",
+                log=name,
+            )
+        self.format = _FORMATS[suffix]
+
+    def _read(self, number: int) -> bytes:
+        path = self._files.get(number)
+        if path is None:
+            raise FileNotFoundError(f"{number}-frame file missing")
+        return path.read_bytes()
+
+    async def metadata(self) -> dict[str, Any]:
+        path = self._files[1]
+        try:
+            data = await self._workers.io(self._read, 1)
+            kind, content = unwrap(decode(data))
+        except OSError as exc:
+            raise LogError(f"log {self.name!r}: cannot read {path.name}: {exc.strerror or exc}", log=self.name) from None
+        except (DecodeError, MessageError) as exc:
+            raise LogError(f"log {self.name!r}: {path.name} is not a readable XVIZ message: {exc}", log=self.name) from None
+        if kind != "xviz/metadata" or not isinstance(content, dict):
+            raise LogError(f"log {self.name!r}: {path.name} holds {kind!r}, not xviz/metadata", log=self.name)
+        return content
+
+    async def index(self) -> TimeIndex:
+        frames = {number - 2 for number in self._files if number >= 2}
+        index_file = self._files.get(0)
+        if index_file is not None and index_file.name == INDEX_FILE:
+            try:
+                index = TimeIndex.from_reference(orjson.loads(await self._workers.io(self._read, 0)))
+            except (OSError, orjson.JSONDecodeError, DecodeError) as exc:
+                logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
+            else:
+                if set(index.frames.tolist()) == frames:
+                    return index
+                logger.warning(
+                    "log %r: %s names %d frames but the directory has %d; rebuilding it from the frames",
+                    self.name, INDEX_FILE, len(index), len(frames),
+                )
+        return await self._build_index(sorted(frames))
+
+    async def _build_index(self, frames: list[int]) -> TimeIndex:
+        spans = []
+        for frame in frames:
+            try:
+                data = await self.read(frame)
+                run = self._workers.cpu if is_heavy(detect_format(data)) else self._workers.io
+                start, end = await run(span, data)
+            except (FrameError, DecodeError) as exc:
+                logger.warning("log %r: frame %d left out of the index: %s", self.name, frame, exc)
+                continue
+            spans.append((start, end, frame))
+        return TimeIndex.from_spans(spans)
+
+    async def read(self, frame: int) -> bytes:
+        path = self._files.get(frame + 2)
+        name = path.name if path is not None else f"{frame + 2}-frame"
+        try:
+            return await self._workers.io(self._read, frame + 2)
+        except OSError as exc:
+            raise FrameError(
+                f"cannot read frame {frame} ({name}) of log {self.name!r}: {exc.strerror or exc}",
+                log=self.name,
+                frame=frame,
+            ) from None
+
+    def describe_frame(self, frame: int) -> str:
+        """How a frame is named in error messages: its file."""
+        path = self._files.get(frame + 2)
+        return path.name if path is not None else f"{frame + 2}-frame"

@@ -1,0 +1,113 @@
+"""The static-log provider: layouts, indexes, the catalog, and names that try to escape the root."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from serving import client, running_server, ten_hz, timestamps, write_log
+from xviz_server.codec import Format
+
+
+async def stream_all(server, path: str) -> list[float]:
+    async with client(server, path) as c:
+        first = await c.recv()
+        assert first["type"] == "xviz/metadata", first
+        await c.send("transform_log", {"id": "all"})
+        return timestamps(await c.until("transform_log_done", "all"))
+
+
+@pytest.mark.parametrize("fmt", [Format.BINARY, Format.JSON])
+async def test_log_without_index_is_indexed_from_its_frames(tmp_path: Path, fmt: Format):
+    write_log(tmp_path / "raw", ten_hz(12), fmt=fmt, index=False)
+    async with running_server(tmp_path) as server:
+        assert await stream_all(server, "/raw") == [round(100 + i / 10, 3) for i in range(12)]
+        log = await server.catalog.open("raw")
+        assert log.metadata["log_info"] == {"start_time": 100.0, "end_time": 101.1}
+        # built once, shared: a second open returns the same log
+        assert await server.catalog.open("raw") is log
+
+
+@pytest.mark.parametrize(
+    "index_text",
+    [
+        "not json at all",
+        json.dumps({"timing": "nope"}),
+        json.dumps({"timing": [[100.0, 100.0, 0, "2-frame"]]}),  # names 1 frame of 5
+        json.dumps({"timing": [[100.0, 100.0, i, f"{i + 2}-frame"] for i in range(9)]}),  # names missing frames
+    ],
+)
+async def test_wrong_index_is_rebuilt(tmp_path: Path, index_text: str):
+    log = write_log(tmp_path / "bad-index", ten_hz(5), index=False)
+    (log / "0-frame.json").write_text(index_text)
+    async with running_server(tmp_path) as server:
+        assert await stream_all(server, "/bad-index") == [100.0, 100.1, 100.2, 100.3, 100.4]
+
+
+async def test_real_index_is_used_as_is(kitti_log: Path, tmp_path: Path):
+    (tmp_path / "k").symlink_to(kitti_log)
+    async with running_server(tmp_path) as server:
+        log = await server.catalog.open("k")
+        timing = json.loads((kitti_log / "0-frame.json").read_text())["timing"]
+        assert log.index.start.tolist() == [row[0] for row in timing]
+        assert log.index.frames.tolist() == list(range(25))
+        # metadata's own end_time (the whole drive) is kept: it is finite and set
+        assert log.metadata["log_info"]["end_time"] == 1317042157.004
+
+
+async def test_root_that_is_itself_a_log(tmp_path: Path):
+    write_log(tmp_path / "solo", ten_hz(3))
+    async with running_server(tmp_path / "solo") as server:
+        assert server.catalog.names() == ["solo"]
+        assert len(await stream_all(server, "/")) == 3
+
+
+async def test_log_added_while_serving_is_found(tmp_path: Path):
+    write_log(tmp_path / "first", ten_hz(2))
+    async with running_server(tmp_path) as server:
+        write_log(tmp_path / "later", ten_hz(4))
+        assert len(await stream_all(server, "/?log=later")) == 4
+
+
+async def test_symlink_loops_do_not_hang_the_scan(tmp_path: Path):
+    write_log(tmp_path / "a" / "log", ten_hz(2))
+    (tmp_path / "a" / "loop").symlink_to(tmp_path / "a")
+    async with running_server(tmp_path) as server:
+        assert "a/log" in server.catalog.names()
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/?log=../outside",
+        "/?log=/etc",
+        "/?log=city/../../outside",
+        "/?log=%2e%2e/outside",  # decoded once by the URL parser: '../outside'
+        "/?log=%252e%252e%252foutside",  # double-encoded: '%2e%2e%2foutside' is refused too
+        "/?log=..%5Coutside",  # backslash
+        "/?log=C:/outside",
+        "/..%2Foutside",
+        "/%2e%2e/outside",
+    ],
+)
+async def test_names_cannot_leave_the_root(tmp_path: Path, path: str):
+    root = tmp_path / "root"
+    write_log(root / "city", ten_hz(2))
+    write_log(tmp_path / "outside", ten_hz(2))  # a log the client must never reach
+    async with running_server(root) as server, client(server, path) as c:
+        message = await c.recv()
+        assert message["type"] == "xviz/error", message
+        assert "not allowed" in message["data"]["message"] or "no log named" in message["data"]["message"]
+        # and the session is still usable
+        await c.send("start", {"version": "2.0.0", "log": "city"})
+        assert (await c.recv())["type"] == "xviz/metadata"
+
+
+async def test_symlink_placed_by_the_operator_is_followed(tmp_path: Path):
+    write_log(tmp_path / "elsewhere" / "drive", ten_hz(3))
+    (tmp_path / "root").mkdir()
+    (tmp_path / "root" / "linked").symlink_to(tmp_path / "elsewhere" / "drive")
+    async with running_server(tmp_path / "root") as server:
+        assert len(await stream_all(server, "/linked")) == 3

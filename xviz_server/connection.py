@@ -1,0 +1,219 @@
+"""The asyncio side of a session: carry out what :class:`~xviz_server.session.Session` decides.
+
+One :class:`Connection` per WebSocket connection reads client messages,
+feeds them to the session and runs the resulting events: sends, log
+opening, a streaming task for ``transform_log`` and a task per point-in-time
+query. A stream reads a few frames ahead of the socket and sends them as
+fast as the client reads (``send`` waits while the socket's write buffer is
+full), or at the log's rate times ``speed``.
+
+Memory per connection is bounded: the frames read ahead (``read_ahead``
+frames, usually shared with the cache) plus the socket's write buffer.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import deque
+from typing import Any
+from urllib.parse import parse_qsl, unquote, urlsplit
+
+from websockets.asyncio.server import ServerConnection
+from websockets.exceptions import ConnectionClosed
+
+from .codec import Format
+from .exceptions import XVIZError
+from .logs import Catalog
+from .metrics import Metrics
+from .session import Cancel, Event, OpenLog, QueryInstant, Send, Session, StreamFrames
+
+__all__ = ["Connection"]
+
+logger = logging.getLogger("xviz_server.session")
+
+
+class Connection:
+    """One WebSocket connection running one XVIZ session."""
+
+    def __init__(
+        self,
+        websocket: ServerConnection,
+        catalog: Catalog,
+        metrics: Metrics,
+        *,
+        read_ahead: int,
+        lookback: int,
+    ) -> None:
+        self.websocket = websocket
+        self.catalog = catalog
+        self.metrics = metrics
+        self.read_ahead = read_ahead
+        self.lookback = lookback
+        url = urlsplit(websocket.request.path if websocket.request else "/")
+        self.session = Session(
+            path=unquote(url.path),
+            query=dict(parse_qsl(url.query, keep_blank_values=True)),
+            available=catalog.names(),
+        )
+        self._stream: asyncio.Task[None] | None = None
+        self._stop_stream: asyncio.Event | None = None
+        self._tasks: set[asyncio.Task[None]] = set()
+        self.frames_sent = 0
+        self.bytes_sent = 0
+
+    async def run(self) -> None:
+        """Serve the session until the client goes away or the server shuts down."""
+        started = time.monotonic()
+        self.metrics.sessions.inc()
+        self.metrics.sessions_open.inc()
+        try:
+            await self._guarded("the connection", self.session.connect)
+            async for message in self.websocket:
+                await self._guarded("a message", self.session.receive, message)
+        except ConnectionClosed:
+            pass
+        finally:
+            for task in self._tasks:
+                task.cancel()
+            await asyncio.gather(*self._tasks, return_exceptions=True)
+            self.metrics.sessions_open.dec()
+            code, reason = self.websocket.close_code, self.websocket.close_reason
+            logger.info(
+                "session end remote=%s log=%s format=%s frames=%d bytes=%d duration=%.3fs reason=%s",
+                _remote(self.websocket),
+                self.session.log.name if self.session.log else None,
+                self.session.format.value,
+                self.frames_sent,
+                self.bytes_sent,
+                time.monotonic() - started,
+                f"{code} {reason}".strip() if code is not None else "connection lost",
+            )
+
+    async def _guarded(self, what: str, step: Any, *args: Any) -> None:
+        """Run a session step and its events; a bug is reported to the client, not fatal."""
+        try:
+            await self._execute(step(*args))
+        except ConnectionClosed:
+            raise
+        except Exception as exc:
+            logger.exception("error handling %s from %s", what, _remote(self.websocket))
+            await self._send(self.session.internal_error(what, exc))
+
+    async def _execute(self, events: list[Event]) -> None:
+        for event in events:
+            if isinstance(event, Send):
+                await self._send(event)
+            elif isinstance(event, OpenLog):
+                try:
+                    log = await self.catalog.open(event.name)
+                except XVIZError as exc:
+                    await self._execute(self.session.log_failed(exc))
+                else:
+                    await self._execute(self.session.log_opened(log))
+            elif isinstance(event, Cancel):
+                if self._stop_stream is not None:
+                    self._stop_stream.set()
+            elif isinstance(event, StreamFrames):
+                self._stop_stream = stop = asyncio.Event()
+                self._stream = self._spawn(self._run_stream(event, stop, self._stream))
+            elif isinstance(event, QueryInstant):
+                self._spawn(self._run_query(event))
+
+    def _spawn(self, coroutine: Any) -> asyncio.Task[None]:
+        task = asyncio.ensure_future(coroutine)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    async def _send(self, event: Send) -> None:
+        await self.websocket.send(event.data, text=event.text)
+        if event.error is not None:
+            self.metrics.errors.labels(event.error).inc()
+            logger.info("error remote=%s kind=%s", _remote(self.websocket), event.error)
+
+    async def _run_stream(self, request: StreamFrames, stop: asyncio.Event, previous: asyncio.Task[None] | None) -> None:
+        if previous is not None:
+            await asyncio.wait([previous])  # its done goes out before our first frame
+        received = time.perf_counter()
+        fmt = request.fmt.value
+        loop = asyncio.get_running_loop()
+        clock_start = loop.time()
+        numbers = request.frames.tolist()
+        ahead: deque[asyncio.Future[bytes]] = deque()
+        following = 0
+        try:
+            for position in range(len(numbers)):
+                while len(ahead) < self.read_ahead and following < len(numbers):
+                    ahead.append(asyncio.ensure_future(request.log.frame(numbers[following], request.fmt, request.streams)))
+                    following += 1
+                loading = ahead.popleft()
+                if request.speed is not None:
+                    due = clock_start + (request.times[position] - request.times[0]) / request.speed
+                    await _wait(stop, due - loop.time())
+                if stop.is_set():
+                    loading.cancel()
+                    break
+                try:
+                    data = await loading
+                except XVIZError as exc:
+                    await self._send(self.session.frame_failed(request, exc))
+                    continue
+                await self.websocket.send(data, text=request.fmt is Format.JSON)
+                if position == 0:
+                    self.metrics.first_frame_seconds.observe(time.perf_counter() - received)
+                self.frames_sent += 1
+                self.bytes_sent += len(data)
+                self.metrics.frames_sent.labels(fmt).inc()
+                self.metrics.bytes_sent.labels(fmt).inc(len(data))
+            await self._send(request.done)
+            self.metrics.request_seconds.labels("transform_log").observe(time.perf_counter() - received)
+        except ConnectionClosed:
+            pass
+        except Exception as exc:
+            logger.exception("error streaming transform_log %r", request.request_id)
+            await self._send_quietly(self.session.internal_error(f"transform_log {request.request_id!r}", exc))
+            await self._send_quietly(request.done)
+        finally:
+            for loading in ahead:
+                loading.cancel()
+
+    async def _run_query(self, request: QueryInstant) -> None:
+        received = time.perf_counter()
+        try:
+            try:
+                data = await request.log.complete_state(request.instant, request.fmt, request.streams, self.lookback)
+            except XVIZError as exc:
+                await self._send(self.session.query_failed(request, exc))
+                return
+            await self.websocket.send(data, text=request.fmt is Format.JSON)
+            self.frames_sent += 1
+            self.bytes_sent += len(data)
+            self.metrics.request_seconds.labels("transform_point_in_time").observe(time.perf_counter() - received)
+        except ConnectionClosed:
+            pass
+        except Exception as exc:
+            logger.exception("error answering transform_point_in_time %r", request.request_id)
+            await self._send_quietly(self.session.internal_error(f"transform_point_in_time {request.request_id!r}", exc))
+
+    async def _send_quietly(self, event: Send) -> None:
+        """Send, unless the connection is gone."""
+        try:
+            await self._send(event)
+        except ConnectionClosed:
+            pass
+
+
+async def _wait(stop: asyncio.Event, seconds: float) -> None:
+    """Sleep for ``seconds``, or less if ``stop`` is set meanwhile."""
+    if seconds > 0:
+        try:
+            await asyncio.wait_for(stop.wait(), seconds)
+        except asyncio.TimeoutError:
+            pass
+
+
+def _remote(websocket: ServerConnection) -> str:
+    address = websocket.remote_address
+    return f"{address[0]}:{address[1]}" if address else "?"

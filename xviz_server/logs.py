@@ -1,0 +1,286 @@
+"""Logs as sessions see them, whatever provider they come from.
+
+:class:`Catalog` names every log the providers serve and opens each one
+once; the :class:`Log` it returns is shared by every session. A log's frames
+go through the shared :class:`~xviz_server.cache.FrameCache`: the bytes read
+from the source, checked once, and each rendering of them (another format,
+a stream filter) are encoded once and kept as immutable bytes. Blocking work
+runs in :class:`~xviz_server.work.Workers`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from typing import Any, Sequence
+
+from . import frames
+from .cache import FrameCache
+from .codec import Format, detect_format, encode
+from .exceptions import DecodeError, FrameError, LogError, LogNotFound, SchemaValidationError, XVIZError
+from .index import TimeIndex
+from .messages import envelope
+from .state import COMPLETE_TYPES
+from .providers import LogSource, Provider
+from .work import Workers
+
+__all__ = ["Catalog", "Log", "check_log_name"]
+
+logger = logging.getLogger(__name__)
+
+XVIZ_VERSION = "2.0.0"
+RESCAN_INTERVAL = 1.0  # least seconds between two scans asked for by unknown log names
+
+
+def check_log_name(name: str) -> None:
+    """Refuse a log name that could reach outside the data root.
+
+    Names are relative folder paths with ``/`` separators. The name has
+    already been percent-decoded once with the rest of the URL; a ``%`` left
+    in it, a backslash, an absolute path, a drive letter, an empty, ``.`` or
+    ``..`` component, or a control character are all refused.
+    """
+    parts = name.split("/")
+    if (
+        not name
+        or name.startswith("/")
+        or any(part in ("", ".", "..") for part in parts)
+        or any(c in name for c in "\\%")
+        or any(ord(c) < 32 for c in name)
+        or (len(name) >= 2 and name[1] == ":")
+    ):
+        raise LogNotFound(
+            f"log name {name!r} is not allowed: a log is named by its folder path inside the data root "
+            "(like 'drive-1' or 'kitti/0005'), without '..', '.', '\\', '%', a leading '/' or a drive",
+            name=name,
+            available=[],
+        )
+
+
+class Log:
+    """One open log: metadata, time index and frames, shared by every session."""
+
+    def __init__(
+        self,
+        source: LogSource,
+        metadata: dict[str, Any],
+        index: TimeIndex,
+        cache: FrameCache,
+        workers: Workers,
+        validate: bool = False,
+    ) -> None:
+        self.name = source.name
+        self.format = source.format
+        self.index = index
+        self.metadata = _complete_metadata(metadata, index)
+        self._source = source
+        self._cache = cache
+        self._workers = workers
+        self._validate = validate
+        self._metadata_messages = {
+            fmt: encode(envelope("metadata", self.metadata), fmt) for fmt in Format
+        }
+        # Update type of each frame checked so far, to know where a complete
+        # state starts without decoding frames again.
+        self._update_types: dict[int, str] = {}
+
+    @classmethod
+    async def open(cls, source: LogSource, cache: FrameCache, workers: Workers, validate: bool = False) -> Log:
+        """Read a source's metadata and index; raises :class:`~xviz_server.exceptions.LogError`.
+
+        With ``validate``, the metadata and every frame when first loaded are
+        checked against the XVIZ schema.
+        """
+        metadata = await source.metadata()
+        if validate:
+            try:
+                await workers.io(frames.validate, envelope("metadata", metadata))
+            except SchemaValidationError as exc:
+                raise LogError(f"log {source.name!r}: metadata {exc}", log=source.name) from None
+        index = await source.index()
+        return cls(source, metadata, index, cache, workers, validate)
+
+    @property
+    def streams(self) -> list[str]:
+        """Names of the streams the metadata declares."""
+        return sorted(self.metadata.get("streams") or ())
+
+    def metadata_message(self, fmt: Format) -> bytes:
+        """The ``xviz/metadata`` message, encoded in ``fmt``."""
+        return self._metadata_messages[fmt]
+
+    def describe(self) -> dict[str, Any]:
+        """A summary for the catalog: format, frames, time range, streams."""
+        info = self.metadata.get("log_info") or {}
+        return {
+            "name": self.name,
+            "format": self.format.value,
+            "frames": len(self.index),
+            "start_time": info.get("start_time"),
+            "end_time": info.get("end_time"),
+            "streams": self.streams,
+        }
+
+    async def frame(self, number: int, fmt: Format, streams: frozenset[str] | None = None) -> bytes:
+        """Frame ``number`` encoded in ``fmt``, with only ``streams`` if given.
+
+        Raises :class:`~xviz_server.exceptions.FrameError` naming the frame.
+        """
+        if streams is None and fmt is self.format:
+            data = await self._checked(number)
+            if detect_format(data) is fmt:
+                return data
+        return await self._cache.get((self.name, number, fmt, streams), lambda: self._render(number, fmt, streams))
+
+    async def _checked(self, number: int) -> bytes:
+        """The frame as the source stores it, checked to be a readable state update."""
+        return await self._cache.get((self.name, number, None, None), lambda: self._read(number))
+
+    async def _read(self, number: int) -> bytes:
+        data = await self._source.read(number)
+        try:
+            update_type = await self._run(frames.check, data, self._validate, formats=(detect_format(data),))
+        except (DecodeError, SchemaValidationError) as exc:
+            raise self._corrupt(number, exc) from None
+        self._update_types[number] = update_type
+        return data
+
+    async def _render(self, number: int, fmt: Format, streams: frozenset[str] | None) -> bytes:
+        data = await self._checked(number)
+        try:
+            return await self._run(frames.render, data, fmt, streams, formats=(detect_format(data), fmt))
+        except DecodeError as exc:
+            raise self._corrupt(number, exc) from None
+
+    async def complete_state(
+        self, instant: float, fmt: Format, streams: frozenset[str] | None, lookback: int
+    ) -> bytes:
+        """The latest state of each stream at or before ``instant``, as one message.
+
+        Found through the index: the last frame at or before ``instant``, and
+        before it only as many frames as it takes to reach one whose update
+        type is complete (``COMPLETE_STATE``/``SNAPSHOT``), at most
+        ``lookback``. Raises :class:`~xviz_server.exceptions.XVIZError` when
+        the log has no state at that time.
+        """
+        position = self.index.at(instant)
+        if position is None:
+            raise XVIZError(f"the log has no state at or before {instant} (it starts at {self.index.start_time})")
+        numbers = []
+        for back in range(position, max(-1, position - lookback), -1):
+            number = int(self.index.frames[back])
+            await self._checked(number)  # loads it and learns its update type
+            numbers.append(number)
+            if self._update_types.get(number) in COMPLETE_TYPES:
+                break
+        data = [await self._checked(number) for number in numbers]
+        formats = {detect_format(d) for d in data} | {fmt}
+        message, _ = await self._run(frames.merge, data, fmt, streams, formats=tuple(formats))
+        return message
+
+    async def _run(self, function: Any, *args: Any, formats: Sequence[Format]) -> Any:
+        worker = self._workers.cpu if frames.is_heavy(*formats) else self._workers.io
+        return await worker(function, *args)
+
+    def _corrupt(self, number: int, exc: Exception) -> FrameError:
+        where = getattr(self._source, "describe_frame", lambda n: f"frame {n}")(number)
+        return FrameError(f"frame {number} ({where}) of log {self.name!r} is corrupt: {exc}", log=self.name, frame=number)
+
+
+def _complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, Any]:
+    """Metadata with what clients need: ``version``, and ``log_info`` times from the index if missing."""
+    result = dict(metadata)
+    result.setdefault("version", XVIZ_VERSION)
+    info = dict(result.get("log_info") or {})
+    for key, value in (("start_time", index.start_time), ("end_time", index.end_time)):
+        current = info.get(key)
+        if not (isinstance(current, (int, float)) and math.isfinite(current) and current != 0) and value is not None:
+            info[key] = value
+    result["log_info"] = info
+    return result
+
+
+class Catalog:
+    """Every log of every provider, by name; each is opened once and shared."""
+
+    def __init__(
+        self, providers: Sequence[Provider], cache: FrameCache, workers: Workers, *, validate: bool = False
+    ) -> None:
+        self._providers = list(providers)
+        self._cache = cache
+        self._workers = workers
+        self._validate = validate
+        self._owners: dict[str, Provider] = {}
+        self._open: dict[str, asyncio.Task[Log]] = {}
+        self._scanned_at = -math.inf
+        self._scan_lock = asyncio.Lock()
+
+    def names(self) -> list[str]:
+        """Names of the logs known since the last scan."""
+        return sorted(self._owners)
+
+    async def scan(self) -> list[str]:
+        """Look for logs again (a log added to the data directory appears)."""
+        started = time.monotonic()
+        owners: dict[str, Provider] = {}
+        for provider in self._providers:
+            for name in await self._workers.io(provider.scan):
+                owners.setdefault(name, provider)
+        self._owners = owners
+        self._scanned_at = started
+        return self.names()
+
+    async def _rescan(self) -> None:
+        """Scan again for a name not found, at most once per ``RESCAN_INTERVAL``.
+
+        Requests arriving during a scan share it; one arriving sooner than the
+        interval after the last scan waits for the interval, so a client
+        asking for unknown names cannot make the server scan nonstop.
+        """
+        asked = time.monotonic()
+        async with self._scan_lock:
+            if self._scanned_at > asked:
+                return  # someone else's scan started after we asked
+            await asyncio.sleep(self._scanned_at + RESCAN_INTERVAL - time.monotonic())
+            await self.scan()
+
+    async def open(self, name: str) -> Log:
+        """The open log called ``name``.
+
+        Raises :class:`~xviz_server.exceptions.LogNotFound` for a name that is
+        not allowed or not served, and :class:`~xviz_server.exceptions.LogError`
+        for a log that cannot be served. A failed open is tried again next time.
+        """
+        check_log_name(name)
+        if name not in self._owners:
+            await self._rescan()
+        provider = self._owners.get(name)
+        if provider is None:
+            available = self.names()
+            shown = ", ".join(repr(n) for n in available[:20]) or "none"
+            raise LogNotFound(f"no log named {name!r}; available: {shown}", name=name, available=available)
+        task = self._open.get(name)
+        if task is None or (task.done() and (task.cancelled() or task.exception() is not None)):
+            task = asyncio.ensure_future(self._open_log(provider, name))
+            self._open[name] = task
+        return await asyncio.shield(task)
+
+    async def _open_log(self, provider: Provider, name: str) -> Log:
+        started = time.perf_counter()
+        source = await provider.open(name)
+        log = await Log.open(source, self._cache, self._workers, self._validate)
+        logger.info("opened log %r: %d frames, %s, in %.3f s", name, len(log.index), log.format.value, time.perf_counter() - started)
+        return log
+
+    async def describe(self) -> list[dict[str, Any]]:
+        """A summary of every log, opening those not yet open; a log that fails shows its error."""
+        await self.scan()
+        summaries = []
+        for name in self.names():
+            try:
+                summaries.append((await self.open(name)).describe())
+            except XVIZError as exc:
+                summaries.append({"name": name, "error": str(exc)})
+        return summaries

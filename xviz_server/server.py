@@ -1,0 +1,154 @@
+"""The XVIZ server: WebSocket sessions and a few HTTP endpoints on one port.
+
+HTTP requests that are not WebSocket handshakes get:
+
+* ``GET /`` (or ``/logs``): the catalog, JSON: every log with its format,
+  frame count, time range and stream names;
+* ``GET /healthz``: ``ok``;
+* ``GET /metrics``: the metrics in Prometheus text format.
+
+A WebSocket connection on any path is an XVIZ session (the path may name
+the log). Beyond ``max_sessions`` open connections, handshakes are refused
+with HTTP 503.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import logging
+import signal
+from http import HTTPStatus
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import orjson
+from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.http11 import Request, Response
+
+from . import __version__
+from .cache import FrameCache
+from .connection import Connection
+from .logs import Catalog
+from .metrics import CONTENT_TYPE, Metrics
+from .providers.static_log import StaticLogProvider
+from .settings import Settings
+from .work import Workers
+
+__all__ = ["XVIZServer", "run"]
+
+logger = logging.getLogger(__name__)
+
+MB = 1 << 20
+
+
+class XVIZServer:
+    """A running server; use as ``async with XVIZServer(settings) as server: ...``."""
+
+    def __init__(self, settings: Settings, data_dir: Path) -> None:
+        self.settings = settings
+        self.data_dir = data_dir
+        self.metrics = Metrics()
+        self.workers = Workers()
+        self.cache = FrameCache(int(settings.cache_mb * MB), self.metrics)
+        self.catalog = Catalog(
+            [StaticLogProvider(data_dir, self.workers)],
+            self.cache,
+            self.workers,
+            validate=settings.validate_frames,
+        )
+        self._server: Server | None = None
+        #: The sessions running now.
+        self.sessions: set[Connection] = set()
+
+    @property
+    def port(self) -> int:
+        """The TCP port listened on (useful when the settings asked for port 0)."""
+        assert self._server is not None, "server not started"
+        return self._server.sockets[0].getsockname()[1]
+
+    async def start(self) -> None:
+        """Find the logs and start listening."""
+        names = await self.catalog.scan()
+        logger.info("serving %d logs from %s", len(names), self.data_dir)
+        self._server = await serve(
+            self._handle,
+            self.settings.host,
+            self.settings.port,
+            process_request=self._process_request,
+            compression="deflate" if self.settings.compression else None,
+            max_size=self.settings.max_message_kb * 1024,
+            ping_interval=min(20.0, self.settings.idle_timeout),
+            ping_timeout=self.settings.idle_timeout,
+            close_timeout=min(10.0, self.settings.idle_timeout),
+            server_header=f"xviz-server/{__version__}",
+        )
+        logger.info("listening on ws://%s:%d/", self.settings.host, self.port)
+
+    async def close(self) -> None:
+        """Close every session with 1001 (going away) and stop listening."""
+        if self._server is not None:
+            self._server.close(close_connections=True)
+            await self._server.wait_closed()
+            self._server = None
+        self.workers.close()
+
+    async def __aenter__(self) -> XVIZServer:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: Any) -> None:
+        await self.close()
+
+    async def _handle(self, websocket: ServerConnection) -> None:
+        connection = Connection(
+            websocket,
+            self.catalog,
+            self.metrics,
+            read_ahead=self.settings.read_ahead,
+            lookback=self.settings.lookback,
+        )
+        self.sessions.add(connection)
+        try:
+            await connection.run()
+        finally:
+            self.sessions.discard(connection)
+
+    async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
+        if request.headers.get("Upgrade", "").lower() == "websocket":
+            if len(self.sessions) >= self.settings.max_sessions:
+                logger.warning("refused a session: %d sessions open", self.settings.max_sessions)
+                return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "too many sessions, try again later\n")
+            return None
+        path = urlsplit(request.path).path
+        if path == "/healthz":
+            return connection.respond(HTTPStatus.OK, "ok\n")
+        if path == "/metrics":
+            return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
+        if path in ("/", "/logs"):
+            body = {"server": f"xviz-server {__version__}", "logs": await self.catalog.describe()}
+            return _response(connection, HTTPStatus.OK, orjson.dumps(body, option=orjson.OPT_INDENT_2), "application/json")
+        return connection.respond(
+            HTTPStatus.NOT_FOUND,
+            "not found: open a WebSocket for an XVIZ session, or GET /, /healthz or /metrics\n",
+        )
+
+
+def _response(connection: ServerConnection, status: HTTPStatus, body: bytes, content_type: str) -> Response:
+    response = connection.respond(status, "")
+    del response.headers["Content-Type"], response.headers["Content-Length"]
+    response.headers["Content-Type"] = content_type
+    response.headers["Content-Length"] = str(len(body))
+    return dataclasses.replace(response, body=body)
+
+
+async def run(settings: Settings, data_dir: Path) -> None:
+    """Serve until SIGINT or SIGTERM, then close every session and stop."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, stop.set)
+    async with XVIZServer(settings, data_dir):
+        await stop.wait()
+        logger.info("shutting down: closing sessions")

@@ -1,0 +1,40 @@
+"""Server settings: command-line flags over ``XVIZ_*`` environment variables over defaults."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+__all__ = ["Settings"]
+
+
+class Settings(BaseSettings):
+    """Everything an operator can set; each field is also the ``XVIZ_<NAME>`` environment variable."""
+
+    model_config = SettingsConfigDict(env_prefix="XVIZ_", frozen=True)
+
+    data_dir: Path | None = Field(
+        default=None,
+        description="directory of logs to serve (each log a folder in the reference layout); "
+        "default: a built-in demo log",
+    )
+    host: str = Field(default="127.0.0.1", description="address to listen on (0.0.0.0 for every interface)")
+    port: int = Field(default=3000, ge=0, le=65535, description="TCP port for WebSocket and HTTP")
+    cache_mb: float = Field(default=512, gt=0, description="size of the frame cache shared by all sessions, MB")
+    max_sessions: int = Field(default=256, ge=1, description="connections beyond this are refused with HTTP 503")
+    max_message_kb: int = Field(default=1024, ge=1, description="largest message a client may send, KB")
+    idle_timeout: float = Field(
+        default=60, gt=0, description="close a connection whose client stops answering keepalive pings for this long, s"
+    )
+    compression: bool = Field(
+        default=False, description="offer permessage-deflate (costly for point clouds; for JSON over slow links)"
+    )
+    read_ahead: int = Field(default=4, ge=1, description="frames a streaming session loads ahead of the socket")
+    lookback: int = Field(
+        default=100, ge=1, description="most frames a point-in-time query merges to find a complete state"
+    )
+    validate_frames: bool = Field(
+        default=False, description="check every frame against the XVIZ schema when first loaded"
+    )
