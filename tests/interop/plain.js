@@ -5,6 +5,8 @@
 // they hold at most 1024 (or always, with `full`), else the first six as
 // "head"; images and other plain byte arrays become {"$bytes", "sha256"}.
 // The digest is of the array's bytes, so large point clouds compare exactly.
+// Plain arrays longer than 1024 (a JSON point cloud) become {"$array",
+// "sha256", "head"} unless `full`, the digest being of their JSON text.
 'use strict';
 
 const crypto = require('crypto');
@@ -31,6 +33,11 @@ function plain(value, full = false) {
     return out;
   }
   if (Array.isArray(value)) {
+    if (!full && value.length > SMALL) {
+      const text = JSON.stringify(value);
+      const sha256 = crypto.createHash('sha256').update(text).digest('hex');
+      return {$array: value.length, sha256, head: value.slice(0, 6).map(item => plain(item))};
+    }
     return value.map(item => plain(item, full));
   }
   if (value && typeof value === 'object') {
