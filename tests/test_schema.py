@@ -259,6 +259,23 @@ def test_non_finite_numpy_value_is_reported_at_its_path(validator: XVIZValidator
     assert not np.isfinite(points).all(), "the caller's array must not be touched"
 
 
+def test_long_json_number_lists_are_checked_like_arrays(validator: XVIZValidator) -> None:
+    """A point cloud decoded from JSON: its first rows and its finiteness are checked."""
+    points = np.zeros((1000, 3)).tolist()
+    points[500][1] = float("nan")
+    colors = [[0, 0, 0, 0, 0]] * 1000
+    update = point_cloud_update(points, colors)
+    where = "$.updates[0].primitives['/lidar/points'].points[0]"
+    problems = validator.errors("session/state_update", update)
+    assert f"{where}.points[500][1]: nan is not a finite number" in problems
+    assert f"{where}.colors[0]: [0, 0, 0, 0, 0] is too long" in problems
+    assert len(problems) == 1 + ARRAY_ROWS
+    ragged = [[0.0, 0.0, 0.0]] * 999 + [[0.0, 0.0]]  # not a block: every row is checked
+    assert validator.errors("session/state_update", point_cloud_update(ragged, [[0, 0, 0]] * 1000)) == [
+        f"{where}.points[999]: [0.0, 0.0] is too short"
+    ]
+
+
 def test_non_finite_float_is_reported(validator: XVIZValidator) -> None:
     pose = {"timestamp": float("inf"), "position": [0, 0, 0], "orientation": [0.0, float("nan"), 0]}
     assert validator.errors("core/pose", pose) == [

@@ -18,6 +18,10 @@ copy of the instance is made JSON-like; the caller's object is left alone:
   rows stand for the others, and no XVIZ ``minItems`` exceeds 64. A float
   array holding NaN or infinity is reported at the path of its first
   non-finite value, since JSON numbers are finite;
+* a list of more than 64 numbers or of equal-length lists of numbers (a
+  point cloud decoded from JSON) is treated like the numpy array it
+  stands for: its first 64 rows are validated and it is checked for
+  non-finite values;
 * a numpy scalar becomes the matching Python scalar;
 * ``bytes``, ``bytearray`` and ``memoryview`` (encoded images) become a
   short placeholder string, as images are base64 strings in JSON XVIZ;
@@ -148,6 +152,11 @@ def _json_like(value: Any, path: _Location, problems: list[_Problem]) -> Any:
     if isinstance(value, dict):
         return {key: _json_like(item, (*path, key), problems) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
+        if len(value) > ARRAY_ROWS:
+            block = _numeric_block(value)
+            if block is not None:
+                _check_finite(block, path, problems)
+                value = value[:ARRAY_ROWS]
         return [_json_like(item, (*path, index), problems) for index, item in enumerate(value)]
     if isinstance(value, float):
         if not math.isfinite(value):
@@ -161,6 +170,18 @@ def _json_like(value: Any, path: _Location, problems: list[_Problem]) -> Any:
     if isinstance(value, (bytes, bytearray, memoryview)):
         return f"<{memoryview(value).nbytes} bytes>"
     return value
+
+
+def _numeric_block(value: list[Any] | tuple[Any, ...]) -> np.ndarray | None:
+    """*value* as a float array if it is a rectangular block of numbers, else ``None``."""
+    first = value[0]
+    if isinstance(first, bool) or not isinstance(first, (int, float, list, tuple)):
+        return None
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return array if array.ndim <= 2 else None
 
 
 def _check_finite(array: np.ndarray, path: _Location, problems: list[_Problem]) -> None:
