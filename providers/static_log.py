@@ -38,7 +38,7 @@ INDEX_FILE = "0-frame.json"
 _FORMATS = {"json": Format.JSON, "glb": Format.BINARY}
 
 
-def _frame_files(directory: Path) -> dict[int, Path]:
+def frame_files(directory: Path) -> dict[int, Path]:
     """Message files of a log directory by file number (0 index, 1 metadata, 2+ frames)."""
     files = {}
     with os.scandir(directory) as entries:
@@ -77,7 +77,7 @@ class StaticLogProvider:
         directory = self._logs.get(name)
         if directory is None:
             raise LogError(f"log {name!r} is not under {self.root}", log=name)
-        files = await self._workers.io(_frame_files, directory)
+        files = await self._workers.io(frame_files, directory)
         return StaticLog(name, directory, files, self._workers)
 
 
