@@ -1,0 +1,1 @@
+"""Build XVIZ metadata and state updates from Python."""

@@ -1,0 +1,1 @@
+"""Readers and converters of raw datasets (KITTI raw, Waymo, VISTA) to XVIZ."""
