@@ -61,3 +61,15 @@ def test_schema_violations_and_missing_paths(tmp_path: Path):
     assert not report.ok
     text = report.render()
     assert "bad.json  INVALID  xviz/state_update" in text and text.endswith("3 files checked: 0 ok, 3 invalid, 0 warnings")
+
+
+def test_validate_command_exit_status_and_json(kitti_log: Path, shared_dir: Path, capsys):
+    from xviz_server.cli import main
+
+    assert main(["validate", str(kitti_log)]) == 0
+    assert capsys.readouterr().out.strip().endswith("27 files checked: 27 ok, 0 invalid, 0 warnings")
+    golden = shared_dir / "conformance" / "fixtures" / "minimal-state-update.glb"
+    assert main(["validate", "--json", str(golden)]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["ok"] is False and report["files"][0]["type"] == "xviz/state_update"
+    assert "$.data: 'update_type' is a required property" in report["files"][0]["problems"]

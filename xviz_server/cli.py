@@ -11,6 +11,7 @@ import typing
 from pathlib import Path
 from typing import Any, Callable, Coroutine, Sequence
 
+import orjson
 import pydantic
 
 from . import __version__
@@ -83,6 +84,14 @@ def _serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _validate(args: argparse.Namespace) -> int:
+    from .check import check_paths
+
+    report = check_paths(args.paths)
+    print(orjson.dumps(report.as_dict(), option=orjson.OPT_INDENT_2).decode() if args.json else report.render())
+    return 0 if report.ok else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="xviz-server",
@@ -99,6 +108,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_settings_options(serve)
     serve.set_defaults(run=_serve)
+
+    validate = commands.add_parser(
+        "validate",
+        help="check XVIZ files and log directories against the schema",
+        description="Check message files (GLB or JSON) and log directories against the XVIZ v2 schema and the "
+        "reference log layout (metadata, frames, index). Exit status 0 when everything is valid, 1 otherwise.",
+    )
+    validate.add_argument("paths", nargs="+", type=Path, metavar="PATH", help="a file, a log directory, or a directory of logs")
+    validate.add_argument("--json", action="store_true", help="print the report as JSON")
+    validate.set_defaults(run=_validate)
     return parser
 
 
