@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from serving import Client, client, running_server, ten_hz, timestamps, update, write_log
+from serving import client, running_server, ten_hz, timestamps, update, write_log
 from xviz_server.codec import Format
 
 KITTI = "kitti"
@@ -231,9 +231,9 @@ async def test_reconfigure_full_and_delta(root: Path):
         messages = await c.until("transform_log_done", "c")
         assert not messages[0]["_text"]  # back to the log's own format
 
-        await c.send("reconfigure", {"update_type": "DELTA", "config_update": {"message_format": "JSON", "decimate": 2}})
+        await c.send("reconfigure", {"update_type": "DELTA", "config_update": {"message_format": "JSON", "frame_skip": 2}})
         error = await c.recv()
-        assert error["type"] == "xviz/error" and "'decimate'" in error["data"]["message"] and "unchanged" in error["data"]["message"]
+        assert error["type"] == "xviz/error" and "'frame_skip'" in error["data"]["message"] and "unchanged" in error["data"]["message"]
         await c.send("transform_log", {"id": "d", "end_timestamp": 1317042146.0})
         messages = await c.until("transform_log_done", "d")
         assert not messages[0]["_text"]  # the rejected update changed nothing

@@ -22,12 +22,25 @@ from urllib.parse import parse_qsl, unquote, urlsplit
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
+from websockets.frames import CloseCode
 
 from .codec import Format
 from .exceptions import XVIZError
+from .live import FeedEvent, LiveRegistry, LiveSource, LiveUpdate, Subscription, Variant
 from .logs import Catalog
 from .metrics import Metrics
-from .session import Cancel, Event, OpenLog, QueryInstant, Send, Session, StreamFrames
+from .session import (
+    Cancel,
+    ConfigureLive,
+    Event,
+    OpenLog,
+    QueryInstant,
+    Send,
+    Session,
+    StreamFrames,
+    SubscribeLive,
+)
+from .settings import Settings
 
 __all__ = ["Connection"]
 
@@ -41,22 +54,24 @@ class Connection:
         self,
         websocket: ServerConnection,
         catalog: Catalog,
+        live: LiveRegistry,
         metrics: Metrics,
-        *,
-        read_ahead: int,
-        lookback: int,
+        settings: Settings,
     ) -> None:
         self.websocket = websocket
         self.catalog = catalog
+        self.live = live
         self.metrics = metrics
-        self.read_ahead = read_ahead
-        self.lookback = lookback
+        self.settings = settings
         url = urlsplit(websocket.request.path if websocket.request else "/")
         self.session = Session(
             path=unquote(url.path),
             query=dict(parse_qsl(url.query, keep_blank_values=True)),
             available=catalog.names(),
+            live=live.names(),
         )
+        self._subscription: Subscription | None = None
+        self._live_config: ConfigureLive | None = None
         self._stream: asyncio.Task[None] | None = None
         self._stop_stream: asyncio.Event | None = None
         self._tasks: set[asyncio.Task[None]] = set()
@@ -75,6 +90,8 @@ class Connection:
         except ConnectionClosed:
             pass
         finally:
+            if self._subscription is not None:
+                self._subscription.close()
             for task in self._tasks:
                 task.cancel()
             await asyncio.gather(*self._tasks, return_exceptions=True)
@@ -120,6 +137,18 @@ class Connection:
                 self._stream = self._spawn(self._run_stream(event, stop, self._stream))
             elif isinstance(event, QueryInstant):
                 self._spawn(self._run_query(event))
+            elif isinstance(event, SubscribeLive):
+                feed = self.live.find(event.name)
+                if feed is None:
+                    await self._execute(self.session.live_failed(event.name))
+                else:
+                    self._start_live(feed)
+            elif isinstance(event, ConfigureLive):
+                self._live_config = event
+                if self._subscription is not None:
+                    self._subscription.decimate = event.decimate
+                    if event.forward and not await self._subscription.feed.reconfigure(event.forward):
+                        logger.info("live feed %r does not accept configuration", self._subscription.feed.name)
 
     def _spawn(self, coroutine: Any) -> asyncio.Task[None]:
         task = asyncio.ensure_future(coroutine)
@@ -145,7 +174,7 @@ class Connection:
         following = 0
         try:
             for position in range(len(numbers)):
-                while len(ahead) < self.read_ahead and following < len(numbers):
+                while len(ahead) < self.settings.read_ahead and following < len(numbers):
                     ahead.append(asyncio.ensure_future(request.log.frame(numbers[following], request.fmt, request.streams)))
                     following += 1
                 loading = ahead.popleft()
@@ -179,11 +208,83 @@ class Connection:
             for loading in ahead:
                 loading.cancel()
 
+    def _start_live(self, feed: LiveSource) -> None:
+        if self._subscription is not None:
+            self._subscription.close()
+        config = self._live_config = self.session.live_config()
+        self._subscription = subscription = feed.subscribe(self.settings.live_queue, config.decimate)
+        self._spawn(self._run_live(subscription))
+        self._spawn(self._watch_lag(subscription))
+
+    async def _run_live(self, subscription: Subscription) -> None:
+        """Send the feed's metadata and latest state, then every update as it comes."""
+        feed = subscription.feed
+        behind = False
+        try:
+            if feed.metadata is None:
+                await self._send(self.session.live_notice(f"live feed {feed.name!r} has not started yet; waiting for it"))
+            else:
+                await self._send_live_start(feed)
+            while True:
+                item = await subscription.next()
+                dropped = subscription.take_drops()
+                if dropped and not behind:
+                    await self._send(self.session.live_notice(
+                        f"live feed {feed.name!r}: this viewer is behind; {dropped} updates were dropped "
+                        "(the oldest go first; viewers that stay behind are disconnected)"
+                    ))
+                behind = subscription.lagging_since is not None
+                if isinstance(item, FeedEvent):
+                    if item.kind == "metadata":
+                        await self._send_live_start(feed)
+                    else:
+                        await self._send(self.session.live_notice(
+                            f"live feed {feed.name!r} went away; this session stays open and resumes when it comes back"
+                        ))
+                    continue
+                await self._send_live_update(item)
+        except ConnectionClosed:
+            pass
+        finally:
+            subscription.close()
+
+    async def _send_live_start(self, feed: LiveSource) -> None:
+        config = self._live_config or self.session.live_config()
+        metadata = feed.metadata_message(config.fmt)
+        if metadata is not None:
+            await self.websocket.send(metadata, text=config.fmt is Format.JSON)
+        state = feed.state()
+        if state is not None:
+            await self._send_live_update(state)
+
+    async def _send_live_update(self, update: LiveUpdate) -> None:
+        config = self._live_config or self.session.live_config()
+        variant = Variant(config.fmt, config.streams, config.max_points)
+        data = await update.encoded(variant, self.live.workers)
+        await self.websocket.send(data, text=config.fmt is Format.JSON)
+        self.frames_sent += 1
+        self.bytes_sent += len(data)
+        self.metrics.frames_sent.labels(config.fmt.value).inc()
+        self.metrics.bytes_sent.labels(config.fmt.value).inc(len(data))
+
+    async def _watch_lag(self, subscription: Subscription) -> None:
+        """Disconnect a viewer that keeps dropping updates for ``live_lag_timeout``."""
+        limit = self.settings.live_lag_timeout
+        while True:
+            await asyncio.sleep(min(1.0, limit / 4))
+            since = subscription.lagging_since
+            if since is not None and time.monotonic() - since > limit:
+                logger.warning("live viewer %s too slow on %r: disconnecting", _remote(self.websocket), subscription.feed.name)
+                await self.websocket.close(
+                    CloseCode.TRY_AGAIN_LATER, f"too slow: dropped live updates for over {limit:g} s"
+                )
+                return
+
     async def _run_query(self, request: QueryInstant) -> None:
         received = time.perf_counter()
         try:
             try:
-                data = await request.log.complete_state(request.instant, request.fmt, request.streams, self.lookback)
+                data = await request.log.complete_state(request.instant, request.fmt, request.streams, self.settings.lookback)
             except XVIZError as exc:
                 await self._send(self.session.query_failed(request, exc))
                 return

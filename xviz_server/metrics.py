@@ -36,6 +36,9 @@ class Metrics:
         self.cache_evictions = Counter("xviz_cache_evictions", "Frames evicted from the cache.", registry=registry)
         self.cache_bytes = Gauge("xviz_cache_bytes", "Bytes held by the frame cache.", registry=registry)
         self.cache_entries = Gauge("xviz_cache_entries", "Frames held by the frame cache.", registry=registry)
+        self.live_drops = Counter(
+            "xviz_live_dropped_updates", "Live updates dropped for viewers that fell behind.", registry=registry
+        )
         self.request_seconds = Histogram(
             "xviz_request_seconds",
             "Time to answer a request, from receipt to its last message, by request type.",

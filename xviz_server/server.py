@@ -7,9 +7,10 @@ HTTP requests that are not WebSocket handshakes get:
 * ``GET /healthz``: ``ok``;
 * ``GET /metrics``: the metrics in Prometheus text format.
 
-A WebSocket connection on any path is an XVIZ session (the path may name
-the log). Beyond ``max_sessions`` open connections, handshakes are refused
-with HTTP 503.
+A WebSocket connection on ``/ingest/<name>`` is a live source feeding the
+live feed ``<name>`` (see :mod:`xviz_server.ingest`); on any other path it
+is an XVIZ session (the path may name the log). Beyond ``max_sessions``
+open sessions, handshakes are refused with HTTP 503.
 """
 
 from __future__ import annotations
@@ -30,9 +31,13 @@ from websockets.http11 import Request, Response
 from . import __version__
 from .cache import FrameCache
 from .connection import Connection
+from .exceptions import LogError
+from .ingest import feed_name, refusal, run_ingest
+from .live import LiveRegistry
 from .logs import Catalog
 from .metrics import CONTENT_TYPE, Metrics
 from .providers.static_log import StaticLogProvider
+from .replay import replay
 from .settings import Settings
 from .work import Workers
 
@@ -58,7 +63,10 @@ class XVIZServer:
             self.workers,
             validate=settings.validate_frames,
         )
+        #: The live feeds; programs embedding the server publish with ``server.live.feed(name)``.
+        self.live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
         self._server: Server | None = None
+        self._replay: asyncio.Task[None] | None = None
         #: The sessions running now.
         self.sessions: set[Connection] = set()
 
@@ -72,6 +80,8 @@ class XVIZServer:
         """Find the logs and start listening."""
         names = await self.catalog.scan()
         logger.info("serving %d logs from %s", len(names), self.data_dir)
+        if self.settings.live_from is not None:
+            await self._start_replay(self.settings.live_from)
         self._server = await serve(
             self._handle,
             self.settings.host,
@@ -86,8 +96,21 @@ class XVIZServer:
         )
         logger.info("listening on ws://%s:%d/", self.settings.host, self.port)
 
+    async def _start_replay(self, directory: Path) -> None:
+        """Replay a static log as the live feed named after its folder."""
+        catalog = Catalog([StaticLogProvider(directory, self.workers)], self.cache, self.workers)
+        (name,) = await catalog.scan() or [None]
+        if name is None:
+            raise LogError(f"--live-from {directory}: no log in the reference layout there", log=str(directory))
+        log = await catalog.open(name)
+        feed = self.live.feed(log.name)
+        self._replay = asyncio.ensure_future(replay(log, feed, rate=self.settings.rate, loop=self.settings.loop))
+        logger.info("replaying %r as a live feed at %gx%s", log.name, self.settings.rate, ", looping" if self.settings.loop else "")
+
     async def close(self) -> None:
         """Close every session with 1001 (going away) and stop listening."""
+        if self._replay is not None:
+            self._replay.cancel()
         if self._server is not None:
             self._server.close(close_connections=True)
             await self._server.wait_closed()
@@ -102,13 +125,11 @@ class XVIZServer:
         await self.close()
 
     async def _handle(self, websocket: ServerConnection) -> None:
-        connection = Connection(
-            websocket,
-            self.catalog,
-            self.metrics,
-            read_ahead=self.settings.read_ahead,
-            lookback=self.settings.lookback,
-        )
+        assert websocket.request is not None
+        if feed_name(websocket.request.path) is not None:
+            await run_ingest(websocket, self.live)
+            return
+        connection = Connection(websocket, self.catalog, self.live, self.metrics, self.settings)
         self.sessions.add(connection)
         try:
             await connection.run()
@@ -117,6 +138,12 @@ class XVIZServer:
 
     async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
         if request.headers.get("Upgrade", "").lower() == "websocket":
+            if feed_name(request.path) is not None:
+                reason = refusal(request, connection.remote_address, self.settings.ingest_token)
+                if reason is not None:
+                    logger.warning("refused a live source from %s: %s", connection.remote_address, reason)
+                    return connection.respond(HTTPStatus.FORBIDDEN, reason + "\n")
+                return None
             if len(self.sessions) >= self.settings.max_sessions:
                 logger.warning("refused a session: %d sessions open", self.settings.max_sessions)
                 return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "too many sessions, try again later\n")
@@ -127,7 +154,8 @@ class XVIZServer:
         if path == "/metrics":
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
         if path in ("/", "/logs"):
-            body = {"server": f"xviz-server {__version__}", "logs": await self.catalog.describe()}
+            live = [{"name": feed.name, "connected": feed.connected} for feed in self.live]
+            body = {"server": f"xviz-server {__version__}", "logs": await self.catalog.describe(), "live": live}
             return _response(connection, HTTPStatus.OK, orjson.dumps(body, option=orjson.OPT_INDENT_2), "application/json")
         return connection.respond(
             HTTPStatus.NOT_FOUND,

@@ -33,7 +33,6 @@ from .messages import (
     TransformLog,
     TransformLogDone,
     TransformPointInTime,
-    envelope,
     parse_client_message,
 )
 
@@ -46,6 +45,8 @@ __all__ = [
     "StreamFrames",
     "QueryInstant",
     "Cancel",
+    "SubscribeLive",
+    "ConfigureLive",
     "Event",
 ]
 
@@ -113,7 +114,32 @@ class Cancel:
     """Stop the running stream after its frame in flight; it still sends its ``done``."""
 
 
-Event = Union[Send, OpenLog, StreamFrames, QueryInstant, Cancel]
+@dataclass(frozen=True)
+class SubscribeLive:
+    """Join the live feed a client asked for (``None``: any), then push its updates.
+
+    If there is no such feed, call :meth:`Session.live_failed`.
+    """
+
+    name: str | None
+
+
+@dataclass(frozen=True)
+class ConfigureLive:
+    """The live session's configuration changed: use it for later updates.
+
+    ``forward`` is the client's ``config_update``, for a source that accepts
+    configuration.
+    """
+
+    fmt: Format
+    streams: frozenset[str] | None
+    decimate: int
+    max_points: int | None
+    forward: dict[str, Any]
+
+
+Event = Union[Send, OpenLog, StreamFrames, QueryInstant, Cancel, SubscribeLive, ConfigureLive]
 
 
 # ------------------------------------------------------------ configuration
@@ -126,12 +152,16 @@ class SessionConfig(pydantic.BaseModel):
     of each request's own filter. ``message_format``: format of later
     messages (``None``: the session's start format). ``speed``: pace streams
     at this multiple of the log's rate (``None``: as fast as the client reads).
+    Live sessions only: ``decimate``, send every n-th update; ``max_points``,
+    thin every point cloud to at most this many points.
     """
 
     model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
     desired_streams: list[str] | None = None
     message_format: Format | None = None
     speed: float | None = pydantic.Field(default=None, gt=0, allow_inf_nan=False)
+    decimate: int | None = pydantic.Field(default=None, ge=1)
+    max_points: int | None = pydantic.Field(default=None, ge=1)
 
     @pydantic.field_validator("message_format", mode="before")
     @classmethod
@@ -172,12 +202,19 @@ class Session:
 
     ``path`` and ``query`` come from the URL the client connected to;
     ``available`` lists the logs the server can open (to pick the only one
-    when the client names none, and to list them when it must choose).
+    when the client names none, and to list them when it must choose);
+    ``live`` lists the live feeds.
+
+    A session is LIVE when the client says so (``session_type=live``), or
+    when it names its log only by ``logGuid`` (as streetscape.gl's
+    ``XVIZLiveLoader`` does) and that name is a live feed, or is no log
+    while the server has a single live feed.
     """
 
     path: str
     query: Mapping[str, str]
     available: Sequence[str]
+    live: Sequence[str] = ()
     start: Start = field(init=False, default_factory=Start)
     config: SessionConfig = field(init=False, default_factory=SessionConfig)
     log: LogView | None = field(init=False, default=None)
@@ -225,6 +262,25 @@ class Session:
         self.log = log
         return [Send(log.metadata_message(self.format), text=self.format is Format.JSON)]
 
+    def live_failed(self, name: str | None) -> list[Event]:
+        """No live feed answers to the name the client asked for."""
+        shown = ", ".join(repr(n) for n in self.live) or "none"
+        return [self._error("live", f"no live feed named {name!r}; live feeds: {shown}")]
+
+    def live_notice(self, text: str) -> Send:
+        """Tell a live viewer about the feed (it went away, updates were dropped)."""
+        return self._error("live", text)
+
+    def live_config(self, forward: dict[str, Any] | None = None) -> ConfigureLive:
+        """The live configuration now in force."""
+        return ConfigureLive(
+            fmt=self.format,
+            streams=_stream_filter(self.config.desired_streams),
+            decimate=self.config.decimate or 1,
+            max_points=self.config.max_points,
+            forward=forward or {},
+        )
+
     def log_failed(self, error: XVIZError) -> list[Event]:
         """The log asked for with :class:`OpenLog` cannot be served."""
         self.log = None
@@ -252,14 +308,22 @@ class Session:
         chosen = self.config.message_format or self.start.message_format
         if chosen is not None:
             return chosen
-        return self.log.format if self.log is not None else Format.JSON
+        if self.log is not None:
+            return self.log.format
+        # Live point clouds are far cheaper as GLB; before a log opens, errors are JSON.
+        return Format.BINARY if self.start.session_type is SessionType.LIVE else Format.JSON
 
     # -- handlers -------------------------------------------------------
 
     def _begin(self) -> list[Event]:
-        if self.start.session_type is SessionType.LIVE:
-            return [self._error("live", "session_type LIVE: this server has no live feeds; connect without session_type to replay a log")]
         name = self.start.log
+        guid_only = "logGuid" in self.query and "log" not in self.query and self.start.session_type is None
+        if guid_only and (name in self.live or (name not in self.available and len(self.live) == 1)):
+            self.start = self.start.model_copy(update={"session_type": SessionType.LIVE})
+        if self.start.session_type is SessionType.LIVE:
+            if not self.live:
+                return [self._error("live", "session_type LIVE: this server has no live feeds; connect without session_type to replay a log")]
+            return [SubscribeLive(name)]
         if name is None:
             if len(self.available) == 1:
                 name = self.available[0]
@@ -324,13 +388,19 @@ class Session:
         except pydantic.ValidationError as exc:
             known = ", ".join(SessionConfig.model_fields)
             return [self._error("reconfigure", f"xviz/reconfigure: {_first_problem(exc)} (supported keys: {known}); configuration unchanged")]
+        if self.start.session_type is SessionType.LIVE:
+            return [self.live_config(request.config_update)]
         return []
 
     # -- helpers --------------------------------------------------------
 
     def _require_log(self, kind: str, request_id: str) -> LogView | Send:
         if self.start.session_type is SessionType.LIVE:
-            return self._error("live", f"{kind} (id {request_id!r}): not available in a LIVE session")
+            return self._error(
+                "live",
+                f"{kind} (id {request_id!r}): not available in a LIVE session, whose updates are pushed "
+                "as they happen; connect without session_type=live to request ranges of a log",
+            )
         if self.log is None:
             return self._error("log", f"{kind} (id {request_id!r}): no log is open; {self._choose_a_log()}")
         return self.log

@@ -38,3 +38,16 @@ class Settings(BaseSettings):
     validate_frames: bool = Field(
         default=False, description="check every frame against the XVIZ schema when first loaded"
     )
+    ingest_token: str | None = Field(
+        default=None,
+        description="token that live sources must give to push to /ingest/NAME (Authorization: Bearer or "
+        "?token=); without one, only loopback sources are accepted",
+    )
+    live_queue: int = Field(default=32, ge=1, description="updates a live viewer may fall behind before the oldest are dropped")
+    live_lag_timeout: float = Field(
+        default=30, gt=0, description="disconnect a live viewer that keeps dropping updates for this long, s"
+    )
+    live_from: Path | None = Field(default=None, description="replay this static log as a live feed named after its folder")
+    rate: float = Field(default=1.0, gt=0, description="playback rate of --live-from (1 is real time)")
+    loop: bool = Field(default=False, description="replay --live-from over and over")
+    record: Path | None = Field(default=None, description="record every live feed as a static log under this directory")

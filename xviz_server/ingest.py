@@ -1,0 +1,105 @@
+"""Network ingest: a live source pushes its messages over a WebSocket.
+
+A vehicle or simulator connects to ``/ingest/<name>`` and sends
+``xviz/metadata``, then ``xviz/state_update`` messages (JSON or GLB), to the
+live feed ``<name>``. With ``?reconfigure=1`` it declares that it accepts
+configuration: the ``config_update`` of each viewer's ``xviz/reconfigure``
+is then sent to it as an ``xviz/reconfigure`` message. A bad message gets an
+``xviz/error`` back; the feed goes on.
+
+Access: with an ingest token configured, the source must give it (header
+``Authorization: Bearer <token>`` or query ``token=``); without one, only
+sources on the loopback interface are accepted.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import logging
+from typing import Any
+from urllib.parse import parse_qsl, unquote, urlsplit
+
+from websockets.asyncio.server import ServerConnection
+from websockets.exceptions import ConnectionClosed
+from websockets.frames import CloseCode
+from websockets.http11 import Request
+
+from .codec import decode, encode_json
+from .exceptions import DecodeError, MessageError, XVIZError
+from .live import LiveRegistry
+from .logs import check_log_name
+from .messages import Error, envelope, unwrap
+
+__all__ = ["INGEST_PREFIX", "feed_name", "refusal", "run_ingest"]
+
+logger = logging.getLogger(__name__)
+
+INGEST_PREFIX = "/ingest/"
+
+
+def feed_name(path: str) -> str | None:
+    """The feed named by an ingest URL path, or ``None`` if it is not one."""
+    route = unquote(urlsplit(path).path)
+    return route[len(INGEST_PREFIX):] if route.startswith(INGEST_PREFIX) else None
+
+
+def refusal(request: Request, remote: Any, token: str | None) -> str | None:
+    """Why an ingest connection is refused, or ``None`` if it is allowed."""
+    name = feed_name(request.path) or ""
+    try:
+        check_log_name(name)
+    except XVIZError as exc:
+        return f"bad feed name: {exc}"
+    if token is None:
+        host = remote[0] if remote else ""
+        try:
+            if ipaddress.ip_address(host.split("%")[0]).is_loopback:
+                return None
+        except ValueError:
+            pass
+        return "ingest from other hosts needs a token; start the server with --ingest-token"
+    given = dict(parse_qsl(urlsplit(request.path).query)).get("token")
+    authorization = request.headers.get("Authorization", "")
+    if authorization.startswith("Bearer "):
+        given = authorization.removeprefix("Bearer ")
+    if given is None or not hmac.compare_digest(given.encode(), token.encode()):
+        return "wrong or missing ingest token"
+    return None
+
+
+async def run_ingest(websocket: ServerConnection, live: LiveRegistry) -> None:
+    """Feed the live feed named by the connection's path until the source leaves."""
+    assert websocket.request is not None
+    name = feed_name(websocket.request.path)
+    assert name is not None
+    feed = live.feed(name)
+    if feed.connected:
+        await websocket.close(CloseCode.POLICY_VIOLATION, f"live feed {name!r} already has a source")
+        return
+    accepts = dict(parse_qsl(urlsplit(websocket.request.path).query)).get("reconfigure") in ("1", "true")
+    if accepts:
+        async def forward(config_update: dict[str, Any]) -> None:
+            await websocket.send(encode_json(envelope("reconfigure", {"update_type": "DELTA", "config_update": config_update})), text=True)
+
+        feed.on_reconfigure = forward
+    feed.connected = True
+    logger.info("live source connected to %r from %s", name, websocket.remote_address)
+    try:
+        async for data in websocket:
+            try:
+                kind, content = unwrap(decode(data))
+                if kind == "xviz/metadata":
+                    feed.set_metadata(content)
+                elif kind == "xviz/state_update":
+                    await feed.publish(data if isinstance(data, bytes) else data.encode())
+                else:
+                    raise XVIZError(f"a live source sends xviz/metadata and xviz/state_update, not {kind!r}")
+            except (DecodeError, MessageError, XVIZError) as exc:
+                await websocket.send(encode_json(Error(message=f"live feed {name!r}: {exc}").to_envelope()), text=True)
+    except ConnectionClosed:
+        pass
+    finally:
+        feed.on_reconfigure = None
+        feed.disconnect()
+        logger.info("live source of %r went away", name)

@@ -1,0 +1,330 @@
+"""Live feeds: updates pushed by a running system, fanned out to viewers.
+
+A :class:`LiveSource` is one named feed. Whatever feeds it (a program in the
+same process, a vehicle over the ingest WebSocket, a log replayed in real
+time) calls :meth:`LiveSource.set_metadata` and :meth:`LiveSource.publish`.
+Each viewer holds a :class:`Subscription`: a bounded queue that drops its
+oldest updates when the viewer falls behind, so that neither the source nor
+the other viewers ever wait for it.
+
+An update is decoded once and encoded once per :class:`Variant` (format,
+stream filter, point budget) that some viewer asked for; the bytes are
+shared. The feed also keeps the latest complete state, so that a viewer
+who joins late draws at once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Awaitable, Callable, Iterator, Mapping
+
+import numpy as np
+
+from .codec import Format, decode, detect_format, encode
+from .exceptions import XVIZError
+from .messages import envelope, unwrap
+from .state import COMPLETE_TYPES, complete_state, filter_streams
+from .work import Workers
+
+__all__ = ["Variant", "LiveUpdate", "Subscription", "LiveSource", "LiveRegistry", "downsample_points"]
+
+logger = logging.getLogger(__name__)
+
+Reconfigure = Callable[[dict[str, Any]], Awaitable[None]]
+
+
+@dataclass(frozen=True)
+class Variant:
+    """How one viewer wants updates: format, streams (``None``: all), most points per cloud."""
+
+    fmt: Format
+    streams: frozenset[str] | None = None
+    max_points: int | None = None
+
+
+def downsample_points(message: dict[str, Any], max_points: int) -> dict[str, Any]:
+    """``message`` with every point cloud thinned to at most ``max_points`` points.
+
+    Every k-th point is kept (with its colour), k the smallest stride that
+    fits; arrays are sliced, not copied.
+    """
+    def thin(cloud: dict[str, Any]) -> dict[str, Any]:
+        points = cloud.get("points")
+        count = len(points) if points is not None else 0
+        if count <= max_points or not isinstance(points, np.ndarray):
+            return cloud
+        stride = -(-count // max_points)
+        result = {**cloud, "points": points[::stride]}
+        colors = cloud.get("colors")
+        if isinstance(colors, np.ndarray) and len(colors) == count:
+            result["colors"] = colors[::stride]
+        return result
+
+    updates = []
+    for stream_set in message["data"].get("updates") or ():
+        primitives = {
+            name: {**state, "points": [thin(cloud) for cloud in state["points"]]} if "points" in state else state
+            for name, state in (stream_set.get("primitives") or {}).items()
+        }
+        updates.append({**stream_set, "primitives": primitives} if primitives else stream_set)
+    return {**message, "data": {**message["data"], "updates": updates}}
+
+
+def render(message: dict[str, Any], variant: Variant) -> bytes:
+    """Encode ``message`` for ``variant``."""
+    if variant.streams is not None:
+        message = filter_streams(message, variant.streams)
+    if variant.max_points is not None:
+        message = downsample_points(message, variant.max_points)
+    return encode(message, variant.fmt)
+
+
+class LiveUpdate:
+    """One state update of a feed, decoded once and encoded once per variant."""
+
+    def __init__(self, number: int, message: dict[str, Any], original: bytes | None = None) -> None:
+        self.number = number
+        self.message = message
+        self._encodings: dict[Variant, asyncio.Future[bytes]] = {}
+        if original is not None:
+            future = asyncio.get_running_loop().create_future()
+            future.set_result(original)
+            self._encodings[Variant(detect_format(original))] = future
+
+    @property
+    def timestamp(self) -> float | None:
+        updates = self.message["data"].get("updates") or [{}]
+        return updates[-1].get("timestamp")
+
+    async def encoded(self, variant: Variant, workers: Workers) -> bytes:
+        """The bytes of this update for ``variant``; the first viewer to ask encodes them."""
+        future = self._encodings.get(variant)
+        if future is None:
+            future = asyncio.ensure_future(self._encode(variant, workers))
+            self._encodings[variant] = future
+        return await asyncio.shield(future)
+
+    async def _encode(self, variant: Variant, workers: Workers) -> bytes:
+        if variant.fmt is Format.JSON:
+            return await workers.cpu(render, self.message, variant)
+        return await workers.io(render, self.message, variant)
+
+
+@dataclass(frozen=True)
+class FeedEvent:
+    """Something happened to the feed itself, in a subscription's queue."""
+
+    kind: str  # "metadata" (new metadata) or "gone" (the source went away)
+
+
+class Subscription:
+    """A viewer's bounded queue of a feed's updates.
+
+    When full, the oldest update is dropped; :attr:`dropped` counts them
+    until the viewer is told (:meth:`take_drops`). :attr:`lagging_since` is
+    when the current run of drops began, for disconnecting a viewer that
+    stays hopelessly behind.
+    """
+
+    def __init__(self, feed: LiveSource, size: int, decimate: int = 1) -> None:
+        self.feed = feed
+        self.decimate = decimate
+        self._queue: deque[LiveUpdate | FeedEvent] = deque()
+        self._size = size
+        self._ready = asyncio.Event()
+        self._seen = 0
+        self.dropped = 0
+        self.lagging_since: float | None = None
+
+    def offer(self, item: LiveUpdate | FeedEvent) -> None:
+        """Queue an update (every ``decimate``-th) or a feed event; never waits."""
+        if isinstance(item, LiveUpdate):
+            self._seen += 1
+            if (self._seen - 1) % self.decimate:
+                return
+            updates = sum(isinstance(i, LiveUpdate) for i in self._queue)
+            if updates >= self._size:
+                oldest = next(i for i in self._queue if isinstance(i, LiveUpdate))
+                self._queue.remove(oldest)
+                self.dropped += 1
+                self.feed.registry.metrics_drop()
+                if self.lagging_since is None:
+                    self.lagging_since = time.monotonic()
+        self._queue.append(item)
+        self._ready.set()
+
+    async def next(self) -> LiveUpdate | FeedEvent:
+        """The next update or feed event, waiting for one."""
+        while not self._queue:
+            self._ready.clear()
+            await self._ready.wait()
+        item = self._queue.popleft()
+        if not self._queue:
+            self.lagging_since = None  # caught up
+        return item
+
+    def take_drops(self) -> int:
+        """Updates dropped since the last call."""
+        dropped, self.dropped = self.dropped, 0
+        return dropped
+
+    def close(self) -> None:
+        self.feed.unsubscribe(self)
+
+
+class LiveSource:
+    """A named live feed.
+
+    Feed it with :meth:`set_metadata` then :meth:`publish`; call
+    :meth:`disconnect` when the system feeding it stops (viewers stay and
+    resume when it comes back). ``on_reconfigure``, when set, receives the
+    ``config_update`` of every ``xviz/reconfigure`` a viewer sends: the
+    source then "accepts configuration".
+    """
+
+    def __init__(self, name: str, registry: LiveRegistry) -> None:
+        self.name = name
+        self.registry = registry
+        self.metadata: dict[str, Any] | None = None
+        self.on_reconfigure: Reconfigure | None = None
+        self.connected = False
+        self._metadata_messages: dict[Format, bytes] = {}
+        self._state: dict[str, Any] | None = None
+        self._subscribers: set[Subscription] = set()
+        self._numbers = itertools.count()
+        self._listeners: list[Callable[[LiveUpdate], None]] = []
+
+    # -- the source side ------------------------------------------------
+
+    def set_metadata(self, metadata: Mapping[str, Any]) -> None:
+        """Set the feed's metadata (the data of ``xviz/metadata``); viewers get it if it changed."""
+        data = dict(metadata)
+        data.setdefault("version", "2.0.0")
+        self.connected = True
+        if data == self.metadata:
+            return
+        self.metadata = data
+        self._metadata_messages = {fmt: encode(envelope("metadata", data), fmt) for fmt in Format}
+        self._state = None
+        for subscriber in self._subscribers:
+            subscriber.offer(FeedEvent("metadata"))
+
+    async def publish(self, frame: Mapping[str, Any] | bytes) -> LiveUpdate:
+        """Send a state update to every viewer.
+
+        ``frame`` is the data of an ``xviz/state_update`` (as the builder makes
+        it), an envelope, or an encoded message (GLB or JSON bytes, kept as
+        they are for viewers of that format). Raises
+        :class:`~xviz_server.exceptions.XVIZError` if it is not a state update
+        or no metadata was set.
+        """
+        if self.metadata is None:
+            raise XVIZError(f"live feed {self.name!r}: set the metadata before publishing updates")
+        original = bytes(frame) if isinstance(frame, (bytes, bytearray, memoryview)) else None
+        if original is not None:
+            decoded = decode(original) if detect_format(original) is Format.BINARY else await self.registry.workers.cpu(decode, original)
+        else:
+            decoded = frame
+        kind, data = unwrap(decoded)
+        if kind != "xviz/state_update" or not isinstance(data, dict) or not data.get("updates"):
+            raise XVIZError(f"live feed {self.name!r}: expected an xviz/state_update with updates, got {kind!r}")
+        data.setdefault("update_type", "INCREMENTAL")
+        message = envelope("state_update", data)
+        update = LiveUpdate(next(self._numbers), message, original)
+        self._remember(message)
+        for subscriber in self._subscribers:
+            subscriber.offer(update)
+        for listener in self._listeners:
+            listener(update)
+        return update
+
+    def disconnect(self) -> None:
+        """The system feeding this feed went away; viewers are told and wait for it."""
+        self.connected = False
+        for subscriber in self._subscribers:
+            subscriber.offer(FeedEvent("gone"))
+
+    # -- the viewer side --------------------------------------------------
+
+    def metadata_message(self, fmt: Format) -> bytes | None:
+        """The metadata, encoded, or ``None`` before the source set any."""
+        return self._metadata_messages.get(fmt)
+
+    def state(self) -> LiveUpdate | None:
+        """The latest complete state, as an update a late viewer can draw at once."""
+        return None if self._state is None else LiveUpdate(-1, self._state)
+
+    def subscribe(self, size: int, decimate: int = 1) -> Subscription:
+        subscription = Subscription(self, size, decimate)
+        self._subscribers.add(subscription)
+        return subscription
+
+    def unsubscribe(self, subscription: Subscription) -> None:
+        self._subscribers.discard(subscription)
+
+    def listen(self, listener: Callable[[LiveUpdate], None]) -> None:
+        """Call ``listener`` with every update, synchronously (for recording)."""
+        self._listeners.append(listener)
+
+    async def reconfigure(self, config_update: dict[str, Any]) -> bool:
+        """Pass a viewer's configuration change to the source; whether it accepts any."""
+        if self.on_reconfigure is None:
+            return False
+        await self.on_reconfigure(config_update)
+        return True
+
+    def _remember(self, message: dict[str, Any]) -> None:
+        if str(message["data"].get("update_type", "")).upper() in COMPLETE_TYPES or self._state is None:
+            merged = [message]
+        else:
+            merged = [message, self._state]
+        self._state, _ = complete_state(merged)
+
+
+class LiveRegistry:
+    """Every live feed of a server, by name."""
+
+    def __init__(self, workers: Workers, on_drop: Callable[[], None] = lambda: None) -> None:
+        self.workers = workers
+        self._feeds: dict[str, LiveSource] = {}
+        self._on_drop = on_drop
+
+    def __iter__(self) -> Iterator[LiveSource]:
+        return iter(self._feeds.values())
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._feeds
+
+    def names(self) -> list[str]:
+        return sorted(self._feeds)
+
+    def feed(self, name: str) -> LiveSource:
+        """The feed called ``name``, created if new."""
+        source = self._feeds.get(name)
+        if source is None:
+            source = self._feeds[name] = LiveSource(name, self)
+            logger.info("live feed %r created", name)
+        return source
+
+    def find(self, name: str | None) -> LiveSource | None:
+        """The feed a viewer asking for ``name`` gets.
+
+        With a single feed, a viewer gets it whatever name it asks for (the
+        streetscape.gl example asks for ``mock``).
+        """
+        if name in self._feeds:
+            return self._feeds[name]
+        if len(self._feeds) == 1:
+            (only,) = self._feeds.values()
+            if name is not None:
+                logger.info("live session asked for %r; serving the only live feed %r", name, only.name)
+            return only
+        return None
+
+    def metrics_drop(self) -> None:
+        self._on_drop()
