@@ -92,6 +92,28 @@ def _validate(args: argparse.Namespace) -> int:
     return 0 if report.ok else 1
 
 
+def _probe(args: argparse.Namespace) -> int:
+    from .codec import Format
+    from .probe import Instant, probe
+
+    try:
+        times = {key: Instant.parse(getattr(args, key)) if getattr(args, key) is not None else None
+                 for key in ("start", "end", "point_in_time")}
+        report = _run_async(probe(
+            args.url,
+            fmt=Format(args.format.upper()) if args.format else None,
+            streams=args.streams,
+            validate=args.validate,
+            timeout=args.timeout,
+            **times,
+        ))
+    except ValueError as exc:
+        print(f"xviz-server probe: {exc}", file=sys.stderr)
+        return 2
+    print(orjson.dumps(report.as_dict(), option=orjson.OPT_INDENT_2).decode() if args.json else report.render())
+    return 0 if report.clean else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="xviz-server",
@@ -118,6 +140,24 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("paths", nargs="+", type=Path, metavar="PATH", help="a file, a log directory, or a directory of logs")
     validate.add_argument("--json", action="store_true", help="print the report as JSON")
     validate.set_defaults(run=_validate)
+
+    probe = commands.add_parser(
+        "probe",
+        help="run a scripted session against a server (CI smoke test)",
+        description="Connect like streetscape.gl, request a range (and an instant), check every message and "
+        "print a summary. Times are seconds, or +seconds from the log's start. Exit status 0 only when "
+        "the session was clean.",
+    )
+    probe.add_argument("url", help="ws://HOST:PORT/?log=NAME")
+    probe.add_argument("--format", choices=["json", "binary"], type=str.lower, help="message_format to ask for")
+    probe.add_argument("--start", metavar="T", help="start of the range (default: the log's start)")
+    probe.add_argument("--end", metavar="T", help="end of the range (default: the log's end)")
+    probe.add_argument("--streams", nargs="+", metavar="STREAM", help="ask for these streams only")
+    probe.add_argument("--point-in-time", metavar="T", help="also ask for the complete state at this time")
+    probe.add_argument("--validate", action="store_true", help="check every message against the XVIZ schema")
+    probe.add_argument("--timeout", type=float, default=30.0, metavar="S", help="give up after S seconds (default 30)")
+    probe.add_argument("--json", action="store_true", help="print the summary as JSON")
+    probe.set_defaults(run=_probe)
     return parser
 
 
