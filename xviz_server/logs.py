@@ -164,10 +164,17 @@ class Log:
         type is complete (``COMPLETE_STATE``/``SNAPSHOT``), at most
         ``lookback``. Raises :class:`~xviz_server.exceptions.XVIZError` when
         the log has no state at that time.
+
+        Every instant between two frames has the same answer, so answers are
+        kept in the frame cache by the frame they end at.
         """
         position = self.index.at(instant)
         if position is None:
             raise XVIZError(f"the log has no state at or before {instant} (it starts at {self.index.start_time})")
+        key = (self.name, "state", position, fmt, streams, lookback)
+        return await self._cache.get(key, lambda: self._merge(position, fmt, streams, lookback))
+
+    async def _merge(self, position: int, fmt: Format, streams: frozenset[str] | None, lookback: int) -> bytes:
         numbers = []
         for back in range(position, max(-1, position - lookback), -1):
             number = int(self.index.frames[back])
