@@ -293,7 +293,7 @@ def main() -> None:
         print(f"server: cold {first['cold_ms']:.1f} ms, warm {first['warm_ms']:.2f} ms; "
               f"reference (pre-loaded): {reference_first['warm_ms']:.2f} ms")
 
-        section(f"3. point-in-time latency (random instants, one client, sequential)")
+        section("3. point-in-time latency (random instants, one client, sequential)")
         started = time.perf_counter()
         long_log(root / "long", long_frames)
         print(f"generated a {long_frames}-frame log in {time.perf_counter() - started:.1f} s")
