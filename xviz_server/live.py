@@ -293,6 +293,7 @@ class LiveRegistry:
         self.workers = workers
         self._feeds: dict[str, LiveSource] = {}
         self._on_drop = on_drop
+        self._on_feed: list[Callable[[LiveSource], None]] = []
 
     def __iter__(self) -> Iterator[LiveSource]:
         return iter(self._feeds.values())
@@ -309,7 +310,13 @@ class LiveRegistry:
         if source is None:
             source = self._feeds[name] = LiveSource(name, self)
             logger.info("live feed %r created", name)
+            for callback in self._on_feed:
+                callback(source)
         return source
+
+    def on_feed(self, callback: Callable[[LiveSource], None]) -> None:
+        """Call ``callback`` with every feed created from now on."""
+        self._on_feed.append(callback)
 
     def find(self, name: str | None) -> LiveSource | None:
         """The feed a viewer asking for ``name`` gets.

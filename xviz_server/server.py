@@ -37,6 +37,7 @@ from .live import LiveRegistry
 from .logs import Catalog
 from .metrics import CONTENT_TYPE, Metrics
 from .providers.static_log import StaticLogProvider
+from .record import Recorder
 from .replay import replay
 from .settings import Settings
 from .work import Workers
@@ -67,6 +68,7 @@ class XVIZServer:
         self.live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
         self._server: Server | None = None
         self._replay: asyncio.Task[None] | None = None
+        self._recorder = Recorder(settings.record, self.live, self.workers) if settings.record else None
         #: The sessions running now.
         self.sessions: set[Connection] = set()
 
@@ -115,6 +117,8 @@ class XVIZServer:
             self._server.close(close_connections=True)
             await self._server.wait_closed()
             self._server = None
+        if self._recorder is not None:
+            await self._recorder.close()
         self.workers.close()
 
     async def __aenter__(self) -> XVIZServer:
