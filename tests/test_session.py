@@ -12,7 +12,7 @@ from xviz_server.codec import Format, decode, encode
 from xviz_server.exceptions import LogNotFound
 from xviz_server.index import TimeIndex
 from xviz_server.messages import envelope
-from xviz_server.session import Cancel, OpenLog, QueryInstant, Send, Session, StreamFrames
+from xviz_server.session import Cancel, OpenLog, QueryInstant, Send, Session, StreamFrames, SubscribeLive
 
 
 @dataclass
@@ -131,10 +131,15 @@ def test_start_again_resends_metadata_or_opens_another_log():
     assert "no log named 'other'" in json.loads(error.data)["data"]["message"]
 
 
-def test_live_sessions_say_why_transform_requests_fail():
+def test_live_sessions_and_why_transform_requests_fail():
     session = Session(path="/", query={"log": "drive", "session_type": "live"}, available=["drive"])
-    [error] = session.connect()
-    assert "LIVE" in sent(error)["data"]["message"]
+    assert session.connect() == [SubscribeLive("drive")]
+    guid_only = Session(path="/", query={"logGuid": "car", "worker": "true"}, available=["drive"])
+    assert guid_only.connect() == [SubscribeLive("car")]  # not a recorded log: live
+    recorded = Session(path="/", query={"logGuid": "drive"}, available=["drive"])
+    assert recorded.connect() == [OpenLog("drive")]
+    anonymous = Session(path="/", query={"session_type": "LIVE"}, available=[])
+    assert "no live feeds" in sent(anonymous.connect()[0])["data"]["message"]
     [error] = session.receive(message("transform_log", {"id": "r"}))
     assert "not available in a LIVE session" in sent(error)["data"]["message"]
 

@@ -27,7 +27,7 @@ from websockets.frames import CloseCode
 from .codec import Format
 from .exceptions import XVIZError
 from .live import FeedEvent, LiveRegistry, LiveSource, LiveUpdate, Subscription, Variant
-from .logs import Catalog
+from .logs import Catalog, check_log_name
 from .metrics import Metrics
 from .session import (
     Cancel,
@@ -138,7 +138,12 @@ class Connection:
             elif isinstance(event, QueryInstant):
                 self._spawn(self._run_query(event))
             elif isinstance(event, SubscribeLive):
-                feed = self.live.find(event.name)
+                try:
+                    if event.name is not None:
+                        check_log_name(event.name)
+                    feed = self.live.find(event.name)
+                except XVIZError:
+                    feed = None
                 if feed is None:
                     await self._execute(self.session.live_failed(event.name))
                 else:

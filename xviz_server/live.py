@@ -321,17 +321,21 @@ class LiveRegistry:
     def find(self, name: str | None) -> LiveSource | None:
         """The feed a viewer asking for ``name`` gets.
 
-        With a single feed, a viewer gets it whatever name it asks for (the
-        streetscape.gl example asks for ``mock``).
+        The feed of that name if it is running; else, with a single feed
+        running, that one (the streetscape.gl example asks for ``mock``,
+        whatever the feed is called); else the feed of that name, created to
+        wait for its source. ``None`` when no name is given and the answer is
+        not unique.
         """
-        if name in self._feeds:
-            return self._feeds[name]
-        if len(self._feeds) == 1:
-            (only,) = self._feeds.values()
-            if name is not None:
-                logger.info("live session asked for %r; serving the only live feed %r", name, only.name)
-            return only
-        return None
+        running = [feed for feed in self._feeds.values() if feed.metadata is not None]
+        exact = self._feeds.get(name) if name is not None else None
+        if exact is not None and exact.metadata is not None:
+            return exact
+        if len(running) == 1:
+            if name is not None and running[0].name != name:
+                logger.info("live session asked for %r; serving the only live feed %r", name, running[0].name)
+            return running[0]
+        return self.feed(name) if name is not None else None
 
     def metrics_drop(self) -> None:
         self._on_drop()

@@ -147,6 +147,8 @@ class XVIZServer:
                 if reason is not None:
                     logger.warning("refused a live source from %s: %s", connection.remote_address, reason)
                     return connection.respond(HTTPStatus.FORBIDDEN, reason + "\n")
+                # Sources push whole frames: point clouds and images, megabytes each.
+                connection.protocol.max_message_size = int(self.settings.max_ingest_mb * MB)
                 return None
             if len(self.sessions) >= self.settings.max_sessions:
                 logger.warning("refused a session: %d sessions open", self.settings.max_sessions)

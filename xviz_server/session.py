@@ -116,9 +116,11 @@ class Cancel:
 
 @dataclass(frozen=True)
 class SubscribeLive:
-    """Join the live feed a client asked for (``None``: any), then push its updates.
+    """Join the live feed a client asked for, then push its updates.
 
-    If there is no such feed, call :meth:`Session.live_failed`.
+    With a single feed running, a session gets it whatever it asked for;
+    a named feed that has not started is waited for. If no feed answers
+    (no name, several feeds), call :meth:`Session.live_failed`.
     """
 
     name: str | None
@@ -207,8 +209,8 @@ class Session:
 
     A session is LIVE when the client says so (``session_type=live``), or
     when it names its log only by ``logGuid`` (as streetscape.gl's
-    ``XVIZLiveLoader`` does) and that name is a live feed, or is no log
-    while the server has a single live feed.
+    ``XVIZLiveLoader`` does) and that name is not a recorded log. A live
+    session waits for a feed that has not started yet.
     """
 
     path: str
@@ -318,11 +320,11 @@ class Session:
     def _begin(self) -> list[Event]:
         name = self.start.log
         guid_only = "logGuid" in self.query and "log" not in self.query and self.start.session_type is None
-        if guid_only and (name in self.live or (name not in self.available and len(self.live) == 1)):
+        if guid_only and name not in self.available:
             self.start = self.start.model_copy(update={"session_type": SessionType.LIVE})
         if self.start.session_type is SessionType.LIVE:
-            if not self.live:
-                return [self._error("live", "session_type LIVE: this server has no live feeds; connect without session_type to replay a log")]
+            if name is None and not self.live:
+                return [self._error("live", "session_type LIVE: this server has no live feeds; name one to wait for it")]
             return [SubscribeLive(name)]
         if name is None:
             if len(self.available) == 1:

@@ -43,6 +43,7 @@ class Settings(BaseSettings):
         description="token that live sources must give to push to /ingest/NAME (Authorization: Bearer or "
         "?token=); without one, only loopback sources are accepted",
     )
+    max_ingest_mb: float = Field(default=64, gt=0, description="largest message a live source may push, MB")
     live_queue: int = Field(default=32, ge=1, description="updates a live viewer may fall behind before the oldest are dropped")
     live_lag_timeout: float = Field(
         default=30, gt=0, description="disconnect a live viewer that keeps dropping updates for this long, s"

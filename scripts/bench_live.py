@@ -1,0 +1,163 @@
+#!/usr/bin/env python3
+"""Benchmark live fan-out: latency from source to viewers, and throughput.
+
+    python scripts/bench_live.py [--viewers 50] [--rate 10] [--seconds 20] [--processes 2]
+
+The server (``xviz-server serve``), the source and the viewers are separate
+processes. The source pushes a real KITTI frame (2.1 MB of GLB: 121k points,
+four images) to ``/ingest/bench`` at ``--rate`` Hz, each stamped with its
+send time; ``--viewers`` viewers, spread over ``--processes`` processes, take
+the feed as streetscape.gl's live loader would and note when each update
+arrives. Reported: latency p50/p99/max over every update every viewer got,
+updates lost, and the bytes fanned out per second, beside what the source
+pushed. The same source and viewers then run against a reference: a bare
+websockets server that forwards each pushed message to every viewer with
+``websockets.broadcast`` (no decoding, no queues, no checks), which shows
+what this machine allows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import websockets
+
+REPO = Path(__file__).resolve().parents[1]
+FRAME = REPO.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head" / "2-frame.glb"
+METADATA = FRAME.with_name("1-frame.glb")
+
+
+async def source(url: str, rate: float, seconds: float) -> None:
+    from xviz_server.codec import decode_glb, encode_glb
+
+    message = decode_glb(FRAME.read_bytes())
+    update = message["data"]["updates"][0]
+    async with websockets.connect(url, max_size=None, compression=None) as websocket:
+        await websocket.send(METADATA.read_bytes())
+        await asyncio.sleep(1.0)  # let the viewers subscribe
+        start = time.perf_counter()
+        for k in range(int(rate * seconds)):
+            await asyncio.sleep(max(0.0, start + k / rate - time.perf_counter()))
+            update["timestamp"] = time.time()  # the send time travels in the frame
+            await websocket.send(encode_glb(message))
+
+
+async def viewers(url: str, count: int, seconds: float) -> dict:
+    latencies: list[float] = []
+    received = [0] * count
+    size = [0]
+
+    async def view(i: int) -> None:
+        async with websockets.connect(url, max_size=None, compression=None) as websocket:
+            from xviz_server.codec import decode_glb
+
+            deadline = time.time() + seconds
+            while time.time() < deadline:
+                try:
+                    data = await asyncio.wait_for(websocket.recv(), max(0.1, deadline - time.time()))
+                except asyncio.TimeoutError:
+                    break
+                arrived = time.time()
+                if isinstance(data, bytes) and len(data) > 100_000:
+                    sent = decode_glb(data)["data"]["updates"][0]["timestamp"]
+                    latencies.append((arrived - sent) * 1000)
+                    received[i] += 1
+                    size[0] += len(data)
+
+    await asyncio.gather(*(view(i) for i in range(count)))
+    return {"latencies": latencies, "received": received, "bytes": size[0]}
+
+
+async def reference_server() -> None:
+    """Forward every message from ``/ingest/...`` to every other connection."""
+    viewers: set = set()
+
+    async def handler(websocket) -> None:
+        if websocket.request.path.startswith("/ingest/"):
+            async for message in websocket:
+                websockets.broadcast(viewers, message)
+            return
+        viewers.add(websocket)
+        try:
+            await websocket.wait_closed()
+        finally:
+            viewers.discard(websocket)
+
+    async with websockets.serve(handler, "127.0.0.1", 0, max_size=None, compression=None) as server:
+        print(f"listening on ws://127.0.0.1:{server.sockets[0].getsockname()[1]}/", file=sys.stderr, flush=True)
+        await asyncio.Future()
+
+
+def run(command: list[str], args: argparse.Namespace) -> dict:
+    """Start a server with ``command``, run the source and viewers against it, stop it."""
+    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    assert server.stderr is not None
+    port = next(int(m.group(1)) for line in server.stderr if (m := re.search(r"ws://127\.0\.0\.1:(\d+)/", line)))
+    try:
+        watch = args.seconds + 3
+        share = [args.viewers // args.processes + (i < args.viewers % args.processes) for i in range(args.processes)]
+        viewer_processes = [
+            subprocess.Popen([sys.executable, __file__, "--role", "viewers", f"ws://127.0.0.1:{port}/?logGuid=bench",
+                              str(n), str(watch)], stdout=subprocess.PIPE, text=True, cwd=REPO)
+            for n in share
+        ]
+        time.sleep(0.5)
+        subprocess.run([sys.executable, __file__, "--role", "source", f"ws://127.0.0.1:{port}/ingest/bench",
+                        str(args.rate), str(args.seconds)], cwd=REPO, check=True)
+        results = [json.loads(p.communicate()[0]) for p in viewer_processes]
+    finally:
+        server.terminate()
+        server.wait(10)
+    latencies = sorted(x for r in results for x in r["latencies"])
+    return {
+        "received": [n for r in results for n in r["received"]],
+        "p50": statistics.median(latencies),
+        "p99": latencies[int(len(latencies) * 0.99) - 1],
+        "max": latencies[-1],
+        "mb_s": sum(r["bytes"] for r in results) / args.seconds / 1e6,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--viewers", type=int, default=50)
+    parser.add_argument("--rate", type=float, default=10.0)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--processes", type=int, default=2, help="viewer processes")
+    parser.add_argument("--role", nargs="+", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.role:
+        role, url, *rest = args.role
+        if role == "reference":
+            asyncio.run(reference_server())
+        elif role == "source":
+            asyncio.run(source(url, float(rest[0]), float(rest[1])))
+        else:
+            print(json.dumps(asyncio.run(viewers(url, int(rest[0]), float(rest[1])))))
+        return
+
+    with tempfile.TemporaryDirectory() as empty:
+        ours = run([sys.executable, "-m", "xviz_server", "serve", "--data-dir", empty, "--port", "0", "--live-queue", "8"], args)
+    bare = run([sys.executable, __file__, "--role", "reference", "-"], args)
+    sent = int(args.rate * args.seconds)
+    frame_mb = FRAME.stat().st_size / 1e6
+    print(f"live fan-out: {args.viewers} viewers in {args.processes} processes, "
+          f"{frame_mb:.1f} MB frames at {args.rate:g} Hz for {args.seconds:g} s ({sent} updates)")
+    print(f"{'':>10} {'got (min-max)':>14} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'MB/s out':>9}")
+    for name, result in (("server", ours), ("reference", bare)):
+        print(f"{name:>10} {min(result['received']):>6}-{max(result['received']):<7} {result['p50']:8.1f} "
+              f"{result['p99']:8.1f} {result['max']:8.1f} {result['mb_s']:9.0f}")
+    print(f"server/reference: p99 x{ours['p99'] / bare['p99']:.2f}, throughput x{ours['mb_s'] / bare['mb_s']:.2f}")
+
+
+if __name__ == "__main__":
+    main()
