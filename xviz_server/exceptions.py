@@ -17,6 +17,7 @@ __all__ = [
     "LogNotFound",
     "LogError",
     "FrameError",
+    "BuilderError",
 ]
 
 
@@ -104,3 +105,7 @@ class FrameError(XVIZError):
         super().__init__(message)
         self.log = log
         self.frame = frame
+
+
+class BuilderError(XVIZError):
+    """The builder was given something XVIZ cannot carry; the message names the stream and field."""
