@@ -1,80 +1,407 @@
-"""The built-in demo log: complete, valid, deterministic, and read by the published client."""
+"""The built-in demo log: its layout, its content, its cache, and the published client reading it."""
 
 from __future__ import annotations
 
-import json
+import functools
+import math
+import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 
-from helpers import assert_same_message
 from test_interop import xviz_decode
+from xviz_server import demo
 from xviz_server.check import check_paths
-from xviz_server.codec import Format, decode
-from xviz_server.demo import ensure_demo_log, generate_demo_log
-from xviz_server.state import update_streams
+from xviz_server.codec import Format, decode, decode_json
+from xviz_server.demo import DEMO_LOG_NAME, default_cache_dir, ensure_demo_log, generate_demo_log
+from xviz_server.validation import get_validator
+
+START = 1_600_000_000.0
+SHORT = 0.5  # seconds: five frames at the default rate
+
+PRIMITIVE_TYPES = {
+    "points": "POINT",
+    "polygons": "POLYGON",
+    "polylines": "POLYLINE",
+    "circles": "CIRCLE",
+    "texts": "TEXT",
+    "stadiums": "STADIUM",
+    "images": "IMAGE",
+}
+SCALAR_TYPES = {"doubles": "FLOAT", "int32s": "INT32", "bools": "BOOL", "strings": "STRING"}
 
 
-def test_short_demo_is_a_valid_log_in_the_reference_layout(tmp_path: Path):
-    log = generate_demo_log(tmp_path / "demo", duration=1.0)
-    names = sorted(p.name for p in log.iterdir())
-    assert names == sorted(["0-frame.json", "1-frame.glb"] + [f"{i}-frame.glb" for i in range(2, 12)])
-    report = check_paths([log])  # schema, layout, index spans, declared streams
+@pytest.fixture(scope="module")
+def glb_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return generate_demo_log(tmp_path_factory.mktemp("glb"), duration=SHORT)
+
+
+@pytest.fixture(scope="module")
+def json_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return generate_demo_log(tmp_path_factory.mktemp("json"), duration=SHORT, fmt=Format.JSON)
+
+
+def read_log(directory: Path) -> tuple[dict[str, Any], dict[str, Any], list[dict[str, Any]]]:
+    """Return the index, the metadata and the frames of a log, in index order."""
+    index = decode_json((directory / "0-frame.json").read_bytes())
+    (metadata_file,) = directory.glob("1-frame.*")
+    suffix = metadata_file.suffix
+    frames = [decode((directory / f"{entry[3]}{suffix}").read_bytes()) for entry in index["timing"]]
+    return index, decode(metadata_file.read_bytes()), frames
+
+
+def only_update(frame: dict[str, Any]) -> dict[str, Any]:
+    (update,) = frame["data"]["updates"]
+    return update
+
+
+# --------------------------------------------------------------------------
+# Layout
+
+
+def test_log_has_the_reference_layout(glb_log: Path):
+    names = {path.name for path in glb_log.iterdir()}
+    assert names == {"0-frame.json", "1-frame.glb", *(f"{n}-frame.glb" for n in range(2, 7))}
+
+
+def test_index_times_the_frames(glb_log: Path):
+    index, metadata, frames = read_log(glb_log)
+    timestamps = [only_update(frame)["timestamp"] for frame in frames]
+    assert timestamps == [START + k / 10 for k in range(5)]
+    assert index["timing"] == [[t, t, i, f"{i + 2}-frame"] for i, t in enumerate(timestamps)]
+    assert (index["startTime"], index["endTime"]) == (timestamps[0], timestamps[-1])
+    log_info = metadata["data"]["log_info"]
+    assert (log_info["start_time"], log_info["end_time"]) == (timestamps[0], timestamps[-1])
+
+
+def test_every_file_is_synced_then_renamed_into_place_and_the_index_last(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    events: list[str] = []
+    renames: list[tuple[Path, Path]] = []
+    fsync, replace = os.fsync, os.replace
+
+    def record_fsync(fd: int) -> None:
+        events.append("fsync")
+        fsync(fd)
+
+    def record_replace(source: str, target: str) -> None:
+        events.append("replace")
+        renames.append((Path(source), Path(target)))
+        replace(source, target)
+
+    monkeypatch.setattr(os, "fsync", record_fsync)
+    monkeypatch.setattr(os, "replace", record_replace)
+    generate_demo_log(tmp_path, duration=0.3)
+
+    names = ["1-frame.glb", "2-frame.glb", "3-frame.glb", "4-frame.glb", "0-frame.json"]
+    assert [target.name for _, target in renames] == names
+    assert all(source.parent == tmp_path and source.name.startswith(".") for source, _ in renames)
+    assert events == ["fsync", "replace"] * len(names)
+    assert sorted(path.name for path in tmp_path.iterdir()) == sorted(names)  # no temporary file left
+
+
+def test_log_passes_the_checker(glb_log: Path, json_log: Path):
+    report = check_paths([glb_log, json_log])  # schema, layout, index spans, declared streams
     assert report.ok, report.render()
-    assert not any(f.warnings for f in report.files), report.render()
-
-    metadata = decode((log / "1-frame.glb").read_bytes())["data"]
-    index = json.loads((log / "0-frame.json").read_text())
-    info = metadata["log_info"]
-    assert (info["start_time"], info["end_time"]) == (index["startTime"], index["endTime"])
-    for row in index["timing"]:
-        update = decode((log / f"{row[3]}.glb").read_bytes())["data"]["updates"][0]
-        assert update["timestamp"] == row[0]
-        assert update["poses"]["/vehicle_pose"]["timestamp"] == row[0]
-        for name in update_streams({"updates": [update]}):
-            assert name in metadata["streams"], name
+    assert not any(file.warnings for file in report.files), report.render()
 
 
-def test_demo_is_deterministic_and_the_same_in_both_formats(tmp_path: Path):
-    glb = generate_demo_log(tmp_path / "a", duration=0.3)
-    again = generate_demo_log(tmp_path / "b", duration=0.3)
-    as_json = generate_demo_log(tmp_path / "c", duration=0.3, fmt=Format.JSON)
-    for i in range(1, 5):
-        assert (glb / f"{i}-frame.glb").read_bytes() == (again / f"{i}-frame.glb").read_bytes()
-        binary = decode((glb / f"{i}-frame.glb").read_bytes())
-        text = decode((as_json / f"{i}-frame.json").read_bytes())
-        if i >= 2:
-            cloud = text["data"]["updates"][0]["primitives"]["/lidar/points"]["points"][0]
-            cloud["points"] = np.asarray(cloud["points"], dtype=np.float32)
-            cloud["colors"] = np.asarray(cloud["colors"], dtype=np.uint8)
-            for polyline in text["data"]["updates"][0]["primitives"]["/vehicle/trajectory"]["polylines"]:
-                polyline["vertices"] = np.asarray(polyline["vertices"], dtype=np.float32)
-            for polygon in text["data"]["updates"][0]["primitives"]["/objects/shape"]["polygons"]:
-                polygon["vertices"] = np.asarray(polygon["vertices"], dtype=np.float32)
-        assert_same_message(text, binary)
+def test_generating_again_replaces_the_log(tmp_path: Path):
+    generate_demo_log(tmp_path, duration=0.6, fmt=Format.JSON)
+    generate_demo_log(tmp_path, duration=0.2)
+    names = ["0-frame.json", "1-frame.glb", "2-frame.glb", "3-frame.glb"]
+    assert sorted(path.name for path in tmp_path.iterdir()) == names
 
 
-def test_ensure_generates_once_and_repairs_an_incomplete_log(tmp_path: Path):
-    log = ensure_demo_log(tmp_path)
-    index = log / "0-frame.json"
-    first = index.stat().st_ino, index.stat().st_mtime_ns
-    assert ensure_demo_log(tmp_path) == log
-    assert (index.stat().st_ino, index.stat().st_mtime_ns) == first  # reused, not regenerated
-    (log / "57-frame.glb").unlink()  # a log missing a frame the index names is incomplete
+def test_generation_is_deterministic(glb_log: Path, tmp_path: Path):
+    generate_demo_log(tmp_path, duration=SHORT)
+    for path in glb_log.iterdir():
+        assert (tmp_path / path.name).read_bytes() == path.read_bytes(), path.name
+
+
+@pytest.mark.parametrize(("duration", "rate"), [(0.0, 10.0), (-1.0, 10.0), (1.0, 0.0), (math.nan, 10.0)])
+def test_rejects_a_duration_or_rate_that_is_not_positive(tmp_path: Path, duration: float, rate: float):
+    with pytest.raises(ValueError, match="must be positive"):
+        generate_demo_log(tmp_path, duration=duration, rate=rate)
+
+
+# --------------------------------------------------------------------------
+# Content
+
+
+def test_every_message_validates(glb_log: Path):
+    _, metadata, frames = read_log(glb_log)
+    validator = get_validator()
+    for message in [metadata, *frames]:
+        validator.validate_message(message)
+
+
+def test_metadata_is_xviz_2(glb_log: Path):
+    _, metadata, _ = read_log(glb_log)
+    assert metadata["type"] == "xviz/metadata"
+    assert metadata["data"]["version"] == "2.0.0"
+    ui = metadata["data"]["ui_config"]
+    components = [child for panel in ui.values() for child in panel["config"]["children"]]
+    assert {"METRIC", "TABLE"} <= {component["type"] for component in components}
+    assert ["/vehicle/velocity"] in [component.get("streams") for component in components]
+
+
+def test_frames_carry_the_pose_at_their_own_time(glb_log: Path):
+    _, _, frames = read_log(glb_log)
+    for frame in frames:
+        assert frame["type"] == "xviz/state_update"
+        assert frame["data"]["update_type"] == "SNAPSHOT"
+        update = only_update(frame)
+        pose = update["poses"]["/vehicle_pose"]
+        assert pose["timestamp"] == update["timestamp"]
+        assert set(pose["map_origin"]) == {"longitude", "latitude", "altitude"}
+        assert len(pose["position"]) == len(pose["orientation"]) == 3
+        assert all(series["timestamp"] == update["timestamp"] for series in update["time_series"])
+
+
+def test_every_stream_is_declared_with_its_category(glb_log: Path):
+    _, metadata, frames = read_log(glb_log)
+    streams = metadata["data"]["streams"]
+    carried = set()
+    for frame in frames:
+        update = only_update(frame)
+        for name in update["poses"]:
+            assert streams[name]["category"] == "POSE", name
+        for name, primitives in update["primitives"].items():
+            (kind,) = primitives
+            assert streams[name]["category"] == "PRIMITIVE", name
+            assert streams[name]["primitive_type"] == PRIMITIVE_TYPES[kind], name
+            assert streams[name]["coordinate"] in ("IDENTITY", "VEHICLE_RELATIVE"), name
+        for series in update["time_series"]:
+            (kind,) = series["values"]
+            for name in series["streams"]:
+                assert streams[name]["category"] == "TIME_SERIES", name
+                assert streams[name]["scalar_type"] == SCALAR_TYPES[kind], name
+        for name, primitives in update["ui_primitives"].items():
+            assert streams[name] == {"category": "UI_PRIMITIVE", "ui_primitive_type": "TREETABLE"}
+            assert set(primitives) == {"treetable"}
+        carried |= {*update["poses"], *update["primitives"], *update["ui_primitives"]}
+        carried |= {name for series in update["time_series"] for name in series["streams"]}
+    assert carried == set(streams)
+
+
+def test_vehicle_drives_at_about_ten_metres_per_second(glb_log: Path):
+    _, _, frames = read_log(glb_log)
+    updates = [only_update(frame) for frame in frames]
+    positions = np.array([update["poses"]["/vehicle_pose"]["position"] for update in updates])
+    headings = np.array([update["poses"]["/vehicle_pose"]["orientation"][2] for update in updates])
+    steps = np.diff(positions[:, :2], axis=0)
+    speeds = np.hypot(*steps.T) / np.diff([update["timestamp"] for update in updates])
+    series = [update["time_series"] for update in updates]
+    assert all(s[0]["streams"] == ["/vehicle/velocity", "/vehicle/acceleration"] for s in series)
+    reported = np.array([s[0]["values"]["doubles"][0] for s in series])
+    assert np.allclose(speeds, 10.0, atol=1.0)
+    assert np.allclose(speeds, (reported[1:] + reported[:-1]) / 2, atol=0.05)
+    assert np.allclose(np.arctan2(steps[:, 1], steps[:, 0]), headings[:-1], atol=0.05)
+    assert series[-1][1] == {
+        "timestamp": updates[-1]["timestamp"],
+        "streams": ["/vehicle/autonomy_state"],
+        "values": {"strings": ["manual"]},
+    }
+
+
+def test_lidar_sweep_is_a_point_cloud_with_colours(glb_log: Path):
+    _, _, frames = read_log(glb_log)
+    for frame in frames:
+        (cloud,) = only_update(frame)["primitives"]["/lidar/points"]["points"]
+        points, colors = cloud["points"], cloud["colors"]
+        assert points.dtype == np.float32 and points.shape[1] == 3
+        assert 15_000 < len(points) < 40_000
+        assert colors.dtype == np.uint8 and colors.shape == (len(points), 4)
+        ground = np.abs(points[:, 2]) < 0.05
+        assert 0.2 < ground.mean() < 0.9  # rings on the road, and walls, poles and road users
+        assert np.hypot(points[:, 0], points[:, 1]).max() <= 70.1
+
+
+def test_road_users_are_styled_by_class_and_labelled(glb_log: Path):
+    _, metadata, frames = read_log(glb_log)
+    streams = metadata["data"]["streams"]
+    styled = {style["name"] for style in streams["/objects/shape"]["style_classes"]}
+    assert streams["/objects/shape"]["stream_style"]["extruded"] is True
+    classes = set()
+    for frame in frames:
+        primitives = only_update(frame)["primitives"]
+        polygons = primitives["/objects/shape"]["polygons"]
+        ids = [polygon["base"]["object_id"] for polygon in polygons]
+        for polygon in polygons:
+            (category,) = polygon["base"]["classes"]
+            classes.add(category)
+            assert polygon["vertices"].dtype == np.float32 and polygon["vertices"].shape == (4, 3)
+            assert polygon["base"]["style"]["height"] > 0
+        assert [text["text"] for text in primitives["/objects/label"]["texts"]] == ids
+        circles = primitives["/objects/tracking_point"]["circles"]
+        assert [circle["base"]["object_id"] for circle in circles] == ids
+    assert classes == styled == {"Car", "Cyclist", "Pedestrian"}
+
+
+def test_road_user_table_lists_the_road_users_nearest_first(glb_log: Path):
+    _, _, frames = read_log(glb_log)
+    update = only_update(frames[0])
+    table = update["ui_primitives"]["/objects/table"]["treetable"]
+    ids = [polygon["base"]["object_id"] for polygon in update["primitives"]["/objects/shape"]["polygons"]]
+    assert [node["column_values"][0] for node in table["nodes"]] == ids
+    distances = [float(node["column_values"][2]) for node in table["nodes"]]
+    assert distances == sorted(distances) and distances[-1] < 60
+
+
+def test_trajectory_leads_ahead_of_the_vehicle(glb_log: Path):
+    _, _, frames = read_log(glb_log)
+    (path,) = only_update(frames[0])["primitives"]["/vehicle/trajectory"]["polylines"]
+    vertices = path["vertices"]
+    assert vertices.dtype == np.float32 and vertices.shape == (21, 3)
+    assert np.array_equal(vertices[0], [0, 0, 0])
+    assert np.all(np.diff(vertices[:, 0]) > 0) and 40 < vertices[-1, 0] < 60
+
+
+def test_glb_and_json_logs_hold_the_same_data(glb_log: Path, json_log: Path):
+    glb_index, *glb_messages = read_log(glb_log)
+    json_index, *json_messages = read_log(json_log)
+    assert glb_index == json_index
+    assert_same_data(glb_messages, json_messages)
+
+
+def assert_same_data(glb: Any, json: Any, path: str = "$") -> None:
+    """Assert that a GLB message and a JSON one hold the same data: arrays to the bit."""
+    if isinstance(glb, np.ndarray):
+        assert np.array_equal(np.asarray(json, dtype=glb.dtype), glb), path
+    elif isinstance(glb, dict):
+        assert isinstance(json, dict) and list(json) == list(glb), path
+        for key in glb:
+            assert_same_data(glb[key], json[key], f"{path}.{key}")
+    elif isinstance(glb, list):
+        assert isinstance(json, list) and len(json) == len(glb), path
+        for i, (a, b) in enumerate(zip(glb, json)):
+            assert_same_data(a, b, f"{path}[{i}]")
+    else:
+        assert glb == json, path
+
+
+# --------------------------------------------------------------------------
+# The cache
+
+
+@pytest.fixture
+def generations(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
+    """Make ensure_demo_log generate short logs; return where it generated them."""
+    directories: list[Path] = []
+    short = functools.partial(generate_demo_log, duration=0.2)
+
+    def generate(directory: Path) -> Path:
+        directories.append(directory)
+        return short(directory)
+
+    monkeypatch.setattr(demo, "generate_demo_log", generate)
+    return directories
+
+
+def test_ensure_makes_the_default_demo(tmp_path: Path):
+    log_dir = ensure_demo_log(tmp_path)
+    index, metadata, _ = read_log(log_dir)
+    assert len(index["timing"]) == 200  # twenty seconds at ten frames a second
+    assert index["timing"][-1][:3] == [START + 19.9, START + 19.9, 199]
+    assert metadata["data"]["log_info"]["end_time"] == START + 19.9
+    assert [path.name for path in tmp_path.iterdir()] == [DEMO_LOG_NAME]
+
+
+def test_ensure_generates_the_log_once_then_reuses_it(tmp_path: Path, generations: list[Path]):
+    cache_dir = tmp_path / "cache" / "xviz-server"
+    log_dir = ensure_demo_log(cache_dir)
+    assert log_dir == cache_dir / DEMO_LOG_NAME
+    assert len(generations) == 1 and generations[0].parent == cache_dir
+    names = ["0-frame.json", "1-frame.glb", "2-frame.glb", "3-frame.glb"]
+    assert sorted(path.name for path in log_dir.iterdir()) == names
+    before = [(path.stat().st_ino, path.stat().st_mtime_ns) for path in sorted(log_dir.iterdir())]
+
+    assert ensure_demo_log(cache_dir) == log_dir
+    assert len(generations) == 1
+    assert [(path.stat().st_ino, path.stat().st_mtime_ns) for path in sorted(log_dir.iterdir())] == before
+    assert [path.name for path in cache_dir.iterdir()] == [DEMO_LOG_NAME]  # no staging left behind
+
+
+@pytest.mark.parametrize("lost", ["0-frame.json", "3-frame.glb"])
+def test_ensure_regenerates_an_incomplete_log(tmp_path: Path, generations: list[Path], lost: str):
+    log_dir = ensure_demo_log(tmp_path)
+    (log_dir / lost).unlink()
+    inode = log_dir.stat().st_ino
+
+    assert ensure_demo_log(tmp_path) == log_dir
+    assert len(generations) == 2
+    assert (log_dir / lost).is_file() and log_dir.stat().st_ino != inode
+    assert [path.name for path in tmp_path.iterdir()] == [DEMO_LOG_NAME]
+
+
+def test_ensure_regenerates_a_log_whose_index_is_garbage(tmp_path: Path, generations: list[Path]):
+    log_dir = ensure_demo_log(tmp_path)
+    (log_dir / "0-frame.json").write_text('{"timing": [[1, 1, 0]]}')
     ensure_demo_log(tmp_path)
-    assert (log / "57-frame.glb").is_file()
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no staging left behind
+    assert len(generations) == 2
+    assert len(decode_json((log_dir / "0-frame.json").read_bytes())["timing"]) == 2
 
 
-def test_published_client_draws_the_demo(tmp_path: Path):
-    log = generate_demo_log(tmp_path / "demo", duration=0.3)
-    lines = xviz_decode([log / f"{i}-frame.glb" for i in range(1, 5)])
-    assert all("error" not in line for line in lines), lines
-    assert lines[0]["parsed"]["type"] == "METADATA"
-    for line in lines[1:]:
-        parsed = line["parsed"]
-        assert parsed["type"] == "TIMESLICE" and "/vehicle_pose" in parsed["poses"]
+def test_ensure_uses_the_log_of_a_process_that_won_the_race(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    winner = tmp_path / DEMO_LOG_NAME
+
+    def generate_while_another_process_wins(directory: Path) -> Path:
+        generate_demo_log(winner, duration=0.2)
+        return generate_demo_log(directory, duration=0.2)
+
+    monkeypatch.setattr(demo, "generate_demo_log", generate_while_another_process_wins)
+    assert ensure_demo_log(tmp_path) == winner
+    assert [path.name for path in tmp_path.iterdir()] == [DEMO_LOG_NAME]  # our copy is gone
+    assert len(read_log(winner)[2]) == 2
+
+
+def test_default_cache_dir_follows_xdg(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert default_cache_dir() == tmp_path / "xdg" / "xviz-server"
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative/cache")
+    assert default_cache_dir() == tmp_path / "home" / ".cache" / "xviz-server"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert default_cache_dir() == tmp_path / "home" / ".cache" / "xviz-server"
+
+
+# --------------------------------------------------------------------------
+# The published client
+
+
+@pytest.mark.parametrize("fmt", [Format.BINARY, Format.JSON])
+def test_published_client_reads_the_demo(glb_log: Path, json_log: Path, fmt: Format):
+    log_dir = glb_log if fmt is Format.BINARY else json_log
+    names = ["1-frame", "2-frame", "4-frame", "6-frame"]
+    results = xviz_decode([log_dir / f"{name}{fmt.suffix}" for name in names])
+    _, _, frames = read_log(log_dir)
+
+    for result in results:
+        assert "error" not in result, result.get("error")
+    metadata, *states = (result["parsed"] for result in results)
+    assert metadata["type"] == "METADATA" and metadata["version"] == "2.0.0"
+    assert (metadata["start_time"], metadata["end_time"]) == (START, START + 0.4)
+
+    for parsed, frame in zip(states, [frames[0], frames[2], frames[4]]):
+        update = only_update(frame)
+        assert parsed["type"] == "TIMESLICE" and parsed["timestamp"] == update["timestamp"]
         streams = parsed["streams"]
-        assert streams["/lidar/points"]["pointCloud"]["numInstances"] > 10_000
-        assert len(streams["/objects/shape"]["features"]) > 0
-        assert streams["/vehicle/velocity"][0]["variable"] > 0
+        (cloud,) = update["primitives"]["/lidar/points"]["points"]
+        drawn = streams["/lidar/points"]["pointCloud"]
+        assert drawn["numInstances"] == len(cloud["points"]) > 15_000
+        assert drawn["colors"]["length"] == np.size(cloud["colors"]) == 4 * len(cloud["points"])
+        polygons = update["primitives"]["/objects/shape"]["polygons"]
+        features = streams["/objects/shape"]["features"]
+        assert [feature["id"] for feature in features] == [p["base"]["object_id"] for p in polygons]
+        assert all(feature["type"] == "polygon" for feature in features)
+        assert all(feature["vertices"]["length"] == 12 for feature in features)  # 4 corners, x y z
+        velocity, acceleration = update["time_series"][0]["values"]["doubles"]
+        assert streams["/vehicle/velocity"] == [{"time": update["timestamp"], "variable": velocity}]
+        assert streams["/vehicle/acceleration"] == [{"time": update["timestamp"], "variable": acceleration}]
+        assert streams["/vehicle/autonomy_state"] == [{"time": update["timestamp"], "variable": "manual"}]
+        assert len(streams["/objects/table"]["treetable"]["nodes"]) == len(polygons)
+        assert parsed["poses"]["/vehicle_pose"]["x"] == update["poses"]["/vehicle_pose"]["position"][0]

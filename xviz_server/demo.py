@@ -18,8 +18,8 @@ the metadata, ``2-frame`` ... ``N-frame`` one ``xviz/state_update`` each and
 
 - ``/vehicle_pose``: position and heading in the map frame, whose origin
   is :data:`MAP_ORIGIN`;
-- ``/lidar/points``: about 27 000 returns, float32 (N, 3) in the vehicle
-  frame, with uint8 (N, 4) colours by height;
+- ``/lidar/points``: about 20 000 to 27 000 returns, float32 (N, 3) in the
+  vehicle frame, with uint8 (N, 4) colours by height;
 - ``/objects/shape``: the footprint of every road user within 60 m, a
   polygon in the map frame, extruded to its height and styled by its class
   (``Car``, ``Cyclist`` or ``Pedestrian``);
@@ -141,10 +141,12 @@ def generate_demo_log(
 
     times = [k / rate for k in range(_frame_count(duration, rate))]
     timestamps = [start_time + t for t in times]
-    _write_atomically(directory / f"{METADATA_FILE}{fmt.suffix}", encode(_metadata(timestamps[0], timestamps[-1]), fmt))
+    metadata = _metadata(timestamps[0], timestamps[-1])
+    _write_atomically(directory / f"{METADATA_FILE}{fmt.suffix}", encode(metadata, fmt))
     drive = _Drive(np.random.default_rng(SEED))
     for index, (t, timestamp) in enumerate(zip(times, timestamps)):
-        _write_atomically(directory / f"{index + 2}-frame{fmt.suffix}", encode(drive.frame(t, timestamp), fmt))
+        frame = drive.frame(t, timestamp)
+        _write_atomically(directory / f"{index + 2}-frame{fmt.suffix}", encode(frame, fmt))
     _write_atomically(directory / INDEX_FILE, encode_json(_index(timestamps)))
     return directory
 
@@ -189,7 +191,7 @@ def _message_files(directory: Path) -> Iterator[Path]:
 def _remove_log(directory: Path) -> None:
     """Remove the log in *directory*, index first, so that it never looks complete."""
     (directory / INDEX_FILE).unlink(missing_ok=True)
-    for path in _message_files(directory):
+    for path in list(_message_files(directory)):
         path.unlink()
 
 
@@ -307,8 +309,13 @@ def _streams() -> dict[str, dict[str, Any]]:
 def _ui_config() -> dict[str, Any]:
     """Describe the declarative UI: a metrics panel and a table of road users."""
     metrics = [
-        {"type": "METRIC", "title": "Velocity", "description": "Speed of the vehicle", "streams": [VELOCITY]},
-        {"type": "METRIC", "title": "Acceleration", "description": "Along its heading", "streams": [ACCELERATION]},
+        {"type": "METRIC", "title": "Velocity", "description": "The vehicle's speed", "streams": [VELOCITY]},
+        {
+            "type": "METRIC",
+            "title": "Acceleration",
+            "description": "The acceleration of the vehicle along its heading",
+            "streams": [ACCELERATION],
+        },
     ]
     table = {
         "type": "TABLE",
@@ -510,9 +517,9 @@ LIDAR_HEIGHT = 1.9  # metres above the ground
 # The elevations of the beams of a Velodyne VLP-32C, in degrees: densest
 # near the horizon, where road users are.
 ELEVATIONS = [
-    -25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667, -4.0, -3.667, -3.333, -3.0, -2.667, -2.333,
-    -2.0, -1.667, -1.333, -1.0, -0.667, -0.333, 0.0, 0.333, 0.667, 1.0, 1.333, 1.667, 2.333, 3.333, 4.667, 7.0,
-    10.333, 15.0,
+    -25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667, -4.0, -3.667, -3.333,
+    -3.0, -2.667, -2.333, -2.0, -1.667, -1.333, -1.0, -0.667, -0.333, 0.0, 0.333,
+    0.667, 1.0, 1.333, 1.667, 2.333, 3.333, 4.667, 7.0, 10.333, 15.0,
 ]
 SLOPES = np.tan(np.radians(ELEVATIONS))[:, None].astype(np.float32)  # (beams, 1)
 AZIMUTHS = np.linspace(0.0, 2 * math.pi, 900, endpoint=False)
@@ -553,7 +560,8 @@ def _lidar_sweep(
     near, far = _ray_box_distances(position, heading, boxes)
     azimuth, box = np.nonzero((near < NO_HIT).T)  # the boxes each azimuth meets, by azimuth
     if azimuth.size:
-        hits = _beam_box_distances(near[box, azimuth], far[box, azimuth], boxes.height[box].astype(np.float32))
+        height = boxes.height[box].astype(np.float32)
+        hits = _beam_box_distances(near[box, azimuth], far[box, azimuth], height)
         first = np.flatnonzero(np.diff(azimuth, prepend=-1))
         azimuth = azimuth[first]
         distance[:, azimuth] = np.minimum(distance[:, azimuth], np.minimum.reduceat(hits, first, axis=1))
@@ -561,7 +569,8 @@ def _lidar_sweep(
     beam, azimuth = np.nonzero(distance <= MAX_RANGE)
     kept = rng.random(beam.size, dtype=np.float32) >= DROPOUT
     beam, azimuth = beam[kept], azimuth[kept]
-    distance = distance[beam, azimuth] + rng.integers(-RANGE_NOISE, RANGE_NOISE + 1, beam.size, dtype=np.int8) / np.float32(100)
+    noise = rng.integers(-RANGE_NOISE, RANGE_NOISE + 1, beam.size, dtype=np.int8) / np.float32(100)
+    distance = distance[beam, azimuth] + noise
     points = np.empty((beam.size, 3), dtype=np.float32)
     points[:, 0] = distance * AZIMUTH_COS[azimuth]
     points[:, 1] = distance * AZIMUTH_SIN[azimuth]
@@ -674,23 +683,22 @@ def _pose(timestamp: float, position: np.ndarray, heading: float) -> dict[str, A
     }
 
 
-def _road_user_primitives(users: list[_RoadUser], boxes: _Boxes) -> dict[str, dict[str, list[dict[str, Any]]]]:
+def _road_user_primitives(users: list[_RoadUser], boxes: _Boxes) -> dict[str, dict[str, Any]]:
     """Return the footprints, labels and centres of *users*, in the map frame."""
-    footprints = np.concatenate([boxes.corners(), np.zeros((len(boxes), 4, 1))], axis=2).round(2).astype(np.float32)
-    shapes, labels, centers = [], [], []
-    for user, footprint, (x, y), height in zip(users, footprints, boxes.center.round(2).tolist(), boxes.height.tolist()):
-        shapes.append(
-            {
-                "base": {"object_id": user.object_id, "classes": [user.category], "style": {"height": height}},
-                "vertices": footprint,
-            }
-        )
-        labels.append({"base": {"object_id": user.object_id}, "position": [x, y, height + 0.5], "text": user.object_id})
-        centers.append({"base": {"object_id": user.object_id}, "center": [x, y, 0.0], "radius": 0.2})
+    footprints = np.concatenate([boxes.corners(), np.zeros((len(boxes), 4, 1))], axis=2)
+    footprints = footprints.round(2).astype(np.float32)
+    centers = boxes.center.round(2).tolist()
+    shapes, labels, circles = [], [], []
+    for user, footprint, (x, y), height in zip(users, footprints, centers, boxes.height.tolist()):
+        base = {"object_id": user.object_id}
+        style = {"classes": [user.category], "style": {"height": height}}
+        shapes.append({"base": {**base, **style}, "vertices": footprint})
+        labels.append({"base": base, "position": [x, y, height + 0.5], "text": user.object_id})
+        circles.append({"base": base, "center": [x, y, 0.0], "radius": 0.2})
     return {
         OBJECT_SHAPES: {"polygons": shapes},
         OBJECT_LABELS: {"texts": labels},
-        OBJECT_CENTERS: {"circles": centers},
+        OBJECT_CENTERS: {"circles": circles},
     }
 
 
