@@ -45,6 +45,8 @@ def _add_settings_options(parser: argparse.ArgumentParser) -> None:
             parser.add_argument(
                 flag, action=argparse.BooleanOptionalAction, default=None, help=f"{field.description} (env {env})"
             )
+        elif typing.get_origin(field.annotation) is list:
+            parser.add_argument(flag, action="append", default=None, metavar="KIND:PATH", help=f"{field.description} (env {env})")
         else:
             default = "" if field.default is None else f"; default {field.default}"
             parser.add_argument(
@@ -72,15 +74,19 @@ def _serve(args: argparse.Namespace) -> int:
             print(f"xviz-server serve: {option}: {error['msg']}", file=sys.stderr)
         return 2
     data_dir = settings.data_dir
-    if data_dir is None:
+    if data_dir is None and not settings.dataset:
         from .demo import default_cache_dir, ensure_demo_log
 
         data_dir = ensure_demo_log(default_cache_dir())
         logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo log in %s", data_dir)
-    elif not data_dir.is_dir():
+    elif data_dir is not None and not data_dir.is_dir():
         print(f"xviz-server serve: --data-dir {data_dir} is not a directory", file=sys.stderr)
         return 2
-    _run_async(run(settings, data_dir))
+    try:
+        _run_async(run(settings, data_dir))
+    except ValueError as exc:  # a --dataset that is not KIND:PATH
+        print(f"xviz-server serve: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -112,6 +118,30 @@ def _probe(args: argparse.Namespace) -> int:
         return 2
     print(orjson.dumps(report.as_dict(), option=orjson.OPT_INDENT_2).decode() if args.json else report.render())
     return 0 if report.clean else 1
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from .codec import Format
+    from .convert import convert
+    from .exceptions import XVIZError
+
+    try:
+        convert(
+            args.kind,
+            args.source,
+            args.output,
+            fmt=Format.JSON if args.format == "json" else Format.BINARY,
+            frames=args.frames,
+            options={"image_max_width": args.image_max_width},
+            processes=args.processes,
+        )
+    except (ValueError, XVIZError) as exc:
+        print(f"xviz-server convert: {exc}", file=sys.stderr)
+        return 1 if isinstance(exc, XVIZError) else 2
+    except KeyboardInterrupt:
+        print("\nxviz-server convert: interrupted; run the same command again to resume", file=sys.stderr)
+        return 130
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -158,6 +188,23 @@ def build_parser() -> argparse.ArgumentParser:
     probe.add_argument("--timeout", type=float, default=30.0, metavar="S", help="give up after S seconds (default 30)")
     probe.add_argument("--json", action="store_true", help="print the summary as JSON")
     probe.set_defaults(run=_probe)
+
+    from .datasets import KINDS
+
+    convert = commands.add_parser(
+        "convert",
+        help="convert a raw dataset into a static log",
+        description="Convert a raw dataset (a KITTI raw drive folder, ...) into a log in the reference layout, "
+        "using every core. An interrupted conversion resumes when run again.",
+    )
+    convert.add_argument("kind", choices=sorted(KINDS), help="dataset kind")
+    convert.add_argument("source", type=Path, help="the dataset (e.g. a KITTI drive folder)")
+    convert.add_argument("output", type=Path, help="the log directory to write")
+    convert.add_argument("--format", choices=["glb", "json"], type=str.lower, default="glb", help="frame format (default glb)")
+    convert.add_argument("--frames", metavar="A:B", help="convert frames A to B-1 only (either may be left out)")
+    convert.add_argument("--image-max-width", type=int, default=400, metavar="W", help="scale camera images down to W pixels (default 400)")
+    convert.add_argument("--processes", type=int, metavar="N", help="worker processes (default: one per core)")
+    convert.set_defaults(run=_convert)
     return parser
 
 

@@ -18,6 +18,8 @@ __all__ = [
     "LogError",
     "FrameError",
     "BuilderError",
+    "LogWriteError",
+    "DatasetError",
 ]
 
 
@@ -109,3 +111,23 @@ class FrameError(XVIZError):
 
 class BuilderError(XVIZError):
     """The builder was given something XVIZ cannot carry; the message names the stream and field."""
+
+
+class DatasetError(XVIZError):
+    """A raw dataset file is missing or unreadable; ``path`` names it."""
+
+    def __init__(self, message: str, *, path: object = None) -> None:
+        super().__init__(message)
+        self.path = path
+
+
+class LogWriteError(XVIZError):
+    """A log directory cannot be written as asked; ``directory`` names it.
+
+    The message says why: a frame or the metadata is missing, a frame is not
+    a state update, the directory holds a log of the other format.
+    """
+
+    def __init__(self, message: str, *, directory: object) -> None:
+        super().__init__(message)
+        self.directory = directory

@@ -31,11 +31,14 @@ from websockets.http11 import Request, Response
 from . import __version__
 from .cache import FrameCache
 from .connection import Connection
+from .datasets import KINDS
 from .exceptions import LogError
 from .ingest import feed_name, refusal, run_ingest
 from .live import LiveRegistry
 from .logs import Catalog
 from .metrics import CONTENT_TYPE, Metrics
+from .providers import Provider
+from .providers.datasets import DatasetProvider
 from .providers.static_log import StaticLogProvider
 from .record import Recorder
 from .replay import replay
@@ -52,18 +55,17 @@ MB = 1 << 20
 class XVIZServer:
     """A running server; use as ``async with XVIZServer(settings) as server: ...``."""
 
-    def __init__(self, settings: Settings, data_dir: Path) -> None:
+    def __init__(self, settings: Settings, data_dir: Path | None) -> None:
         self.settings = settings
         self.data_dir = data_dir
         self.metrics = Metrics()
         self.workers = Workers()
         self.cache = FrameCache(int(settings.cache_mb * MB), self.metrics)
-        self.catalog = Catalog(
-            [StaticLogProvider(data_dir, self.workers)],
-            self.cache,
-            self.workers,
-            validate=settings.validate_frames,
-        )
+        providers: list[Provider] = [StaticLogProvider(data_dir, self.workers)] if data_dir is not None else []
+        datasets = [parse_dataset(text) for text in settings.dataset]
+        self._datasets = DatasetProvider(data_dir, datasets, self.workers, {"image_max_width": settings.image_max_width})
+        providers.append(self._datasets)
+        self.catalog = Catalog(providers, self.cache, self.workers, validate=settings.validate_frames)
         #: The live feeds; programs embedding the server publish with ``server.live.feed(name)``.
         self.live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
         self._server: Server | None = None
@@ -81,7 +83,9 @@ class XVIZServer:
     async def start(self) -> None:
         """Find the logs and start listening."""
         names = await self.catalog.scan()
-        logger.info("serving %d logs from %s", len(names), self.data_dir)
+        logger.info("serving %d logs from %s", len(names), self.data_dir or "datasets given on the command line")
+        if self._datasets.names:
+            self.workers.warm()  # datasets are converted in the process pool: start it now
         if self.settings.live_from is not None:
             await self._start_replay(self.settings.live_from)
         self._server = await serve(
@@ -167,6 +171,18 @@ class XVIZServer:
             HTTPStatus.NOT_FOUND,
             "not found: open a WebSocket for an XVIZ session, or GET /, /healthz or /metrics\n",
         )
+
+
+def parse_dataset(text: str) -> tuple[str, Path]:
+    """``kitti:/data/drive`` as ``("kitti", Path("/data/drive"))``; raises :class:`ValueError`."""
+    kind, separator, path = text.partition(":")
+    if not separator or not kind or not path:
+        raise ValueError(f"--dataset {text!r}: give KIND:PATH, like kitti:/data/2011_09_26_drive_0001_sync")
+    if kind not in KINDS:
+        raise ValueError(f"--dataset {text!r}: unknown kind {kind!r}; known: {', '.join(sorted(KINDS))}")
+    if not Path(path).is_dir():
+        raise ValueError(f"--dataset {text!r}: {path} is not a directory")
+    return kind, Path(path)
 
 
 def _response(connection: ServerConnection, status: HTTPStatus, body: bytes, content_type: str) -> Response:

@@ -20,6 +20,12 @@ class Settings(BaseSettings):
         description="directory of logs to serve (each log a folder in the reference layout); "
         "default: a built-in demo log",
     )
+    dataset: list[str] = Field(
+        default_factory=list,
+        description="serve a raw dataset, KIND:PATH (e.g. kitti:/data/2011_09_26_drive_0001_sync), converted on "
+        "demand; repeat for more (env: a JSON list)",
+    )
+    image_max_width: int = Field(default=400, ge=16, description="camera images of raw datasets are scaled down to this width")
     host: str = Field(default="127.0.0.1", description="address to listen on (0.0.0.0 for every interface)")
     port: int = Field(default=3000, ge=0, le=65535, description="TCP port for WebSocket and HTTP")
     cache_mb: float = Field(default=512, gt=0, description="size of the frame cache shared by all sessions, MB")

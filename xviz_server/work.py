@@ -33,14 +33,29 @@ class Workers:
 
     async def cpu(self, function: Callable[..., T], *args: Any) -> T:
         """Run ``function(*args)`` in the process pool; it must be picklable."""
+        return await asyncio.get_running_loop().run_in_executor(self._pool(), function, *args)
+
+    def warm(self) -> None:
+        """Start the worker processes now, so that the first heavy job does not wait for them."""
+        pool = self._pool()
+        for _ in range(self._process_count):
+            pool.submit(_ready)
+
+    def _pool(self) -> Executor:
         if self._processes is None:
             methods = multiprocessing.get_all_start_methods()
             context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
             self._processes = ProcessPoolExecutor(max_workers=self._process_count, mp_context=context)
-        return await asyncio.get_running_loop().run_in_executor(self._processes, function, *args)
+        return self._processes
 
     def close(self) -> None:
         """Stop both pools; running jobs finish, queued ones are dropped."""
         self._threads.shutdown(wait=False, cancel_futures=True)
         if self._processes is not None:
             self._processes.shutdown(wait=False, cancel_futures=True)
+
+
+def _ready() -> None:
+    """Import what converters use, so that a worker's first real job does not pay for it."""
+    import xviz_server.builder  # noqa: F401
+    import xviz_server.datasets  # noqa: F401

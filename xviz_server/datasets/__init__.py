@@ -1,1 +1,90 @@
-"""Readers and converters of raw datasets (KITTI raw, Waymo, VISTA) to XVIZ."""
+"""Raw datasets converted to XVIZ: readers and converters by kind.
+
+A dataset is a recording in its own layout (a KITTI raw drive, ...). It
+knows its frame times without converting anything, builds its metadata, and
+converts one frame at a time, so that a server can serve it on demand and
+``xviz-server convert`` can write it out as a static log.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from ..codec import Format, encode
+from ..exceptions import DatasetError
+from ..messages import envelope
+
+__all__ = ["Dataset", "KINDS", "open_dataset", "detect", "convert_frame"]
+
+
+class Dataset(Protocol):
+    """A raw recording that converts to XVIZ frame by frame."""
+
+    #: The log name it is served under by default.
+    name: str
+    #: Where it is.
+    path: Path
+    #: UNIX time of every frame, in frame order.
+    times: np.ndarray
+
+    def __len__(self) -> int: ...
+
+    def metadata(self) -> dict[str, Any]:
+        """The data of the log's ``xviz/metadata``."""
+        ...
+
+    def convert(self, frame: int, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The data of frame ``frame``'s ``xviz/state_update``."""
+        ...
+
+
+def _kitti(path: Path, **options: Any) -> Dataset:
+    from .kitti import KittiDrive
+
+    return KittiDrive(path, **options)
+
+
+def _is_kitti(path: Path) -> bool:
+    from .kitti import is_kitti_drive
+
+    return is_kitti_drive(path)
+
+
+#: Dataset kinds: how to open one, and how to recognise one by its layout.
+KINDS: dict[str, tuple[Callable[..., Dataset], Callable[[Path], bool]]] = {
+    "kitti": (_kitti, _is_kitti),
+}
+
+
+def open_dataset(kind: str, path: Path, **options: Any) -> Dataset:
+    """Open the dataset of ``kind`` at ``path``; raises :class:`~xviz_server.exceptions.DatasetError`."""
+    if kind not in KINDS:
+        raise DatasetError(f"unknown dataset kind {kind!r}; known: {', '.join(sorted(KINDS))}", path=path)
+    if not Path(path).exists():
+        raise DatasetError(f"{path}: no such file or directory", path=path)
+    return KINDS[kind][0](Path(path), **options)
+
+
+def detect(path: Path) -> str | None:
+    """The kind of dataset whose layout ``path`` has, if any."""
+    return next((kind for kind, (_, recognise) in KINDS.items() if recognise(path)), None)
+
+
+_opened: dict[tuple[str, str, tuple[tuple[str, Any], ...]], Dataset] = {}
+
+
+def convert_frame(
+    kind: str, path: str, options: dict[str, Any], frame: int, metadata: dict[str, Any], fmt: Format = Format.BINARY
+) -> bytes:
+    """Frame ``frame`` of a dataset as an encoded message; for worker processes.
+
+    Each process opens a dataset once and keeps it, with what it caches.
+    """
+    key = (kind, path, tuple(sorted(options.items())))
+    dataset = _opened.get(key)
+    if dataset is None:
+        dataset = _opened[key] = open_dataset(kind, Path(path), **options)
+    return encode(envelope("state_update", dataset.convert(frame, metadata)), fmt)

@@ -1,0 +1,98 @@
+#!/usr/bin/env python3
+"""Benchmark KITTI conversion: per frame, with the pool, and served on demand.
+
+    python scripts/bench_kitti.py [RAW_DIR] [--repeat N]
+
+1. One frame (read raw files, build, encode GLB) in this process: median ms.
+2. The whole drive with a process pool of one process per core: frames/s.
+3. The drive served on demand (``xviz-server serve --dataset kitti:RAW``, a
+   separate process, fresh): time to the first frame of a transform_log on
+   the unconverted drive, and the sustained streaming rate as a ratio to
+   real time (10 Hz).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import websockets
+
+from xviz_server.codec import Format, encode
+from xviz_server.datasets import convert_frame
+from xviz_server.datasets.kitti import KittiDrive
+from xviz_server.messages import envelope
+
+RAW = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
+
+
+async def served(raw: Path) -> tuple[float, float, int]:
+    server = subprocess.Popen([sys.executable, "-m", "xviz_server", "serve", "--dataset", f"kitti:{raw}", "--port", "0"],
+                              stderr=subprocess.PIPE, text=True)
+    assert server.stderr is not None
+    port = next(int(m.group(1)) for line in server.stderr if (m := re.search(r"ws://127\.0\.0\.1:(\d+)/", line)))
+    try:
+        async with websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None) as websocket:
+            await websocket.recv()
+            started = time.perf_counter()
+            await websocket.send(json.dumps({"type": "xviz/transform_log", "data": {"id": "1"}}))
+            frames, first = 0, None
+            while True:
+                message = await websocket.recv()
+                if isinstance(message, str) and "transform_log_done" in message:
+                    break
+                frames += 1
+                first = first or time.perf_counter() - started
+            return first, time.perf_counter() - started, frames
+    finally:
+        server.terminate()
+        server.wait(10)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("raw", nargs="?", type=Path, default=RAW)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    drive = KittiDrive(args.raw)
+    metadata = drive.metadata()
+
+    times = []
+    for _ in range(args.repeat):
+        for frame in range(len(drive)):
+            fresh = KittiDrive(args.raw)  # no cached OXTS: every file read, as in a cold worker
+            started = time.perf_counter()
+            encode(envelope("state_update", fresh.convert(frame, metadata)), Format.BINARY)
+            times.append(time.perf_counter() - started)
+    single = statistics.median(times) * 1000
+    print(f"drive {drive.name}: {len(drive)} frames")
+    print(f"1. one frame (read, build, encode GLB), one process: median {single:.1f} ms "
+          f"(target under 30 ms; the official converter: 150-800 ms)")
+
+    processes = os.cpu_count() or 1
+    with ProcessPoolExecutor(processes) as pool:
+        list(pool.map(convert_frame, ["kitti"] * processes, [str(drive.path)] * processes, [{}] * processes,
+                      range(processes), [metadata] * processes))  # start the workers
+        started = time.perf_counter()
+        list(pool.map(convert_frame, ["kitti"] * len(drive), [str(drive.path)] * len(drive), [{}] * len(drive),
+                      range(len(drive)), [metadata] * len(drive)))
+        pooled = len(drive) / (time.perf_counter() - started)
+    print(f"2. whole drive, {processes} processes: {pooled:.0f} frames/s ({1000 / pooled:.1f} ms per frame)")
+
+    first, total, frames = asyncio.run(served(args.raw))
+    rate = frames / total
+    print(f"3. served on demand: first frame after {first * 1000:.0f} ms; "
+          f"{rate:.0f} frames/s sustained = {rate / 10:.1f}x real time (10 Hz)")
+
+
+if __name__ == "__main__":
+    main()
