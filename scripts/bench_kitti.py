@@ -7,8 +7,9 @@
 2. The whole drive with a process pool of one process per core: frames/s.
 3. The drive served on demand (``xviz-server serve --dataset kitti:RAW``, a
    separate process, fresh): time to the first frame of a transform_log on
-   the unconverted drive, and the sustained streaming rate as a ratio to
-   real time (10 Hz).
+   the unconverted drive, and the streaming rate over the drive as a ratio
+   to real time (10 Hz); asked the moment the server listens (its worker
+   processes still starting) and 3 s later.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from pathlib import Path
 
 import websockets
 
-from xviz_server.codec import Format, encode
+from xviz_server.codec import Format, decode, encode
 from xviz_server.datasets import convert_frame
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.messages import envelope
@@ -35,12 +36,13 @@ from xviz_server.messages import envelope
 RAW = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
 
 
-async def served(raw: Path) -> tuple[float, float, int]:
+async def served(raw: Path, settle: float) -> tuple[float, float, int]:
     server = subprocess.Popen([sys.executable, "-m", "xviz_server", "serve", "--dataset", f"kitti:{raw}", "--port", "0"],
                               stderr=subprocess.PIPE, text=True)
     assert server.stderr is not None
     port = next(int(m.group(1)) for line in server.stderr if (m := re.search(r"ws://127\.0\.0\.1:(\d+)/", line)))
     try:
+        await asyncio.sleep(settle)
         async with websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None) as websocket:
             await websocket.recv()
             started = time.perf_counter()
@@ -48,7 +50,7 @@ async def served(raw: Path) -> tuple[float, float, int]:
             frames, first = 0, None
             while True:
                 message = await websocket.recv()
-                if isinstance(message, str) and "transform_log_done" in message:
+                if len(message) < 200 and decode(message)["type"] == "xviz/transform_log_done":
                     break
                 frames += 1
                 first = first or time.perf_counter() - started
@@ -88,10 +90,11 @@ def main() -> None:
         pooled = len(drive) / (time.perf_counter() - started)
     print(f"2. whole drive, {processes} processes: {pooled:.0f} frames/s ({1000 / pooled:.1f} ms per frame)")
 
-    first, total, frames = asyncio.run(served(args.raw))
-    rate = frames / total
-    print(f"3. served on demand: first frame after {first * 1000:.0f} ms; "
-          f"{rate:.0f} frames/s sustained = {rate / 10:.1f}x real time (10 Hz)")
+    for settle, when in ((0.0, "the moment the server listens"), (3.0, "3 s after start (worker processes up)")):
+        first, total, frames = asyncio.run(served(args.raw, settle))
+        rate = frames / total
+        print(f"3. served on demand, asked {when}: first frame after {first * 1000:.0f} ms; "
+              f"{rate:.0f} frames/s over the drive = {rate / 10:.1f}x real time (10 Hz)")
 
 
 if __name__ == "__main__":

@@ -85,7 +85,7 @@ class XVIZServer:
         names = await self.catalog.scan()
         logger.info("serving %d logs from %s", len(names), self.data_dir or "datasets given on the command line")
         if self._datasets.names:
-            self.workers.warm()  # datasets are converted in the process pool: start it now
+            await self.workers.warm()  # datasets are converted in the process pool: have it up first
         if self.settings.live_from is not None:
             await self._start_replay(self.settings.live_from)
         self._server = await serve(

@@ -35,11 +35,11 @@ class Workers:
         """Run ``function(*args)`` in the process pool; it must be picklable."""
         return await asyncio.get_running_loop().run_in_executor(self._pool(), function, *args)
 
-    def warm(self) -> None:
+    async def warm(self) -> None:
         """Start the worker processes now, so that the first heavy job does not wait for them."""
+        loop = asyncio.get_running_loop()
         pool = self._pool()
-        for _ in range(self._process_count):
-            pool.submit(_ready)
+        await asyncio.gather(*(loop.run_in_executor(pool, _ready) for _ in range(self._process_count)))
 
     def _pool(self) -> Executor:
         if self._processes is None:
