@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import sys
 import types
 import typing
@@ -15,7 +16,8 @@ import orjson
 import pydantic
 
 from . import __version__
-from .settings import Settings
+from .logfmt import configure_logging
+from .settings import Settings, load_settings
 
 __all__ = ["main"]
 
@@ -37,7 +39,8 @@ def _option_type(annotation: Any) -> Callable[[str], Any]:
 
 
 def _add_settings_options(parser: argparse.ArgumentParser) -> None:
-    """One option per :class:`Settings` field, named like it (``--cache-mb``)."""
+    """``--config`` and one option per :class:`Settings` field, named like it (``--cache-mb``)."""
+    parser.add_argument("--config", type=Path, metavar="FILE", help="TOML file of settings (env XVIZ_CONFIG)")
     for name, field in Settings.model_fields.items():
         flag = "--" + name.replace("_", "-")
         env = f"XVIZ_{name.upper()}"
@@ -45,8 +48,12 @@ def _add_settings_options(parser: argparse.ArgumentParser) -> None:
             parser.add_argument(
                 flag, action=argparse.BooleanOptionalAction, default=None, help=f"{field.description} (env {env})"
             )
+        elif typing.get_origin(field.annotation) is typing.Literal:
+            choices = typing.get_args(field.annotation)
+            parser.add_argument(flag, choices=choices, default=None, help=f"{field.description} (env {env}; default {field.default})")
         elif typing.get_origin(field.annotation) is list:
-            parser.add_argument(flag, action="append", default=None, metavar="KIND:PATH", help=f"{field.description} (env {env})")
+            metavar = "KIND:PATH" if name == "dataset" else name.split("_")[-1].upper().removesuffix("S")
+            parser.add_argument(flag, action="append", default=None, metavar=metavar, help=f"{field.description} (env {env})")
         else:
             default = "" if field.default is None else f"; default {field.default}"
             parser.add_argument(
@@ -60,19 +67,50 @@ def _add_settings_options(parser: argparse.ArgumentParser) -> None:
 
 def _settings(args: argparse.Namespace) -> Settings:
     given = {name: getattr(args, name) for name in Settings.model_fields if getattr(args, name) is not None}
-    return Settings(**given)
+    config = args.config or os.environ.get("XVIZ_CONFIG")
+    return load_settings(Path(config) if config else None, **given)
+
+
+def _settings_or_report(args: argparse.Namespace, command: str) -> Settings | None:
+    """The effective settings, or ``None`` after saying on standard error what is wrong."""
+    try:
+        return _settings(args)
+    except FileNotFoundError as exc:
+        print(f"xviz-server {command}: {exc}", file=sys.stderr)
+    except pydantic.ValidationError as exc:
+        for error in exc.errors():
+            option = "--" + "-".join(str(part) for part in error["loc"]).replace("_", "-")
+            print(f"xviz-server {command}: {option}: {error['msg']}", file=sys.stderr)
+    return None
+
+
+def _config(args: argparse.Namespace) -> int:
+    settings = _settings_or_report(args, "config")
+    if settings is None:
+        return 2
+    for name, value in settings.model_dump(mode="json").items():
+        print(f"{name} = {_toml(value)}" if value is not None else f"# {name} is not set")
+    return 0
+
+
+def _toml(value: Any) -> str:
+    """A setting's value as TOML (settings are strings, numbers, booleans and lists of strings)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(item) for item in value) + "]"
+    if isinstance(value, str):
+        return orjson.dumps(value).decode()
+    return str(value)
 
 
 def _serve(args: argparse.Namespace) -> int:
     from .server import run
 
-    try:
-        settings = _settings(args)
-    except pydantic.ValidationError as exc:
-        for error in exc.errors():
-            option = "--" + "-".join(str(part) for part in error["loc"]).replace("_", "-")
-            print(f"xviz-server serve: {option}: {error['msg']}", file=sys.stderr)
+    settings = _settings_or_report(args, "serve")
+    if settings is None:
         return 2
+    configure_logging(settings.log_format)
     data_dir = settings.data_dir
     if data_dir is None and not settings.dataset:
         from .demo import default_cache_dir, ensure_demo_log
@@ -102,18 +140,23 @@ def _probe(args: argparse.Namespace) -> int:
     from .codec import Format
     from .probe import Instant, probe
 
+    def instant(text: str | None) -> Instant | None:
+        return None if text is None else Instant.parse(text)
+
     try:
-        times = {key: Instant.parse(getattr(args, key)) if getattr(args, key) is not None else None
-                 for key in ("start", "end", "point_in_time")}
-        report = _run_async(probe(
-            args.url,
-            fmt=Format(args.format.upper()) if args.format else None,
-            streams=args.streams,
-            validate=args.validate,
-            timeout=args.timeout,
-            **times,
-        ))
-    except ValueError as exc:
+        report = _run_async(
+            probe(
+                args.url,
+                fmt=None if args.format is None else Format(args.format.upper()),
+                start=instant(args.start),
+                end=instant(args.end),
+                streams=args.streams,
+                point_in_time=instant(args.point_in_time),
+                validate=args.validate,
+                timeout=args.timeout,
+            )
+        )
+    except ValueError as exc:  # a URL that is not ws://..., a time that is not a time
         print(f"xviz-server probe: {exc}", file=sys.stderr)
         return 2
     print(orjson.dumps(report.as_dict(), option=orjson.OPT_INDENT_2).decode() if args.json else report.render())
@@ -156,10 +199,19 @@ def build_parser() -> argparse.ArgumentParser:
         "serve",
         help="serve logs over WebSocket",
         description="Serve the XVIZ logs found under --data-dir (or the built-in demo log) to "
-        "streetscape.gl and scripted clients; every option can also be set by its environment variable.",
+        "streetscape.gl and scripted clients. Every option can also be set by its environment variable or in "
+        "the TOML file given by --config; flags win over the environment, which wins over the file.",
     )
     _add_settings_options(serve)
     serve.set_defaults(run=_serve)
+
+    config = commands.add_parser(
+        "config",
+        help="print the effective configuration",
+        description="Print the settings `serve` would run with, from flags, XVIZ_* variables and --config, as TOML.",
+    )
+    _add_settings_options(config)
+    config.set_defaults(run=_config)
 
     validate = commands.add_parser(
         "validate",
@@ -175,8 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
         "probe",
         help="run a scripted session against a server (CI smoke test)",
         description="Connect like streetscape.gl, request a range (and an instant), check every message and "
-        "print a summary. Times are seconds, or +seconds from the log's start. Exit status 0 only when "
-        "the session was clean.",
+        "print a summary. Times are seconds, or +seconds from the log's start. Exit status 0 when the session "
+        "was clean, 1 when something was wrong (an xviz/error, a bad message or frame, a timeout...), 2 for a "
+        "usage error.",
     )
     probe.add_argument("url", help="ws://HOST:PORT/?log=NAME")
     probe.add_argument("--format", choices=["json", "binary"], type=str.lower, help="message_format to ask for")
@@ -215,8 +268,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    logging.getLogger("websockets").setLevel(logging.WARNING)
+    configure_logging(os.environ.get("XVIZ_LOG_FORMAT", "text"))
     return args.run(args)
 
 

@@ -24,8 +24,9 @@ from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
 
-from .codec import Format
+from .codec import Format, decode
 from .exceptions import XVIZError
+from .logfmt import log_event
 from .live import FeedEvent, LiveRegistry, LiveSource, LiveUpdate, Subscription, Variant
 from .logs import Catalog, check_log_name
 from .metrics import Metrics
@@ -83,6 +84,7 @@ class Connection:
         started = time.monotonic()
         self.metrics.sessions.inc()
         self.metrics.sessions_open.inc()
+        log_event(logger, "session start", remote=_remote(self.websocket), path=self.websocket.request.path if self.websocket.request else "/")
         try:
             await self._guarded("the connection", self.session.connect)
             async for message in self.websocket:
@@ -97,15 +99,16 @@ class Connection:
             await asyncio.gather(*self._tasks, return_exceptions=True)
             self.metrics.sessions_open.dec()
             code, reason = self.websocket.close_code, self.websocket.close_reason
-            logger.info(
-                "session end remote=%s log=%s format=%s frames=%d bytes=%d duration=%.3fs reason=%s",
-                _remote(self.websocket),
-                self.session.log.name if self.session.log else None,
-                self.session.format.value,
-                self.frames_sent,
-                self.bytes_sent,
-                time.monotonic() - started,
-                f"{code} {reason}".strip() if code is not None else "connection lost",
+            log_event(
+                logger,
+                "session end",
+                remote=_remote(self.websocket),
+                log=self.session.log.name if self.session.log else None,
+                format=self.session.format.value,
+                frames=self.frames_sent,
+                bytes=self.bytes_sent,
+                duration=round(time.monotonic() - started, 3),
+                reason=f"{code} {reason}".strip() if code is not None else "connection lost",
             )
 
     async def _guarded(self, what: str, step: Any, *args: Any) -> None:
@@ -165,7 +168,7 @@ class Connection:
         await self.websocket.send(event.data, text=event.text)
         if event.error is not None:
             self.metrics.errors.labels(event.error).inc()
-            logger.info("error remote=%s kind=%s", _remote(self.websocket), event.error)
+            log_event(logger, "error sent", remote=_remote(self.websocket), kind=event.error, message=decode_message(event))
 
     async def _run_stream(self, request: StreamFrames, stop: asyncio.Event, previous: asyncio.Task[None] | None) -> None:
         if previous is not None:
@@ -318,6 +321,14 @@ async def _wait(stop: asyncio.Event, seconds: float) -> None:
             await asyncio.wait_for(stop.wait(), seconds)
         except asyncio.TimeoutError:
             pass
+
+
+def decode_message(event: Send) -> str:
+    """The text of an ``xviz/error`` being sent, for the log."""
+    try:
+        return str(decode(event.data)["data"]["message"])
+    except Exception:  # the log line must not fail over a message it only describes
+        return "?"
 
 
 def _remote(websocket: ServerConnection) -> str:

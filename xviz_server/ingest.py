@@ -14,7 +14,6 @@ sources on the loopback interface are accepted.
 
 from __future__ import annotations
 
-import hmac
 import ipaddress
 import logging
 from typing import Any
@@ -25,6 +24,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
 from websockets.http11 import Request
 
+from .auth import token_matches
 from .codec import decode, encode_json
 from .exceptions import DecodeError, MessageError, XVIZError
 from .live import LiveRegistry
@@ -59,11 +59,7 @@ def refusal(request: Request, remote: Any, token: str | None) -> str | None:
         except ValueError:
             pass
         return "ingest from other hosts needs a token; start the server with --ingest-token"
-    given = dict(parse_qsl(urlsplit(request.path).query)).get("token")
-    authorization = request.headers.get("Authorization", "")
-    if authorization.startswith("Bearer "):
-        given = authorization.removeprefix("Bearer ")
-    if given is None or not hmac.compare_digest(given.encode(), token.encode()):
+    if not token_matches(request, token):
         return "wrong or missing ingest token"
     return None
 

@@ -19,6 +19,7 @@ import asyncio
 import dataclasses
 import logging
 import signal
+import ssl
 from http import HTTPStatus
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,7 @@ from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 
 from . import __version__
+from .auth import token_matches
 from .cache import FrameCache
 from .connection import Connection
 from .datasets import KINDS
@@ -92,6 +94,8 @@ class XVIZServer:
             self._handle,
             self.settings.host,
             self.settings.port,
+            ssl=self._tls(),
+            origins=[*self.settings.allowed_origins, None] if self.settings.allowed_origins else None,
             process_request=self._process_request,
             compression="deflate" if self.settings.compression else None,
             max_size=self.settings.max_message_kb * 1024,
@@ -100,7 +104,16 @@ class XVIZServer:
             close_timeout=min(10.0, self.settings.idle_timeout),
             server_header=f"xviz-server/{__version__}",
         )
-        logger.info("listening on ws://%s:%d/", self.settings.host, self.port)
+        scheme = "wss" if self.settings.certfile else "ws"
+        logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)
+
+    def _tls(self) -> ssl.SSLContext | None:
+        """The TLS context for --certfile/--keyfile, or ``None`` for plain ws:// and http://."""
+        if self.settings.certfile is None:
+            return None
+        context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+        context.load_cert_chain(self.settings.certfile, self.settings.keyfile)
+        return context
 
     async def _start_replay(self, directory: Path) -> None:
         """Replay a static log as the live feed named after its folder."""
@@ -154,6 +167,8 @@ class XVIZServer:
                 # Sources push whole frames: point clouds and images, megabytes each.
                 connection.protocol.max_message_size = int(self.settings.max_ingest_mb * MB)
                 return None
+            if self.settings.viewer_token and not token_matches(request, self.settings.viewer_token):
+                return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
             if len(self.sessions) >= self.settings.max_sessions:
                 logger.warning("refused a session: %d sessions open", self.settings.max_sessions)
                 return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "too many sessions, try again later\n")
@@ -164,6 +179,8 @@ class XVIZServer:
         if path == "/metrics":
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
         if path in ("/", "/logs"):
+            if self.settings.viewer_token and not token_matches(request, self.settings.viewer_token):
+                return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
             live = [{"name": feed.name, "connected": feed.connected} for feed in self.live]
             body = {"server": f"xviz-server {__version__}", "logs": await self.catalog.describe(), "live": live}
             return _response(connection, HTTPStatus.OK, orjson.dumps(body, option=orjson.OPT_INDENT_2), "application/json")

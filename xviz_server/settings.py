@@ -1,19 +1,36 @@
-"""Server settings: command-line flags over ``XVIZ_*`` environment variables over defaults."""
+"""Server settings: flags over ``XVIZ_*`` environment variables over a TOML file over defaults.
+
+The configuration file is TOML with the settings' names as keys
+(``cache_mb = 256``); it is named by ``--config`` or ``XVIZ_CONFIG``.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Literal
 
 from pydantic import Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
-__all__ = ["Settings"]
+__all__ = ["Settings", "load_settings"]
 
 
 class Settings(BaseSettings):
     """Everything an operator can set; each field is also the ``XVIZ_<NAME>`` environment variable."""
 
-    model_config = SettingsConfigDict(env_prefix="XVIZ_", frozen=True)
+    model_config = SettingsConfigDict(env_prefix="XVIZ_", frozen=True, extra="forbid")
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        # Flags (given as arguments) over the environment over the file.
+        return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)
 
     data_dir: Path | None = Field(
         default=None,
@@ -58,3 +75,32 @@ class Settings(BaseSettings):
     rate: float = Field(default=1.0, gt=0, description="playback rate of --live-from (1 is real time)")
     loop: bool = Field(default=False, description="replay --live-from over and over")
     record: Path | None = Field(default=None, description="record every live feed as a static log under this directory")
+    log_format: Literal["text", "json"] = Field(default="text", description="log lines as text or as JSON objects")
+    certfile: Path | None = Field(default=None, description="TLS certificate (PEM) to serve wss:// and https://")
+    keyfile: Path | None = Field(default=None, description="TLS private key (PEM) for --certfile")
+    viewer_token: str | None = Field(
+        default=None,
+        description="token that viewers must give (?token= or Authorization: Bearer) to open a session or list logs",
+    )
+    allowed_origins: list[str] = Field(
+        default_factory=list,
+        description="browser origins allowed to connect, e.g. https://viewer.example.com; repeat for more "
+        "(default: any; clients that send no Origin, like scripts, are always allowed)",
+    )
+
+
+def load_settings(config: Path | None = None, **flags: Any) -> Settings:
+    """Settings from ``flags``, the environment, and the TOML file ``config`` (if any), in that order.
+
+    Raises :class:`pydantic.ValidationError` for a wrong or unknown value,
+    :class:`FileNotFoundError` if ``config`` does not exist.
+    """
+    if config is None:
+        return Settings(**flags)
+    if not Path(config).is_file():
+        raise FileNotFoundError(f"configuration file {config} not found")
+
+    class FromFile(Settings):
+        model_config = SettingsConfigDict(**{**Settings.model_config, "toml_file": config})
+
+    return FromFile(**flags)
