@@ -1,206 +1,249 @@
 """A scripted XVIZ client for smoke tests: ``xviz-server probe URL``.
 
-It connects the way streetscape.gl does (the log in the URL, no start
-message), waits for the metadata, asks for a range with ``transform_log``
-(and an instant with ``transform_point_in_time`` if told), checks what comes
-back, and reports. The session is *clean* when nothing went wrong: no
-``xviz/error``, every message decodes, every state update has an
-``update_type`` and a ``timestamp`` inside the range, in time order, with a
-pose within 0.4 s of it (streetscape.gl draws nothing without one), the
-reply ends with the request's ``transform_log_done``, and with ``validate``
-every message matches the XVIZ schema.
+:func:`probe` opens a session the way streetscape.gl does (the log named in
+the URL, no ``xviz/start``), waits for the metadata, asks for a range with
+``xviz/transform_log`` and, when told, for an instant with
+``xviz/transform_point_in_time``, checks every message that comes back, and
+returns a :class:`ProbeReport`.
+
+The session is *clean* when the report holds no error. Errors are:
+
+* an ``xviz/error`` from the server, a message that does not decode, a
+  timeout, the connection closing before the answers are in;
+* metadata without ``version`` or with a ``log_info.start_time`` or
+  ``end_time`` that is missing, zero or not finite (streetscape.gl never
+  requests anything then);
+* a state update without ``update_type`` or ``timestamp``, out of time
+  order, outside the requested range, or without a pose within
+  :data:`POSE_WINDOW` seconds of its timestamp (the viewer draws nothing);
+* a ``transform_log_done`` for another request, a point-in-time answer that
+  is not one ``COMPLETE_STATE`` update at or before the instant;
+* with ``validate=True``, any violation of the XVIZ v2 schema.
+
+Streams that frames carry but the metadata does not declare are warnings.
+
+Schema validation stays fast on JSON point clouds: the validator checks the
+first rows of long lists of numbers, as it does for numpy arrays (see
+:mod:`xviz_server.validation`), so nothing is converted here.
 """
 
 from __future__ import annotations
 
 import asyncio
 import math
+import textwrap
 import time
 import uuid
 from collections import Counter
-from dataclasses import dataclass, field
-from typing import Any, Sequence
-from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
+from dataclasses import asdict, dataclass, field
+from decimal import Decimal
+from typing import Any, NamedTuple, Sequence
+from urllib.parse import urlsplit, urlunsplit
 
-from websockets.asyncio.client import connect
+from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+from websockets.uri import parse_uri
 
 from .codec import Format, decode, encode_json
-from .exceptions import DecodeError, MessageError, SchemaValidationError, XVIZError
-from .messages import unwrap
+from .exceptions import DecodeError, MessageError, SchemaValidationError
+from .messages import envelope, unwrap
 from .state import update_streams
 from .validation import get_validator
 
-__all__ = ["ProbeReport", "probe", "Instant"]
+__all__ = ["POSE_WINDOW", "Instant", "Problem", "ProbeReport", "probe", "with_format"]
 
-POSE_WINDOW = 0.4  # seconds between a frame and its pose within which streetscape.gl draws
+#: Seconds between a frame and its pose beyond which streetscape.gl draws nothing.
+POSE_WINDOW = 0.4
+
+#: Schema violations reported per message; the rest are counted.
+SHOWN_VIOLATIONS = 5
+
+#: Errors, and warnings, that :meth:`ProbeReport.render` lists; ``as_dict`` has them all.
+SHOWN_PROBLEMS = 20
+
+#: Seconds of silence after an ``xviz/error`` (or a message that does not decode)
+#: that end the wait for an answer: a request the server rejects gets no other.
+AFTER_ERROR = 2.0
+
+#: The type under which messages that do not decode are counted.
+UNDECODABLE = "undecodable"
 
 
 @dataclass(frozen=True)
 class Instant:
-    """A time given on the command line: absolute seconds, or an offset from the log start."""
+    """A time as given by the user: seconds, or seconds after the log's start."""
 
     seconds: float
     relative: bool = False
 
     @classmethod
     def parse(cls, text: str) -> Instant:
-        """``"1317042146.5"`` or ``"+1.5"`` (seconds after the log's start)."""
+        """Read ``"1317042146.5"`` (absolute) or ``"+1.5"`` (after the log's start).
+
+        Raises :class:`ValueError` for anything else.
+        """
         try:
-            value = float(text)
+            seconds = float(text)
         except ValueError:
-            raise ValueError(f"{text!r} is not a time: give seconds, or +seconds from the log's start") from None
-        if not math.isfinite(value):
-            raise ValueError(f"{text!r} is not a finite time")
-        return cls(value, text.strip().startswith("+"))
+            raise ValueError(f"{text!r} is not a time: give seconds, or +seconds after the log's start") from None
+        if not math.isfinite(seconds):
+            raise ValueError(f"{text!r} is not a time: it must be a finite number of seconds")
+        return cls(seconds, relative=text.lstrip().startswith("+"))
 
     def resolve(self, log_start: float | None) -> float:
+        """This instant in absolute seconds, for a log that starts at ``log_start``.
+
+        Raises :class:`ValueError` for an offset when the start is unknown.
+        """
         if not self.relative:
             return self.seconds
         if log_start is None:
-            raise XVIZError("a +offset time needs the log's start_time, which the metadata lacks")
-        return log_start + self.seconds
+            raise ValueError(f"{self} needs the log's start_time, which the metadata lacks; give absolute times")
+        # In decimal, so that +0.3 after 100.1 is the frame at 100.4, not 100.39999999999999.
+        return float(Decimal(repr(log_start)) + Decimal(repr(self.seconds)))
+
+    def __str__(self) -> str:
+        return f"+{self.seconds:.15g}" if self.relative else f"{self.seconds}"
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Something wrong in a session: where it was seen, and what it was."""
+
+    where: str
+    what: str
+
+    def __str__(self) -> str:
+        return f"{self.where}: {self.what}"
 
 
 @dataclass
 class ProbeReport:
-    """What a probe saw."""
+    """What a probe saw on one session.
+
+    ``frames`` counts the state updates answering the ``transform_log``;
+    ``messages`` and ``bytes_by_type`` count every message received, by type
+    (the point-in-time answer is a ``xviz/state_update`` there, not a frame).
+    ``first_time`` and ``last_time`` span the frames' timestamps.
+    """
 
     url: str
+    log_info: dict[str, Any] | None = None
+    declared_streams: int = 0
     messages: Counter[str] = field(default_factory=Counter)
-    bytes: Counter[str] = field(default_factory=Counter)
-    updates: int = 0
+    bytes_by_type: Counter[str] = field(default_factory=Counter)
+    frames: int = 0
     first_time: float | None = None
     last_time: float | None = None
     streams: set[str] = field(default_factory=set)
-    log_info: dict[str, Any] = field(default_factory=dict)
-    declared_streams: int = 0
     elapsed: float = 0.0
-    errors: list[str] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
+    errors: list[Problem] = field(default_factory=list)
+    warnings: list[Problem] = field(default_factory=list)
 
     @property
     def clean(self) -> bool:
-        return not self.errors and self.messages["xviz/metadata"] > 0
+        """Whether the session went without error (warnings allowed)."""
+        return not self.errors
+
+    @property
+    def total_bytes(self) -> int:
+        """Bytes received in all messages."""
+        return sum(self.bytes_by_type.values())
+
+    @property
+    def megabytes_per_second(self) -> float:
+        """Throughput over the whole session, connection included."""
+        return self.total_bytes / 1e6 / self.elapsed if self.elapsed else 0.0
 
     def as_dict(self) -> dict[str, Any]:
-        total = sum(self.bytes.values())
+        """The report as JSON-ready data."""
         return {
             "url": self.url,
             "clean": self.clean,
-            "messages": dict(self.messages),
-            "state_updates": self.updates,
-            "bytes": {"total": total, **self.bytes},
-            "time_range": [self.first_time, self.last_time],
-            "streams": sorted(self.streams),
             "log_info": self.log_info,
             "declared_streams": self.declared_streams,
+            "messages": dict(self.messages),
+            "frames": self.frames,
+            "bytes": {"total": self.total_bytes, "by_type": dict(self.bytes_by_type)},
+            "time_range": {"first": self.first_time, "last": self.last_time},
+            "streams": sorted(self.streams),
             "elapsed_s": round(self.elapsed, 3),
-            "mb_per_s": round(total / 1e6 / self.elapsed, 1) if self.elapsed else None,
-            "errors": self.errors,
-            "warnings": self.warnings,
+            "mb_per_s": round(self.megabytes_per_second, 1),
+            "errors": [asdict(problem) for problem in self.errors],
+            "warnings": [asdict(problem) for problem in self.warnings],
         }
 
     def render(self) -> str:
-        data = self.as_dict()
+        """The report as a short text for people, one topic per line."""
         lines = [
-            f"probe      {self.url}",
-            f"result     {'clean' if self.clean else 'UNCLEAN'}",
-            f"log_info   start {self.log_info.get('start_time')}  end {self.log_info.get('end_time')}  "
-            f"({self.declared_streams} streams declared)",
-            "messages   " + "  ".join(f"{kind.removeprefix('xviz/')} {count}" for kind, count in sorted(self.messages.items())),
-            f"bytes      {data['bytes']['total']:,} in {data['elapsed_s']} s ({data['mb_per_s']} MB/s)",
-            f"frames     {self.updates} from {self.first_time} to {self.last_time}",
-            f"streams    {len(self.streams)}: {', '.join(sorted(self.streams))}",
+            _line("probe", f"{self.url}: {'clean' if self.clean else 'UNCLEAN'}"),
+            _line("log", self._log_summary()),
+            _line("frames", self._frames_summary()),
+            _line("streams", f"{len(self.streams)} seen: {', '.join(sorted(self.streams)) or '-'}"),
+            _line(
+                "received",
+                f"{sum(self.messages.values())} messages, {self.total_bytes:,} bytes in {self.elapsed:.3f} s "
+                f"({self.megabytes_per_second:.1f} MB/s)",
+            ),
         ]
-        lines += [f"error      {text}" for text in self.errors]
-        lines += [f"warning    {text}" for text in self.warnings]
+        width = max(map(len, self.messages), default=0)
+        for kind, count in sorted(self.messages.items()):
+            lines.append(_line("", f"{kind:<{width}} {count:>6} {self.bytes_by_type[kind]:>14,}"))
+        lines += _problem_lines("errors", self.errors) + _problem_lines("warnings", self.warnings)
         return "\n".join(lines)
+
+    def _log_summary(self) -> str:
+        if self.log_info is None:
+            return "no metadata"
+        start, end = self.log_info.get("start_time"), self.log_info.get("end_time")
+        return f"{start} to {end}, {self.declared_streams} streams declared"
+
+    def _frames_summary(self) -> str:
+        if self.first_time is None or self.last_time is None:
+            return f"{self.frames}"
+        span = self.last_time - self.first_time
+        return f"{self.frames} from {self.first_time} to {self.last_time} ({span:.3f} s)"
+
+
+_LABEL_WIDTH = 10
+
+
+def _line(label: str, text: str) -> str:
+    """``text`` under ``label``, wrapped, continuation lines indented like it."""
+    return textwrap.fill(
+        text,
+        width=110,
+        initial_indent=f"{label:<{_LABEL_WIDTH}}",
+        subsequent_indent=" " * (_LABEL_WIDTH + 2),
+        break_on_hyphens=False,
+        break_long_words=False,
+    )
+
+
+def _problem_lines(label: str, problems: list[Problem]) -> list[str]:
+    if not problems:
+        return [_line(label, "none")]
+    lines = [_line(label if i == 0 else "", str(problem)) for i, problem in enumerate(problems[:SHOWN_PROBLEMS])]
+    if len(problems) > SHOWN_PROBLEMS:
+        lines.append(_line("", f"... and {len(problems) - SHOWN_PROBLEMS} more (--json lists them all)"))
+    return lines
 
 
 def with_format(url: str, fmt: Format | None) -> str:
-    """``url`` with ``message_format`` in its query when ``fmt`` is given."""
+    """``url`` asking for ``message_format=fmt`` in its query, the rest of it as written.
+
+    Raises :class:`ValueError` if ``url`` is not a WebSocket URL.
+    """
+    try:
+        parse_uri(url)
+    except InvalidURI as exc:
+        raise ValueError(f"{url!r} is not a WebSocket URL like ws://HOST:PORT/?log=NAME ({exc})") from None
     if fmt is None:
         return url
     parts = urlsplit(url)
-    query = [(k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True) if k != "message_format"]
-    return urlunsplit(parts._replace(query=urlencode([*query, ("message_format", fmt.value)])))
-
-
-class _Session:
-    """The checks on one connection, message by message."""
-
-    def __init__(self, report: ProbeReport, validate: bool) -> None:
-        self.report = report
-        self.validate = validate
-        self.declared: set[str] = set()
-
-    def receive(self, data: bytes | str) -> tuple[str, Any]:
-        """Decode, count and check one message; return its type and data."""
-        kind_label = "binary" if isinstance(data, bytes) else "text"
-        try:
-            kind, content = unwrap(decode(data))
-        except (DecodeError, MessageError) as exc:
-            self.report.errors.append(f"a {kind_label} message does not decode: {exc}")
-            return "undecodable", None
-        self.report.messages[kind] += 1
-        self.report.bytes[kind] += len(data)
-        if kind == "xviz/error":
-            self.report.errors.append(f"server error: {content.get('message') if isinstance(content, dict) else content}")
-        if self.validate:
-            try:
-                get_validator().validate_message({"type": kind, "data": content})
-            except SchemaValidationError as exc:
-                self.report.errors += [f"{kind} #{self.report.messages[kind]}: {p}" for p in exc.problems[:5]]
-        return kind, content
-
-    def metadata(self, data: dict[str, Any]) -> None:
-        info = data.get("log_info") or {}
-        self.report.log_info = {k: info.get(k) for k in ("start_time", "end_time")}
-        self.declared = set(data.get("streams") or ())
-        self.report.declared_streams = len(self.declared)
-        if "version" not in data:
-            self.report.errors.append("metadata has no 'version': the client falls back to XVIZ v1")
-        for key in ("start_time", "end_time"):
-            value = info.get(key)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value != 0):
-                self.report.errors.append(f"metadata log_info.{key} is {value!r}: streetscape.gl needs it to play the log")
-
-    def update(self, data: Any, low: float | None, high: float | None, where: str) -> None:
-        report = self.report
-        report.updates += 1
-        if not isinstance(data, dict) or not data.get("updates"):
-            report.errors.append(f"{where}: state update without 'updates'")
-            return
-        if "update_type" not in data:
-            report.errors.append(f"{where}: state update without 'update_type' (the client throws)")
-        times = [u.get("timestamp") for u in data["updates"]]
-        if not all(isinstance(t, (int, float)) and not isinstance(t, bool) for t in times):
-            report.errors.append(f"{where}: an update has no numeric 'timestamp'")
-            return
-        first, last = min(times), max(times)
-        if report.last_time is not None and first < report.last_time:
-            report.errors.append(f"{where}: timestamp {first} comes after {report.last_time}: out of time order")
-        if (low is not None and last < low) or (high is not None and first > high):
-            report.errors.append(f"{where}: timestamp {first} is outside the requested range [{low}, {high}]")
-        report.first_time = first if report.first_time is None else min(report.first_time, first)
-        report.last_time = last if report.last_time is None else max(report.last_time, last)
-        self.check_pose(data, where)
-        streams = update_streams(data)
-        report.streams |= streams
-        if undeclared := sorted(streams - self.declared):
-            warning = f"streams not declared in the metadata: {', '.join(undeclared)}"
-            if warning not in report.warnings:
-                report.warnings.append(warning)
-
-    def check_pose(self, data: dict[str, Any], where: str) -> None:
-        for stream_set in data["updates"]:
-            poses = stream_set.get("poses") or {}
-            t = stream_set["timestamp"]
-            near = [p for p in poses.values() if isinstance(p, dict) and abs(p.get("timestamp", t) - t) <= POSE_WINDOW]
-            if not near:
-                self.report.errors.append(f"{where}: no pose within {POSE_WINDOW} s of {t}: streetscape.gl draws nothing")
-                return
+    query = [item for item in parts.query.split("&") if item and item.partition("=")[0] != "message_format"]
+    query.append(f"message_format={fmt.value}")
+    return urlunsplit(parts._replace(query="&".join(query)))
 
 
 async def probe(
@@ -214,83 +257,294 @@ async def probe(
     validate: bool = False,
     timeout: float = 30.0,
 ) -> ProbeReport:
-    """Run one session against ``url`` and report on it.
+    """Run one session against the server at ``url`` and report on it.
 
-    Raises :class:`ValueError` for a URL that is not a WebSocket URL; every
-    other problem ends up in the report's ``errors``.
+    ``fmt`` adds ``message_format`` to the URL; ``start`` and ``end`` bound the
+    ``transform_log`` (the whole log by default); ``streams`` fills its
+    ``desired_streams``; ``point_in_time`` also asks for the complete state
+    at that instant; ``validate`` checks every message against the XVIZ
+    schema; the session must be over within ``timeout`` seconds.
+
+    Raises :class:`ValueError` for a URL that is not a WebSocket URL or a
+    range that ends before it starts; every other problem is in the report.
     """
     target = with_format(url, fmt)
-    report = ProbeReport(target)
-    session = _Session(report, validate)
-    started = time.perf_counter()
+    if start is not None and end is not None and start.relative == end.relative and start.seconds > end.seconds:
+        raise ValueError(f"the range starts at {start}, after its end at {end}")
+    session = _Session(ProbeReport(target), validate)
+    began = time.perf_counter()
     try:
-        async with connect(target, max_size=None, open_timeout=timeout) as websocket:
-            await asyncio.wait_for(_converse(websocket, session, start, end, streams, point_in_time), timeout)
-    except InvalidURI as exc:
-        raise ValueError(f"not a WebSocket URL: {exc}") from None
+        await asyncio.wait_for(session.run(start, end, streams, point_in_time), timeout)
     except asyncio.TimeoutError:
-        report.errors.append(f"timed out after {timeout:g} s")
+        session.error(f"timed out after {timeout:g} s")
     except ConnectionClosed as exc:
-        report.errors.append(f"the server closed the connection early: {exc}")
+        session.error(f"the server closed the connection: {exc}")
     except (OSError, InvalidHandshake) as exc:
-        report.errors.append(f"cannot connect: {exc}")
-    except XVIZError as exc:
-        report.errors.append(str(exc))
-    report.elapsed = time.perf_counter() - started
-    return report
+        session.error(f"cannot connect to {target}: {exc}")
+    session.report.elapsed = time.perf_counter() - began
+    return session.report
 
 
-def _text(message: dict[str, Any]) -> str:
-    return encode_json(message).decode()
+class _Received(NamedTuple):
+    """A decoded message: its type, its data, and which one it was (``state_update #3``)."""
+
+    kind: str
+    data: Any
+    where: str
 
 
-async def _converse(
-    websocket: Any,
-    session: _Session,
-    start: Instant | None,
-    end: Instant | None,
-    streams: Sequence[str] | None,
-    point_in_time: Instant | None,
-) -> None:
-    report = session.report
-    while True:
-        kind, data = session.receive(await websocket.recv())
-        if kind == "xviz/metadata" and isinstance(data, dict):
-            session.metadata(data)
-            break
+class _Session:
+    """One probe session: the conversation, and the checks on what it brings."""
+
+    def __init__(self, report: ProbeReport, validate: bool) -> None:
+        self.report = report
+        self.validate = validate
+        self.step = "connect"  # what the session is doing: where timeouts and closures happen
+        self.failures = 0  # xviz/error messages and messages that do not decode
+        self.failures_before_step = 0
+        self.declared: set[str] = set()
+        self.pose_streams: set[str] = set()
+        self.check_poses = True
+        self.log_start: float | None = None
+
+    def error(self, what: str, where: str | None = None) -> None:
+        """Record an error seen at ``where``, by default in the current step."""
+        self.report.errors.append(Problem(where or self.step, what))
+
+    async def run(
+        self,
+        start: Instant | None,
+        end: Instant | None,
+        streams: Sequence[str] | None,
+        point_in_time: Instant | None,
+    ) -> None:
+        """Connect, then ask and check: the metadata, the range, the instant."""
+        async with connect(self.report.url, max_size=None, open_timeout=None) as websocket:
+            if not await self.await_metadata(websocket):
+                return
+            times = (start, end, point_in_time)
+            try:
+                low, high, instant = [None if t is None else t.resolve(self.log_start) for t in times]
+            except ValueError as exc:
+                self.error(str(exc))
+                return
+            # Without a pose stream among those asked for, frames have none, rightly.
+            self.check_poses = streams is None or not self.pose_streams.isdisjoint(streams)
+            await self.transform_log(websocket, low, high, streams)
+            if instant is not None:
+                await self.transform_point_in_time(websocket, instant, streams)
+
+    def begin(self, step: str) -> None:
+        """Start waiting for the answers of ``step``."""
+        self.step = step
+        self.failures_before_step = self.failures
+
+    async def next_answer(self, websocket: ClientConnection) -> _Received | None:
+        """The next message that decodes, or ``None`` when the server has nothing more to say.
+
+        After an ``xviz/error`` in this step, the server has nothing more to
+        say when it stays quiet for :data:`AFTER_ERROR` seconds.
+        """
+        while True:
+            quiet = AFTER_ERROR if self.failures > self.failures_before_step else None
+            try:
+                received = await self.receive(websocket, quiet)
+            except asyncio.TimeoutError:
+                return None
+            if received is not None:
+                return received
+
+    async def receive(self, websocket: ClientConnection, timeout: float | None = None) -> _Received | None:
+        """The next message, counted and checked; ``None`` if it does not decode.
+
+        Raises :class:`asyncio.TimeoutError` if none comes within ``timeout`` seconds.
+        """
+        message = await asyncio.wait_for(websocket.recv(decode=False), timeout)
+        number = sum(self.report.messages.values()) + 1
+        try:
+            kind, data = unwrap(decode(message))
+        except (DecodeError, MessageError) as exc:
+            kind, data = UNDECODABLE, None
+            self.failures += 1
+            self.error(f"the message does not decode: {exc}", f"message #{number}")
+        self.report.messages[kind] += 1
+        self.report.bytes_by_type[kind] += len(message)
+        if kind == UNDECODABLE:
+            return None
+        where = f"{kind.removeprefix('xviz/')} #{self.report.messages[kind]}"
         if kind == "xviz/error":
-            return  # no log: nothing to ask for
-    log_start = report.log_info.get("start_time")
-    low = start.resolve(log_start) if start else None
-    high = end.resolve(log_start) if end else None
-    request_id = uuid.uuid4().hex[:8]
-    request: dict[str, Any] = {"id": request_id}
-    if low is not None:
-        request["start_timestamp"] = low
-    if high is not None:
-        request["end_timestamp"] = high
-    if streams:
-        request["desired_streams"] = list(streams)
-    await websocket.send(_text({"type": "xviz/transform_log", "data": request}))
-    while True:
-        kind, data = session.receive(await websocket.recv())
-        if kind == "xviz/state_update":
-            session.update(data, low, high, f"frame {report.updates + 1}")
-        elif kind == "xviz/transform_log_done":
-            done = data.get("id") if isinstance(data, dict) else None
-            if done != request_id:
-                report.errors.append(f"transform_log_done for id {done!r}, expected {request_id!r}")
-            break
-    if point_in_time is not None:
-        instant = point_in_time.resolve(log_start)
-        query = {"id": f"{request_id}-p", "query_timestamp": instant}
+            self.failures += 1
+            self.error(f"xviz/error: {data.get('message') if isinstance(data, dict) else data}")
+        if self.validate:
+            self.check_schema(kind, data, where)
+        return _Received(kind, data, where)
+
+    async def send(self, websocket: ClientConnection, name: str, data: dict[str, Any]) -> None:
+        """Send ``xviz/<name>`` as a JSON text frame, as the JavaScript clients do."""
+        await websocket.send(encode_json(envelope(name, data)).decode())
+
+    async def await_metadata(self, websocket: ClientConnection) -> bool:
+        """Wait for the metadata and check it; ``False`` if it never comes."""
+        self.begin("metadata")
+        while (received := await self.next_answer(websocket)) is not None:
+            if received.kind == "xviz/metadata":
+                self.check_metadata(received.data, received.where)
+                return True
+            if received.kind != "xviz/error":
+                self.error(f"{received.kind} came before the metadata", received.where)
+        return False
+
+    def check_metadata(self, data: Any, where: str) -> None:
+        """Note the log's streams and start; check what streetscape.gl needs to play it."""
+        if not isinstance(data, dict):
+            self.error("the metadata is not a JSON object", where)
+            return
+        info = data.get("log_info")
+        self.report.log_info = info if isinstance(info, dict) else {}
+        streams = data.get("streams")
+        if isinstance(streams, dict):
+            self.declared = set(streams)
+            self.pose_streams = {
+                name
+                for name, stream in streams.items()
+                if isinstance(stream, dict) and stream.get("category") == "POSE"
+            }
+        self.report.declared_streams = len(self.declared)
+        if "version" not in data:
+            self.error("no 'version': clients then read the log as XVIZ v1 and fail on every update", where)
+        for key in ("start_time", "end_time"):
+            value = self.report.log_info.get(key)
+            if not _is_time(value) or value == 0:
+                what = f"log_info.{key} is {value!r}: streetscape.gl needs finite, non-zero times to play the log"
+                self.error(what, where)
+            elif key == "start_time":
+                self.log_start = value
+
+    async def transform_log(
+        self, websocket: ClientConnection, low: float | None, high: float | None, streams: Sequence[str] | None
+    ) -> None:
+        """Ask for the frames from ``low`` to ``high`` and check them, up to the request's done."""
+        request_id = _fresh_id()
+        self.begin(f"transform_log {request_id}")
+        request: dict[str, Any] = {"id": request_id}
+        if low is not None:
+            request["start_timestamp"] = low
+        if high is not None:
+            request["end_timestamp"] = high
+        if streams:
+            request["desired_streams"] = list(streams)
+        await self.send(websocket, "transform_log", request)
+        while (received := await self.next_answer(websocket)) is not None:
+            if received.kind == "xviz/state_update":
+                self.check_frame(received, low, high)
+            elif received.kind == "xviz/transform_log_done":
+                done = received.data.get("id") if isinstance(received.data, dict) else None
+                if done != request_id:
+                    self.error(f"the done is for request {done!r}, not {request_id!r}", received.where)
+                return
+
+    async def transform_point_in_time(
+        self, websocket: ClientConnection, instant: float, streams: Sequence[str] | None
+    ) -> None:
+        """Ask for the complete state at ``instant`` and check the answer."""
+        request_id = _fresh_id()
+        self.begin(f"transform_point_in_time {request_id}")
+        query: dict[str, Any] = {"id": request_id, "query_timestamp": instant}
         if streams:
             query["desired_streams"] = list(streams)
-        await websocket.send(_text({"type": "xviz/transform_point_in_time", "data": query}))
-        kind, data = session.receive(await websocket.recv())
-        if kind == "xviz/state_update":
-            if data.get("update_type") != "COMPLETE_STATE":
-                report.errors.append(f"point in time {instant}: update_type {data.get('update_type')!r}, not COMPLETE_STATE")
-            report.streams |= update_streams(data)
-        elif kind != "xviz/error":
-            report.errors.append(f"point in time {instant}: answered with {kind}")
+        await self.send(websocket, "transform_point_in_time", query)
+        received = await self.next_answer(websocket)
+        if received is None or received.kind == "xviz/error":
+            return
+        if received.kind != "xviz/state_update":
+            self.error(f"answered with {received.kind}, not a state update", received.where)
+            return
+        times = self.check_update(received)
+        if not times:
+            return
+        update_type = received.data.get("update_type")
+        if update_type != "COMPLETE_STATE":
+            self.error(f"update_type is {update_type!r}, not 'COMPLETE_STATE'", received.where)
+        if max(times) > instant:
+            self.error(f"the state at {max(times)} is after the instant asked for, {instant}", received.where)
+
+    def check_frame(self, received: _Received, low: float | None, high: float | None) -> None:
+        """Check a frame of the range, and its place: in time order, inside the range."""
+        report = self.report
+        report.frames += 1
+        times = self.check_update(received)
+        if not times:
+            return
+        first, last = min(times), max(times)
+        if report.last_time is not None and first < report.last_time:
+            self.error(f"timestamp {first} comes after {report.last_time}: out of time order", received.where)
+        if (low is not None and last < low) or (high is not None and first > high):
+            self.error(f"timestamp {first} is outside the range asked for, {_span(low, high)}", received.where)
+        report.first_time = first if report.first_time is None else min(report.first_time, first)
+        report.last_time = last if report.last_time is None else max(report.last_time, last)
+
+    def check_update(self, received: _Received) -> list[float]:
+        """Check a state update on its own; return its timestamps (none when unreadable)."""
+        data, where = received.data, received.where
+        if not isinstance(data, dict):
+            self.error("the state update is not a JSON object", where)
+            return []
+        if "update_type" not in data:
+            self.error("no 'update_type': the client throws on such an update", where)
+        stream_sets = data.get("updates")
+        if not (isinstance(stream_sets, list) and stream_sets and all(isinstance(s, dict) for s in stream_sets)):
+            self.error("'updates' must be a non-empty list of stream sets", where)
+            return []
+        times = [stream_set.get("timestamp") for stream_set in stream_sets]
+        if not all(_is_time(t) for t in times):
+            self.error(f"'timestamp' must be a finite number in every stream set, not {times}", where)
+            return []
+        if self.check_poses:
+            self.check_pose(stream_sets, where)
+        self.note_streams(update_streams(data), where)
+        return times
+
+    def check_pose(self, stream_sets: list[dict[str, Any]], where: str) -> None:
+        """Check that every stream set has a pose within :data:`POSE_WINDOW` of its timestamp."""
+        poses = [
+            pose.get("timestamp", stream_set["timestamp"])
+            for stream_set in stream_sets
+            if isinstance(stream_set.get("poses"), dict)
+            for pose in stream_set["poses"].values()
+            if isinstance(pose, dict)
+        ]
+        for stream_set in stream_sets:
+            t = stream_set["timestamp"]
+            if not any(_is_time(p) and abs(p - t) <= POSE_WINDOW for p in poses):
+                self.error(f"no pose within {POSE_WINDOW} s of timestamp {t}: streetscape.gl draws nothing", where)
+                return
+
+    def note_streams(self, names: set[str], where: str) -> None:
+        """Add ``names`` to the streams seen, with a warning for each one the metadata lacks."""
+        for name in sorted(names - self.declared - self.report.streams):
+            self.report.warnings.append(Problem(where, f"stream {name!r} is not declared in the metadata"))
+        self.report.streams |= names
+
+    def check_schema(self, kind: str, data: Any, where: str) -> None:
+        """Check a message against the XVIZ schema."""
+        try:
+            get_validator().validate_message(envelope(kind.removeprefix("xviz/"), data))
+        except SchemaValidationError as exc:
+            for violation in exc.problems[:SHOWN_VIOLATIONS]:
+                self.error(f"schema: {violation}", where)
+            if len(exc.problems) > SHOWN_VIOLATIONS:
+                self.error(f"schema: {len(exc.problems) - SHOWN_VIOLATIONS} more violations", where)
+
+
+def _is_time(value: Any) -> bool:
+    """Whether ``value`` is a finite number of seconds."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _span(low: float | None, high: float | None) -> str:
+    return f"{'the start' if low is None else low} to {'the end' if high is None else high}"
+
+
+def _fresh_id() -> str:
+    """A request id no other request of the session has."""
+    return uuid.uuid4().hex[:8]
