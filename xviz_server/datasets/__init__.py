@@ -8,6 +8,7 @@ converts one frame at a time, so that a server can serve it on demand and
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 from typing import Any, Callable, Protocol
 
@@ -41,22 +42,18 @@ class Dataset(Protocol):
         ...
 
 
-def _kitti(path: Path, **options: Any) -> Dataset:
-    from .kitti import KittiDrive
-
-    return KittiDrive(path, **options)
-
-
-def _is_kitti(path: Path) -> bool:
-    from .kitti import is_kitti_drive
-
-    return is_kitti_drive(path)
-
-
-#: Dataset kinds: how to open one, and how to recognise one by its layout.
-KINDS: dict[str, tuple[Callable[..., Dataset], Callable[[Path], bool]]] = {
-    "kitti": (_kitti, _is_kitti),
+#: Dataset kinds: the module of each, its class, and the function that
+#: recognises its layout. Modules are imported when first needed.
+KINDS: dict[str, tuple[str, str, str]] = {
+    "kitti": ("kitti", "KittiDrive", "is_kitti_drive"),
+    "waymo": ("waymo", "WaymoSegment", "is_waymo_segment"),
+    "vista": ("vista", "VistaTrace", "is_vista_trace"),
 }
+
+
+def _member(kind: str, position: int) -> Callable[..., Any]:
+    module = importlib.import_module(f".{KINDS[kind][0]}", __name__)
+    return getattr(module, KINDS[kind][position])
 
 
 def open_dataset(kind: str, path: Path, **options: Any) -> Dataset:
@@ -65,12 +62,12 @@ def open_dataset(kind: str, path: Path, **options: Any) -> Dataset:
         raise DatasetError(f"unknown dataset kind {kind!r}; known: {', '.join(sorted(KINDS))}", path=path)
     if not Path(path).exists():
         raise DatasetError(f"{path}: no such file or directory", path=path)
-    return KINDS[kind][0](Path(path), **options)
+    return _member(kind, 1)(Path(path), **options)
 
 
 def detect(path: Path) -> str | None:
     """The kind of dataset whose layout ``path`` has, if any."""
-    return next((kind for kind, (_, recognise) in KINDS.items() if recognise(path)), None)
+    return next((kind for kind in KINDS if _member(kind, 2)(path)), None)
 
 
 _opened: dict[tuple[str, str, tuple[tuple[str, Any], ...]], Dataset] = {}

@@ -1,0 +1,106 @@
+#!/usr/bin/env python3
+"""Conversion speed per frame of every dataset kind, side by side, in one process.
+
+    python scripts/bench_datasets.py [--frames N]
+
+KITTI is the real drive in shared/data; Waymo and VISTA frames are generated
+at their real sizes (Waymo: a 64 x 2650 top range image, four 200 x 600
+short-range ones and five 1920 x 1280 camera images; VISTA: one 1280 x 720
+camera video and 100 000-point lidar sweeps). Each frame is converted and
+encoded as GLB; the report gives the median milliseconds per frame and the
+encoded size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from xviz_server.codec import Format, encode
+from xviz_server.datasets import open_dataset
+from xviz_server.messages import envelope
+
+KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
+
+
+def waymo_segment(directory: Path, frames: int) -> Path:
+    rng = np.random.default_rng(0)
+    directory.mkdir()
+    for i in range(frames):
+        arrays = {"POSE": np.eye(4, dtype=np.float32)}
+        for lidar, shape in (("TOP", (64, 2650)), ("FRONT", (200, 600)), ("SIDE_LEFT", (200, 600)),
+                             ("SIDE_RIGHT", (200, 600)), ("REAR", (200, 600))):
+            image = rng.uniform(0, 50, (*shape, 6)).astype(np.float32)
+            image[rng.uniform(size=shape) < 0.3, 0] = 0  # no return
+            arrays[f"{lidar}_RANGE_IMAGE_FIRST_RETURN"] = image
+        for camera in ("FRONT", "FRONT_LEFT", "FRONT_RIGHT", "SIDE_LEFT", "SIDE_RIGHT"):
+            arrays[f"{camera}_IMAGE"] = rng.integers(0, 255, (1280, 1920, 3), dtype=np.uint8)
+        arrays["LABEL_BOXES"] = np.column_stack([rng.uniform(-40, 40, (60, 3)), rng.uniform(1, 5, (60, 3)), rng.uniform(-3, 3, 60)])
+        arrays["LABEL_TYPES"] = rng.integers(0, 5, 60)
+        arrays["LABEL_IDS"] = np.array([f"obj-{k}" for k in range(60)])
+        np.savez(directory / f"{1_557_000_000_000_000 + i * 100_000}.npz", **arrays)
+    return directory
+
+
+def vista_trace(directory: Path, frames: int) -> Path:
+    import av
+    import h5py
+
+    rng = np.random.default_rng(0)
+    directory.mkdir()
+    with av.open(str(directory / "camera_front.avi"), "w", format="avi") as container:
+        stream = container.add_stream("mjpeg", rate=30)
+        stream.width, stream.height, stream.pix_fmt = 1280, 720, "yuvj420p"
+        for _ in range(frames):
+            image = rng.integers(0, 255, (720, 1280, 3), dtype=np.uint8)
+            for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    start = 1_600_000_000.0
+    (directory / "camera_front.csv").write_text("frame_num,ros_timestamp\n" + "".join(f"{n},{start + n / 30:.4f}\n" for n in range(frames)))
+    with h5py.File(directory / "lidar_3d.h5", "w") as file:
+        file["xyz"] = rng.uniform(-50, 50, (frames, 100_000, 3)).astype(np.float32)
+        file["intensity"] = rng.uniform(0, 1, (frames, 100_000)).astype(np.float32)
+    (directory / "lidar_3d.csv").write_text("frame_num,ros_timestamp\n" + "".join(f"{n},{start + n / 30:.4f}\n" for n in range(frames)))
+    t = start + np.arange(-30, frames * 2) / 30
+    (directory / "speed.csv").write_text("".join(f"{x:.4f},10\n" for x in t))
+    (directory / "imu.csv").write_text("".join(f"{x:.4f},0,0,0,0,0,0.1,0\n" for x in t))
+    return directory
+
+
+def per_frame(kind: str, path: Path, frames: int) -> tuple[float, int]:
+    dataset = open_dataset(kind, path)
+    metadata = dataset.metadata()
+    times, size = [], 0
+    for frame in range(min(frames, len(dataset))):
+        started = time.perf_counter()
+        data = encode(envelope("state_update", dataset.convert(frame, metadata)), Format.BINARY)
+        times.append(time.perf_counter() - started)
+        size = len(data)
+    return statistics.median(times) * 1000, size
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--frames", type=int, default=10)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as scratch:
+        rows = [("kitti", KITTI, "real drive 0001 excerpt")]
+        rows.append(("waymo", waymo_segment(Path(scratch) / "waymo", args.frames), "generated at real size"))
+        rows.append(("vista", vista_trace(Path(scratch) / "vista", args.frames), "generated at real size"))
+        print(f"{'dataset':8} {'ms/frame':>9} {'GLB size':>10}  input")
+        reference = None
+        for kind, path, note in rows:
+            ms, size = per_frame(kind, path, args.frames)
+            reference = reference or ms
+            print(f"{kind:8} {ms:9.1f} {size / 1e6:8.2f} MB  {note} ({ms / reference:.1f}x KITTI)")
+
+
+if __name__ == "__main__":
+    main()
