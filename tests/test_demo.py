@@ -99,7 +99,8 @@ def test_every_file_is_synced_then_renamed_into_place_and_the_index_last(
     names = ["1-frame.glb", "2-frame.glb", "3-frame.glb", "4-frame.glb", "0-frame.json"]
     assert [target.name for _, target in renames] == names
     assert all(source.parent == tmp_path and source.name.startswith(".") for source, _ in renames)
-    assert events == ["fsync", "replace"] * len(names)
+    # each file synced, renamed into place, then its directory synced so the rename lasts
+    assert events == ["fsync", "replace", "fsync"] * len(names)
     assert sorted(path.name for path in tmp_path.iterdir()) == sorted(names)  # no temporary file left
 
 

@@ -167,7 +167,7 @@ async def test_metrics_parse_as_prometheus_text(root: Path):
                  "xviz_errors", "xviz_request_seconds", "xviz_first_frame_seconds"):
         assert name in families, name
     samples = {(s.name, tuple(sorted(s.labels.items()))): s.value for f in families.values() for s in f.samples}
-    assert samples[("xviz_frames_sent_total", (("format", "BINARY"),))] == 5
+    assert samples[("xviz_frames_sent_total", (("format", "BINARY"),))] == 6  # 5 frames and the complete state
     assert samples[("xviz_errors_total", (("kind", "malformed"),))] == 1
     assert samples[("xviz_request_seconds_count", (("type", "transform_point_in_time"),))] == 1
     assert families["xviz_request_seconds"].type == "histogram"

@@ -174,7 +174,6 @@ class Connection:
         if previous is not None:
             await asyncio.wait([previous])  # its done goes out before our first frame
         received = time.perf_counter()
-        fmt = request.fmt.value
         loop = asyncio.get_running_loop()
         clock_start = loop.time()
         numbers = request.frames.tolist()
@@ -197,13 +196,9 @@ class Connection:
                 except XVIZError as exc:
                     await self._send(self.session.frame_failed(request, exc))
                     continue
-                await self.websocket.send(data, text=request.fmt is Format.JSON)
+                await self._send_update(data, request.fmt)
                 if position == 0:
                     self.metrics.first_frame_seconds.observe(time.perf_counter() - received)
-                self.frames_sent += 1
-                self.bytes_sent += len(data)
-                self.metrics.frames_sent.labels(fmt).inc()
-                self.metrics.bytes_sent.labels(fmt).inc(len(data))
             await self._send(request.done)
             self.metrics.request_seconds.labels("transform_log").observe(time.perf_counter() - received)
         except ConnectionClosed:
@@ -268,12 +263,7 @@ class Connection:
     async def _send_live_update(self, update: LiveUpdate) -> None:
         config = self._live_config or self.session.live_config()
         variant = Variant(config.fmt, config.streams, config.max_points)
-        data = await update.encoded(variant, self.live.workers)
-        await self.websocket.send(data, text=config.fmt is Format.JSON)
-        self.frames_sent += 1
-        self.bytes_sent += len(data)
-        self.metrics.frames_sent.labels(config.fmt.value).inc()
-        self.metrics.bytes_sent.labels(config.fmt.value).inc(len(data))
+        await self._send_update(await update.encoded(variant, self.live.workers), config.fmt)
 
     async def _watch_lag(self, subscription: Subscription) -> None:
         """Disconnect a viewer that keeps dropping updates for ``live_lag_timeout``."""
@@ -296,15 +286,21 @@ class Connection:
             except XVIZError as exc:
                 await self._send(self.session.query_failed(request, exc))
                 return
-            await self.websocket.send(data, text=request.fmt is Format.JSON)
-            self.frames_sent += 1
-            self.bytes_sent += len(data)
+            await self._send_update(data, request.fmt)
             self.metrics.request_seconds.labels("transform_point_in_time").observe(time.perf_counter() - received)
         except ConnectionClosed:
             pass
         except Exception as exc:
             logger.exception("error answering transform_point_in_time %r", request.request_id)
             await self._send_quietly(self.session.internal_error(f"transform_point_in_time {request.request_id!r}", exc))
+
+    async def _send_update(self, data: bytes, fmt: Format) -> None:
+        """Send a state update and count it."""
+        await self.websocket.send(data, text=fmt is Format.JSON)
+        self.frames_sent += 1
+        self.bytes_sent += len(data)
+        self.metrics.frames_sent.labels(fmt.value).inc()
+        self.metrics.bytes_sent.labels(fmt.value).inc(len(data))
 
     async def _send_quietly(self, event: Send) -> None:
         """Send, unless the connection is gone."""

@@ -51,6 +51,7 @@ import numpy as np
 
 from .codec import Format, decode_json, encode, encode_json
 from .exceptions import DecodeError
+from .writer import write_atomically
 
 __all__ = ["DEMO_LOG_NAME", "MAP_ORIGIN", "default_cache_dir", "ensure_demo_log", "generate_demo_log"]
 
@@ -142,12 +143,12 @@ def generate_demo_log(
     times = [k / rate for k in range(_frame_count(duration, rate))]
     timestamps = [start_time + t for t in times]
     metadata = _metadata(timestamps[0], timestamps[-1])
-    _write_atomically(directory / f"{METADATA_FILE}{fmt.suffix}", encode(metadata, fmt))
+    write_atomically(directory / f"{METADATA_FILE}{fmt.suffix}", encode(metadata, fmt))
     drive = _Drive(np.random.default_rng(SEED))
     for index, (t, timestamp) in enumerate(zip(times, timestamps)):
         frame = drive.frame(t, timestamp)
-        _write_atomically(directory / f"{index + 2}-frame{fmt.suffix}", encode(frame, fmt))
-    _write_atomically(directory / INDEX_FILE, encode_json(_index(timestamps)))
+        write_atomically(directory / f"{index + 2}-frame{fmt.suffix}", encode(frame, fmt))
+    write_atomically(directory / INDEX_FILE, encode_json(_index(timestamps)))
     return directory
 
 
@@ -198,20 +199,6 @@ def _remove_log(directory: Path) -> None:
 def _unique_sibling(path: Path, purpose: str) -> Path:
     """Return an unused hidden path in the directory of *path*."""
     return path.with_name(f".{path.name}.{purpose}-{os.getpid()}-{secrets.token_hex(4)}")
-
-
-def _write_atomically(path: Path, data: bytes) -> None:
-    """Write *data* to *path* so that readers see no file or the whole of it."""
-    temporary = _unique_sibling(path, "tmp")
-    try:
-        with open(temporary, "xb") as file:
-            file.write(data)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
 
 
 def _install(staging: Path, log_dir: Path) -> None:
