@@ -119,3 +119,16 @@ async def test_convert_and_serve(trace: Path, tmp_path: Path):
         await c.recv()
         await c.send("transform_log", {"id": "v"})
         assert len(timestamps(await c.until("transform_log_done", "v"))) == FRAMES
+
+
+def test_published_client_reads_a_converted_trace(trace: Path, tmp_path: Path):
+    from test_interop import xviz_decode
+
+    convert("vista", trace, tmp_path / "log", frames="0:3", processes=1)
+    lines = xviz_decode([tmp_path / "log" / f"{n}-frame.glb" for n in range(1, 5)])
+    assert all("error" not in line for line in lines)
+    for line in lines[1:]:
+        parsed = line["parsed"]
+        assert "/vehicle_pose" in parsed["poses"]
+        assert parsed["streams"]["/camera/camera_front"]["images"][0]["imageData"]["$bytes"] > 0
+        assert parsed["streams"]["/lidar/lidar_3d"]["pointCloud"]["numInstances"] >= 3
