@@ -1,7 +1,8 @@
-"""Shared fixtures: where the real data lives."""
+"""Shared fixtures: where the real data lives, and a clean logging set-up for each test."""
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -29,3 +30,18 @@ def shared_dir() -> Path:
 def kitti_log(shared_dir: Path) -> Path:
     """The official 25-frame KITTI GLB log."""
     return shared_dir / "data" / "kitti-2011_09_26_drive_0001-head"
+
+
+@pytest.fixture(autouse=True)
+def _restore_logging():
+    """Undo what an in-process ``xviz-server`` command does to the root logger.
+
+    The command points the root logger at the standard error it was given;
+    under pytest that stream is closed when the test ends, and every later
+    log line would fail on it.
+    """
+    root = logging.getLogger()
+    handlers, level = root.handlers[:], root.level
+    yield
+    root.handlers[:] = handlers
+    root.setLevel(level)
