@@ -18,6 +18,7 @@ from xviz_server.codec import (
     decode_glb,
     decode_json,
     detect_format,
+    edit_glb,
     encode,
     encode_glb,
     encode_json,
@@ -255,6 +256,40 @@ def test_decoder_reads_extension_form_legacy_magic_and_chunk_types():
     ):
         decoded = decode_glb(data)
         assert decoded["data"]["updates"][0]["primitives"]["/v"]["polylines"][0]["vertices"].tolist() == [[1, 2, 3]]
+
+
+def test_edit_glb_replaces_the_envelope_and_keeps_the_bin_chunk(kitti_log: Path):
+    data = (kitti_log / "5-frame.glb").read_bytes()
+
+    def relabel(envelope):
+        return {**envelope, "data": {**envelope["data"], "update_type": "COMPLETE_STATE"}}
+
+    edited = edit_glb(data, relabel)
+    document, binary = glb_parts(edited)
+    original_document, original_binary = glb_parts(data)
+    assert binary == original_binary
+    assert document["accessors"] == original_document["accessors"]
+    expected = decode(data)
+    expected["data"]["update_type"] = "COMPLETE_STATE"
+    assert_same_message(decode(edited), expected)
+
+
+def test_edit_glb_writes_the_current_form_of_legacy_files():
+    floats = np.array([1, 2, 3], dtype=np.float32).tobytes()
+    document = {
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 12}],
+        "accessors": [{"bufferView": 0, "type": "VEC3", "componentType": 5126, "count": 1}],
+        "extensionsUsed": ["AVS_xviz"],
+        "extensions": {"AVS_xviz": state_update({"/v": {"polylines": [{"vertices": "#/accessors/0"}]}}), "OTHER": {"a": 1}},
+    }
+    edited = edit_glb(build_glb(document, floats, magic=b"XVIZ", json_type=0, bin_type=1), lambda envelope: envelope)
+    written, binary = glb_parts(edited)  # current magic and chunk types
+    assert binary == floats
+    assert written["extensions"] == {"OTHER": {"a": 1}}
+    assert written["xviz"] == document["extensions"]["AVS_xviz"]
+    assert decode_glb(edited)["data"]["updates"][0]["primitives"]["/v"]["polylines"][0]["vertices"].tolist() == [[1, 2, 3]]
+    with pytest.raises(DecodeError, match="declares"):
+        edit_glb(edited[:-4], lambda envelope: envelope)
 
 
 # ---------------------------------------------------------------- bad input

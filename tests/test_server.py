@@ -9,8 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from websockets.asyncio.client import connect
+
+from helpers import assert_same_message
 from serving import client, running_server, ten_hz, timestamps, update, write_log
-from xviz_server.codec import Format
+from xviz_server import frames
+from xviz_server.codec import Format, decode
 
 KITTI = "kitti"
 
@@ -207,6 +211,43 @@ async def test_point_in_time_merges_incremental_updates(tmp_path: Path):
         assert state["poses"]["/vehicle_pose"]["position"][0] == 100.3  # newest pose
         assert state["primitives"]["/points"]["points"][0]["points"][0, 0] == np.float32(100.0)  # from the snapshot
         assert state["time_series"][0]["values"]["doubles"] == [200.0]
+
+
+async def test_point_in_time_of_a_frame_that_is_a_whole_state(root: Path, kitti_log: Path, tmp_path: Path):
+    # KITTI frames are SNAPSHOTs of one stream set: the answer is the frame, relabelled.
+    async with running_server(root) as server, client(server, "/?log=kitti") as c:
+        await c.recv()
+        await c.send("transform_point_in_time", {"id": "q", "query_timestamp": 1317042147.05})
+        answer = await c.recv()
+        stored = {
+            decode(path.read_bytes())["data"]["updates"][0]["timestamp"]: path.read_bytes()
+            for path in kitti_log.glob("*-frame.glb")
+            if path.name != "1-frame.glb"
+        }
+        frame = stored[1317042147.004]  # the last at or before the query
+        expected = decode(frame)
+        expected["data"]["update_type"] = "COMPLETE_STATE"
+        assert_same_message({k: answer[k] for k in ("type", "data")}, expected)
+        # ... which is what merging the frame would give
+        merged = decode(frames.merge([frame], Format.BINARY, None)[0])
+        assert_same_message(answer["data"]["updates"][0], merged["data"]["updates"][0])
+        # and answers take no place in the cache beside the frames themselves
+        await c.send("transform_log", {"id": "all"})
+        await c.until("transform_log_done", "all")
+        entries = len(server.cache)
+        for instant in (1317042146.5, 1317042147.05, 1317042147.5, 1317042148.0):
+            await c.send("transform_point_in_time", {"id": "again", "query_timestamp": instant})
+            assert (await c.recv())["data"]["update_type"] == "COMPLETE_STATE"
+        assert len(server.cache) == entries
+
+    # A COMPLETE_STATE frame in the session's format is sent as stored.
+    stored = write_log(tmp_path / "complete" / "log", ten_hz(5, update_type="COMPLETE_STATE"))
+    async with running_server(tmp_path / "complete") as server:
+        websocket = await connect(f"ws://127.0.0.1:{server.port}/log", max_size=None)
+        await websocket.recv()
+        await websocket.send(json.dumps({"type": "xviz/transform_point_in_time", "data": {"id": "q", "query_timestamp": 100.25}}))
+        assert await websocket.recv() == (stored / "4-frame.glb").read_bytes()  # the frame at 100.2
+        await websocket.close()
 
 
 # --------------------------------------------------------------- reconfigure

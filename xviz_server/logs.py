@@ -83,8 +83,10 @@ class Log:
             fmt: encode(envelope("metadata", self.metadata), fmt) for fmt in Format
         }
         # Update type of each frame checked so far, to know where a complete
-        # state starts without decoding frames again.
+        # state starts without decoding frames again; and the frames that
+        # alone are a complete state (a complete type, one stream set).
         self._update_types: dict[int, str] = {}
+        self._whole: set[int] = set()
 
     @classmethod
     async def open(cls, source: LogSource, cache: FrameCache, workers: Workers, validate: bool = False) -> Log:
@@ -141,10 +143,14 @@ class Log:
     async def _read(self, number: int) -> bytes:
         data = await self._source.read(number)
         try:
-            update_type = await self._run(frames.check, data, self._validate, formats=(detect_format(data),))
+            update_type, stream_sets = await self._run(
+                frames.check, data, self._validate, formats=(detect_format(data),)
+            )
         except (DecodeError, SchemaValidationError) as exc:
             raise self._corrupt(number, exc) from None
         self._update_types[number] = update_type
+        if update_type in COMPLETE_TYPES and stream_sets == 1:
+            self._whole.add(number)
         return data
 
     async def _render(self, number: int, fmt: Format, streams: frozenset[str] | None) -> bytes:
@@ -165,12 +171,24 @@ class Log:
         ``lookback``. Raises :class:`~xviz_server.exceptions.XVIZError` when
         the log has no state at that time.
 
-        Every instant between two frames has the same answer, so answers are
-        kept in the frame cache by the frame they end at.
+        Every instant between two frames has the same answer. When the frame
+        it ends at is a complete state of its own in ``fmt`` and every stream
+        is wanted, the answer is that frame, relabelled ``COMPLETE_STATE`` if
+        needed: made again each time (a GLB frame's JSON chunk is rewritten,
+        its arrays are not), so that it takes no second place in the cache.
+        Other answers are merged once and kept in the frame cache by the
+        frame they end at.
         """
         position = self.index.at(instant)
         if position is None:
             raise XVIZError(f"the log has no state at or before {instant} (it starts at {self.index.start_time})")
+        number = int(self.index.frames[position])
+        data = await self._checked(number)
+        if streams is None and number in self._whole and detect_format(data) is fmt:
+            if self._update_types[number] == "COMPLETE_STATE":
+                return data
+            if fmt is Format.BINARY:
+                return await self._workers.io(frames.relabel_complete, data)
         key = (self.name, "state", position, fmt, streams, lookback)
         return await self._cache.get(key, lambda: self._merge(position, fmt, streams, lookback))
 

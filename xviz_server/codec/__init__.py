@@ -12,7 +12,7 @@ import enum
 from typing import Any, Mapping
 
 from ..exceptions import DecodeError
-from .glb import decode_glb, encode_glb, is_glb
+from .glb import decode_glb, edit_glb, encode_glb, is_glb
 from .json import decode_json, encode_json
 
 __all__ = [
@@ -22,6 +22,7 @@ __all__ = [
     "detect_format",
     "encode_glb",
     "decode_glb",
+    "edit_glb",
     "encode_json",
     "decode_json",
 ]

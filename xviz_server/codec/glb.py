@@ -49,7 +49,7 @@ import base64
 import binascii
 import re
 import struct
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import orjson
@@ -69,7 +69,7 @@ from pygltflib import (
 from ..exceptions import DecodeError, EncodeError
 from .image import sniff_image
 
-__all__ = ["encode_glb", "decode_glb", "is_glb"]
+__all__ = ["encode_glb", "decode_glb", "edit_glb", "is_glb"]
 
 MAGIC_GLTF = b"glTF"
 MAGIC_XVIZ = b"XVIZ"
@@ -302,6 +302,62 @@ def decode_glb(data: bytes | bytearray | memoryview) -> dict[str, Any]:
     Raises :class:`~xviz_server.exceptions.DecodeError` naming the offset or
     field at fault when ``data`` is truncated or inconsistent.
     """
+    document, envelope, binary = _read_document(data)
+    views = _read_views(document, binary)
+    resolved = {
+        "accessors": _read_accessors(document, views),
+        "images": _read_images(document, views),
+    }
+    try:
+        return _unpack(envelope, resolved)
+    except _PointerError as exc:
+        where = "".join(reversed(exc.path))
+        raise DecodeError(f"JSON pointer {exc.pointer!r} at ${where} names nothing") from None
+
+
+def edit_glb(data: bytes | bytearray | memoryview, edit: Callable[[Any], Any]) -> bytes:
+    """``data`` with its envelope replaced by ``edit(envelope)``; the BIN chunk is kept as it is.
+
+    ``edit`` sees the envelope as stored, with its ``#/accessors/N`` and
+    ``#/images/N`` pointers, and must keep those it wants to keep: no array
+    is decoded or encoded again, so the cost is that of the JSON chunk. The
+    result has the current magic and chunk types, and the envelope under
+    the ``xviz`` key.
+
+    Raises :class:`~xviz_server.exceptions.DecodeError` as :func:`decode_glb`.
+    """
+    document, envelope, binary = _read_document(data)
+    document.pop("xviz", None)
+    extensions = document.pop("extensions", None) or {}
+    extensions.pop(EXTENSION, None)
+    if extensions:
+        document["extensions"] = extensions
+    document["xviz"] = edit(envelope)
+    try:
+        text = orjson.dumps(document)
+    except orjson.JSONEncodeError as exc:
+        raise EncodeError(f"cannot encode message as GLB JSON: {exc}") from None
+    json_padded = _pad4(len(text))
+    body = binary[1] if binary is not None else memoryview(b"")
+    body_padded = _pad4(len(body))
+    total = _HEADER.size + 2 * _CHUNK.size + json_padded + body_padded
+    return b"".join(
+        [
+            _HEADER.pack(MAGIC_GLTF, 2, total),
+            _CHUNK.pack(len(text), CHUNK_JSON),
+            text,
+            b" " * (json_padded - len(text)),
+            _CHUNK.pack(body_padded, CHUNK_BIN),
+            body,
+            bytes(body_padded - len(body)),
+        ]
+    )
+
+
+def _read_document(
+    data: bytes | bytearray | memoryview,
+) -> tuple[dict[str, Any], Any, tuple[int, memoryview] | None]:
+    """The JSON document of a GLB message, its XVIZ envelope, and its BIN chunk with its offset."""
     buffer = memoryview(data).cast("B")
     size = len(buffer)
     if size < _HEADER.size:
@@ -337,16 +393,7 @@ def decode_glb(data: bytes | bytearray | memoryview) -> dict[str, Any]:
             f"GLB JSON chunk holds no XVIZ message (no 'xviz' key, no extensions.{EXTENSION})",
             offset=json_offset,
         )
-    views = _read_views(document, binary)
-    resolved = {
-        "accessors": _read_accessors(document, views),
-        "images": _read_images(document, views),
-    }
-    try:
-        return _unpack(envelope, resolved)
-    except _PointerError as exc:
-        where = "".join(reversed(exc.path))
-        raise DecodeError(f"JSON pointer {exc.pointer!r} at ${where} names nothing") from None
+    return document, envelope, binary
 
 
 def _read_chunks(
