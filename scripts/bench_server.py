@@ -224,6 +224,15 @@ def other_cpu() -> float:
     return busy - ours
 
 
+def other_cores(cpu_before: float, wall_before: float) -> float:
+    """Cores used by other processes since :func:`other_cpu` read ``cpu_before`` at ``wall_before``.
+
+    Readings are tick sampled, so an idle machine can come out a little
+    below zero; that is reported as 0.
+    """
+    return max(0.0, (other_cpu() - cpu_before) / (time.perf_counter() - wall_before))
+
+
 class RssSampler:
     """Samples the RSS of a process (and, separately, its descendants) every few ms in a thread."""
 
@@ -293,7 +302,7 @@ def run_clients(spec: dict[str, Any], procs: int = 1, server_pid: int | None = N
                 child.kill()
                 child.wait()
     server_cpu = cpu_seconds(server_pid) - cpu_before if server_pid else None
-    other = (other_cpu() - other_before) / (time.perf_counter() - wall_before)
+    other = other_cores(other_before, wall_before)
     if spec["task"] != "stream":
         return {**parts[0], "other_cpu": other}
     if len(parts) == 1:
@@ -1189,11 +1198,11 @@ def main() -> None:
         results["generate_seconds"] = generated_s
 
         def timed(name: str, function: Any, *arguments: Any) -> None:
-            started, other = time.perf_counter(), other_cpu()
+            started, cpu = time.perf_counter(), other_cpu()
             function(*arguments)
-            seconds, other = time.perf_counter() - started, other_cpu() - other
-            line(f"[{seconds:.0f} s; other processes on the machine used {other / seconds:.2f} cores on average meanwhile]")
-            results["sections"][name] = {"seconds": seconds, "other_cores": other / seconds}
+            seconds, other = time.perf_counter() - started, other_cores(cpu, started)
+            line(f"[{seconds:.0f} s; other processes on the machine used {other:.2f} cores on average meanwhile]")
+            results["sections"][name] = {"seconds": seconds, "other_cores": other}
 
         with start_reference({"kitti": args.kitti, "short": pit_root / "short"}) as reference:
             timed("throughput", throughput_section, args, root, reference, results, quick)
