@@ -38,14 +38,18 @@ INDEX_FILE = "0-frame.json"
 _FORMATS = {"json": Format.JSON, "glb": Format.BINARY}
 
 
-def frame_files(directory: Path) -> dict[int, Path]:
-    """Message files of a log directory by file number (0 index, 1 metadata, 2+ frames)."""
+def frame_files(directory: str | os.PathLike[str]) -> dict[int, str]:
+    """Names of the message files of a log directory by file number (0 index, 1 metadata, 2+ frames).
+
+    Names, not paths: a log can hold 100 000 frames, and making a ``Path``
+    for each costs more than listing the directory.
+    """
     files = {}
     with os.scandir(directory) as entries:
         for entry in entries:
             match = FRAME_FILE.fullmatch(entry.name)
             if match and entry.is_file():
-                files[int(match.group(1))] = Path(entry.path)
+                files[int(match.group(1))] = entry.name
     return files
 
 
@@ -84,7 +88,7 @@ class StaticLogProvider:
 class StaticLog:
     """One log directory."""
 
-    def __init__(self, name: str, directory: Path, files: dict[int, Path], workers: Workers) -> None:
+    def __init__(self, name: str, directory: Path, files: dict[int, str], workers: Workers) -> None:
         self.name = name
         self.directory = directory
         self._files = files
@@ -94,50 +98,58 @@ class StaticLog:
             raise LogError(
                 f"log {name!r} has no metadata file (1-frame.glb or 1-frame.json) in {directory}", log=name
             )
-        suffix = metadata_file.suffix[1:]
+        suffix = metadata_file.rpartition(".")[2]
         if suffix not in _FORMATS:
             raise LogError(
-                f"log {name!r} is stored as protobuf ({metadata_file.name}), which this server does not read; "
+                f"log {name!r} is stored as protobuf ({metadata_file}), which this server does not read; "
                 "convert it to GLB",
                 log=name,
             )
         self.format = _FORMATS[suffix]
 
     def _read(self, number: int) -> bytes:
-        path = self._files.get(number)
-        if path is None:
+        file = self._files.get(number)
+        if file is None:
             raise FileNotFoundError(f"{number}-frame file missing")
-        return path.read_bytes()
+        with open(os.path.join(self.directory, file), "rb") as stream:
+            return stream.read()
 
     async def metadata(self) -> dict[str, Any]:
-        path = self._files[1]
+        file = self._files[1]
         try:
             data = await self._workers.io(self._read, 1)
             kind, content = unwrap(decode(data))
         except OSError as exc:
-            raise LogError(f"log {self.name!r}: cannot read {path.name}: {exc.strerror or exc}", log=self.name) from None
+            raise LogError(f"log {self.name!r}: cannot read {file}: {exc.strerror or exc}", log=self.name) from None
         except (DecodeError, MessageError) as exc:
-            raise LogError(f"log {self.name!r}: {path.name} is not a readable XVIZ message: {exc}", log=self.name) from None
+            raise LogError(f"log {self.name!r}: {file} is not a readable XVIZ message: {exc}", log=self.name) from None
         if kind != "xviz/metadata" or not isinstance(content, dict):
-            raise LogError(f"log {self.name!r}: {path.name} holds {kind!r}, not xviz/metadata", log=self.name)
+            raise LogError(f"log {self.name!r}: {file} holds {kind!r}, not xviz/metadata", log=self.name)
         return content
 
     async def index(self) -> TimeIndex:
+        index = await self._workers.io(self._stored_index)
+        if index is not None:
+            return index
+        return await self._build_index(sorted(number - 2 for number in self._files if number >= 2))
+
+    def _stored_index(self) -> TimeIndex | None:
+        """The log's ``0-frame.json``, when it is readable and names the frame files there are."""
+        if self._files.get(0) != INDEX_FILE:
+            return None
+        try:
+            index = TimeIndex.from_reference(orjson.loads(self._read(0)))
+        except (OSError, orjson.JSONDecodeError, DecodeError) as exc:
+            logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
+            return None
         frames = {number - 2 for number in self._files if number >= 2}
-        index_file = self._files.get(0)
-        if index_file is not None and index_file.name == INDEX_FILE:
-            try:
-                index = TimeIndex.from_reference(orjson.loads(await self._workers.io(self._read, 0)))
-            except (OSError, orjson.JSONDecodeError, DecodeError) as exc:
-                logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
-            else:
-                if set(index.frames.tolist()) == frames:
-                    return index
-                logger.warning(
-                    "log %r: %s names %d frames but the directory has %d; rebuilding it from the frames",
-                    self.name, INDEX_FILE, len(index), len(frames),
-                )
-        return await self._build_index(sorted(frames))
+        if set(index.frames.tolist()) == frames:
+            return index
+        logger.warning(
+            "log %r: %s names %d frames but the directory has %d; rebuilding it from the frames",
+            self.name, INDEX_FILE, len(index), len(frames),
+        )
+        return None
 
     async def _build_index(self, frames: list[int]) -> TimeIndex:
         spans = []
@@ -153,8 +165,7 @@ class StaticLog:
         return TimeIndex.from_spans(spans)
 
     async def read(self, frame: int) -> bytes:
-        path = self._files.get(frame + 2)
-        name = path.name if path is not None else f"{frame + 2}-frame"
+        name = self.describe_frame(frame)
         try:
             return await self._workers.io(self._read, frame + 2)
         except OSError as exc:
@@ -166,5 +177,4 @@ class StaticLog:
 
     def describe_frame(self, frame: int) -> str:
         """How a frame is named in error messages: its file."""
-        path = self._files.get(frame + 2)
-        return path.name if path is not None else f"{frame + 2}-frame"
+        return self._files.get(frame + 2, f"{frame + 2}-frame")

@@ -43,6 +43,16 @@ def test_empty_index():
     assert index.range().tolist() == []
 
 
+def test_reference_index_in_any_row_order_matches_spans():
+    rows = [[5, 6, 3, "5-frame"], [1, 1.5, 0.0, "2-frame"], [3, 3, 2, "4-frame"], [3, 4, 1, "3-frame"]]
+    index = TimeIndex.from_reference({"timing": rows})
+    spans = TimeIndex.from_spans((start, end, int(frame)) for start, end, frame, _ in rows)
+    assert index.frames.tolist() == spans.frames.tolist() == [0, 1, 2, 3]
+    assert index.start.tolist() == spans.start.tolist() == [1, 3, 3, 5]
+    assert index.end.tolist() == spans.end.tolist() == [1.5, 4, 3, 6]
+    assert index.frames.dtype == np.int64
+
+
 @pytest.mark.parametrize(
     "document, where",
     [
@@ -51,6 +61,10 @@ def test_empty_index():
         ({"timing": [[1, 1, 0, "2-frame"], [2, "x", 1, "3-frame"]]}, r"timing\[1\] is not"),
         ({"timing": [[1, 1, 0.5, "2-frame"]]}, r"timing\[0\] is not"),
         ({"timing": [[1, 1, -1, "2-frame"]]}, r"timing\[0\] is not"),
+        ({"timing": [[1, 1, 0, "2-frame"], [2, 2, True, "3-frame"]]}, r"timing\[1\] is not"),
+        ({"timing": [[1, 1, 0, "2-frame"], [float("nan"), 2, 1, "3-frame"]]}, r"timing\[1\] is not"),
+        ({"timing": [[1, 1, 0, "2-frame"], [10**400, 2, 1, "3-frame"]]}, r"timing\[1\] is not"),
+        ({"timing": [[1, 1, 0, "2-frame"], "abc"]}, r"timing\[1\] is not"),
         ([1, 2], "'timing' must be a list"),
     ],
 )

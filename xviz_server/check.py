@@ -133,7 +133,7 @@ def _check_index(path: Path) -> FileReport:
 
 def check_log(directory: Path) -> list[FileReport]:
     """Check a log directory in the reference layout, file by file and as a whole."""
-    files = frame_files(directory)
+    files = {number: directory / name for number, name in frame_files(directory).items()}
     reports = []
     metadata_file = files.get(1)
     declared: set[str] = set()

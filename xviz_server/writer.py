@@ -85,7 +85,7 @@ class LogWriter:
         for leftover in self.directory.glob(f".*{_TEMP_MARK}*"):
             leftover.unlink()  # from a run that stopped in the middle of a file
         files = frame_files(self.directory)
-        foreign = sorted(path.name for number, path in files.items() if number > 0 and path.suffix != self.format.suffix)
+        foreign = sorted(name for number, name in files.items() if number > 0 and not name.endswith(self.format.suffix))
         if foreign:
             names = ", ".join(foreign[:3])
             raise self._error(f"holds {names}, not {self.format.value} frames; open it with the format it was written in")
@@ -237,8 +237,8 @@ class LogWriter:
     def _log_info_times(self) -> tuple[float | None, float | None]:
         """The metadata's ``log_info`` start and end times, where it has them (non-zero numbers)."""
         if self._log_times is None:
-            path = frame_files(self.directory).get(_METADATA)
-            metadata = self._decode(path.read_bytes(), "metadata")["data"] if path is not None else {}
+            name = frame_files(self.directory).get(_METADATA)
+            metadata = self._decode((self.directory / name).read_bytes(), "metadata")["data"] if name is not None else {}
             info = metadata.get("log_info")
             times = [info.get(key) for key in ("start_time", "end_time")] if isinstance(info, Mapping) else [None, None]
             start, end = (float(t) if isinstance(t, (int, float)) and not isinstance(t, bool) and t else None for t in times)
