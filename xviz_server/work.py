@@ -2,8 +2,12 @@
 
 File reads and light work (decoding a GLB frame is a fraction of a
 millisecond) run in a thread pool. Work that holds the GIL for long, such as
-parsing or writing a JSON point cloud, runs in a process pool, created on
-first use.
+parsing or writing a JSON point cloud, runs in a process pool, started on
+first use. Starting it takes a few hundred milliseconds (the fork server
+imports numpy and this package once, then forks the workers), so it starts
+from a thread, and until it is up such work runs in a single thread rather
+than wait: a single one, because the GIL lets no two of these jobs run at
+once, and there the first job asked for is the first done.
 """
 
 from __future__ import annotations
@@ -11,12 +15,17 @@ from __future__ import annotations
 import asyncio
 import multiprocessing
 import os
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
+import threading
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, Callable, TypeVar
 
 __all__ = ["Workers"]
 
 T = TypeVar("T")
+
+# What jobs sent to the process pool use: imported once by the fork server
+# (or by each worker, where there is no fork server).
+_JOB_MODULES = ["xviz_server.frames", "xviz_server.live", "xviz_server.builder", "xviz_server.datasets"]
 
 
 class Workers:
@@ -24,38 +33,63 @@ class Workers:
 
     def __init__(self, *, threads: int = 8, processes: int | None = None) -> None:
         self._threads = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="xviz-io")
-        self._processes: Executor | None = None
+        self._stand_in = ThreadPoolExecutor(max_workers=1, thread_name_prefix="xviz-cpu")
+        self._processes: ProcessPoolExecutor | None = None
         self._process_count = processes or os.cpu_count() or 1
+        self._started: Future[None] | None = None  # done when every worker process is up
+        self._lock = threading.Lock()
+        self._closed = False
 
     async def io(self, function: Callable[..., T], *args: Any) -> T:
         """Run ``function(*args)`` in the thread pool."""
         return await asyncio.get_running_loop().run_in_executor(self._threads, function, *args)
 
     async def cpu(self, function: Callable[..., T], *args: Any) -> T:
-        """Run ``function(*args)`` in the process pool; it must be picklable."""
-        return await asyncio.get_running_loop().run_in_executor(self._pool(), function, *args)
+        """Run ``function(*args)`` in the process pool; it must be picklable.
+
+        While the pool is starting, it runs in a thread of this process.
+        """
+        started = self._start()
+        if started.done():
+            started.result()  # raises if the pool could not start
+            executor = self._processes
+        else:
+            executor = self._stand_in
+        return await asyncio.get_running_loop().run_in_executor(executor, function, *args)
 
     async def warm(self) -> None:
-        """Start the worker processes now, so that the first heavy job does not wait for them."""
-        loop = asyncio.get_running_loop()
-        pool = self._pool()
-        await asyncio.gather(*(loop.run_in_executor(pool, _ready) for _ in range(self._process_count)))
+        """Start the worker processes now and wait until they are up."""
+        await asyncio.wrap_future(self._start())
 
-    def _pool(self) -> Executor:
-        if self._processes is None:
-            methods = multiprocessing.get_all_start_methods()
-            context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    def _start(self) -> Future[None]:
+        if self._started is None:
+            self._started = self._threads.submit(self._start_processes)
+        return self._started
+
+    def _start_processes(self) -> None:
+        if "forkserver" in multiprocessing.get_all_start_methods():
+            context = multiprocessing.get_context("forkserver")
+            context.set_forkserver_preload(_JOB_MODULES)
+        else:
+            context = multiprocessing.get_context("spawn")
+        with self._lock:
+            if self._closed:
+                return
             self._processes = ProcessPoolExecutor(max_workers=self._process_count, mp_context=context)
-        return self._processes
+        # The pool starts a process per job submitted while none is idle.
+        for job in [self._processes.submit(_import_job_modules) for _ in range(self._process_count)]:
+            job.result()
 
     def close(self) -> None:
-        """Stop both pools; running jobs finish, queued ones are dropped."""
+        """Stop the pools; running jobs finish, queued ones are dropped."""
+        with self._lock:
+            self._closed = True
         self._threads.shutdown(wait=False, cancel_futures=True)
+        self._stand_in.shutdown(wait=False, cancel_futures=True)
         if self._processes is not None:
             self._processes.shutdown(wait=False, cancel_futures=True)
 
 
-def _ready() -> None:
-    """Import what converters use, so that a worker's first real job does not pay for it."""
-    import xviz_server.builder  # noqa: F401
-    import xviz_server.datasets  # noqa: F401
+def _import_job_modules() -> None:
+    for name in _JOB_MODULES:
+        __import__(name)
