@@ -231,6 +231,33 @@ def test_ingest_without_token_is_loopback_only():
     assert "bad feed name" in refusal(Request("/ingest/../x", Headers()), ("127.0.0.1", 1), None)
 
 
+async def test_an_update_published_as_a_viewer_joins_comes_once(root: Path):
+    # The viewer's session subscribes, then sends the metadata and the latest
+    # state; an update published in between is in that state and in the
+    # subscription's queue, and must reach the viewer once.
+    async with running_server(root) as server:
+        feed = server.live.feed("busy")
+        feed.set_metadata(META)
+        await feed.publish(update(1.0))
+        subscribe = feed.subscribe
+        published = []
+
+        def subscribe_then_publish(*args, **kwargs):
+            subscription = subscribe(*args, **kwargs)
+            published.append(asyncio.ensure_future(feed.publish(update(1.1))))  # runs before the session's task
+            return subscription
+
+        feed.subscribe = subscribe_then_publish
+        async with client(server, "/?log=busy&session_type=live") as c:
+            assert (await c.recv())["type"] == "xviz/metadata"
+            state = await next_update(c)
+            await published[0]
+            await feed.publish(update(1.2))
+            following = await next_update(c)
+    assert state["data"]["updates"][0]["timestamp"] == 1.1
+    assert following["data"]["updates"][0]["timestamp"] == 1.2
+
+
 async def test_replay_of_a_log_as_a_live_feed(root: Path, tmp_path: Path):
     write_log(tmp_path / "drive-7", ten_hz(10))
     async with running_server(root, live_from=tmp_path / "drive-7", rate=2.0) as server:

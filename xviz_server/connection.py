@@ -223,11 +223,12 @@ class Connection:
         """Send the feed's metadata and latest state, then every update as it comes."""
         feed = subscription.feed
         behind = False
+        covered = -1  # the number of the last update in the state sent: queued ones up to it are skipped
         try:
             if feed.metadata is None:
                 await self._send(self.session.live_notice(f"live feed {feed.name!r} has not started yet; waiting for it"))
             else:
-                await self._send_live_start(feed)
+                covered = await self._send_live_start(feed)
             while True:
                 item = await subscription.next()
                 dropped = subscription.take_drops()
@@ -239,26 +240,30 @@ class Connection:
                 behind = subscription.lagging_since is not None
                 if isinstance(item, FeedEvent):
                     if item.kind == "metadata":
-                        await self._send_live_start(feed)
+                        covered = await self._send_live_start(feed)
                     else:
                         await self._send(self.session.live_notice(
                             f"live feed {feed.name!r} went away; this session stays open and resumes when it comes back"
                         ))
                     continue
-                await self._send_live_update(item)
+                if item.number > covered:
+                    await self._send_live_update(item)
         except ConnectionClosed:
             pass
         finally:
             subscription.close()
 
-    async def _send_live_start(self, feed: LiveSource) -> None:
+    async def _send_live_start(self, feed: LiveSource) -> int:
+        """Send the feed's metadata and latest state; the number of the last update in that state (-1: none)."""
         config = self._live_config or self.session.live_config()
         metadata = feed.metadata_message(config.fmt)
         if metadata is not None:
             await self.websocket.send(metadata, text=config.fmt is Format.JSON)
         state = feed.state()
-        if state is not None:
-            await self._send_live_update(state)
+        if state is None:
+            return -1
+        await self._send_live_update(state)
+        return state.number
 
     async def _send_live_update(self, update: LiveUpdate) -> None:
         config = self._live_config or self.session.live_config()

@@ -195,6 +195,7 @@ class LiveSource:
         self.connected = False
         self._metadata_messages: dict[Format, bytes] = {}
         self._state: dict[str, Any] | None = None
+        self._state_number = -1  # number of the latest update in _state
         self._subscribers: set[Subscription] = set()
         self._numbers = itertools.count()
         self._listeners: list[Callable[[LiveUpdate], None]] = []
@@ -236,7 +237,7 @@ class LiveSource:
         data.setdefault("update_type", "INCREMENTAL")
         message = envelope("state_update", data)
         update = LiveUpdate(next(self._numbers), message, original)
-        self._remember(message)
+        self._remember(update)
         for subscriber in self._subscribers:
             subscriber.offer(update)
         for listener in self._listeners:
@@ -256,8 +257,12 @@ class LiveSource:
         return self._metadata_messages.get(fmt)
 
     def state(self) -> LiveUpdate | None:
-        """The latest complete state, as an update a late viewer can draw at once."""
-        return None if self._state is None else LiveUpdate(-1, self._state)
+        """The latest complete state, as an update a late viewer can draw at once.
+
+        Its number is that of the latest update it includes: a viewer that
+        subscribed before taking it skips the queued updates up to that one.
+        """
+        return None if self._state is None else LiveUpdate(self._state_number, self._state)
 
     def subscribe(self, size: int, decimate: int = 1) -> Subscription:
         subscription = Subscription(self, size, decimate)
@@ -278,12 +283,14 @@ class LiveSource:
         await self.on_reconfigure(config_update)
         return True
 
-    def _remember(self, message: dict[str, Any]) -> None:
+    def _remember(self, update: LiveUpdate) -> None:
+        message = update.message
         if str(message["data"].get("update_type", "")).upper() in COMPLETE_TYPES or self._state is None:
             merged = [message]
         else:
             merged = [message, self._state]
         self._state, _ = complete_state(merged)
+        self._state_number = update.number
 
 
 class LiveRegistry:
