@@ -279,13 +279,15 @@ def test_edit_glb_writes_the_current_form_of_legacy_files():
     document = {
         "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 12}],
         "accessors": [{"bufferView": 0, "type": "VEC3", "componentType": 5126, "count": 1}],
-        "extensionsUsed": ["AVS_xviz"],
+        "extensionsUsed": ["AVS_xviz", "OTHER"],
+        "extensionsRequired": ["AVS_xviz"],
         "extensions": {"AVS_xviz": state_update({"/v": {"polylines": [{"vertices": "#/accessors/0"}]}}), "OTHER": {"a": 1}},
     }
     edited = edit_glb(build_glb(document, floats, magic=b"XVIZ", json_type=0, bin_type=1), lambda envelope: envelope)
     written, binary = glb_parts(edited)  # current magic and chunk types
     assert binary == floats
     assert written["extensions"] == {"OTHER": {"a": 1}}
+    assert written["extensionsUsed"] == ["OTHER"] and "extensionsRequired" not in written
     assert written["xviz"] == document["extensions"]["AVS_xviz"]
     assert decode_glb(edited)["data"]["updates"][0]["primitives"]["/v"]["polylines"][0]["vertices"].tolist() == [[1, 2, 3]]
     with pytest.raises(DecodeError, match="declares"):

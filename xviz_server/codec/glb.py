@@ -332,6 +332,12 @@ def edit_glb(data: bytes | bytearray | memoryview, edit: Callable[[Any], Any]) -
     extensions.pop(EXTENSION, None)
     if extensions:
         document["extensions"] = extensions
+    for key in ("extensionsUsed", "extensionsRequired"):
+        names = document.pop(key, None)
+        if isinstance(names, list):
+            names = [name for name in names if name != EXTENSION]
+        if names:
+            document[key] = names
     document["xviz"] = edit(envelope)
     try:
         text = orjson.dumps(document)
