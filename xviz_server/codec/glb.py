@@ -263,20 +263,28 @@ def encode_glb(message: Mapping[str, Any]) -> bytes:
         "meshes": [],
         "xviz": envelope,
     }
+    return _write(document, packer.chunks, packer.length)
+
+
+def _write(document: dict[str, Any], body: list[bytes | memoryview], body_length: int) -> bytes:
+    """A GLB file of ``document`` (JSON chunk) and the parts of ``body`` (BIN chunk).
+
+    ``body_length`` is their total size, a multiple of 4.
+    """
     try:
         text = orjson.dumps(document, option=orjson.OPT_SERIALIZE_NUMPY)
     except orjson.JSONEncodeError as exc:
         raise EncodeError(f"cannot encode message as GLB JSON: {exc}") from None
     json_padded = _pad4(len(text))
-    total = _HEADER.size + 2 * _CHUNK.size + json_padded + packer.length
+    total = _HEADER.size + 2 * _CHUNK.size + json_padded + body_length
     return b"".join(
         [
             _HEADER.pack(MAGIC_GLTF, 2, total),
             _CHUNK.pack(len(text), CHUNK_JSON),
             text,
             b" " * (json_padded - len(text)),
-            _CHUNK.pack(packer.length, CHUNK_BIN),
-            *packer.chunks,
+            _CHUNK.pack(body_length, CHUNK_BIN),
+            *body,
         ]
     )
 
@@ -339,25 +347,9 @@ def edit_glb(data: bytes | bytearray | memoryview, edit: Callable[[Any], Any]) -
         if names:
             document[key] = names
     document["xviz"] = edit(envelope)
-    try:
-        text = orjson.dumps(document)
-    except orjson.JSONEncodeError as exc:
-        raise EncodeError(f"cannot encode message as GLB JSON: {exc}") from None
-    json_padded = _pad4(len(text))
     body = binary[1] if binary is not None else memoryview(b"")
     body_padded = _pad4(len(body))
-    total = _HEADER.size + 2 * _CHUNK.size + json_padded + body_padded
-    return b"".join(
-        [
-            _HEADER.pack(MAGIC_GLTF, 2, total),
-            _CHUNK.pack(len(text), CHUNK_JSON),
-            text,
-            b" " * (json_padded - len(text)),
-            _CHUNK.pack(body_padded, CHUNK_BIN),
-            body,
-            bytes(body_padded - len(body)),
-        ]
-    )
+    return _write(document, [body, bytes(body_padded - len(body))], body_padded)
 
 
 def _read_document(
