@@ -183,12 +183,14 @@ class Log:
         if position is None:
             raise XVIZError(f"the log has no state at or before {instant} (it starts at {self.index.start_time})")
         number = int(self.index.frames[position])
-        data = await self._checked(number)
-        if streams is None and number in self._whole and detect_format(data) is fmt:
-            if self._update_types[number] == "COMPLETE_STATE":
-                return data
-            if fmt is Format.BINARY:
-                return await self._workers.io(frames.relabel_complete, data)
+        # A frame known not to be whole is not read here: its answer may be cached.
+        if streams is None and (number in self._whole or number not in self._update_types):
+            data = await self._checked(number)
+            if number in self._whole and detect_format(data) is fmt:
+                if self._update_types[number] == "COMPLETE_STATE":
+                    return data
+                if fmt is Format.BINARY:
+                    return await self._workers.io(frames.relabel_complete, data)
         key = (self.name, "state", position, fmt, streams, lookback)
         return await self._cache.get(key, lambda: self._merge(position, fmt, streams, lookback))
 
