@@ -1,10 +1,10 @@
 """Log providers: where the frames a session serves come from.
 
-A provider knows a set of logs by name and opens one as a
-:class:`LogSource`. Sources hand out frames as encoded bytes; everything
-above them (the shared frame cache, transcoding, stream filtering, the time
-index queries) is common to every provider and lives in
-:mod:`xviz_server.logs`.
+A provider opens what :func:`xviz_server.layout.discover` found (or what the
+command line named) as a :class:`LogSource`. Sources hand out frames as
+encoded bytes; everything above them (the shared frame cache, transcoding,
+stream filtering, the time index queries) is common to every provider and
+lives in :mod:`xviz_server.logs`.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from typing import Any, Protocol
 
 from ..codec import Format
 from ..index import TimeIndex
+from ..layout import Found
 
 __all__ = ["LogSource", "Provider"]
 
@@ -41,17 +42,14 @@ class LogSource(Protocol):
         """
         ...
 
-
-class Provider(Protocol):
-    """A set of logs."""
-
-    def scan(self) -> list[str]:
-        """Names of the logs it serves now; may touch the file system (run it in a thread)."""
+    def describe_frame(self, frame: int) -> str:
+        """How a frame is named in error messages (its file or record)."""
         ...
 
-    async def open(self, name: str) -> LogSource:
-        """Open a log that :meth:`scan` listed.
 
-        Raises :class:`~xviz_server.exceptions.LogError` when it cannot be served.
-        """
+class Provider(Protocol):
+    """Opens the logs of some kinds of :class:`~xviz_server.layout.Found` entries."""
+
+    async def open(self, found: Found) -> LogSource:
+        """Open a log; raises :class:`~xviz_server.exceptions.LogError` when it cannot be served."""
         ...

@@ -1,68 +1,60 @@
 """Raw datasets served as logs, converted on demand.
 
-Datasets are found under the data root by their layout (a KITTI drive
-folder is named by its path below the root) or given explicitly
-(``--dataset kitti:PATH``, named by the folder's base name). The metadata
-and the index come from the dataset's timestamps at once; each frame is
-converted in the process pool when first asked for, encoded as GLB once,
-and kept in the shared frame cache like any other frame. A frame whose raw
-files are missing or corrupt is an error naming the file; the rest of the
-drive is served.
+Datasets are found under a data root by their layout (see
+:func:`xviz_server.layout.discover`) or given explicitly (``--dataset
+kitti:PATH``: named by the folder's name, or a file's name without its
+suffix; a folder of datasets of that kind serves each of them). The
+metadata and the index come from the dataset's timestamps at once; each
+frame is converted in the process pool when first asked for, encoded as GLB
+once, and kept in the shared frame cache like any other frame. A frame whose
+raw files are missing or corrupt is an error naming the file; the rest of
+the drive is served.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from ..codec import Format
 from ..datasets import Dataset, convert_frame, detect, open_dataset
 from ..exceptions import DatasetError, FrameError, LogError
 from ..index import TimeIndex
+from ..layout import Found, discover
 from ..work import Workers
 
-__all__ = ["DatasetProvider", "DatasetLog"]
+__all__ = ["DatasetProvider", "DatasetLog", "explicit_datasets"]
+
+
+def explicit_datasets(kind: str, path: Path) -> list[Found]:
+    """The datasets a ``--dataset KIND:PATH`` names.
+
+    ``path`` itself, named after it, when it is one dataset or holds one
+    (the dataset opens it; a folder that holds none is named the same, and
+    opening it says what is wrong); each dataset of ``kind`` under it, named
+    by its path below it, when it holds several.
+    """
+    path = Path(path)
+    own = Found(path.stem if path.is_file() else path.name, path, kind)
+    if detect(path) == kind or not path.is_dir():
+        return [own]
+    found = [entry for entry in discover(path, detect) if entry.kind == kind]
+    return found if len(found) > 1 else [own]
 
 
 class DatasetProvider:
-    """Datasets found under ``root`` and those given as ``(kind, path)``."""
+    """Opens datasets; ``options`` go to every dataset (``image_max_width``)."""
 
-    def __init__(self, root: Path | None, explicit: Sequence[tuple[str, Path]], workers: Workers, options: dict[str, Any] | None = None) -> None:
-        self.root = Path(root) if root is not None else None
-        self._explicit = [(kind, Path(path)) for kind, path in explicit]
+    def __init__(self, workers: Workers, options: dict[str, Any] | None = None) -> None:
         self._workers = workers
         self._options = options or {}
-        self._found: dict[str, tuple[str, Path]] = {}
 
-    @property
-    def names(self) -> list[str]:
-        """The datasets found by the last :meth:`scan`."""
-        return sorted(self._found)
-
-    def scan(self) -> list[str]:
-        found: dict[str, tuple[str, Path]] = {}
-        if self.root is not None:
-            for directory, subdirectories, _ in os.walk(self.root, followlinks=True):
-                kind = detect(Path(directory))
-                if kind is not None:
-                    relative = Path(directory).relative_to(self.root).as_posix()
-                    found[self.root.name if relative == "." else relative] = (kind, Path(directory))
-                    subdirectories.clear()  # a dataset's own folders are not datasets
-                else:
-                    subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
-        for kind, path in self._explicit:
-            found[path.name] = (kind, path)
-        self._found = found
-        return sorted(found)
-
-    async def open(self, name: str) -> DatasetLog:
-        kind, path = self._found[name]
+    async def open(self, found: Found) -> DatasetLog:
         try:
-            dataset = await self._workers.io(lambda: open_dataset(kind, path, **self._options))
+            dataset = await self._workers.io(lambda: open_dataset(found.kind, found.path, **self._options))
         except DatasetError as exc:
-            raise LogError(f"log {name!r}: {exc}", log=name) from None
-        return DatasetLog(name, kind, dataset, self._options, self._workers)
+            raise LogError(f"log {found.name!r}: {exc}", log=found.name) from None
+        return DatasetLog(found.name, found.kind, dataset, self._options, self._workers)
 
 
 class DatasetLog:
@@ -89,6 +81,9 @@ class DatasetLog:
     async def index(self) -> TimeIndex:
         times = await self._workers.io(lambda: self._dataset.times)
         return TimeIndex.from_spans((float(t), float(t), i) for i, t in enumerate(times))
+
+    def describe_frame(self, frame: int) -> str:
+        return f"frame {frame} of {self._dataset.path}"
 
     async def read(self, frame: int) -> bytes:
         metadata = await self.metadata()

@@ -1,11 +1,7 @@
 """Static logs: directories of pre-encoded frames in the reference layout.
 
-A log directory holds ``0-frame.json`` (the index), ``1-frame.(json|glb)``
-(the metadata message) and ``<i+2>-frame.(json|glb)`` (message ``i``, a
-state update). The provider serves every such directory under a root; a
-log's name is its path relative to the root, with ``/`` separators (or the
-root's own name when the root itself is a log). Symbolic links inside the
-root are followed.
+A log directory (see :mod:`xviz_server.layout`) holds the index, the
+metadata message and one file per state update, as JSON or GLB.
 
 An index that is missing, unreadable or disagrees with the frame files is
 rebuilt by reading every frame once; the rebuilt index is kept for the life
@@ -16,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import os
-import re
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +21,7 @@ from ..codec import Format, decode, detect_format
 from ..exceptions import DecodeError, FrameError, LogError, MessageError
 from ..frames import is_heavy, span
 from ..index import TimeIndex
+from ..layout import INDEX_FILE, INDEX_NUMBER, METADATA_NUMBER, Found, file_number, frame_files, frame_name, frame_numbers
 from ..messages import unwrap
 from ..work import Workers
 
@@ -33,56 +29,21 @@ __all__ = ["StaticLogProvider", "StaticLog"]
 
 logger = logging.getLogger(__name__)
 
-FRAME_FILE = re.compile(r"(\d+)-frame\.(json|glb|pbe)")
-INDEX_FILE = "0-frame.json"
 _FORMATS = {"json": Format.JSON, "glb": Format.BINARY}
 
 
-def frame_files(directory: str | os.PathLike[str]) -> dict[int, str]:
-    """Names of the message files of a log directory by file number (0 index, 1 metadata, 2+ frames).
-
-    Names, not paths: a log can hold 100 000 frames, and making a ``Path``
-    for each costs more than listing the directory.
-    """
-    files = {}
-    with os.scandir(directory) as entries:
-        for entry in entries:
-            match = FRAME_FILE.fullmatch(entry.name)
-            if match and entry.is_file():
-                files[int(match.group(1))] = entry.name
-    return files
-
-
 class StaticLogProvider:
-    """Every log directory under ``root``."""
+    """Opens log directories."""
 
-    def __init__(self, root: Path, workers: Workers) -> None:
-        self.root = Path(root)
+    def __init__(self, workers: Workers) -> None:
         self._workers = workers
-        self._logs: dict[str, Path] = {}
 
-    def scan(self) -> list[str]:
-        logs: dict[str, Path] = {}
-        seen: set[str] = set()
-        for directory, subdirectories, files in os.walk(self.root, followlinks=True):
-            real = os.path.realpath(directory)
-            if real in seen:  # a symbolic link loop
-                subdirectories.clear()
-                continue
-            seen.add(real)
-            subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
-            if any(FRAME_FILE.fullmatch(name) for name in files):
-                relative = Path(directory).relative_to(self.root).as_posix()
-                logs[self.root.name if relative == "." else relative] = Path(directory)
-        self._logs = logs
-        return sorted(logs)
-
-    async def open(self, name: str) -> StaticLog:
-        directory = self._logs.get(name)
-        if directory is None:
-            raise LogError(f"log {name!r} is not under {self.root}", log=name)
-        files = await self._workers.io(frame_files, directory)
-        return StaticLog(name, directory, files, self._workers)
+    async def open(self, found: Found) -> StaticLog:
+        try:
+            files = await self._workers.io(frame_files, found.path)
+        except OSError as exc:
+            raise LogError(f"log {found.name!r}: cannot list its directory: {exc.strerror or exc}", log=found.name) from None
+        return StaticLog(found.name, found.path, files, self._workers)
 
 
 class StaticLog:
@@ -93,7 +54,7 @@ class StaticLog:
         self.directory = directory
         self._files = files
         self._workers = workers
-        metadata_file = files.get(1)
+        metadata_file = files.get(METADATA_NUMBER)
         if metadata_file is None:
             raise LogError(
                 f"log {name!r} has no metadata file (1-frame.glb or 1-frame.json) in {directory}", log=name
@@ -115,9 +76,9 @@ class StaticLog:
             return stream.read()
 
     async def metadata(self) -> dict[str, Any]:
-        file = self._files[1]
+        file = self._files[METADATA_NUMBER]
         try:
-            data = await self._workers.io(self._read, 1)
+            data = await self._workers.io(self._read, METADATA_NUMBER)
             kind, content = unwrap(decode(data))
         except OSError as exc:
             raise LogError(f"log {self.name!r}: cannot read {file}: {exc.strerror or exc}", log=self.name) from None
@@ -131,18 +92,18 @@ class StaticLog:
         index = await self._workers.io(self._stored_index)
         if index is not None:
             return index
-        return await self._build_index(sorted(number - 2 for number in self._files if number >= 2))
+        return await self._build_index(frame_numbers(self._files))
 
     def _stored_index(self) -> TimeIndex | None:
         """The log's ``0-frame.json``, when it is readable and names the frame files there are."""
-        if self._files.get(0) != INDEX_FILE:
+        if self._files.get(INDEX_NUMBER) != INDEX_FILE:
             return None
         try:
-            index = TimeIndex.from_reference(orjson.loads(self._read(0)))
+            index = TimeIndex.from_reference(orjson.loads(self._read(INDEX_NUMBER)))
         except (OSError, orjson.JSONDecodeError, DecodeError) as exc:
             logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
             return None
-        frames = {number - 2 for number in self._files if number >= 2}
+        frames = set(frame_numbers(self._files))
         if set(index.frames.tolist()) == frames:
             return index
         logger.warning(
@@ -167,7 +128,7 @@ class StaticLog:
     async def read(self, frame: int) -> bytes:
         name = self.describe_frame(frame)
         try:
-            return await self._workers.io(self._read, frame + 2)
+            return await self._workers.io(self._read, file_number(frame))
         except OSError as exc:
             raise FrameError(
                 f"cannot read frame {frame} ({name}) of log {self.name!r}: {exc.strerror or exc}",
@@ -177,4 +138,4 @@ class StaticLog:
 
     def describe_frame(self, frame: int) -> str:
         """How a frame is named in error messages: its file."""
-        return self._files.get(frame + 2, f"{frame + 2}-frame")
+        return self._files.get(file_number(frame), frame_name(frame))

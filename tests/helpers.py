@@ -1,10 +1,34 @@
-"""Assertions shared by the tests."""
+"""What the tests share: logs written in the reference layout, a running server and a
+client, the published client's drivers (node), and message comparisons.
+
+Test modules import from here only, never from one another.
+"""
 
 from __future__ import annotations
 
-from typing import Any
+import asyncio
+import contextlib
+import hashlib
+import json
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, AsyncIterator
 
 import numpy as np
+from websockets.asyncio.client import ClientConnection, connect
+
+from xviz_server.codec import Format, decode, encode
+from xviz_server.layout import INDEX_FILE, METADATA_NUMBER, file_number, index_document, update_span
+from xviz_server.server import XVIZServer
+from xviz_server.settings import Settings
+
+INTEROP = Path(__file__).parent / "interop"
+DRIVER = INTEROP / "xviz-session.js"
+
+
+# ------------------------------------------------------------ comparisons
 
 
 def assert_same_message(actual: Any, expected: Any, path: str = "$") -> None:
@@ -33,3 +57,233 @@ def assert_same_message(actual: Any, expected: Any, path: str = "$") -> None:
             assert_same_message(a, e, f"{path}[{index}]")
     else:
         assert actual == expected, f"{path}: {actual!r} != {expected!r}"
+
+
+def assert_same_parse(mine, theirs, path: str) -> None:
+    """Compare two client parses of one frame, one read from JSON.
+
+    JSON carries float32 values in their shortest decimal form. The client
+    keeps polyline vertices as Float64Array, so those differ from the GLB
+    read by float32 rounding; every other value must be identical.
+    """
+    if isinstance(theirs, dict) and theirs.get("$typed") == "Float64Array":
+        assert mine["$typed"] == "Float64Array" and mine["length"] == theirs["length"], path
+        assert np.allclose(mine["values"], theirs["values"], rtol=1e-7, atol=0), path
+    elif isinstance(theirs, dict):
+        assert isinstance(mine, dict) and mine.keys() == theirs.keys(), path
+        for key in theirs:
+            assert_same_parse(mine[key], theirs[key], f"{path}.{key}")
+    elif isinstance(theirs, list):
+        assert isinstance(mine, list) and len(mine) == len(theirs), path
+        for index, (a, b) in enumerate(zip(mine, theirs)):
+            assert_same_parse(a, b, f"{path}[{index}]")
+    else:
+        assert mine == theirs, path
+
+
+def sha(array: np.ndarray | bytes) -> str:
+    data = array if isinstance(array, bytes) else np.ascontiguousarray(array).tobytes()
+    return hashlib.sha256(data).hexdigest()
+
+
+# ------------------------------------------------------------ logs
+
+
+def metadata(streams: dict[str, dict] | None = None, **log_info: float) -> dict[str, Any]:
+    data: dict[str, Any] = {
+        "version": "2.0.0",
+        "streams": streams
+        or {
+            "/vehicle_pose": {"category": "POSE"},
+            "/points": {"category": "PRIMITIVE", "primitive_type": "POINT"},
+            "/speed": {"category": "TIME_SERIES", "scalar_type": "FLOAT"},
+        },
+    }
+    if log_info:
+        data["log_info"] = log_info
+    return data
+
+
+def update(t: float, *, points: int = 10, update_type: str = "SNAPSHOT", streams: tuple[str, ...] = ("/vehicle_pose", "/points", "/speed")) -> dict[str, Any]:
+    """A state update at time ``t`` carrying some of three streams."""
+    stream_set: dict[str, Any] = {"timestamp": t}
+    if "/vehicle_pose" in streams:
+        stream_set["poses"] = {"/vehicle_pose": {"timestamp": t, "position": [t, 0.0, 0.0], "orientation": [0.0, 0.0, 0.0]}}
+    if "/points" in streams:
+        cloud = np.full((points, 3), t, dtype=np.float32)
+        stream_set["primitives"] = {"/points": {"points": [{"points": cloud}]}}
+    if "/speed" in streams:
+        stream_set["time_series"] = [{"timestamp": t, "streams": ["/speed"], "values": {"doubles": [t * 2]}}]
+    return {"update_type": update_type, "updates": [stream_set]}
+
+
+def write_log(
+    directory: Path,
+    updates: list[dict[str, Any]],
+    *,
+    fmt: Format = Format.BINARY,
+    meta: dict[str, Any] | None = None,
+    index: bool = True,
+) -> Path:
+    """Write a log directory in the reference layout (plainly, not as the product's writer does); return it."""
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / f"{METADATA_NUMBER}-frame{fmt.suffix}").write_bytes(encode({"type": "xviz/metadata", "data": meta or metadata()}, fmt))
+    spans = []
+    for i, data in enumerate(updates):
+        (directory / f"{file_number(i)}-frame{fmt.suffix}").write_bytes(encode({"type": "xviz/state_update", "data": data}, fmt))
+        spans.append(update_span(data))
+    if index:
+        (directory / INDEX_FILE).write_text(json.dumps(index_document(spans)))
+    return directory
+
+
+def ten_hz(count: int, start: float = 100.0, **kwargs: Any) -> list[dict[str, Any]]:
+    return [update(round(start + i / 10, 3), **kwargs) for i in range(count)]
+
+
+@contextlib.asynccontextmanager
+async def running_server(data_dir: Path | None, **settings: Any) -> AsyncIterator[XVIZServer]:
+    """An XVIZ server on a free loopback port."""
+    async with XVIZServer(Settings(host="127.0.0.1", port=0, data_dir=data_dir, **settings)) as server:
+        yield server
+
+
+class Client:
+    """A scripted XVIZ client over a real WebSocket."""
+
+    def __init__(self, websocket: ClientConnection) -> None:
+        self.websocket = websocket
+
+    async def recv(self, timeout: float = 10) -> dict[str, Any]:
+        """The next message, decoded; ``_text`` tells whether it came as a text frame."""
+        data = await asyncio.wait_for(self.websocket.recv(), timeout)
+        message = decode(data)
+        message["_text"] = isinstance(data, str)
+        message["_bytes"] = len(data)
+        return message
+
+    async def send(self, kind: str, data: Any) -> None:
+        await self.websocket.send(json.dumps({"type": f"xviz/{kind}", "data": data}))
+
+    async def until(self, kind: str, request_id: str | None = None, timeout: float = 30) -> list[dict[str, Any]]:
+        """Messages up to and including the first of type ``xviz/<kind>`` (with ``request_id``)."""
+        received = []
+        while True:
+            message = await self.recv(timeout)
+            received.append(message)
+            if message["type"] == f"xviz/{kind}" and (request_id is None or message["data"].get("id") == request_id):
+                return received
+
+
+@contextlib.asynccontextmanager
+async def client(server: XVIZServer, path: str = "/", **kwargs: Any) -> AsyncIterator[Client]:
+    async with connect(f"ws://127.0.0.1:{server.port}{path}", max_size=None, **kwargs) as websocket:
+        yield Client(websocket)
+
+
+def timestamps(messages: list[dict[str, Any]]) -> list[float]:
+    """Timestamps of the state updates among ``messages``."""
+    return [m["data"]["updates"][0]["timestamp"] for m in messages if m["type"] == "xviz/state_update"]
+
+
+# ------------------------------------------------------------ the published client
+
+
+def xviz_decode(paths: list[Path]) -> list[dict]:
+    """Decode files in order with @xviz/parser; one result per file."""
+    node = shutil.which("node")
+    assert node, "node is required for the interop tests"
+    assert (INTEROP / "node_modules" / "@xviz" / "parser").is_dir(), (
+        "the published client is not installed: run `npm ci --prefix tests/interop` "
+        "(scripts/test.sh does it)"
+    )
+    result = subprocess.run(
+        [node, str(INTEROP / "xviz-decode.js"), *map(str, paths)],
+        capture_output=True, text=True, check=True, timeout=300,
+    )
+    lines = [json.loads(line) for line in result.stdout.splitlines()]
+    assert len(lines) == len(paths), result.stderr
+    return lines
+
+
+@dataclass(frozen=True)
+class SessionResult:
+    """What the client received, and how the driver ended.
+
+    ``messages`` holds one dict per message, in arrival order, as the driver
+    prints them: ``index``, ``kind``, ``bytes``, ``type`` and ``raw`` /
+    ``parsed`` (or, for state updates in brief mode, ``timestamp``,
+    ``streams`` and ``poses``). ``summary`` is the driver's closing
+    ``{"messages", "by_type", "errors", "closed"}``, or None when it printed
+    none (a bad command line or script, or a crash: see ``stderr``).
+    """
+
+    messages: list[dict[str, Any]]
+    summary: dict[str, Any] | None
+    returncode: int
+    stderr: str
+
+    @property
+    def ok(self) -> bool:
+        """Whether every step of the script completed."""
+        return self.returncode == 0
+
+    def of_type(self, type_: str) -> list[dict[str, Any]]:
+        """The messages of one envelope type, such as ``"xviz/state_update"``."""
+        return [message for message in self.messages if message["type"] == type_]
+
+
+def run_xviz_session(
+    url: str, script: list[dict[str, Any]], *, brief: bool = False, timeout: float = 60
+) -> SessionResult:
+    """Run ``script`` against the server at ``url``, blocking until the driver exits.
+
+    ``timeout`` bounds the whole run in seconds; past it the driver is killed
+    and ``subprocess.TimeoutExpired`` raised. Each wait step has its own,
+    shorter limit (30 s, or the step's ``timeout_ms``) after which the driver
+    reports and fails.
+    """
+    command = _command(url, brief)
+    completed = subprocess.run(command, input=_encode(script), capture_output=True, timeout=timeout)
+    return _result(completed.stdout, completed.stderr, completed.returncode)
+
+
+async def run_xviz_session_async(
+    url: str, script: list[dict[str, Any]], *, brief: bool = False, timeout: float = 60
+) -> SessionResult:
+    """Run ``script`` against the server at ``url`` without blocking the event loop.
+
+    Same contract as :func:`run_xviz_session`.
+    """
+    command = _command(url, brief)
+    process = await asyncio.create_subprocess_exec(
+        *command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    try:
+        stdout, stderr = await asyncio.wait_for(process.communicate(_encode(script)), timeout)
+    except asyncio.TimeoutError:
+        process.kill()
+        await process.wait()
+        raise subprocess.TimeoutExpired(command, timeout) from None
+    return _result(stdout, stderr, process.returncode)
+
+
+def _command(url: str, brief: bool) -> list[str]:
+    node = shutil.which("node")
+    assert node, "node is required for the interop tests"
+    assert (INTEROP / "node_modules" / "ws").is_dir(), (
+        "the client libraries are not installed: run `npm ci --prefix tests/interop` "
+        "(scripts/test.sh does it)"
+    )
+    # The script goes on stdin, so no command line limits its size.
+    return [node, str(DRIVER), url, "--script-file", "-", *(["--brief"] if brief else [])]
+
+
+def _encode(script: list[dict[str, Any]]) -> bytes:
+    return json.dumps(script).encode()
+
+
+def _result(stdout: bytes, stderr: bytes, returncode: int) -> SessionResult:
+    lines = [json.loads(line) for line in stdout.decode().splitlines()]
+    summary = lines.pop()["summary"] if lines and "summary" in lines[-1] else None
+    return SessionResult(lines, summary, returncode, stderr.decode())

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_interop import sha, xviz_decode
+from helpers import sha, xviz_decode
 from xviz_server.builder import FrameBuilder, MetadataBuilder, ui
 from xviz_server.codec import Format, decode, encode
 from xviz_server.exceptions import BuilderError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from serving import ten_hz, update, write_log
+from helpers import ten_hz, update, write_log
 from xviz_server.check import check_paths
 from xviz_server.codec import Format, encode
 

@@ -2,20 +2,19 @@
 
 from __future__ import annotations
 
-import functools
+import io
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from test_interop import xviz_decode
-from xviz_server import demo
+from helpers import client, running_server, timestamps, xviz_decode
 from xviz_server.check import check_paths
-from xviz_server.codec import Format, decode, decode_json
-from xviz_server.demo import DEMO_LOG_NAME, default_cache_dir, ensure_demo_log, generate_demo_log
+from xviz_server.codec import Format, decode, decode_json, encode
+from xviz_server.convert import convert
+from xviz_server.datasets.demo import DemoDrive
 from xviz_server.validation import get_validator
 
 START = 1_600_000_000.0
@@ -33,14 +32,19 @@ PRIMITIVE_TYPES = {
 SCALAR_TYPES = {"doubles": "FLOAT", "int32s": "INT32", "bools": "BOOL", "strings": "STRING"}
 
 
+def write_demo(directory: Path, duration: float = SHORT, fmt: Format = Format.BINARY) -> Path:
+    convert("demo", Path("demo"), directory, fmt=fmt, options={"duration": duration}, processes=1, out=io.StringIO())
+    return directory
+
+
 @pytest.fixture(scope="module")
 def glb_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return generate_demo_log(tmp_path_factory.mktemp("glb"), duration=SHORT)
+    return write_demo(tmp_path_factory.mktemp("glb"))
 
 
 @pytest.fixture(scope="module")
 def json_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return generate_demo_log(tmp_path_factory.mktemp("json"), duration=SHORT, fmt=Format.JSON)
+    return write_demo(tmp_path_factory.mktemp("json"), fmt=Format.JSON)
 
 
 def read_log(directory: Path) -> tuple[dict[str, Any], dict[str, Any], list[dict[str, Any]]]:
@@ -76,57 +80,44 @@ def test_index_times_the_frames(glb_log: Path):
     assert (log_info["start_time"], log_info["end_time"]) == (timestamps[0], timestamps[-1])
 
 
-def test_every_file_is_synced_then_renamed_into_place_and_the_index_last(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-):
-    events: list[str] = []
-    renames: list[tuple[Path, Path]] = []
-    fsync, replace = os.fsync, os.replace
-
-    def record_fsync(fd: int) -> None:
-        events.append("fsync")
-        fsync(fd)
-
-    def record_replace(source: str, target: str) -> None:
-        events.append("replace")
-        renames.append((Path(source), Path(target)))
-        replace(source, target)
-
-    monkeypatch.setattr(os, "fsync", record_fsync)
-    monkeypatch.setattr(os, "replace", record_replace)
-    generate_demo_log(tmp_path, duration=0.3)
-
-    names = ["1-frame.glb", "2-frame.glb", "3-frame.glb", "4-frame.glb", "0-frame.json"]
-    assert [target.name for _, target in renames] == names
-    assert all(source.parent == tmp_path and source.name.startswith(".") for source, _ in renames)
-    # each file synced, renamed into place, then its directory synced so the rename lasts
-    assert events == ["fsync", "replace", "fsync"] * len(names)
-    assert sorted(path.name for path in tmp_path.iterdir()) == sorted(names)  # no temporary file left
-
-
 def test_log_passes_the_checker(glb_log: Path, json_log: Path):
     report = check_paths([glb_log, json_log])  # schema, layout, index spans, declared streams
     assert report.ok, report.render()
     assert not any(file.warnings for file in report.files), report.render()
 
 
-def test_generating_again_replaces_the_log(tmp_path: Path):
-    generate_demo_log(tmp_path, duration=0.6, fmt=Format.JSON)
-    generate_demo_log(tmp_path, duration=0.2)
-    names = ["0-frame.json", "1-frame.glb", "2-frame.glb", "3-frame.glb"]
-    assert sorted(path.name for path in tmp_path.iterdir()) == names
-
-
-def test_generation_is_deterministic(glb_log: Path, tmp_path: Path):
-    generate_demo_log(tmp_path, duration=SHORT)
+def test_frames_are_the_same_in_any_order(glb_log: Path, tmp_path: Path):
+    write_demo(tmp_path)
     for path in glb_log.iterdir():
         assert (tmp_path / path.name).read_bytes() == path.read_bytes(), path.name
+    drive = DemoDrive(duration=SHORT)
+    metadata = drive.metadata()
+    alone = encode({"type": "xviz/state_update", "data": drive.convert(3, metadata)}, Format.BINARY)
+    assert alone == (glb_log / "5-frame.glb").read_bytes()
 
 
 @pytest.mark.parametrize(("duration", "rate"), [(0.0, 10.0), (-1.0, 10.0), (1.0, 0.0), (math.nan, 10.0)])
-def test_rejects_a_duration_or_rate_that_is_not_positive(tmp_path: Path, duration: float, rate: float):
+def test_rejects_a_duration_or_rate_that_is_not_positive(duration: float, rate: float):
     with pytest.raises(ValueError, match="must be positive"):
-        generate_demo_log(tmp_path, duration=duration, rate=rate)
+        DemoDrive(duration=duration, rate=rate)
+
+
+def test_default_demo_is_twenty_seconds_at_ten_hertz():
+    drive = DemoDrive()
+    assert len(drive) == 200
+    assert drive.times[-1] == pytest.approx(START + 19.9)
+    assert drive.metadata()["log_info"]["end_time"] == pytest.approx(START + 19.9)
+
+
+async def test_served_on_demand_as_the_log_demo():
+    async with running_server(None, dataset=["demo"]) as server:
+        assert server.catalog.names() == ["demo"]
+        async with client(server, "/?log=demo") as c:
+            metadata = await c.recv()
+            assert metadata["type"] == "xviz/metadata" and metadata["data"]["log_info"]["start_time"] == START
+            await c.send("transform_log", {"id": "1", "start_timestamp": START, "end_timestamp": START + 0.25})
+            messages = await c.until("transform_log_done", "1")
+            assert timestamps(messages) == [START, START + 0.1, START + 0.2]
 
 
 # --------------------------------------------------------------------------
@@ -283,91 +274,6 @@ def assert_same_data(glb: Any, json: Any, path: str = "$") -> None:
             assert_same_data(a, b, f"{path}[{i}]")
     else:
         assert glb == json, path
-
-
-# --------------------------------------------------------------------------
-# The cache
-
-
-@pytest.fixture
-def generations(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
-    """Make ensure_demo_log generate short logs; return where it generated them."""
-    directories: list[Path] = []
-    short = functools.partial(generate_demo_log, duration=0.2)
-
-    def generate(directory: Path) -> Path:
-        directories.append(directory)
-        return short(directory)
-
-    monkeypatch.setattr(demo, "generate_demo_log", generate)
-    return directories
-
-
-def test_ensure_makes_the_default_demo(tmp_path: Path):
-    log_dir = ensure_demo_log(tmp_path)
-    index, metadata, _ = read_log(log_dir)
-    assert len(index["timing"]) == 200  # twenty seconds at ten frames a second
-    assert index["timing"][-1][:3] == [START + 19.9, START + 19.9, 199]
-    assert metadata["data"]["log_info"]["end_time"] == START + 19.9
-    assert [path.name for path in tmp_path.iterdir()] == [DEMO_LOG_NAME]
-
-
-def test_ensure_generates_the_log_once_then_reuses_it(tmp_path: Path, generations: list[Path]):
-    cache_dir = tmp_path / "cache" / "xviz-server"
-    log_dir = ensure_demo_log(cache_dir)
-    assert log_dir == cache_dir / DEMO_LOG_NAME
-    assert len(generations) == 1 and generations[0].parent == cache_dir
-    names = ["0-frame.json", "1-frame.glb", "2-frame.glb", "3-frame.glb"]
-    assert sorted(path.name for path in log_dir.iterdir()) == names
-    before = [(path.stat().st_ino, path.stat().st_mtime_ns) for path in sorted(log_dir.iterdir())]
-
-    assert ensure_demo_log(cache_dir) == log_dir
-    assert len(generations) == 1
-    assert [(path.stat().st_ino, path.stat().st_mtime_ns) for path in sorted(log_dir.iterdir())] == before
-    assert [path.name for path in cache_dir.iterdir()] == [DEMO_LOG_NAME]  # no staging left behind
-
-
-@pytest.mark.parametrize("lost", ["0-frame.json", "3-frame.glb"])
-def test_ensure_regenerates_an_incomplete_log(tmp_path: Path, generations: list[Path], lost: str):
-    log_dir = ensure_demo_log(tmp_path)
-    (log_dir / lost).unlink()
-    inode = log_dir.stat().st_ino
-
-    assert ensure_demo_log(tmp_path) == log_dir
-    assert len(generations) == 2
-    assert (log_dir / lost).is_file() and log_dir.stat().st_ino != inode
-    assert [path.name for path in tmp_path.iterdir()] == [DEMO_LOG_NAME]
-
-
-def test_ensure_regenerates_a_log_whose_index_is_garbage(tmp_path: Path, generations: list[Path]):
-    log_dir = ensure_demo_log(tmp_path)
-    (log_dir / "0-frame.json").write_text('{"timing": [[1, 1, 0]]}')
-    ensure_demo_log(tmp_path)
-    assert len(generations) == 2
-    assert len(decode_json((log_dir / "0-frame.json").read_bytes())["timing"]) == 2
-
-
-def test_ensure_uses_the_log_of_a_process_that_won_the_race(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    winner = tmp_path / DEMO_LOG_NAME
-
-    def generate_while_another_process_wins(directory: Path) -> Path:
-        generate_demo_log(winner, duration=0.2)
-        return generate_demo_log(directory, duration=0.2)
-
-    monkeypatch.setattr(demo, "generate_demo_log", generate_while_another_process_wins)
-    assert ensure_demo_log(tmp_path) == winner
-    assert [path.name for path in tmp_path.iterdir()] == [DEMO_LOG_NAME]  # our copy is gone
-    assert len(read_log(winner)[2]) == 2
-
-
-def test_default_cache_dir_follows_xdg(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert default_cache_dir() == tmp_path / "xdg" / "xviz-server"
-    monkeypatch.setenv("XDG_CACHE_HOME", "relative/cache")
-    assert default_cache_dir() == tmp_path / "home" / ".cache" / "xviz-server"
-    monkeypatch.delenv("XDG_CACHE_HOME")
-    assert default_cache_dir() == tmp_path / "home" / ".cache" / "xviz-server"
 
 
 # --------------------------------------------------------------------------

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from serving import ten_hz, write_log
+from helpers import ten_hz, write_log
 
 DOCKER = Path(__file__).resolve().parents[1] / "docker"
 

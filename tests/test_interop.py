@@ -7,45 +7,19 @@ SHA-256 digests of their bytes so that large point clouds compare exactly.
 
 from __future__ import annotations
 
-import hashlib
-import json
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from helpers import assert_same_parse, sha, xviz_decode
 from xviz_server.codec import Format, decode_glb, encode
 
-INTEROP = Path(__file__).parent / "interop"
 PNG_2X1 = bytes.fromhex(
     "89504e470d0a1a0a0000000d494844520000000200000001080200000"
     "07b40e8dd0000001049444154789c63f8cfc0c0c0c0c00000001eff01ff"
     "987385d10000000049454e44ae426082"
 )
-
-
-def xviz_decode(paths: list[Path]) -> list[dict]:
-    """Decode files in order with @xviz/parser; one result per file."""
-    node = shutil.which("node")
-    assert node, "node is required for the interop tests"
-    assert (INTEROP / "node_modules" / "@xviz" / "parser").is_dir(), (
-        "the published client is not installed: run `npm ci --prefix tests/interop` "
-        "(scripts/test.sh does it)"
-    )
-    result = subprocess.run(
-        [node, str(INTEROP / "xviz-decode.js"), *map(str, paths)],
-        capture_output=True, text=True, check=True, timeout=300,
-    )
-    lines = [json.loads(line) for line in result.stdout.splitlines()]
-    assert len(lines) == len(paths), result.stderr
-    return lines
-
-
-def sha(array: np.ndarray | bytes) -> str:
-    data = array if isinstance(array, bytes) else np.ascontiguousarray(array).tobytes()
-    return hashlib.sha256(data).hexdigest()
 
 
 METADATA = {
@@ -151,25 +125,3 @@ def test_parser_reads_reencoded_kitti_frames_as_it_reads_the_originals(kitti_log
             assert mine["parsed"] == theirs["parsed"], mine["file"]
         else:
             assert_same_parse(mine["parsed"], theirs["parsed"], mine["file"])
-
-
-def assert_same_parse(mine, theirs, path: str) -> None:
-    """Compare two client parses of one frame, one read from JSON.
-
-    JSON carries float32 values in their shortest decimal form. The client
-    keeps polyline vertices as Float64Array, so those differ from the GLB
-    read by float32 rounding; every other value must be identical.
-    """
-    if isinstance(theirs, dict) and theirs.get("$typed") == "Float64Array":
-        assert mine["$typed"] == "Float64Array" and mine["length"] == theirs["length"], path
-        assert np.allclose(mine["values"], theirs["values"], rtol=1e-7, atol=0), path
-    elif isinstance(theirs, dict):
-        assert isinstance(mine, dict) and mine.keys() == theirs.keys(), path
-        for key in theirs:
-            assert_same_parse(mine[key], theirs[key], f"{path}.{key}")
-    elif isinstance(theirs, list):
-        assert isinstance(mine, list) and len(mine) == len(theirs), path
-        for index, (a, b) in enumerate(zip(mine, theirs)):
-            assert_same_parse(a, b, f"{path}[{index}]")
-    else:
-        assert mine == theirs, path

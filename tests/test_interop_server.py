@@ -11,9 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from interop_session import run_xviz_session_async
-from serving import running_server
-from test_interop import assert_same_parse, xviz_decode
+from helpers import assert_same_parse, run_xviz_session_async, running_server, xviz_decode
 
 
 @pytest.fixture

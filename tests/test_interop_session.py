@@ -1,10 +1,9 @@
-"""The session driver talks XVIZ to a server as streetscape.gl does.
+"""The published client's session driver against the product: a session as streetscape.gl runs it.
 
-A stand-in server replays the official KITTI GLB log the way the reference
-Node server does: metadata on connect, then for each ``xviz/transform_log``
-the frames in the requested window and an ``xviz/transform_log_done``. It
-checks ``tests/interop/xviz-session.js`` and ``interop_session.py`` on their
-own, independently of the project's server.
+``tests/interop/xviz-session.js`` connects with the ``ws`` package, performs a
+script of client actions and decodes every message with @xviz/parser 1.0.13;
+here it talks to the real server serving the official KITTI GLB log, and what
+the client makes of each frame is compared with what it makes of the file.
 """
 
 from __future__ import annotations
@@ -12,15 +11,12 @@ from __future__ import annotations
 import asyncio
 import json
 from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
 import pytest
-from websockets.asyncio.server import ServerConnection, serve
 
-from interop_session import run_xviz_session, run_xviz_session_async
-from test_interop import xviz_decode
+from helpers import run_xviz_session, run_xviz_session_async, running_server, xviz_decode
 
 # The first three frames are 0.11 s and 0.1 s apart: a window of 0.25 s from
 # the start holds all three, one of 0.15 s the first two.
@@ -28,71 +24,19 @@ WINDOW_OF_THREE = 0.25
 WINDOW_OF_TWO = 0.15
 
 
-class KittiReplay:
-    """Serve a static GLB log; remember every request the client sent."""
-
-    def __init__(self, log: Path) -> None:
-        self.log = log
-        index = json.loads((log / "0-frame.json").read_text())
-        self.start_time: float = index["startTime"]
-        self.timing: list[list[Any]] = index["timing"]
-        self.requests: list[Any] = []
-
-    @asynccontextmanager
-    async def running(self) -> AsyncIterator[str]:
-        """Serve on a free local port and yield the URL to connect to."""
-        async with serve(self.handle, "127.0.0.1", 0) as server:
-            port = server.sockets[0].getsockname()[1]
-            yield f"ws://127.0.0.1:{port}/"
-
-    async def handle(self, connection: ServerConnection) -> None:
-        await connection.send(self.frame("1-frame"))
-        async for message in connection:
-            await self.answer(connection, message)
-
-    async def answer(self, connection: ServerConnection, message: str | bytes) -> None:
-        try:
-            request = json.loads(message)
-        except ValueError:
-            await connection.send(envelope("error", message="malformed JSON"))
-            return
-        self.requests.append(request)
-        if request.get("type") != "xviz/transform_log":
-            await connection.send(envelope("error", message=f"unsupported {request.get('type')}"))
-            return
-        data = request["data"]
-        for name in self.frames_between(data.get("start_timestamp"), data.get("end_timestamp")):
-            await connection.send(self.frame(name))
-        await connection.send(envelope("transform_log_done", id=data["id"]))
-
-    def frames_between(self, start: float | None, end: float | None) -> list[str]:
-        """The frames wholly inside [start, end]; a missing bound is open."""
-        return [
-            name
-            for t_min, t_max, _, name in self.timing
-            if (start is None or t_min >= start) and (end is None or t_max <= end)
-        ]
-
-    def timestamps_between(self, start: float, end: float) -> list[float]:
-        return [t_min for t_min, t_max, _, _ in self.timing if t_min >= start and t_max <= end]
-
-    def frame(self, name: str) -> bytes:
-        return (self.log / f"{name}.glb").read_bytes()
-
-
-def envelope(type_: str, **data: Any) -> str:
-    return json.dumps({"type": f"xviz/{type_}", "data": data})
+@pytest.fixture
+def timing(kitti_log: Path) -> list[list[Any]]:
+    return json.loads((kitti_log / "0-frame.json").read_text())["timing"]
 
 
 @pytest.fixture
-def replay(kitti_log: Path) -> KittiReplay:
-    return KittiReplay(kitti_log)
+async def url(kitti_log: Path) -> AsyncIterator[str]:
+    async with running_server(kitti_log) as server:
+        yield f"ws://127.0.0.1:{server.port}/?log={kitti_log.name}"
 
 
-@pytest.fixture
-async def url(replay: KittiReplay) -> AsyncIterator[str]:
-    async with replay.running() as url:
-        yield url
+def timestamps_between(timing: list[list[Any]], start: float, end: float) -> list[float]:
+    return [t_min for t_min, t_max, _, _ in timing if t_min >= start and t_max <= end]
 
 
 async def test_metadata_arrives_on_connect(kitti_log: Path, url: str):
@@ -115,10 +59,8 @@ async def test_metadata_arrives_on_connect(kitti_log: Path, url: str):
     }
 
 
-async def test_transform_log_is_answered_with_state_updates_then_done(
-    kitti_log: Path, replay: KittiReplay, url: str
-):
-    start = replay.start_time
+async def test_transform_log_is_answered_with_state_updates_then_done(kitti_log: Path, timing: list, url: str):
+    start = timing[0][0]
     request = {
         "type": "xviz/transform_log",
         "data": {"id": "1", "start_timestamp": start, "end_timestamp": start + WINDOW_OF_TWO},
@@ -127,7 +69,6 @@ async def test_transform_log_is_answered_with_state_updates_then_done(
     result = await run_xviz_session_async(url, script)
 
     assert result.ok, result.stderr
-    assert replay.requests == [request]
     assert [message["type"] for message in result.messages] == [
         "xviz/metadata",
         "xviz/state_update",
@@ -140,7 +81,7 @@ async def test_transform_log_is_answered_with_state_updates_then_done(
         assert message["kind"] == "binary"
         assert (message["raw"], message["parsed"]) == (file["raw"], file["parsed"])
     done = result.messages[-1]
-    assert done["kind"] == "text"
+    assert done["kind"] == "binary"  # in the session's format: the log's own, GLB
     assert done["raw"] == {"type": "xviz/transform_log_done", "data": {"id": "1"}}
     assert done["parsed"] == {"id": "1", "type": "DONE"}
     assert result.summary == {
@@ -151,9 +92,7 @@ async def test_transform_log_is_answered_with_state_updates_then_done(
     }
 
 
-async def test_transform_log_window_is_placed_from_the_metadata_start_time(
-    replay: KittiReplay, url: str
-):
+async def test_transform_log_window_is_placed_from_the_metadata_start_time(timing: list, url: str):
     script = [
         {"wait": "metadata"},
         {"send_transform_log": {"id": "a", "from_start": 0.0, "to_start": WINDOW_OF_THREE}},
@@ -164,18 +103,10 @@ async def test_transform_log_window_is_placed_from_the_metadata_start_time(
     result = await run_xviz_session_async(url, script)
 
     assert result.ok, result.stderr
-    start = replay.start_time
-    first, second = (request["data"] for request in replay.requests)
-    assert first == {
-        "id": "a",
-        "start_timestamp": start,
-        "end_timestamp": pytest.approx(start + WINDOW_OF_THREE),
-    }
-    assert second == {"id": "b", "end_timestamp": pytest.approx(start + WINDOW_OF_TWO)}
+    start = timing[0][0]
     timestamps = [update["parsed"]["timestamp"] for update in result.of_type("xviz/state_update")]
     assert timestamps == (
-        replay.timestamps_between(start, start + WINDOW_OF_THREE)
-        + replay.timestamps_between(start, start + WINDOW_OF_TWO)
+        timestamps_between(timing, start, start + WINDOW_OF_THREE) + timestamps_between(timing, start, start + WINDOW_OF_TWO)
     )
     assert len(timestamps) == 5
 
@@ -184,14 +115,14 @@ async def test_a_wait_that_times_out_fails_and_says_what_it_waited_for(url: str)
     script = [
         {"wait": "metadata"},
         {"send_transform_log": {"id": "1", "from_start": 0.0, "to_start": WINDOW_OF_TWO}},
-        {"wait": "done", "id": "2", "timeout_ms": 500},
+        {"wait": "done", "id": "2", "timeout_ms": 3000},
         {"close": True},
     ]
     result = await run_xviz_session_async(url, script)
 
     assert result.returncode == 1
     reason = (
-        'step 3 {"wait":"done","id":"2","timeout_ms":500}: timed out after 500 ms waiting for '
+        'step 3 {"wait":"done","id":"2","timeout_ms":3000}: timed out after 3000 ms waiting for '
         'xviz/transform_log_done with id "2"; received 4 message(s): 1 xviz/metadata, '
         '2 xviz/state_update, 1 xviz/transform_log_done; transform_log_done ids ["1"]'
     )
@@ -208,7 +139,7 @@ async def test_a_wait_that_times_out_fails_and_says_what_it_waited_for(url: str)
     assert result.summary["closed"] is None
 
 
-async def test_brief_mode_details_only_metadata_errors_and_done(replay: KittiReplay, url: str):
+async def test_brief_mode_details_only_metadata_errors_and_done(timing: list, url: str):
     script = [
         {"wait": "metadata"},
         {"send_transform_log": {"id": "1", "from_start": 0.0, "to_start": WINDOW_OF_THREE}},
@@ -222,21 +153,18 @@ async def test_brief_mode_details_only_metadata_errors_and_done(replay: KittiRep
     metadata, *updates, done, error = result.messages
     assert metadata["parsed"]["type"] == "METADATA"
     assert done["parsed"] == {"id": "1", "type": "DONE"}
-    assert error["kind"] == "text"
-    assert error["raw"] == {"type": "xviz/error", "data": {"message": "malformed JSON"}}
+    assert error["kind"] == "binary"  # in the session's format, the log's own: GLB
+    message = error["raw"]["data"]["message"]
+    assert error["raw"]["type"] == "xviz/error" and message.startswith("malformed message")
     assert error["parsed"]["type"] == "ERROR"
-    start = replay.start_time
-    assert [update["timestamp"] for update in updates] == replay.timestamps_between(
-        start, start + WINDOW_OF_THREE
-    )
+    start = timing[0][0]
+    assert [update["timestamp"] for update in updates] == timestamps_between(timing, start, start + WINDOW_OF_THREE)
     for update in updates:
         assert update.keys() == {"index", "kind", "bytes", "type", "timestamp", "streams", "poses"}
         assert "/lidar/points" in update["streams"]
         assert update["poses"] == ["/vehicle_pose"]
     assert result.summary is not None
-    assert result.summary["errors"] == [
-        {"index": error["index"], "source": "server", "message": "malformed JSON"}
-    ]
+    assert result.summary["errors"] == [{"index": error["index"], "source": "server", "message": message}]
 
 
 async def test_the_blocking_helper_runs_the_same_session(url: str):

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from serving import client, running_server, timestamps
+from helpers import client, running_server, timestamps
 from xviz_server.check import check_paths
 from xviz_server.codec import decode
 from xviz_server.datasets import detect

@@ -12,9 +12,9 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from serving import Client, client, running_server, ten_hz, update, write_log
+from helpers import Client, client, running_server, ten_hz, update, write_log
 from xviz_server.codec import Format, decode, encode
-from xviz_server.ingest import refusal
+from xviz_server.live.ingest import refusal
 from xviz_server.live import downsample_points
 
 META = {
@@ -240,18 +240,18 @@ async def test_an_update_published_as_a_viewer_joins_comes_once(root: Path):
         feed.set_metadata(META)
         await feed.publish(update(1.0))
         subscribe = feed.subscribe
-        published = []
 
         def subscribe_then_publish(*args, **kwargs):
             subscription = subscribe(*args, **kwargs)
-            published.append(asyncio.ensure_future(feed.publish(update(1.1))))  # runs before the session's task
+            publishing = feed.publish(update(1.1))
+            with pytest.raises(StopIteration):  # an update given as data is published without waiting
+                publishing.send(None)
             return subscription
 
         feed.subscribe = subscribe_then_publish
         async with client(server, "/?log=busy&session_type=live") as c:
             assert (await c.recv())["type"] == "xviz/metadata"
             state = await next_update(c)
-            await published[0]
             await feed.publish(update(1.2))
             following = await next_update(c)
     assert state["data"]["updates"][0]["timestamp"] == 1.1
@@ -268,7 +268,7 @@ async def test_replay_of_a_log_as_a_live_feed(root: Path, tmp_path: Path):
 
 
 async def test_streetscape_live_loader_url_through_the_published_client(root: Path):
-    from interop_session import run_xviz_session_async
+    from helpers import run_xviz_session_async
 
     async with running_server(root) as server:
         feed = server.live.feed("mock")

@@ -18,7 +18,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
-from serving import client, running_server, ten_hz, write_log
+from helpers import client, running_server, ten_hz, write_log
 from xviz_server.codec import decode
 
 

@@ -13,8 +13,8 @@ from typing import Any, AsyncIterator, Awaitable, Callable
 import pytest
 from websockets.asyncio.server import ServerConnection, serve
 
-from serving import metadata, running_server, ten_hz, update, write_log
-from xviz_server import probe as probe_module
+from helpers import metadata, running_server, ten_hz, update, write_log
+from xviz_server.probe import client as probe_module
 from xviz_server.codec import Format, encode
 from xviz_server.probe import Instant, ProbeReport, Problem, probe, with_format
 

@@ -16,7 +16,7 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from serving import client, running_server, ten_hz, timestamps, write_log
+from helpers import client, running_server, ten_hz, timestamps, write_log
 from xviz_server.codec import Format
 
 

@@ -11,8 +11,7 @@ import pytest
 
 from websockets.asyncio.client import connect
 
-from helpers import assert_same_message
-from serving import client, running_server, ten_hz, timestamps, update, write_log
+from helpers import assert_same_message, client, running_server, ten_hz, timestamps, update, write_log
 from xviz_server import frames
 from xviz_server.codec import Format, decode
 

@@ -9,10 +9,23 @@ import numpy as np
 import pytest
 
 from xviz_server.codec import Format, decode, encode
-from xviz_server.exceptions import LogNotFound
+from xviz_server.exceptions import FrameError, LogNotFound
 from xviz_server.index import TimeIndex
 from xviz_server.messages import envelope
-from xviz_server.session import Cancel, OpenLog, QueryInstant, Send, Session, StreamFrames, SubscribeLive
+from xviz_server.session import (
+    CancelStream,
+    Close,
+    ConfigureLive,
+    OpenLog,
+    QueryInstant,
+    Send,
+    SendLiveMetadata,
+    SendLiveUpdate,
+    Session,
+    StreamFrames,
+    SubscribeLive,
+    Variant,
+)
 
 
 @dataclass
@@ -79,22 +92,38 @@ def test_bad_url_parameter_is_reported_and_the_log_still_opens():
     assert "speed" in sent(error)["data"]["message"] and open_log == OpenLog("drive")
 
 
-def test_transform_log_streams_the_range_after_cancelling_the_previous():
+def test_transform_log_streams_the_range_then_done():
     session = opened()
-    cancel, stream = session.receive(message("transform_log", {"id": "r", "start_timestamp": 100.25, "end_timestamp": 100.55}))
-    assert cancel == Cancel()
-    assert isinstance(stream, StreamFrames)
+    [stream] = session.receive(message("transform_log", {"id": "r", "start_timestamp": 100.25, "end_timestamp": 100.55}))
+    assert isinstance(stream, StreamFrames) and stream.log == "drive"
     assert stream.frames.tolist() == [3, 4, 5] and np.allclose(stream.times, [100.3, 100.4, 100.5])
     assert stream.fmt is Format.BINARY and stream.streams is None and stream.speed is None
-    assert decode(stream.done.data) == {"type": "xviz/transform_log_done", "data": {"id": "r"}}
+    [error] = session.frame_failed("r", FrameError("frame 4 is corrupt", log="drive", frame=4))
+    assert "'r'" in sent(error)["data"]["message"] and "'drive'" in sent(error)["data"]["message"]
+    [done] = session.stream_ended("r")
+    assert sent(done) == {"type": "xviz/transform_log_done", "data": {"id": "r"}}
+    assert session.stream_ended("r") == []  # told twice: nothing more
+
+
+def test_newer_request_cancels_the_older_whose_done_comes_before_the_newer_frames():
+    session = opened()
+    [first] = session.receive(message("transform_log", {"id": "a"}))
+    assert session.receive(message("transform_log", {"id": "b"})) == [CancelStream("a")]
+    assert session.receive(message("transform_log", {"id": "c", "start_timestamp": 101})) == []  # a is still stopping
+    done_a, done_b, third = session.stream_ended("a")
+    assert [sent(done_a)["data"]["id"], sent(done_b)["data"]["id"]] == ["a", "b"]  # b never started: done, no frames
+    assert isinstance(third, StreamFrames) and third.request_id == "c" and third.frames.tolist()[0] == 10
+    [done_c] = session.stream_ended("c")
+    assert sent(done_c)["data"]["id"] == "c"
 
 
 def test_filters_of_config_and_request_intersect():
     session = opened()
     session.receive(message("reconfigure", {"update_type": "FULL", "config_update": {"desired_streams": ["/a", "/b"]}}))
-    _, stream = session.receive(message("transform_log", {"id": "r", "requested_streams": ["/b", "/c"]}))
+    [stream] = session.receive(message("transform_log", {"id": "r", "requested_streams": ["/b", "/c"]}))
     assert stream.streams == frozenset({"/b"})
-    _, stream = session.receive(message("transform_log", {"id": "s", "desired_streams": []}))  # empty: all
+    session.stream_ended("r")
+    [stream] = session.receive(message("transform_log", {"id": "s", "desired_streams": []}))  # empty: all
     assert stream.streams == frozenset({"/a", "/b"})
 
 
@@ -133,15 +162,88 @@ def test_start_again_resends_metadata_or_opens_another_log():
 
 def test_live_sessions_and_why_transform_requests_fail():
     session = Session(path="/", query={"log": "drive", "session_type": "live"}, available=["drive"])
-    assert session.connect() == [SubscribeLive("drive")]
-    guid_only = Session(path="/", query={"logGuid": "car", "worker": "true"}, available=["drive"])
-    assert guid_only.connect() == [SubscribeLive("car")]  # not a recorded log: live
-    recorded = Session(path="/", query={"logGuid": "drive"}, available=["drive"])
-    assert recorded.connect() == [OpenLog("drive")]
+    assert session.connect() == [SubscribeLive("drive", exact=True)]
     anonymous = Session(path="/", query={"session_type": "LIVE"}, available=[])
     assert "no live feeds" in sent(anonymous.connect()[0])["data"]["message"]
     [error] = session.receive(message("transform_log", {"id": "r"}))
     assert "not available in a LIVE session" in sent(error)["data"]["message"]
+
+
+def test_a_logguid_is_a_recorded_log_if_one_opens_else_a_live_feed():
+    # Decided when the log is opened, not from the names known when the client connected:
+    # a log copied in since then is found.
+    recorded = Session(path="/", query={"logGuid": "new-log", "worker": "true"}, available=["drive"])
+    assert recorded.connect() == [OpenLog("new-log")]
+    [metadata] = recorded.log_opened(Log(name="new-log"))
+    assert sent(metadata)["type"] == "xviz/metadata" and not recorded.is_live
+    live = Session(path="/", query={"logGuid": "car", "worker": "true"}, available=["drive"])
+    assert live.connect() == [OpenLog("car")]
+    assert live.log_failed(LogNotFound("no log named 'car'", name="car", available=["drive"])) == [
+        SubscribeLive("car", exact=False)
+    ]
+    assert live.is_live and live.format is Format.BINARY
+    named = Session(path="/", query={"log": "car"}, available=["drive"])  # named as a log: an error, not live
+    named.connect()
+    [error] = named.log_failed(LogNotFound("no log named 'car'", name="car", available=["drive"]))
+    assert "no log named 'car'" in sent(error)["data"]["message"] and not named.is_live
+
+
+def live_session(**query: str) -> Session:
+    session = Session(path="/", query={"log": "car", "session_type": "live", **query}, lag_timeout=5)
+    session.connect()
+    return session
+
+
+def test_live_viewer_gets_metadata_then_state_then_what_the_state_does_not_hold():
+    session = live_session()
+    variant = Variant(Format.BINARY)
+    assert session.live_joined("car", state=7, started=True) == [SendLiveMetadata(Format.BINARY), SendLiveUpdate(7, variant)]
+    assert session.live_update(6, dropped=0, behind=False) == []  # queued before the state was taken: in it
+    assert session.live_update(7, dropped=0, behind=False) == []
+    assert session.live_update(8, dropped=0, behind=False) == [SendLiveUpdate(8, variant)]
+
+
+def test_live_viewer_waits_for_a_feed_not_started_and_is_told_when_it_goes_and_comes_back():
+    session = live_session()
+    [waiting] = session.live_joined("car", state=None, started=False)
+    assert waiting.notice == "waiting" and waiting.error is None and "has not started" in sent(waiting)["data"]["message"]
+    assert session.live_started(None) == [SendLiveMetadata(Format.BINARY)]
+    assert session.live_update(0, dropped=0, behind=False) == [SendLiveUpdate(0, Variant(Format.BINARY))]
+    [gone] = session.live_gone()
+    assert gone.notice == "gone" and gone.error is None and "went away" in sent(gone)["data"]["message"]
+    assert session.live_started(4) == [SendLiveMetadata(Format.BINARY), SendLiveUpdate(4, Variant(Format.BINARY))]
+    assert session.live_update(4, dropped=0, behind=False) == []
+
+
+def test_live_viewer_behind_is_told_once_per_run_then_closed_after_the_lag_timeout():
+    session = live_session()
+    session.live_joined("car", state=None, started=True)
+    notice, update = session.live_update(10, dropped=3, behind=True)
+    assert notice.notice == "behind" and "3 updates were dropped" in sent(notice)["data"]["message"]
+    assert update == SendLiveUpdate(10, Variant(Format.BINARY))
+    assert session.live_update(14, dropped=3, behind=True) == [SendLiveUpdate(14, Variant(Format.BINARY))]  # told already
+    assert session.live_update(15, dropped=0, behind=False) == [SendLiveUpdate(15, Variant(Format.BINARY))]
+    [again, _] = session.live_update(20, dropped=4, behind=True)  # a new run of drops: told again
+    assert "4 updates" in sent(again)["data"]["message"]
+    assert session.live_lagging(4.0) == []
+    [close] = session.live_lagging(5.5)
+    assert close == Close(1013, "too slow: dropped live updates for over 5 s")
+
+
+def test_live_reconfigure_changes_the_variant_and_is_forwarded():
+    session = live_session()
+    session.live_joined("car", state=None, started=True)
+    update = {"desired_streams": ["/points"], "decimate": 2, "max_points": 100, "message_format": "json"}
+    [configure] = session.receive(message("reconfigure", {"update_type": "DELTA", "config_update": update}))
+    assert configure == ConfigureLive(decimate=2, forward=update)
+    [send] = session.live_update(1, dropped=0, behind=False)
+    assert send == SendLiveUpdate(1, Variant(Format.JSON, frozenset({"/points"}), 100))
+
+
+def test_a_feed_named_explicitly_is_never_substituted_but_a_logguid_may_be():
+    assert live_session().connect() == [SubscribeLive("car", exact=True)]
+    anonymous = Session(path="/", query={"session_type": "live"}, live=["a"])
+    assert anonymous.connect() == [SubscribeLive(None, exact=False)]
 
 
 def test_errors_name_request_and_log():

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from serving import client, running_server, ten_hz, timestamps, write_log
+from helpers import client, running_server, ten_hz, timestamps, write_log
 from xviz_server.codec import Format
 
 
@@ -111,3 +111,16 @@ async def test_symlink_placed_by_the_operator_is_followed(tmp_path: Path):
     (tmp_path / "root" / "linked").symlink_to(tmp_path / "elsewhere" / "drive")
     async with running_server(tmp_path / "root") as server:
         assert len(await stream_all(server, "/linked")) == 3
+
+
+async def test_a_log_copied_in_while_running_is_served_to_a_logguid_url(tmp_path: Path):
+    # streetscape.gl's live loader names its log only by logGuid; a log that arrived after
+    # the client's connection was accepted is still a recorded log, not a feed to wait for.
+    root = tmp_path / "logs"
+    write_log(root / "first", ten_hz(2))
+    async with running_server(root) as server:
+        write_log(root / "arrived", ten_hz(3))
+        async with client(server, "/?logGuid=arrived&worker=true") as c:
+            assert (await c.recv(5))["type"] == "xviz/metadata"
+            await c.send("transform_log", {"id": "1"})
+            assert len(timestamps(await c.until("transform_log_done", "1", timeout=5))) == 3

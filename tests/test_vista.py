@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 
-from serving import client, running_server, timestamps
+from helpers import client, running_server, timestamps
 from xviz_server.check import check_paths
 from xviz_server.convert import convert
 from xviz_server.datasets import detect
@@ -122,7 +122,7 @@ async def test_convert_and_serve(trace: Path, tmp_path: Path):
 
 
 def test_published_client_reads_a_converted_trace(trace: Path, tmp_path: Path):
-    from test_interop import xviz_decode
+    from helpers import xviz_decode
 
     convert("vista", trace, tmp_path / "log", frames="0:3", processes=1)
     lines = xviz_decode([tmp_path / "log" / f"{n}-frame.glb" for n in range(1, 5)])

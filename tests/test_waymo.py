@@ -9,8 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from serving import client, running_server, timestamps
-from test_interop import xviz_decode
+from helpers import client, running_server, timestamps, xviz_decode
 from xviz_server.check import check_paths
 from xviz_server.codec import Format, encode
 from xviz_server.convert import convert

@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from serving import client, metadata, running_server, ten_hz, timestamps
-from test_interop import xviz_decode
+from helpers import client, metadata, running_server, ten_hz, timestamps, xviz_decode
 from xviz_server.builder import FrameBuilder, MetadataBuilder
 from xviz_server.check import check_paths
 from xviz_server.codec import Format, decode, encode

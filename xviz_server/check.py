@@ -10,7 +10,6 @@ frames carry without the metadata declaring them are reported as warnings.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -21,7 +20,7 @@ from .codec import decode
 from .exceptions import DecodeError, MessageError, SchemaValidationError
 from .index import TimeIndex
 from .messages import unwrap
-from .providers.static_log import FRAME_FILE, INDEX_FILE, frame_files
+from .layout import INDEX_FILE, INDEX_NUMBER, LOG, METADATA_NUMBER, discover, file_number, frame_files, frame_name, frame_numbers, update_span
 from .state import update_streams
 from .validation import get_validator
 
@@ -95,10 +94,7 @@ def check_paths(paths: Iterable[Path]) -> Report:
 
 
 def _log_directories(root: Path) -> Iterator[Path]:
-    for directory, subdirectories, files in os.walk(root, followlinks=True):
-        subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
-        if any(FRAME_FILE.fullmatch(name) for name in files):
-            yield Path(directory)
+    return (found.path for found in discover(root) if found.kind == LOG)
 
 
 def check_file(path: Path, expected: str | None = None) -> tuple[FileReport, Any]:
@@ -135,7 +131,7 @@ def check_log(directory: Path) -> list[FileReport]:
     """Check a log directory in the reference layout, file by file and as a whole."""
     files = {number: directory / name for number, name in frame_files(directory).items()}
     reports = []
-    metadata_file = files.get(1)
+    metadata_file = files.get(METADATA_NUMBER)
     declared: set[str] = set()
     if metadata_file is None:
         reports.append(FileReport(directory, problems=["no metadata file (1-frame.json or 1-frame.glb)"]))
@@ -145,12 +141,12 @@ def check_log(directory: Path) -> list[FileReport]:
         if isinstance(data, dict):
             declared = set(data.get("streams") or ())
     spans: dict[int, tuple[float, float]] = {}
-    for number in sorted(n for n in files if n >= 2):
-        report, data = check_file(files[number], "xviz/state_update")
+    for frame in frame_numbers(files):
+        report, data = check_file(files[file_number(frame)], "xviz/state_update")
         reports.append(report)
-        if report.ok and isinstance(data, dict):
-            times = [u["timestamp"] for u in data["updates"]]
-            spans[number - 2] = (min(times), max(times))
+        span = update_span(data) if report.ok else None
+        if span is not None:
+            spans[frame] = span
             undeclared = sorted(update_streams(data) - declared)
             if undeclared and metadata_file is not None:
                 report.warnings.append(f"streams not declared in the metadata: {', '.join(undeclared)}")
@@ -159,21 +155,21 @@ def check_log(directory: Path) -> list[FileReport]:
 
 
 def _check_log_index(directory: Path, files: dict[int, Path], spans: dict[int, tuple[float, float]]) -> FileReport:
-    path = files.get(0, directory / INDEX_FILE)
-    if 0 not in files:
+    path = files.get(INDEX_NUMBER, directory / INDEX_FILE)
+    if INDEX_NUMBER not in files:
         return FileReport(path, kind="index", warnings=["no index: servers must read every frame to build one"])
     report = _check_index(path)
     if not report.ok:
         return report
     index = TimeIndex.from_reference(orjson.loads(path.read_bytes()), path.name)
-    present = {number - 2 for number in files if number >= 2}
+    present = set(frame_numbers(files))
     named = set(index.frames.tolist())
     if missing := sorted(named - present):
-        report.problems.append(f"names frames with no file: {', '.join(f'{n + 2}-frame' for n in missing[:10])}")
+        report.problems.append(f"names frames with no file: {', '.join(frame_name(n) for n in missing[:10])}")
     if unnamed := sorted(present - named):
-        report.problems.append(f"does not name frames that exist: {', '.join(f'{n + 2}-frame' for n in unnamed[:10])}")
+        report.problems.append(f"does not name frames that exist: {', '.join(frame_name(n) for n in unnamed[:10])}")
     for start, end, frame in zip(index.start.tolist(), index.end.tolist(), index.frames.tolist()):
         real = spans.get(frame)
         if real is not None and (abs(real[0] - start) > 1e-6 or abs(real[1] - end) > 1e-6):
-            report.problems.append(f"frame {frame} ({frame + 2}-frame) spans {real[0]}-{real[1]}, the index says {start}-{end}")
+            report.problems.append(f"frame {frame} ({frame_name(frame)}) spans {real[0]}-{real[1]}, the index says {start}-{end}")
     return report

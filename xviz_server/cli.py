@@ -111,17 +111,14 @@ def _serve(args: argparse.Namespace) -> int:
     if settings is None:
         return 2
     configure_logging(settings.log_format)
-    data_dir = settings.data_dir
-    if data_dir is None and not settings.dataset:
-        from .demo import default_cache_dir, ensure_demo_log
-
-        data_dir = ensure_demo_log(default_cache_dir())
-        logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo log in %s", data_dir)
-    elif data_dir is not None and not data_dir.is_dir():
-        print(f"xviz-server serve: --data-dir {data_dir} is not a directory", file=sys.stderr)
+    if settings.data_dir is None and not settings.dataset:
+        settings = settings.model_copy(update={"dataset": ["demo"]})
+        logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo drive as the log 'demo'")
+    elif settings.data_dir is not None and not settings.data_dir.is_dir():
+        print(f"xviz-server serve: --data-dir {settings.data_dir} is not a directory", file=sys.stderr)
         return 2
     try:
-        _run_async(run(settings, data_dir))
+        _run_async(run(settings))
     except ValueError as exc:  # a --dataset that is not KIND:PATH
         print(f"xviz-server serve: {exc}", file=sys.stderr)
         return 2
@@ -242,7 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     probe.add_argument("--json", action="store_true", help="print the summary as JSON")
     probe.set_defaults(run=_probe)
 
-    from .datasets import KINDS
+    from .datasets import DEFAULT_IMAGE_WIDTH, KINDS
 
     convert = commands.add_parser(
         "convert",
@@ -255,7 +252,10 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("output", type=Path, help="the log directory to write")
     convert.add_argument("--format", choices=["glb", "json"], type=str.lower, default="glb", help="frame format (default glb)")
     convert.add_argument("--frames", metavar="A:B", help="convert frames A to B-1 only (either may be left out)")
-    convert.add_argument("--image-max-width", type=int, default=400, metavar="W", help="scale camera images down to W pixels (default 400)")
+    convert.add_argument(
+        "--image-max-width", type=int, default=DEFAULT_IMAGE_WIDTH, metavar="W",
+        help=f"scale camera images down to W pixels (default {DEFAULT_IMAGE_WIDTH})",
+    )
     convert.add_argument("--processes", type=int, metavar="N", help="worker processes (default: one per core)")
     convert.set_defaults(run=_convert)
     return parser

@@ -1,14 +1,17 @@
 """The asyncio side of a session: carry out what :class:`~xviz_server.session.Session` decides.
 
 One :class:`Connection` per WebSocket connection reads client messages,
-feeds them to the session and runs the resulting events: sends, log
-opening, a streaming task for ``transform_log`` and a task per point-in-time
-query. A stream reads a few frames ahead of the socket and sends them as
-fast as the client reads (``send`` waits while the socket's write buffer is
-full), or at the log's rate times ``speed``.
+feeds them to the session and carries out the events it answers with:
+sending, opening logs, streaming frames, answering point-in-time queries,
+following a live feed. It makes no protocol decision of its own; it reports
+back to the session what happened (a stream ended, a frame failed, a live
+update came) and carries out the answer.
 
-Memory per connection is bounded: the frames read ahead (``read_ahead``
-frames, usually shared with the cache) plus the socket's write buffer.
+A stream reads ``read_ahead`` frames ahead of the socket and sends them as
+fast as the client reads (``send`` waits while the socket's write buffer is
+full), or at the log's rate times ``speed``. Memory per connection is
+bounded: the frames read ahead (usually shared with the cache), a live
+subscription's bounded queue, and the socket's write buffer.
 """
 
 from __future__ import annotations
@@ -17,26 +20,29 @@ import asyncio
 import logging
 import time
 from collections import deque
+from collections.abc import Callable, Coroutine
 from typing import Any
 from urllib.parse import parse_qsl, unquote, urlsplit
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
-from websockets.frames import CloseCode
 
 from .codec import Format, decode
 from .exceptions import XVIZError
+from .live import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription
 from .logfmt import log_event
-from .live import FeedEvent, LiveRegistry, LiveSource, LiveUpdate, Subscription, Variant
-from .logs import Catalog, check_log_name
+from .logs import Catalog, Log, check_log_name
 from .metrics import Metrics
 from .session import (
-    Cancel,
+    CancelStream,
+    Close,
     ConfigureLive,
     Event,
     OpenLog,
     QueryInstant,
     Send,
+    SendLiveMetadata,
+    SendLiveUpdate,
     Session,
     StreamFrames,
     SubscribeLive,
@@ -64,17 +70,19 @@ class Connection:
         self.live = live
         self.metrics = metrics
         self.settings = settings
-        url = urlsplit(websocket.request.path if websocket.request else "/")
+        self.path = websocket.request.path if websocket.request else "/"
+        url = urlsplit(self.path)
         self.session = Session(
             path=unquote(url.path),
             query=dict(parse_qsl(url.query, keep_blank_values=True)),
             available=catalog.names(),
             live=live.names(),
+            lag_timeout=settings.live_lag_timeout,
         )
+        self._logs: dict[str, Log] = {}
+        self._stream: tuple[StreamFrames, asyncio.Event] | None = None
         self._subscription: Subscription | None = None
-        self._live_config: ConfigureLive | None = None
-        self._stream: asyncio.Task[None] | None = None
-        self._stop_stream: asyncio.Event | None = None
+        self._held: dict[int, LiveUpdate] = {}  # the live updates the session is deciding about
         self._tasks: set[asyncio.Task[None]] = set()
         self.frames_sent = 0
         self.bytes_sent = 0
@@ -84,11 +92,12 @@ class Connection:
         started = time.monotonic()
         self.metrics.sessions.inc()
         self.metrics.sessions_open.inc()
-        log_event(logger, "session start", remote=_remote(self.websocket), path=self.websocket.request.path if self.websocket.request else "/")
+        remote = _remote(self.websocket)
+        log_event(logger, "session start", remote=remote, path=self.path)
         try:
-            await self._guarded("the connection", self.session.connect)
+            await self._step("the connection", self.session.connect)
             async for message in self.websocket:
-                await self._guarded("a message", self.session.receive, message)
+                await self._step("a message", self.session.receive, message)
         except ConnectionClosed:
             pass
         finally:
@@ -102,7 +111,7 @@ class Connection:
             log_event(
                 logger,
                 "session end",
-                remote=_remote(self.websocket),
+                remote=remote,
                 log=self.session.log.name if self.session.log else None,
                 format=self.session.format.value,
                 frames=self.frames_sent,
@@ -111,69 +120,97 @@ class Connection:
                 reason=f"{code} {reason}".strip() if code is not None else "connection lost",
             )
 
-    async def _guarded(self, what: str, step: Any, *args: Any) -> None:
-        """Run a session step and its events; a bug is reported to the client, not fatal."""
+    # -- carrying events out ----------------------------------------------
+
+    async def _step(self, what: str, step: Callable[..., list[Event]], *args: Any) -> None:
+        """Feed the session one input and carry out its answer; a bug is reported to the client, not fatal."""
         try:
             await self._execute(step(*args))
-        except ConnectionClosed:
+        except (ConnectionClosed, asyncio.CancelledError):
             raise
         except Exception as exc:
             logger.exception("error handling %s from %s", what, _remote(self.websocket))
-            await self._send(self.session.internal_error(what, exc))
+            await self._quietly(self._execute(self.session.internal_error(what, exc)))
 
     async def _execute(self, events: list[Event]) -> None:
         for event in events:
             if isinstance(event, Send):
                 await self._send(event)
+            elif isinstance(event, SendLiveUpdate):
+                update = self._held[event.number]
+                assert self._subscription is not None
+                await self._send_update(await update.encoded(event.variant, self.live.workers), event.variant.fmt)
+            elif isinstance(event, SendLiveMetadata):
+                assert self._subscription is not None
+                metadata = self._subscription.feed.metadata_message(event.fmt)
+                if metadata is not None:
+                    await self.websocket.send(metadata, text=event.fmt is Format.JSON)
             elif isinstance(event, OpenLog):
-                try:
-                    log = await self.catalog.open(event.name)
-                except XVIZError as exc:
-                    await self._execute(self.session.log_failed(exc))
-                else:
-                    await self._execute(self.session.log_opened(log))
-            elif isinstance(event, Cancel):
-                if self._stop_stream is not None:
-                    self._stop_stream.set()
+                await self._open_log(event.name)
             elif isinstance(event, StreamFrames):
-                self._stop_stream = stop = asyncio.Event()
-                self._stream = self._spawn(self._run_stream(event, stop, self._stream))
+                stop = asyncio.Event()
+                self._stream = (event, stop)
+                self._spawn(self._run_stream(event, stop))
+            elif isinstance(event, CancelStream):
+                if self._stream is not None and self._stream[0].request_id == event.request_id:
+                    self._stream[1].set()
             elif isinstance(event, QueryInstant):
                 self._spawn(self._run_query(event))
             elif isinstance(event, SubscribeLive):
-                try:
-                    if event.name is not None:
-                        check_log_name(event.name)
-                    feed = self.live.find(event.name)
-                except XVIZError:
-                    feed = None
-                if feed is None:
-                    await self._execute(self.session.live_failed(event.name))
-                else:
-                    self._start_live(feed)
+                self._spawn(self._run_live(event))
             elif isinstance(event, ConfigureLive):
-                self._live_config = event
-                if self._subscription is not None:
-                    self._subscription.decimate = event.decimate
-                    if event.forward and not await self._subscription.feed.reconfigure(event.forward):
-                        logger.info("live feed %r does not accept configuration", self._subscription.feed.name)
+                await self._configure_live(event)
+            elif isinstance(event, Close):
+                await self.websocket.close(event.code, event.reason)
 
-    def _spawn(self, coroutine: Any) -> asyncio.Task[None]:
+    def _spawn(self, coroutine: Coroutine[Any, Any, None]) -> None:
         task = asyncio.ensure_future(coroutine)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
-        return task
 
     async def _send(self, event: Send) -> None:
         await self.websocket.send(event.data, text=event.text)
-        if event.error is not None:
-            self.metrics.errors.labels(event.error).inc()
-            log_event(logger, "error sent", remote=_remote(self.websocket), kind=event.error, message=decode_message(event))
+        kind = event.error or event.notice
+        if kind is not None:
+            if event.error is not None:
+                self.metrics.errors.labels(event.error).inc()
+            log_event(
+                logger,
+                "error sent" if event.error is not None else "notice sent",
+                remote=_remote(self.websocket),
+                kind=kind,
+                message=_message_text(event),
+            )
 
-    async def _run_stream(self, request: StreamFrames, stop: asyncio.Event, previous: asyncio.Task[None] | None) -> None:
-        if previous is not None:
-            await asyncio.wait([previous])  # its done goes out before our first frame
+    async def _send_update(self, data: bytes, fmt: Format) -> None:
+        """Send a state update and count it."""
+        await self.websocket.send(data, text=fmt is Format.JSON)
+        self.frames_sent += 1
+        self.bytes_sent += len(data)
+        self.metrics.frames_sent.labels(fmt.value).inc()
+        self.metrics.bytes_sent.labels(fmt.value).inc(len(data))
+
+    async def _quietly(self, awaitable: Coroutine[Any, Any, None]) -> None:
+        """Run ``awaitable`` unless the connection is gone."""
+        try:
+            await awaitable
+        except ConnectionClosed:
+            pass
+
+    # -- recorded logs ------------------------------------------------------
+
+    async def _open_log(self, name: str) -> None:
+        try:
+            log = await self.catalog.open(name)
+        except XVIZError as exc:
+            await self._execute(self.session.log_failed(exc))
+        else:
+            self._logs[log.name] = log
+            await self._execute(self.session.log_opened(log))
+
+    async def _run_stream(self, request: StreamFrames, stop: asyncio.Event) -> None:
         received = time.perf_counter()
+        log = self._logs[request.log]
         loop = asyncio.get_running_loop()
         clock_start = loop.time()
         numbers = request.frames.tolist()
@@ -182,7 +219,7 @@ class Connection:
         try:
             for position in range(len(numbers)):
                 while len(ahead) < self.settings.read_ahead and following < len(numbers):
-                    ahead.append(asyncio.ensure_future(request.log.frame(numbers[following], request.fmt, request.streams)))
+                    ahead.append(asyncio.ensure_future(log.frame(numbers[following], request.fmt, request.streams)))
                     following += 1
                 loading = ahead.popleft()
                 if request.speed is not None:
@@ -194,125 +231,108 @@ class Connection:
                 try:
                     data = await loading
                 except XVIZError as exc:
-                    await self._send(self.session.frame_failed(request, exc))
+                    await self._execute(self.session.frame_failed(request.request_id, exc))
                     continue
                 await self._send_update(data, request.fmt)
                 if position == 0:
                     self.metrics.first_frame_seconds.observe(time.perf_counter() - received)
-            await self._send(request.done)
             self.metrics.request_seconds.labels("transform_log").observe(time.perf_counter() - received)
         except ConnectionClosed:
-            pass
+            return
         except Exception as exc:
             logger.exception("error streaming transform_log %r", request.request_id)
-            await self._send_quietly(self.session.internal_error(f"transform_log {request.request_id!r}", exc))
-            await self._send_quietly(request.done)
+            await self._quietly(self._execute(self.session.internal_error(f"transform_log {request.request_id!r}", exc)))
         finally:
             for loading in ahead:
                 loading.cancel()
-
-    def _start_live(self, feed: LiveSource) -> None:
-        if self._subscription is not None:
-            self._subscription.close()
-        config = self._live_config = self.session.live_config()
-        self._subscription = subscription = feed.subscribe(self.settings.live_queue, config.decimate)
-        self._spawn(self._run_live(subscription))
-        self._spawn(self._watch_lag(subscription))
-
-    async def _run_live(self, subscription: Subscription) -> None:
-        """Send the feed's metadata and latest state, then every update as it comes."""
-        feed = subscription.feed
-        behind = False
-        covered = -1  # the number of the last update in the state sent: queued ones up to it are skipped
-        try:
-            if feed.metadata is None:
-                await self._send(self.session.live_notice(f"live feed {feed.name!r} has not started yet; waiting for it"))
-            else:
-                covered = await self._send_live_start(feed)
-            while True:
-                item = await subscription.next()
-                dropped = subscription.take_drops()
-                if dropped and not behind:
-                    await self._send(self.session.live_notice(
-                        f"live feed {feed.name!r}: this viewer is behind; {dropped} updates were dropped "
-                        "(the oldest go first; viewers that stay behind are disconnected)"
-                    ))
-                behind = subscription.lagging_since is not None
-                if isinstance(item, FeedEvent):
-                    if item.kind == "metadata":
-                        covered = await self._send_live_start(feed)
-                    else:
-                        await self._send(self.session.live_notice(
-                            f"live feed {feed.name!r} went away; this session stays open and resumes when it comes back"
-                        ))
-                    continue
-                if item.number > covered:
-                    await self._send_live_update(item)
-        except ConnectionClosed:
-            pass
-        finally:
-            subscription.close()
-
-    async def _send_live_start(self, feed: LiveSource) -> int:
-        """Send the feed's metadata and latest state; the number of the last update in that state (-1: none)."""
-        config = self._live_config or self.session.live_config()
-        metadata = feed.metadata_message(config.fmt)
-        if metadata is not None:
-            await self.websocket.send(metadata, text=config.fmt is Format.JSON)
-        state = feed.state()
-        if state is None:
-            return -1
-        await self._send_live_update(state)
-        return state.number
-
-    async def _send_live_update(self, update: LiveUpdate) -> None:
-        config = self._live_config or self.session.live_config()
-        variant = Variant(config.fmt, config.streams, config.max_points)
-        await self._send_update(await update.encoded(variant, self.live.workers), config.fmt)
-
-    async def _watch_lag(self, subscription: Subscription) -> None:
-        """Disconnect a viewer that keeps dropping updates for ``live_lag_timeout``."""
-        limit = self.settings.live_lag_timeout
-        while True:
-            await asyncio.sleep(min(1.0, limit / 4))
-            since = subscription.lagging_since
-            if since is not None and time.monotonic() - since > limit:
-                logger.warning("live viewer %s too slow on %r: disconnecting", _remote(self.websocket), subscription.feed.name)
-                await self.websocket.close(
-                    CloseCode.TRY_AGAIN_LATER, f"too slow: dropped live updates for over {limit:g} s"
-                )
-                return
+        self._stream = None
+        await self._step("the end of a stream", self.session.stream_ended, request.request_id)
 
     async def _run_query(self, request: QueryInstant) -> None:
         received = time.perf_counter()
+        log = self._logs[request.log]
         try:
-            try:
-                data = await request.log.complete_state(request.instant, request.fmt, request.streams, self.settings.lookback)
-            except XVIZError as exc:
-                await self._send(self.session.query_failed(request, exc))
+            data = await log.complete_state(request.instant, request.fmt, request.streams, self.settings.lookback)
+        except XVIZError as exc:
+            await self._quietly(self._execute(self.session.query_failed(request.request_id, exc)))
+            return
+        except Exception as exc:
+            logger.exception("error answering transform_point_in_time %r", request.request_id)
+            what = f"transform_point_in_time {request.request_id!r}"
+            await self._quietly(self._execute(self.session.internal_error(what, exc)))
+            return
+        await self._quietly(self._send_update(data, request.fmt))
+        self.metrics.request_seconds.labels("transform_point_in_time").observe(time.perf_counter() - received)
+
+    # -- live feeds ---------------------------------------------------------
+
+    async def _run_live(self, event: SubscribeLive) -> None:
+        """Follow a feed: tell the session what it does, send what the session says."""
+        try:
+            feed = await self._find_feed(event)
+            if feed is None:
                 return
-            await self._send_update(data, request.fmt)
-            self.metrics.request_seconds.labels("transform_point_in_time").observe(time.perf_counter() - received)
+            self._subscription = subscription = feed.subscribe(self.settings.live_queue, self.session.decimate)
+            self._spawn(self._watch_lag(subscription))
+            state = self._hold(feed.state())
+            await self._execute(self.session.live_joined(feed.name, state, feed.metadata is not None))
+            while True:
+                item = await subscription.next()
+                if isinstance(item, FeedEvent):
+                    if item.kind == "metadata":
+                        await self._execute(self.session.live_started(self._hold(feed.state())))
+                    else:
+                        await self._execute(self.session.live_gone())
+                    continue
+                number = self._hold(item)
+                assert number is not None
+                await self._execute(
+                    self.session.live_update(number, subscription.take_drops(), subscription.lagging_since is not None)
+                )
         except ConnectionClosed:
             pass
         except Exception as exc:
-            logger.exception("error answering transform_point_in_time %r", request.request_id)
-            await self._send_quietly(self.session.internal_error(f"transform_point_in_time {request.request_id!r}", exc))
+            logger.exception("error following a live feed for %s", _remote(self.websocket))
+            await self._quietly(self._execute(self.session.internal_error("the live feed", exc)))
+            await self._quietly(self.websocket.close(1011, "live feed failed"))
 
-    async def _send_update(self, data: bytes, fmt: Format) -> None:
-        """Send a state update and count it."""
-        await self.websocket.send(data, text=fmt is Format.JSON)
-        self.frames_sent += 1
-        self.bytes_sent += len(data)
-        self.metrics.frames_sent.labels(fmt.value).inc()
-        self.metrics.bytes_sent.labels(fmt.value).inc(len(data))
-
-    async def _send_quietly(self, event: Send) -> None:
-        """Send, unless the connection is gone."""
+    async def _find_feed(self, event: SubscribeLive) -> LiveFeed | None:
+        """The feed to follow (waiting for it if it has not started), or ``None`` after telling the client why not."""
         try:
-            await self._send(event)
-        except ConnectionClosed:
-            pass
+            if event.name is not None:
+                check_log_name(event.name)
+            feed = self.live.find(event.name, event.exact)
+            if feed is None and event.name is not None:
+                await self._execute(self.session.live_joined(event.name, None, started=False))
+                feed = await self.live.wait_for(event.name)
+        except XVIZError:
+            feed = None
+        if feed is None:
+            await self._execute(self.session.live_failed(event.name))
+        return feed
+
+    def _hold(self, update: LiveUpdate | None) -> int | None:
+        """Keep ``update`` at hand while the session decides about it; its number."""
+        if update is None:
+            return None
+        self._held = {update.number: update}
+        return update.number
+
+    async def _configure_live(self, event: ConfigureLive) -> None:
+        if self._subscription is None:
+            return
+        self._subscription.decimate = event.decimate
+        if event.forward and not await self._subscription.feed.reconfigure(event.forward):
+            logger.info("live feed %r does not accept configuration", self._subscription.feed.name)
+
+    async def _watch_lag(self, subscription: Subscription) -> None:
+        """Tell the session how long the viewer has been dropping updates."""
+        interval = min(1.0, self.settings.live_lag_timeout / 4)
+        while True:
+            await asyncio.sleep(interval)
+            since = subscription.lagging_since
+            if since is not None:
+                await self._step("a slow live viewer", self.session.live_lagging, time.monotonic() - since)
 
 
 async def _wait(stop: asyncio.Event, seconds: float) -> None:
@@ -324,7 +344,7 @@ async def _wait(stop: asyncio.Event, seconds: float) -> None:
             pass
 
 
-def decode_message(event: Send) -> str:
+def _message_text(event: Send) -> str:
     """The text of an ``xviz/error`` being sent, for the log."""
     try:
         return str(decode(event.data)["data"]["message"])

@@ -11,6 +11,7 @@ from typing import Any, Collection, Sequence
 
 from .codec import Format, decode, edit_glb, encode
 from .exceptions import DecodeError
+from .layout import update_span
 from .state import complete_state, filter_streams
 from .validation import get_validator
 
@@ -65,11 +66,10 @@ def check(data: bytes, schema: bool = False) -> tuple[str, int]:
 
 def span(data: bytes) -> tuple[float, float]:
     """First and last timestamp of a state-update frame."""
-    updates = _decode_update(data)["data"]["updates"]
-    times = [u.get("timestamp") for u in updates if isinstance(u, dict)]
-    if not times or not all(isinstance(t, (int, float)) and not isinstance(t, bool) for t in times):
+    result = update_span(_decode_update(data)["data"])
+    if result is None:
         raise DecodeError("every update of a state update needs a numeric 'timestamp'")
-    return float(min(times)), float(max(times))
+    return result
 
 
 def render(data: bytes, fmt: Format, streams: Collection[str] | None) -> bytes:

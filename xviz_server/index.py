@@ -9,13 +9,14 @@ state at an instant.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 
 from .exceptions import DecodeError
+from .layout import INDEX_FILE
+from .messages import is_number
 
 __all__ = ["TimeIndex"]
 
@@ -49,7 +50,7 @@ class TimeIndex:
         )
 
     @classmethod
-    def from_reference(cls, document: Any, where: str = "0-frame.json") -> TimeIndex:
+    def from_reference(cls, document: Any, where: str = INDEX_FILE) -> TimeIndex:
         """Read the index file of a reference log (``0-frame.json``).
 
         Its ``timing`` rows are ``[t_min, t_max, message_index, name]``.
@@ -67,7 +68,7 @@ class TimeIndex:
             if (
                 not isinstance(row, Sequence)
                 or len(row) < 3
-                or not all(_is_number(value) for value in row[:3])
+                or not all(is_number(value) for value in row[:3])
                 or not float(row[2]).is_integer()
                 or row[2] < 0
             ):
@@ -132,13 +133,3 @@ def _well_formed(timing: list[Any]) -> np.ndarray | None:
     if not (np.isfinite(values).all() and (frames >= 0).all() and (frames == np.floor(frames)).all()):
         return None
     return values
-
-
-def _is_number(value: Any) -> bool:
-    """A finite int or float (not a bool, not an int beyond the float range)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return False
-    try:
-        return math.isfinite(value)
-    except OverflowError:
-        return False

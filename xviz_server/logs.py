@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import time
+from pathlib import Path
 from typing import Any, Sequence
 
 from . import frames
@@ -21,17 +21,19 @@ from .cache import FrameCache
 from .codec import Format, detect_format, encode
 from .exceptions import DecodeError, FrameError, LogError, LogNotFound, SchemaValidationError, XVIZError
 from .index import TimeIndex
-from .messages import envelope
+from .messages import XVIZ_VERSION, envelope, is_number
 from .state import COMPLETE_TYPES
+from .layout import LOG, Found, discover, is_log_directory
 from .providers import LogSource, Provider
+from .providers.datasets import DatasetProvider, explicit_datasets
+from .providers.static_log import StaticLogProvider
+from .datasets import FILE_KINDS, detect
 from .work import Workers
 
 __all__ = ["Catalog", "Log", "check_log_name"]
 
 logger = logging.getLogger(__name__)
 
-XVIZ_VERSION = "2.0.0"
-RESCAN_INTERVAL = 1.0  # least seconds between two scans asked for by unknown log names
 
 
 def check_log_name(name: str) -> None:
@@ -223,55 +225,75 @@ def _complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, 
     info = dict(result.get("log_info") or {})
     for key, value in (("start_time", index.start_time), ("end_time", index.end_time)):
         current = info.get(key)
-        if not (isinstance(current, (int, float)) and math.isfinite(current) and current != 0) and value is not None:
+        if not (is_number(current) and current != 0) and value is not None:
             info[key] = value
     result["log_info"] = info
     return result
 
 
 class Catalog:
-    """Every log of every provider, by name; each is opened once and shared."""
+    """Every log under the data roots and every dataset named, by name; each is opened once and shared.
+
+    ``datasets`` are ``(kind, path)`` pairs (``--dataset``); ``options`` go
+    to every dataset (``image_max_width``).
+    """
 
     def __init__(
-        self, providers: Sequence[Provider], cache: FrameCache, workers: Workers, *, validate: bool = False
+        self,
+        roots: Sequence[Path],
+        cache: FrameCache,
+        workers: Workers,
+        *,
+        datasets: Sequence[tuple[str, Path]] = (),
+        options: dict[str, Any] | None = None,
+        validate: bool = False,
     ) -> None:
-        self._providers = list(providers)
+        self._roots = [Path(root) for root in roots]
+        self._datasets = [(kind, Path(path)) for kind, path in datasets]
+        self._logs = StaticLogProvider(workers)
+        self._converted = DatasetProvider(workers, options)
         self._cache = cache
         self._workers = workers
         self._validate = validate
-        self._owners: dict[str, Provider] = {}
+        self._found: dict[str, Found] = {}
         self._open: dict[str, asyncio.Task[Log]] = {}
-        self._scanned_at = -math.inf
-        self._scan_lock = asyncio.Lock()
 
     def names(self) -> list[str]:
         """Names of the logs known since the last scan."""
-        return sorted(self._owners)
+        return sorted(self._found)
+
+    def kinds(self) -> set[str]:
+        """The kinds of what the last scan found (:data:`~xviz_server.layout.LOG`, dataset kinds)."""
+        return {found.kind for found in self._found.values()}
 
     async def scan(self) -> list[str]:
-        """Look for logs again (a log added to the data directory appears)."""
-        started = time.monotonic()
-        owners: dict[str, Provider] = {}
-        for provider in self._providers:
-            for name in await self._workers.io(provider.scan):
-                owners.setdefault(name, provider)
-        self._owners = owners
-        self._scanned_at = started
+        """Look for logs again (a log added to a data directory appears, a removed one goes)."""
+        self._found = await self._workers.io(self._discover)
         return self.names()
 
-    async def _rescan(self) -> None:
-        """Scan again for a name not found, at most once per ``RESCAN_INTERVAL``.
+    def _discover(self) -> dict[str, Found]:
+        found: dict[str, Found] = {}
+        for root in self._roots:
+            for entry in discover(root, detect):
+                found.setdefault(entry.name, entry)
+        for kind, path in self._datasets:
+            for entry in explicit_datasets(kind, path):
+                found.setdefault(entry.name, entry)
+        return found
 
-        Requests arriving during a scan share it; one arriving sooner than the
-        interval after the last scan waits for the interval, so a client
-        asking for unknown names cannot make the server scan nonstop.
-        """
-        asked = time.monotonic()
-        async with self._scan_lock:
-            if self._scanned_at > asked:
-                return  # someone else's scan started after we asked
-            await asyncio.sleep(self._scanned_at + RESCAN_INTERVAL - time.monotonic())
-            await self.scan()
+    def _lookup(self, name: str) -> Found | None:
+        """Look for the log or dataset ``name`` under each root, without a whole scan."""
+        for root in self._roots:
+            path = root / name
+            if path.is_dir():
+                kind = LOG if is_log_directory(path) else detect(path)
+                if kind is not None:
+                    return Found(name, path, kind)
+            for suffix in FILE_KINDS:
+                candidate = path.with_name(path.name + suffix)
+                if candidate.is_file() and detect(candidate) is not None:
+                    return Found(name, candidate, FILE_KINDS[suffix])
+        return None
 
     async def open(self, name: str) -> Log:
         """The open log called ``name``.
@@ -281,24 +303,27 @@ class Catalog:
         for a log that cannot be served. A failed open is tried again next time.
         """
         check_log_name(name)
-        if name not in self._owners:
-            await self._rescan()
-        provider = self._owners.get(name)
-        if provider is None:
+        found = self._found.get(name)
+        if found is None:
+            found = await self._workers.io(self._lookup, name)
+            if found is not None:
+                self._found[name] = found
+        if found is None:
             available = self.names()
             shown = ", ".join(repr(n) for n in available[:20]) or "none"
             raise LogNotFound(f"no log named {name!r}; available: {shown}", name=name, available=available)
         task = self._open.get(name)
         if task is None or (task.done() and (task.cancelled() or task.exception() is not None)):
-            task = asyncio.ensure_future(self._open_log(provider, name))
+            task = asyncio.ensure_future(self._open_log(found))
             self._open[name] = task
         return await asyncio.shield(task)
 
-    async def _open_log(self, provider: Provider, name: str) -> Log:
+    async def _open_log(self, found: Found) -> Log:
         started = time.perf_counter()
-        source = await provider.open(name)
+        provider: Provider = self._logs if found.kind == LOG else self._converted
+        source = await provider.open(found)
         log = await Log.open(source, self._cache, self._workers, self._validate)
-        logger.info("opened log %r: %d frames, %s, in %.3f s", name, len(log.index), log.format.value, time.perf_counter() - started)
+        logger.info("opened log %r: %d frames, %s, in %.3f s", found.name, len(log.index), log.format.value, time.perf_counter() - started)
         return log
 
     async def describe(self) -> list[dict[str, Any]]:

@@ -14,6 +14,7 @@ message, its request id and the field at fault.
 from __future__ import annotations
 
 import enum
+import math
 from typing import Any, ClassVar, Literal, Mapping, Union
 
 import pydantic
@@ -37,9 +38,14 @@ __all__ = [
     "unwrap",
     "envelope",
     "parse_client_message",
+    "describe_validation_error",
+    "is_number",
+    "XVIZ_VERSION",
 ]
 
 XVIZ_NAMESPACE = "xviz/"
+#: The protocol version this server speaks; metadata without it makes clients fall back to XVIZ v1.
+XVIZ_VERSION = "2.0.0"
 
 
 class SessionType(str, enum.Enum):
@@ -231,14 +237,26 @@ def parse_client_message(message: Any) -> ClientMessage:
         return model.model_validate(data)  # type: ignore[return-value]
     except pydantic.ValidationError as exc:
         subject = kind if request_id is None else f"{kind} (id {request_id!r})"
-        problems = "; ".join(_describe(error) for error in exc.errors())
+        problems = "; ".join(describe_validation_error(error) for error in exc.errors())
         raise MessageError(f"{subject}: {problems}", message_type=name, request_id=request_id) from None
 
 
-def _describe(error: Mapping[str, Any]) -> str:
-    """One validation error as a phrase: which field, what is wrong, what came."""
+def is_number(value: Any) -> bool:
+    """A finite ``int`` or ``float``, not a ``bool`` (nor an int beyond the float range)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def describe_validation_error(error: Mapping[str, Any]) -> str:
+    """One pydantic validation error as a phrase: which field, what is wrong, what came."""
     field = ".".join(str(part) for part in error["loc"])
     kind = error["type"]
+    if kind == "extra_forbidden":
+        return f"unknown key {field!r}"
     if kind == "missing":
         return f"'{field}' is required"
     if kind == "model_type" or (kind == "dict_type" and not field):
@@ -257,7 +275,7 @@ def _describe(error: Mapping[str, Any]) -> str:
         "literal_error": "one of " + str(error.get("ctx", {}).get("expected", "")),
     }.get(kind)
     if expected is None:
-        return f"'{field}': {error['msg']}"
+        return f"'{field}': {error['msg']} (got {_shown(error['input'])})"
     return f"'{field}' must be {expected}, not {_shown(error['input'])}"
 
 

@@ -32,18 +32,16 @@ from websockets.http11 import Request, Response
 from . import __version__
 from .auth import token_matches
 from .cache import FrameCache
+from .layout import LOG
 from .connection import Connection
-from .datasets import KINDS
+from .datasets import GENERATED, KINDS
 from .exceptions import LogError
-from .ingest import feed_name, refusal, run_ingest
 from .live import LiveRegistry
+from .live.ingest import feed_name, refusal, run_ingest
+from .live.record import Recorder
+from .live.replay import replay
 from .logs import Catalog
 from .metrics import CONTENT_TYPE, Metrics
-from .providers import Provider
-from .providers.datasets import DatasetProvider
-from .providers.static_log import StaticLogProvider
-from .record import Recorder
-from .replay import replay
 from .settings import Settings
 from .work import Workers
 
@@ -55,19 +53,27 @@ MB = 1 << 20
 
 
 class XVIZServer:
-    """A running server; use as ``async with XVIZServer(settings) as server: ...``."""
+    """A running server; use as ``async with XVIZServer(settings) as server: ...``.
 
-    def __init__(self, settings: Settings, data_dir: Path | None) -> None:
+    It serves the logs and datasets under ``settings.data_dir``, the
+    datasets named by ``settings.dataset``, and the live feeds published to
+    :attr:`live`. Raises :class:`ValueError` for a ``dataset`` that is not
+    ``KIND:PATH``.
+    """
+
+    def __init__(self, settings: Settings) -> None:
         self.settings = settings
-        self.data_dir = data_dir
         self.metrics = Metrics()
         self.workers = Workers()
         self.cache = FrameCache(int(settings.cache_mb * MB), self.metrics)
-        providers: list[Provider] = [StaticLogProvider(data_dir, self.workers)] if data_dir is not None else []
-        datasets = [parse_dataset(text) for text in settings.dataset]
-        self._datasets = DatasetProvider(data_dir, datasets, self.workers, {"image_max_width": settings.image_max_width})
-        providers.append(self._datasets)
-        self.catalog = Catalog(providers, self.cache, self.workers, validate=settings.validate_frames)
+        self.catalog = Catalog(
+            [settings.data_dir] if settings.data_dir is not None else [],
+            self.cache,
+            self.workers,
+            datasets=[parse_dataset(text) for text in settings.dataset],
+            options={"image_max_width": settings.image_max_width},
+            validate=settings.validate_frames,
+        )
         #: The live feeds; programs embedding the server publish with ``server.live.feed(name)``.
         self.live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
         self._server: Server | None = None
@@ -85,8 +91,8 @@ class XVIZServer:
     async def start(self) -> None:
         """Find the logs and start listening."""
         names = await self.catalog.scan()
-        logger.info("serving %d logs from %s", len(names), self.data_dir or "datasets given on the command line")
-        if self._datasets.names:
+        logger.info("serving %d logs from %s", len(names), self.settings.data_dir or "datasets given on the command line")
+        if self.catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
         if self.settings.live_from is not None:
             await self._start_replay(self.settings.live_from)
@@ -117,7 +123,7 @@ class XVIZServer:
 
     async def _start_replay(self, directory: Path) -> None:
         """Replay a static log as the live feed named after its folder."""
-        catalog = Catalog([StaticLogProvider(directory, self.workers)], self.cache, self.workers)
+        catalog = Catalog([directory], self.cache, self.workers)
         (name,) = await catalog.scan() or [None]
         if name is None:
             raise LogError(f"--live-from {directory}: no log in the reference layout there", log=str(directory))
@@ -191,14 +197,19 @@ class XVIZServer:
 
 
 def parse_dataset(text: str) -> tuple[str, Path]:
-    """``kitti:/data/drive`` as ``("kitti", Path("/data/drive"))``; raises :class:`ValueError`."""
+    """``kitti:/data/drive`` as ``("kitti", Path("/data/drive"))``, ``demo`` as ``("demo", Path("demo"))``.
+
+    Raises :class:`ValueError` for an unknown kind or a path that does not exist.
+    """
     kind, separator, path = text.partition(":")
+    if kind in GENERATED:
+        return kind, Path(path or kind)
     if not separator or not kind or not path:
         raise ValueError(f"--dataset {text!r}: give KIND:PATH, like kitti:/data/2011_09_26_drive_0001_sync")
     if kind not in KINDS:
         raise ValueError(f"--dataset {text!r}: unknown kind {kind!r}; known: {', '.join(sorted(KINDS))}")
-    if not Path(path).is_dir():
-        raise ValueError(f"--dataset {text!r}: {path} is not a directory")
+    if not Path(path).exists():
+        raise ValueError(f"--dataset {text!r}: {path} does not exist")
     return kind, Path(path)
 
 
@@ -210,12 +221,12 @@ def _response(connection: ServerConnection, status: HTTPStatus, body: bytes, con
     return dataclasses.replace(response, body=body)
 
 
-async def run(settings: Settings, data_dir: Path) -> None:
+async def run(settings: Settings) -> None:
     """Serve until SIGINT or SIGTERM, then close every session and stop."""
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
-    async with XVIZServer(settings, data_dir):
+    async with XVIZServer(settings):
         await stop.wait()
         logger.info("shutting down: closing sessions")

@@ -1,29 +1,41 @@
 """The XVIZ session protocol, without I/O.
 
-A :class:`Session` is fed what happens on one connection (it opened, a
-message arrived, the log it asked for was opened) and answers with events
-that say what to do: :class:`Send` bytes, :class:`OpenLog`,
-:class:`StreamFrames` for a ``transform_log``, :class:`QueryInstant` for a
-``transform_point_in_time``, :class:`Cancel` the running stream. The asyncio
-layer (:mod:`xviz_server.connection`) carries them out. Every decision about
-the protocol lives here and can be tested by feeding messages, with no
-socket.
+A :class:`Session` is fed what happens on one connection and answers with
+the events that carry its decisions out, as ``websockets``' sans-I/O
+protocol does: every method named after something that happened (the
+connection opened, a message arrived, a log was opened, a stream ended, a
+live update came) returns a list of :data:`Event`. The asyncio layer
+(:mod:`xviz_server.connection`) carries them out and reports back. Events
+name logs and frames by name and number; they hold no I/O object.
 
-Overlapping requests: a new ``transform_log`` cancels the one still
-streaming; the cancelled request stops after the frame in flight and still
-gets its ``transform_log_done``, before any frame of the new request.
+Recorded logs: a ``transform_log`` becomes :class:`StreamFrames`. A newer
+``transform_log`` cancels the one still streaming: the older request stops
+after its frame in flight (:class:`CancelStream`) and still gets its
+``transform_log_done``, before the first frame of the newer one; a request
+that was waiting its turn when an even newer one came gets its done without
+frames. A ``transform_point_in_time`` becomes :class:`QueryInstant`.
+
+Live feeds: a session is LIVE when the client says so (``session_type=live``),
+or when it names its log only by ``logGuid`` (as streetscape.gl's
+``XVIZLiveLoader`` does) and no recorded log of that name can be opened. A
+live viewer gets the feed's metadata, then its latest complete state, then
+every update that state does not already hold; it is told when it fell
+behind (once per run of dropped updates) and when the source went away, and
+it is closed once it has been dropping updates for ``lag_timeout`` seconds.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol, Sequence, Union
+from typing import Any, Protocol, Union
 
 import numpy as np
 import pydantic
+from websockets.frames import CloseCode
 
 from .codec import Format, decode, encode
-from .exceptions import DecodeError, MessageError, XVIZError
+from .exceptions import DecodeError, LogNotFound, MessageError, XVIZError
 from .index import TimeIndex
 from .messages import (
     Error,
@@ -33,6 +45,7 @@ from .messages import (
     TransformLog,
     TransformLogDone,
     TransformPointInTime,
+    describe_validation_error,
     parse_client_message,
 )
 
@@ -40,25 +53,43 @@ __all__ = [
     "Session",
     "SessionConfig",
     "LogView",
+    "Variant",
+    "Event",
     "Send",
+    "Close",
     "OpenLog",
     "StreamFrames",
+    "CancelStream",
     "QueryInstant",
-    "Cancel",
     "SubscribeLive",
     "ConfigureLive",
-    "Event",
+    "SendLiveMetadata",
+    "SendLiveUpdate",
 ]
 
 
 class LogView(Protocol):
     """What a session needs to know of an open log (see :class:`xviz_server.logs.Log`)."""
 
-    name: str
-    format: Format
-    index: TimeIndex
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def format(self) -> Format: ...
+
+    @property
+    def index(self) -> TimeIndex: ...
 
     def metadata_message(self, fmt: Format) -> bytes: ...
+
+
+@dataclass(frozen=True)
+class Variant:
+    """How a live viewer wants updates: format, streams (``None``: all), most points per cloud."""
+
+    fmt: Format
+    streams: frozenset[str] | None = None
+    max_points: int | None = None
 
 
 # ----------------------------------------------------------------- events
@@ -66,82 +97,108 @@ class LogView(Protocol):
 
 @dataclass(frozen=True)
 class Send:
-    """Send ``data``; as a text frame when ``text``. ``error`` names the kind of an error message."""
+    """Send ``data``; as a text frame when ``text``.
+
+    ``error`` names the kind of an ``xviz/error`` that reports a problem;
+    ``notice`` the kind of one that only informs (a live feed went away).
+    """
 
     data: bytes
     text: bool
     error: str | None = None
+    notice: str | None = None
+
+
+@dataclass(frozen=True)
+class Close:
+    """Close the connection with ``code`` and ``reason``."""
+
+    code: int
+    reason: str
 
 
 @dataclass(frozen=True)
 class OpenLog:
-    """Open the log a client asked for, then call :meth:`Session.log_opened` or :meth:`Session.log_failed`."""
+    """Open the recorded log ``name``, then call :meth:`Session.log_opened` or :meth:`Session.log_failed`."""
 
     name: str
 
 
 @dataclass(frozen=True, eq=False)
 class StreamFrames:
-    """Send these frames of ``log`` in order, then ``done``.
+    """Send frames ``frames`` of log ``log`` in order, then call :meth:`Session.stream_ended`.
 
     ``times`` are the frames' start times, for pacing at ``speed`` times the
-    log's rate; ``speed`` ``None`` means as fast as the client reads.
+    log's rate; ``speed`` ``None`` means as fast as the client reads. A frame
+    that cannot be had is reported with :meth:`Session.frame_failed`.
     """
 
     request_id: str
-    log: LogView
+    log: str
     frames: np.ndarray
     times: np.ndarray
     fmt: Format
     streams: frozenset[str] | None
     speed: float | None
-    done: Send
 
 
-@dataclass(frozen=True, eq=False)
-class QueryInstant:
-    """Send the complete state of ``log`` at ``instant`` as one message."""
+@dataclass(frozen=True)
+class CancelStream:
+    """Stop the stream of ``request_id`` after its frame in flight; then call :meth:`Session.stream_ended`."""
 
     request_id: str
-    log: LogView
+
+
+@dataclass(frozen=True)
+class QueryInstant:
+    """Send the complete state of log ``log`` at ``instant`` as one message (or :meth:`Session.query_failed`)."""
+
+    request_id: str
+    log: str
     instant: float
     fmt: Format
     streams: frozenset[str] | None
 
 
 @dataclass(frozen=True)
-class Cancel:
-    """Stop the running stream after its frame in flight; it still sends its ``done``."""
-
-
-@dataclass(frozen=True)
 class SubscribeLive:
-    """Join the live feed a client asked for, then push its updates.
+    """Join live feed ``name``, then call :meth:`Session.live_joined` (or :meth:`Session.live_failed`).
 
-    With a single feed running, a session gets it whatever it asked for;
-    a named feed that has not started is waited for. If no feed answers
-    (no name, several feeds), call :meth:`Session.live_failed`.
+    ``exact``: only the feed of that name will do, waited for if it has not
+    started. Otherwise (a client that named no feed, or named one only by
+    ``logGuid``) the only running feed may stand in for it.
     """
 
     name: str | None
+    exact: bool
 
 
 @dataclass(frozen=True)
 class ConfigureLive:
-    """The live session's configuration changed: use it for later updates.
+    """The live configuration changed: ``decimate`` for the subscription, ``forward`` for a source that accepts it."""
 
-    ``forward`` is the client's ``config_update``, for a source that accepts
-    configuration.
-    """
-
-    fmt: Format
-    streams: frozenset[str] | None
     decimate: int
-    max_points: int | None
     forward: dict[str, Any]
 
 
-Event = Union[Send, OpenLog, StreamFrames, QueryInstant, Cancel, SubscribeLive, ConfigureLive]
+@dataclass(frozen=True)
+class SendLiveMetadata:
+    """Send the feed's metadata in ``fmt``."""
+
+    fmt: Format
+
+
+@dataclass(frozen=True)
+class SendLiveUpdate:
+    """Send live update ``number`` (or the complete state whose newest update it is) encoded for ``variant``."""
+
+    number: int
+    variant: Variant
+
+
+Event = Union[
+    Send, Close, OpenLog, StreamFrames, CancelStream, QueryInstant, SubscribeLive, ConfigureLive, SendLiveMetadata, SendLiveUpdate
+]
 
 
 # ------------------------------------------------------------ configuration
@@ -193,6 +250,10 @@ def _stream_filter(*filters: Sequence[str] | None) -> frozenset[str] | None:
     return result
 
 
+def _first_problem(exc: pydantic.ValidationError) -> str:
+    return describe_validation_error(exc.errors()[0])
+
+
 # ----------------------------------------------------------------- session
 
 URL_START_KEYS = ("version", "profile", "session_type", "message_format", "log")
@@ -203,26 +264,28 @@ class Session:
     """The protocol state of one connection.
 
     ``path`` and ``query`` come from the URL the client connected to;
-    ``available`` lists the logs the server can open (to pick the only one
-    when the client names none, and to list them when it must choose);
-    ``live`` lists the live feeds.
-
-    A session is LIVE when the client says so (``session_type=live``), or
-    when it names its log only by ``logGuid`` (as streetscape.gl's
-    ``XVIZLiveLoader`` does) and that name is not a recorded log. A live
-    session waits for a feed that has not started yet.
+    ``available`` lists the recorded logs (to pick the only one when the
+    client names none, and to list them when it must choose); ``live`` lists
+    the live feeds; ``lag_timeout`` is how long a live viewer may keep
+    dropping updates before it is closed.
     """
 
     path: str
     query: Mapping[str, str]
-    available: Sequence[str]
+    available: Sequence[str] = ()
     live: Sequence[str] = ()
+    lag_timeout: float = 30.0
     start: Start = field(init=False, default_factory=Start)
     config: SessionConfig = field(init=False, default_factory=SessionConfig)
     log: LogView | None = field(init=False, default=None)
     _requested_log: str | None = field(init=False, default=None)
+    _streaming: StreamFrames | None = field(init=False, default=None)
+    _waiting: list[StreamFrames] = field(init=False, default_factory=list)
+    _feed: str | None = field(init=False, default=None)
+    _covered: int = field(init=False, default=-1)
+    _behind: bool = field(init=False, default=False)
 
-    # -- inputs ---------------------------------------------------------
+    # -- inputs: the connection and its messages -----------------------
 
     def connect(self) -> list[Event]:
         """The connection opened: read the start parameters from the URL."""
@@ -236,7 +299,7 @@ class Session:
         try:
             self.start = Start.model_validate(params)
             if speed is not None:
-                self.config = SessionConfig(speed=speed)  # type: ignore[arg-type]
+                self.config = SessionConfig.model_validate({"speed": speed})
         except pydantic.ValidationError as exc:
             events.append(self._error("start", f"bad connection URL parameter: {_first_problem(exc)}"))
             self.start = Start(log=params.get("log"))
@@ -259,48 +322,106 @@ class Session:
             return self._on_point_in_time(request)
         return self._on_reconfigure(request)
 
+    def internal_error(self, what: str, error: BaseException) -> list[Event]:
+        """Something unexpected failed while handling ``what``; the session goes on."""
+        return [self._error("internal", f"internal server error while handling {what}: {error!r}")]
+
+    # -- inputs: recorded logs -------------------------------------------
+
     def log_opened(self, log: LogView) -> list[Event]:
         """The log asked for with :class:`OpenLog` is open: send its metadata."""
         self.log = log
         return [Send(log.metadata_message(self.format), text=self.format is Format.JSON)]
 
-    def live_failed(self, name: str | None) -> list[Event]:
-        """No live feed answers to the name the client asked for."""
-        shown = ", ".join(repr(n) for n in self.live) or "none"
-        return [self._error("live", f"no live feed named {name!r}; live feeds: {shown}")]
-
-    def live_notice(self, text: str) -> Send:
-        """Tell a live viewer about the feed (it went away, updates were dropped)."""
-        return self._error("live", text)
-
-    def live_config(self, forward: dict[str, Any] | None = None) -> ConfigureLive:
-        """The live configuration now in force."""
-        return ConfigureLive(
-            fmt=self.format,
-            streams=_stream_filter(self.config.desired_streams),
-            decimate=self.config.decimate or 1,
-            max_points=self.config.max_points,
-            forward=forward or {},
-        )
-
     def log_failed(self, error: XVIZError) -> list[Event]:
-        """The log asked for with :class:`OpenLog` cannot be served."""
+        """The log asked for with :class:`OpenLog` cannot be served.
+
+        A name given only as ``logGuid`` that is no recorded log is a live feed.
+        """
         self.log = None
+        if isinstance(error, LogNotFound) and self._guid_only() and self.start.log is not None:
+            return self._go_live(exact=False)
         return [self._error("log", str(error))]
 
-    def frame_failed(self, request: StreamFrames, error: XVIZError) -> Send:
-        """One frame of a ``transform_log`` could not be sent; the request goes on."""
-        return self._error("frame", f"xviz/transform_log (id {request.request_id!r}) on log {request.log.name!r}: {error}")
+    def stream_ended(self, request_id: str) -> list[Event]:
+        """The stream of ``request_id`` sent its last frame, or stopped when cancelled."""
+        ended = self._streaming
+        if ended is None or ended.request_id != request_id:
+            return []
+        events: list[Event] = [self._done(ended)]
+        self._streaming = None
+        if self._waiting:
+            *skipped, newest = self._waiting
+            self._waiting = []
+            events += [self._done(request) for request in skipped]
+            self._streaming = newest
+            events.append(newest)
+        return events
 
-    def query_failed(self, request: QueryInstant, error: XVIZError | str) -> Send:
-        """A ``transform_point_in_time`` could not be answered."""
-        return self._error(
-            "query", f"xviz/transform_point_in_time (id {request.request_id!r}) on log {request.log.name!r}: {error}"
-        )
+    def frame_failed(self, request_id: str, error: XVIZError) -> list[Event]:
+        """One frame of a stream could not be had; the stream goes on."""
+        return [self._error("frame", f"xviz/transform_log (id {request_id!r}) on log {self._log_name()!r}: {error}")]
 
-    def internal_error(self, what: str, error: BaseException) -> Send:
-        """Something unexpected failed while handling ``what``; the session goes on."""
-        return self._error("internal", f"internal server error while handling {what}: {error!r}")
+    def query_failed(self, request_id: str, error: XVIZError) -> list[Event]:
+        """A :class:`QueryInstant` could not be answered."""
+        return [
+            self._error("query", f"xviz/transform_point_in_time (id {request_id!r}) on log {self._log_name()!r}: {error}")
+        ]
+
+    # -- inputs: live feeds ----------------------------------------------
+
+    def live_failed(self, name: str | None) -> list[Event]:
+        """No live feed answers to what the client asked for."""
+        shown = ", ".join(repr(n) for n in self.live) or "none"
+        what = f"named {name!r}" if name is not None else "to serve (several are running; name one)"
+        return [self._error("live", f"no live feed {what}; live feeds: {shown}")]
+
+    def live_joined(self, feed: str, state: int | None, started: bool) -> list[Event]:
+        """The session subscribed to ``feed``; ``state`` is the number of the update its latest complete state ends at."""
+        self._feed = feed
+        if not started:
+            return [self._notice("waiting", f"live feed {feed!r} has not started yet; waiting for it")]
+        return self.live_started(state)
+
+    def live_started(self, state: int | None) -> list[Event]:
+        """The feed (re)started with new metadata; ``state`` as for :meth:`live_joined`."""
+        self._covered = -1 if state is None else state
+        events: list[Event] = [SendLiveMetadata(self.format)]
+        if state is not None:
+            events.append(SendLiveUpdate(state, self.variant))
+        return events
+
+    def live_gone(self) -> list[Event]:
+        """The feed's source went away."""
+        return [
+            self._notice("gone", f"live feed {self._feed!r} went away; this session stays open and resumes when it comes back")
+        ]
+
+    def live_update(self, number: int, dropped: int, behind: bool) -> list[Event]:
+        """Update ``number`` of the feed is next for this viewer.
+
+        ``dropped`` updates were dropped since the last call because the
+        viewer fell behind; ``behind`` tells whether it still is.
+        """
+        events: list[Event] = []
+        if dropped and not self._behind:
+            events.append(
+                self._notice(
+                    "behind",
+                    f"live feed {self._feed!r}: this viewer is behind; {dropped} updates were dropped "
+                    "(the oldest go first; viewers that stay behind are disconnected)",
+                )
+            )
+        self._behind = behind
+        if number > self._covered:
+            events.append(SendLiveUpdate(number, self.variant))
+        return events
+
+    def live_lagging(self, seconds: float) -> list[Event]:
+        """The viewer has been dropping updates for ``seconds``."""
+        if seconds <= self.lag_timeout:
+            return []
+        return [Close(CloseCode.TRY_AGAIN_LATER, f"too slow: dropped live updates for over {self.lag_timeout:g} s")]
 
     # -- state ----------------------------------------------------------
 
@@ -313,26 +434,42 @@ class Session:
         if self.log is not None:
             return self.log.format
         # Live point clouds are far cheaper as GLB; before a log opens, errors are JSON.
-        return Format.BINARY if self.start.session_type is SessionType.LIVE else Format.JSON
+        return Format.BINARY if self.is_live else Format.JSON
+
+    @property
+    def is_live(self) -> bool:
+        return self.start.session_type is SessionType.LIVE
+
+    @property
+    def variant(self) -> Variant:
+        """How this live viewer wants updates now."""
+        return Variant(self.format, _stream_filter(self.config.desired_streams), self.config.max_points)
+
+    @property
+    def decimate(self) -> int:
+        return self.config.decimate or 1
 
     # -- handlers -------------------------------------------------------
 
+    def _guid_only(self) -> bool:
+        return "logGuid" in self.query and "log" not in self.query and self.start.session_type is None
+
     def _begin(self) -> list[Event]:
         name = self.start.log
-        guid_only = "logGuid" in self.query and "log" not in self.query and self.start.session_type is None
-        if guid_only and name not in self.available:
-            self.start = self.start.model_copy(update={"session_type": SessionType.LIVE})
-        if self.start.session_type is SessionType.LIVE:
+        if self.is_live:
             if name is None and not self.live:
                 return [self._error("live", "session_type LIVE: this server has no live feeds; name one to wait for it")]
-            return [SubscribeLive(name)]
+            return self._go_live(exact=name is not None)
         if name is None:
-            if len(self.available) == 1:
-                name = self.available[0]
-            else:
+            if len(self.available) != 1:
                 return [self._error("log", self._choose_a_log())]
+            name = self.available[0]
         self._requested_log = name
         return [OpenLog(name)]
+
+    def _go_live(self, exact: bool) -> list[Event]:
+        self.start = self.start.model_copy(update={"session_type": SessionType.LIVE})
+        return [SubscribeLive(self.start.log, exact)]
 
     def _choose_a_log(self) -> str:
         if not self.available:
@@ -354,19 +491,21 @@ class Session:
         if isinstance(log, Send):
             return [log]
         positions = log.index.range(request.start_timestamp, request.end_timestamp)
-        fmt = self.format
-        done = Send(encode(TransformLogDone(id=request.id).to_envelope(), fmt), text=fmt is Format.JSON)
         stream = StreamFrames(
             request_id=request.id,
-            log=log,
+            log=log.name,
             frames=log.index.frames[positions],
             times=log.index.start[positions],
-            fmt=fmt,
+            fmt=self.format,
             streams=_stream_filter(self.config.desired_streams, request.desired_streams),
             speed=self.config.speed,
-            done=done,
         )
-        return [Cancel(), stream]
+        if self._streaming is None:
+            self._streaming = stream
+            return [stream]
+        cancel: list[Event] = [] if self._waiting else [CancelStream(self._streaming.request_id)]
+        self._waiting.append(stream)
+        return cancel
 
     def _on_point_in_time(self, request: TransformPointInTime) -> list[Event]:
         log = self._require_log("xviz/transform_point_in_time", request.id)
@@ -375,7 +514,7 @@ class Session:
         return [
             QueryInstant(
                 request_id=request.id,
-                log=log,
+                log=log.name,
                 instant=request.query_timestamp,
                 fmt=self.format,
                 streams=_stream_filter(self.config.desired_streams, request.desired_streams),
@@ -389,15 +528,19 @@ class Session:
             self.config = SessionConfig.model_validate(proposed)
         except pydantic.ValidationError as exc:
             known = ", ".join(SessionConfig.model_fields)
-            return [self._error("reconfigure", f"xviz/reconfigure: {_first_problem(exc)} (supported keys: {known}); configuration unchanged")]
-        if self.start.session_type is SessionType.LIVE:
-            return [self.live_config(request.config_update)]
+            return [
+                self._error(
+                    "reconfigure", f"xviz/reconfigure: {_first_problem(exc)} (supported keys: {known}); configuration unchanged"
+                )
+            ]
+        if self.is_live:
+            return [ConfigureLive(self.decimate, request.config_update)]
         return []
 
     # -- helpers --------------------------------------------------------
 
     def _require_log(self, kind: str, request_id: str) -> LogView | Send:
-        if self.start.session_type is SessionType.LIVE:
+        if self.is_live:
             return self._error(
                 "live",
                 f"{kind} (id {request_id!r}): not available in a LIVE session, whose updates are pushed "
@@ -407,14 +550,16 @@ class Session:
             return self._error("log", f"{kind} (id {request_id!r}): no log is open; {self._choose_a_log()}")
         return self.log
 
+    def _log_name(self) -> str | None:
+        return self.log.name if self.log is not None else self._requested_log
+
+    def _done(self, request: StreamFrames) -> Send:
+        return Send(encode(TransformLogDone(id=request.request_id).to_envelope(), request.fmt), text=request.fmt is Format.JSON)
+
     def _error(self, kind: str, message: str) -> Send:
         fmt = self.format
         return Send(encode(Error(message=message).to_envelope(), fmt), text=fmt is Format.JSON, error=kind)
 
-
-def _first_problem(exc: pydantic.ValidationError) -> str:
-    error = exc.errors()[0]
-    field_name = ".".join(str(part) for part in error["loc"]) or "value"
-    if error["type"] == "extra_forbidden":
-        return f"unknown key {field_name!r}"
-    return f"{field_name!r}: {error['msg']} (got {error['input']!r})"
+    def _notice(self, kind: str, message: str) -> Send:
+        fmt = self.format
+        return Send(encode(Error(message=message).to_envelope(), fmt), text=fmt is Format.JSON, notice=kind)

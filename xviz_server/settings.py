@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import Field
+from .datasets import DEFAULT_IMAGE_WIDTH
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
 __all__ = ["Settings", "load_settings"]
@@ -42,7 +43,7 @@ class Settings(BaseSettings):
         description="serve a raw dataset, KIND:PATH (e.g. kitti:/data/2011_09_26_drive_0001_sync), converted on "
         "demand; repeat for more (env: a JSON list)",
     )
-    image_max_width: int = Field(default=400, ge=16, description="camera images of raw datasets are scaled down to this width")
+    image_max_width: int = Field(default=DEFAULT_IMAGE_WIDTH, ge=16, description="camera images of raw datasets are scaled down to this width")
     host: str = Field(default="127.0.0.1", description="address to listen on (0.0.0.0 for every interface)")
     port: int = Field(default=3000, ge=0, le=65535, description="TCP port for WebSocket and HTTP")
     cache_mb: float = Field(default=512, gt=0, description="size of the frame cache shared by all sessions, MB")

@@ -31,12 +31,11 @@ import orjson
 
 from .codec import Format, decode, detect_format, encode
 from .exceptions import DecodeError, LogWriteError
-from .providers.static_log import INDEX_FILE, frame_files
+from .layout import INDEX_FILE, METADATA_NUMBER, file_number, frame_files, frame_name, frame_numbers, index_document, update_span
 
 __all__ = ["write_atomically", "LogWriter"]
 
 _TEMP_MARK = ".partial-"
-_METADATA = 1
 
 
 def write_atomically(path: str | os.PathLike[str], data: bytes | bytearray | memoryview) -> None:
@@ -107,9 +106,9 @@ class LogWriter:
             message = self._decode(data, "metadata")
             if message.get("type") != "xviz/metadata":
                 raise self._error(f"metadata holds {message.get('type')!r}, not xviz/metadata")
-            self._write(_METADATA, message, data)
+            self._write(METADATA_NUMBER, message, data)
         else:
-            self._write(_METADATA, {"type": "xviz/metadata", "data": data})
+            self._write(METADATA_NUMBER, {"type": "xviz/metadata", "data": data})
         self._log_times = None
 
     def write_frame(self, index: int, data: Mapping[str, Any] | bytes) -> None:
@@ -127,12 +126,12 @@ class LogWriter:
         else:
             message = {"type": "xviz/state_update", "data": data}
         self._spans[index] = self._span(index, message)
-        self._write(index + 2, message, encoded)
+        self._write(file_number(index), message, encoded)
 
     def done(self, index: int) -> bool:
         """Whether state update ``index`` is complete on disk (files are written atomically,
         so one that exists is whole)."""
-        return self._path(index + 2).is_file()
+        return self._path(file_number(index)).is_file()
 
     def write_index(self) -> int:
         """Write ``0-frame.json`` for the frames before the first missing one; return how many.
@@ -140,19 +139,9 @@ class LogWriter:
         For an index while the log is still growing (a recording); a finished
         log gets its index from :meth:`close`.
         """
-        frames = sorted(number - 2 for number in frame_files(self.directory) if number >= 2)
+        frames = frame_numbers(frame_files(self.directory))
         count = next((i for i, frame in enumerate(frames) if frame != i), len(frames))
-        timing = [[*self._frame_span(i), i, f"{i + 2}-frame"] for i in range(count)]
-        document: dict[str, Any] = {}
-        start, end = self._log_info_times()
-        if timing:
-            start = timing[0][0] if start is None else start
-            end = max(row[1] for row in timing) if end is None else end
-        if start is not None:
-            document["startTime"] = start
-        if end is not None:
-            document["endTime"] = end
-        document["timing"] = timing
+        document = index_document([self._frame_span(i) for i in range(count)], *self._log_info_times())
         write_atomically(self.directory / INDEX_FILE, orjson.dumps(document))
         self._stale_index = False
         return count
@@ -170,14 +159,14 @@ class LogWriter:
         if self._closed:
             return
         files = frame_files(self.directory)
-        if _METADATA not in files:
+        if METADATA_NUMBER not in files:
             raise self._error("cannot write the index: no metadata (1-frame); call write_metadata")
-        frames = sorted(number - 2 for number in files if number >= 2)
+        frames = frame_numbers(files)
         if not frames:
             raise self._error("cannot write the index: no frames were written")
         missing = sorted(set(range(frames[-1] + 1)) - set(frames))
         if missing:
-            names = ", ".join(f"{i + 2}-frame (frame {i})" for i in missing[:5])
+            names = ", ".join(f"{frame_name(i)} (frame {i})" for i in missing[:5])
             more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
             raise self._error(f"cannot write the index: missing {names}{more}")
         self.write_index()
@@ -219,25 +208,22 @@ class LogWriter:
         data = message["data"]
         if not isinstance(data, Mapping) or not isinstance(data.get("update_type"), str):
             raise self._error(f"frame {index}: needs an 'update_type' (clients refuse updates without one)")
-        updates = data.get("updates")
-        times = [u.get("timestamp") for u in updates if isinstance(u, Mapping)] if isinstance(updates, list) else []
-        if not times or len(times) != len(updates) or not all(
-            isinstance(t, (int, float)) and not isinstance(t, bool) for t in times
-        ):
+        span = update_span(data)
+        if span is None:
             raise self._error(f"frame {index}: every update needs a numeric 'timestamp'")
-        return float(min(times)), float(max(times))
+        return span
 
     def _frame_span(self, index: int) -> tuple[float, float]:
         span = self._spans.get(index)
         if span is None:  # written by an earlier run: read it (decoding GLB takes well under 1 ms)
-            message = self._decode(self._path(index + 2).read_bytes(), f"frame {index}")
+            message = self._decode(self._path(file_number(index)).read_bytes(), f"frame {index}")
             span = self._spans[index] = self._span(index, message)
         return span
 
     def _log_info_times(self) -> tuple[float | None, float | None]:
         """The metadata's ``log_info`` start and end times, where it has them (non-zero numbers)."""
         if self._log_times is None:
-            name = frame_files(self.directory).get(_METADATA)
+            name = frame_files(self.directory).get(METADATA_NUMBER)
             metadata = self._decode((self.directory / name).read_bytes(), "metadata")["data"] if name is not None else {}
             info = metadata.get("log_info")
             times = [info.get(key) for key in ("start_time", "end_time")] if isinstance(info, Mapping) else [None, None]

@@ -26,6 +26,7 @@ schema. :class:`~xviz_server.writer.LogWriter` writes the results as a log.
 
 from . import ui
 from .frame import FrameBuilder
-from .metadata import XVIZ_VERSION, MetadataBuilder
+from ..messages import XVIZ_VERSION
+from .metadata import MetadataBuilder
 
 __all__ = ["MetadataBuilder", "FrameBuilder", "ui", "XVIZ_VERSION"]

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..codec.image import sniff_image
 from ..exceptions import BuilderError
+from ..messages import is_number
 from .styles import check_style
 
 __all__ = ["FrameBuilder"]
@@ -343,7 +344,7 @@ class FrameBuilder:
         if isinstance(value, np.generic):
             value = value.item()
         if scalar_type == "FLOAT":
-            if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+            if is_number(value):
                 return float(value)
             raise BuilderError(f"{where}: a FLOAT stream takes finite numbers, not {value!r}")
         if scalar_type == "INT32":
@@ -508,7 +509,7 @@ def _cell(where: str, column: Mapping[str, Any], value: Any) -> str:
         return "true" if value else "false"
     if kind == "INT32" and isinstance(value, int) and not isinstance(value, bool):
         return str(value)
-    if kind == "DOUBLE" and isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+    if kind == "DOUBLE" and is_number(value):
         return repr(float(value)) if isinstance(value, float) else str(value)
     if kind == "STRING":
         return str(value)

@@ -13,13 +13,13 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import BuilderError
+from ..messages import XVIZ_VERSION
 from ..validation import get_validator
 from .styles import check_style
 
-__all__ = ["MetadataBuilder", "XVIZ_VERSION"]
+__all__ = ["MetadataBuilder"]
 
 #: The protocol version the builder writes; without it clients fall back to XVIZ v1.
-XVIZ_VERSION = "2.0.0"
 
 # Which categories each optional field of a stream belongs to.
 _GEOMETRY = ("PRIMITIVE", "FUTURE_INSTANCE")

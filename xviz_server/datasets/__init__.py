@@ -18,7 +18,7 @@ from ..codec import Format, encode
 from ..exceptions import DatasetError
 from ..messages import envelope
 
-__all__ = ["Dataset", "KINDS", "open_dataset", "detect", "convert_frame"]
+__all__ = ["Dataset", "KINDS", "FILE_KINDS", "GENERATED", "DEFAULT_IMAGE_WIDTH", "open_dataset", "detect", "convert_frame"]
 
 
 class Dataset(Protocol):
@@ -48,7 +48,16 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "kitti": ("kitti", "KittiDrive", "is_kitti_drive"),
     "waymo": ("waymo", "WaymoSegment", "is_waymo_segment"),
     "vista": ("vista", "VistaTrace", "is_vista_trace"),
+    "demo": ("demo", "DemoDrive", "is_demo"),
 }
+#: Kinds made up rather than read: their path is only a name.
+GENERATED = frozenset({"demo"})
+#: Camera images of datasets are scaled down to this width by default.
+DEFAULT_IMAGE_WIDTH = 400
+
+
+#: Kinds whose datasets are single files, by file suffix: other files are never datasets.
+FILE_KINDS: dict[str, str] = {}
 
 
 def _member(kind: str, position: int) -> Callable[..., Any]:
@@ -60,14 +69,17 @@ def open_dataset(kind: str, path: Path, **options: Any) -> Dataset:
     """Open the dataset of ``kind`` at ``path``; raises :class:`~xviz_server.exceptions.DatasetError`."""
     if kind not in KINDS:
         raise DatasetError(f"unknown dataset kind {kind!r}; known: {', '.join(sorted(KINDS))}", path=path)
-    if not Path(path).exists():
+    if kind not in GENERATED and not Path(path).exists():
         raise DatasetError(f"{path}: no such file or directory", path=path)
     return _member(kind, 1)(Path(path), **options)
 
 
 def detect(path: Path) -> str | None:
-    """The kind of dataset whose layout ``path`` has, if any."""
-    return next((kind for kind in KINDS if _member(kind, 2)(path)), None)
+    """The kind of dataset whose layout the folder or file ``path`` has, if any."""
+    if path.is_dir():
+        return next((kind for kind in KINDS if _member(kind, 2)(path)), None)
+    kind = FILE_KINDS.get(path.suffix)
+    return kind if kind is not None and _member(kind, 2)(path) else None
 
 
 _opened: dict[tuple[str, str, tuple[tuple[str, Any], ...]], Dataset] = {}

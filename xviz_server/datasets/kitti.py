@@ -55,6 +55,7 @@ import numpy as np
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..codec.image import sniff_image
 from ..exceptions import DatasetError
+from . import DEFAULT_IMAGE_WIDTH
 
 __all__ = [
     "FrameObjects",
@@ -342,7 +343,7 @@ class KittiDrive:
     """
 
     path: Path
-    image_max_width: int = 400
+    image_max_width: int = DEFAULT_IMAGE_WIDTH
     name: str = field(init=False)
     _oxts_cache: dict[int, Oxts] = field(default_factory=dict, init=False, repr=False, compare=False)
 

@@ -40,6 +40,7 @@ import numpy as np
 
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..exceptions import DatasetError
+from . import DEFAULT_IMAGE_WIDTH
 from .images import jpeg
 from .waymo import intensity_colors
 
@@ -157,7 +158,7 @@ class VistaTrace:
     """A VISTA trace folder."""
 
     path: Path
-    image_max_width: int = 400
+    image_max_width: int = DEFAULT_IMAGE_WIDTH
     name: str = field(init=False)
 
     def __getstate__(self) -> dict[str, Any]:

@@ -43,6 +43,7 @@ import numpy as np
 
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..exceptions import DatasetError
+from . import DEFAULT_IMAGE_WIDTH
 from .images import jpeg
 from .kitti import footprints
 
@@ -91,7 +92,7 @@ class WaymoSegment:
     """
 
     path: Path
-    image_max_width: int = 400
+    image_max_width: int = DEFAULT_IMAGE_WIDTH
     name: str = field(init=False)
 
     def __post_init__(self) -> None:

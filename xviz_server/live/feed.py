@@ -1,8 +1,8 @@
 """Live feeds: updates pushed by a running system, fanned out to viewers.
 
-A :class:`LiveSource` is one named feed. Whatever feeds it (a program in the
+A :class:`LiveFeed` is one named feed. Whatever feeds it (a program in the
 same process, a vehicle over the ingest WebSocket, a log replayed in real
-time) calls :meth:`LiveSource.set_metadata` and :meth:`LiveSource.publish`.
+time) calls :meth:`LiveFeed.set_metadata` and :meth:`LiveFeed.publish`.
 Each viewer holds a :class:`Subscription`: a bounded queue that drops its
 oldest updates when the viewer falls behind, so that neither the source nor
 the other viewers ever wait for it.
@@ -25,26 +25,18 @@ from typing import Any, Awaitable, Callable, Iterator, Mapping
 
 import numpy as np
 
-from .codec import Format, decode, detect_format, encode
-from .exceptions import XVIZError
-from .messages import envelope, unwrap
-from .state import COMPLETE_TYPES, complete_state, filter_streams
-from .work import Workers
+from ..codec import Format, decode, detect_format, encode
+from ..exceptions import XVIZError
+from ..messages import XVIZ_VERSION, envelope, unwrap
+from ..session import Variant
+from ..state import COMPLETE_TYPES, complete_state, filter_streams
+from ..work import Workers
 
-__all__ = ["Variant", "LiveUpdate", "Subscription", "LiveSource", "LiveRegistry", "downsample_points"]
+__all__ = ["LiveUpdate", "Subscription", "FeedEvent", "LiveFeed", "LiveRegistry", "downsample_points", "render"]
 
 logger = logging.getLogger(__name__)
 
 Reconfigure = Callable[[dict[str, Any]], Awaitable[None]]
-
-
-@dataclass(frozen=True)
-class Variant:
-    """How one viewer wants updates: format, streams (``None``: all), most points per cloud."""
-
-    fmt: Format
-    streams: frozenset[str] | None = None
-    max_points: int | None = None
 
 
 def downsample_points(message: dict[str, Any], max_points: int) -> dict[str, Any]:
@@ -75,8 +67,12 @@ def downsample_points(message: dict[str, Any], max_points: int) -> dict[str, Any
     return {**message, "data": {**message["data"], "updates": updates}}
 
 
-def render(message: dict[str, Any], variant: Variant) -> bytes:
-    """Encode ``message`` for ``variant``."""
+def render(data: bytes, variant: Variant) -> bytes:
+    """An encoded state update re-encoded for ``variant``; for worker processes (bytes in, bytes out)."""
+    return _render(decode(data), variant)
+
+
+def _render(message: dict[str, Any], variant: Variant) -> bytes:
     if variant.streams is not None:
         message = filter_streams(message, variant.streams)
     if variant.max_points is not None:
@@ -110,9 +106,12 @@ class LiveUpdate:
         return await asyncio.shield(future)
 
     async def _encode(self, variant: Variant, workers: Workers) -> bytes:
-        if variant.fmt is Format.JSON:
-            return await workers.cpu(render, self.message, variant)
-        return await workers.io(render, self.message, variant)
+        if variant.fmt is Format.BINARY:
+            return await workers.io(_render, self.message, variant)
+        # JSON holds the GIL for long: a worker process makes it from GLB bytes,
+        # which pickle cheaply where decoded messages (views into a frame) do not.
+        glb = await self.encoded(Variant(Format.BINARY), workers)
+        return await workers.cpu(render, glb, variant)
 
 
 @dataclass(frozen=True)
@@ -131,7 +130,7 @@ class Subscription:
     stays hopelessly behind.
     """
 
-    def __init__(self, feed: LiveSource, size: int, decimate: int = 1) -> None:
+    def __init__(self, feed: LiveFeed, size: int, decimate: int = 1) -> None:
         self.feed = feed
         self.decimate = decimate
         self._queue: deque[LiveUpdate | FeedEvent] = deque()
@@ -177,7 +176,7 @@ class Subscription:
         self.feed.unsubscribe(self)
 
 
-class LiveSource:
+class LiveFeed:
     """A named live feed.
 
     Feed it with :meth:`set_metadata` then :meth:`publish`; call
@@ -205,7 +204,7 @@ class LiveSource:
     def set_metadata(self, metadata: Mapping[str, Any]) -> None:
         """Set the feed's metadata (the data of ``xviz/metadata``); viewers get it if it changed."""
         data = dict(metadata)
-        data.setdefault("version", "2.0.0")
+        data.setdefault("version", XVIZ_VERSION)
         self.connected = True
         if data == self.metadata:
             return
@@ -293,16 +292,33 @@ class LiveSource:
         self._state_number = update.number
 
 
+@dataclass
+class _Waited:
+    """A feed name viewers wait for, and how many."""
+
+    future: asyncio.Future[LiveFeed]
+    viewers: int = 0
+
+
 class LiveRegistry:
-    """Every live feed of a server, by name."""
+    """Every live feed of a server, by name.
+
+    Feeds are created by their sources (:meth:`feed`), never by viewers: a
+    viewer asking for a feed that does not exist yet waits for it
+    (:meth:`wait_for`), and the names waited for are bounded in number.
+    """
+
+    #: Most feed names that viewers may wait for at once.
+    MAX_WAITED = 1024
 
     def __init__(self, workers: Workers, on_drop: Callable[[], None] = lambda: None) -> None:
         self.workers = workers
-        self._feeds: dict[str, LiveSource] = {}
+        self._feeds: dict[str, LiveFeed] = {}
         self._on_drop = on_drop
-        self._on_feed: list[Callable[[LiveSource], None]] = []
+        self._on_feed: list[Callable[[LiveFeed], None]] = []
+        self._waited: dict[str, _Waited] = {}
 
-    def __iter__(self) -> Iterator[LiveSource]:
+    def __iter__(self) -> Iterator[LiveFeed]:
         return iter(self._feeds.values())
 
     def __contains__(self, name: object) -> bool:
@@ -311,38 +327,64 @@ class LiveRegistry:
     def names(self) -> list[str]:
         return sorted(self._feeds)
 
-    def feed(self, name: str) -> LiveSource:
-        """The feed called ``name``, created if new."""
+    def feed(self, name: str) -> LiveFeed:
+        """The feed called ``name``, created if new (for sources)."""
         source = self._feeds.get(name)
         if source is None:
-            source = self._feeds[name] = LiveSource(name, self)
+            source = self._feeds[name] = LiveFeed(name, self)
             logger.info("live feed %r created", name)
             for callback in self._on_feed:
                 callback(source)
+            waited = self._waited.pop(name, None)
+            if waited is not None:
+                waited.future.set_result(source)
         return source
 
-    def on_feed(self, callback: Callable[[LiveSource], None]) -> None:
+    def on_feed(self, callback: Callable[[LiveFeed], None]) -> None:
         """Call ``callback`` with every feed created from now on."""
         self._on_feed.append(callback)
 
-    def find(self, name: str | None) -> LiveSource | None:
-        """The feed a viewer asking for ``name`` gets.
+    def find(self, name: str | None, exact: bool) -> LiveFeed | None:
+        """The feed a viewer asking for ``name`` gets now, if any.
 
-        The feed of that name if it is running; else, with a single feed
-        running, that one (the streetscape.gl example asks for ``mock``,
-        whatever the feed is called); else the feed of that name, created to
-        wait for its source. ``None`` when no name is given and the answer is
-        not unique.
+        With ``exact``, only the feed of that name. Otherwise (a client that
+        named no feed, or named it only as streetscape.gl's live loader
+        does), the feed of that name if it is running, else the only feed
+        whose source is connected (the streetscape.gl example asks for
+        ``mock``, whatever the feed is called).
         """
-        running = [feed for feed in self._feeds.values() if feed.metadata is not None]
-        exact = self._feeds.get(name) if name is not None else None
-        if exact is not None and exact.metadata is not None:
-            return exact
-        if len(running) == 1:
-            if name is not None and running[0].name != name:
-                logger.info("live session asked for %r; serving the only live feed %r", name, running[0].name)
-            return running[0]
-        return self.feed(name) if name is not None else None
+        found = self._feeds.get(name) if name is not None else None
+        if exact or (found is not None and found.metadata is not None):
+            return found
+        connected = [feed for feed in self._feeds.values() if feed.connected and feed.metadata is not None]
+        if len(connected) == 1:
+            if name is not None:
+                logger.info("live session asked for %r; serving the only live feed %r", name, connected[0].name)
+            return connected[0]
+        return found
+
+    async def wait_for(self, name: str) -> LiveFeed:
+        """The feed ``name`` once a source creates it.
+
+        Raises :class:`~xviz_server.exceptions.XVIZError` when viewers already
+        wait for :attr:`MAX_WAITED` other names. A name nobody waits for any
+        more is forgotten.
+        """
+        feed = self._feeds.get(name)
+        if feed is not None:
+            return feed
+        waited = self._waited.get(name)
+        if waited is None:
+            if len(self._waited) >= self.MAX_WAITED:
+                raise XVIZError(f"too many live feeds are waited for ({self.MAX_WAITED}); try again when one has started")
+            waited = self._waited[name] = _Waited(asyncio.get_running_loop().create_future())
+        waited.viewers += 1
+        try:
+            return await asyncio.shield(waited.future)
+        finally:
+            waited.viewers -= 1
+            if not waited.viewers and self._waited.get(name) is waited:
+                del self._waited[name]
 
     def metrics_drop(self) -> None:
         self._on_drop()

@@ -5,16 +5,16 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from .exceptions import XVIZError
-from .live import LiveSource
-from .logs import Log
+from ..exceptions import XVIZError
+from .feed import LiveFeed
+from ..logs import Log
 
 __all__ = ["replay"]
 
 logger = logging.getLogger(__name__)
 
 
-async def replay(log: Log, feed: LiveSource, *, rate: float = 1.0, loop: bool = False) -> None:
+async def replay(log: Log, feed: LiveFeed, *, rate: float = 1.0, loop: bool = False) -> None:
     """Publish the frames of ``log`` to ``feed`` at ``rate`` times their own pace.
 
     With ``loop``, starts over after the last frame (timestamps repeat). A

@@ -17,10 +17,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .codec import Format
-from .live import LiveRegistry, LiveSource, LiveUpdate, Variant
-from .work import Workers
-from .writer import LogWriter
+from ..codec import Format
+from ..session import Variant
+from .feed import LiveRegistry, LiveFeed, LiveUpdate
+from ..work import Workers
+from ..writer import LogWriter
 
 __all__ = ["Recorder"]
 
@@ -79,10 +80,10 @@ class Recorder:
             self._attach(feed)
         registry.on_feed(self._attach)
 
-    def _attach(self, feed: LiveSource) -> None:
+    def _attach(self, feed: LiveFeed) -> None:
         feed.listen(lambda update: self._record(feed, update))
 
-    def _record(self, feed: LiveSource, update: LiveUpdate) -> None:
+    def _record(self, feed: LiveFeed, update: LiveUpdate) -> None:
         recording = self._recordings.get(feed.name)
         if recording is None or recording.metadata is not feed.metadata:
             if recording is not None:

@@ -24,12 +24,12 @@ from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
 from websockets.http11 import Request
 
-from .auth import token_matches
-from .codec import decode, encode_json
-from .exceptions import DecodeError, MessageError, XVIZError
-from .live import LiveRegistry
-from .logs import check_log_name
-from .messages import Error, envelope, unwrap
+from ..auth import token_matches
+from ..codec import decode, encode_json
+from ..exceptions import DecodeError, MessageError, XVIZError
+from .feed import LiveRegistry
+from ..logs import check_log_name
+from ..messages import Error, envelope, unwrap
 
 __all__ = ["INGEST_PREFIX", "feed_name", "refusal", "run_ingest"]
 

@@ -1,20 +1,20 @@
-"""The built-in demo log: a simulated drive around a city block.
+"""The built-in demo: a simulated drive around a city block, as a dataset.
 
-``xviz-server serve`` without ``--data-dir`` serves this log, so that a new
-user sees something in streetscape.gl at once::
+``xviz-server serve`` without ``--data-dir`` serves it (converted on demand,
+like any dataset), so that a new user sees something at once; ``xviz-server
+convert demo demo OUT`` writes it as a static log::
 
-    from xviz_server.demo import default_cache_dir, ensure_demo_log
+    from xviz_server.datasets.demo import DemoDrive
 
-    log_dir = ensure_demo_log(default_cache_dir())  # generated on first use only
+    drive = DemoDrive()
+    metadata = drive.metadata()
+    first = drive.convert(0, metadata)
 
 The vehicle laps a block at about 10 m/s among oncoming and parked cars,
 cyclists and pedestrians, past street lights and buildings, while a 32-beam
-lidar on its roof sweeps the scene. Everything follows from a fixed seed:
-generating the log twice gives the same bytes.
-
-The log has the reference layout (``docs/PROTOCOL.md`` §7): ``1-frame`` holds
-the metadata, ``2-frame`` ... ``N-frame`` one ``xviz/state_update`` each and
-``0-frame.json`` the index. Every frame carries these streams:
+lidar on its roof sweeps the scene. Everything follows from a fixed seed and
+the frame number: a frame is the same whenever and in whatever order it is
+made. Every frame carries these streams:
 
 - ``/vehicle_pose``: position and heading in the map frame, whose origin
   is :data:`MAP_ORIGIN`;
@@ -39,30 +39,20 @@ Headings are in radians, counter-clockwise from x.
 from __future__ import annotations
 
 import math
-import os
-import secrets
-import shutil
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .codec import Format, decode_json, encode, encode_json
-from .exceptions import DecodeError
-from .writer import write_atomically
+from ..builder import FrameBuilder, MetadataBuilder, ui
 
-__all__ = ["DEMO_LOG_NAME", "MAP_ORIGIN", "default_cache_dir", "ensure_demo_log", "generate_demo_log"]
-
-#: Name of the demo log's directory in the cache directory.
-DEMO_LOG_NAME = "demo"
+__all__ = ["DemoDrive", "MAP_ORIGIN", "is_demo"]
 
 #: Where the map frame's origin is: a street corner in San Francisco.
 MAP_ORIGIN = {"longitude": -122.39913, "latitude": 37.78862, "altitude": 12.5}
-
-INDEX_FILE = "0-frame.json"
-METADATA_FILE = "1-frame"
 SEED = 20_110_926
 
 POSE = "/vehicle_pose"
@@ -76,252 +66,95 @@ VELOCITY = "/vehicle/velocity"
 ACCELERATION = "/vehicle/acceleration"
 AUTONOMY_STATE = "/vehicle/autonomy_state"
 
-
-# --------------------------------------------------------------------------
-# Public interface
-
-
-def default_cache_dir() -> Path:
-    """Return ``$XDG_CACHE_HOME/xviz-server``, or ``~/.cache/xviz-server``.
-
-    A relative ``XDG_CACHE_HOME`` is ignored, as the XDG specification says.
-    """
-    configured = os.environ.get("XDG_CACHE_HOME", "")
-    base = Path(configured) if os.path.isabs(configured) else Path.home() / ".cache"
-    return base / "xviz-server"
-
-
-def ensure_demo_log(cache_dir: Path) -> Path:
-    """Return the directory of the demo log in *cache_dir*, generating it if needed.
-
-    The log is ``cache_dir / DEMO_LOG_NAME``. It is generated only when it is
-    missing or incomplete; complete means that its index exists and so does
-    every message the index names. Generation happens in a hidden sibling
-    directory that is renamed into place when done, so that nobody sees half
-    a log. Processes may race: each generates its own copy, the first rename
-    wins and the others use the winner's log.
-    """
-    log_dir = Path(cache_dir) / DEMO_LOG_NAME
-    if _is_complete(log_dir):
-        return log_dir
-    log_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = _unique_sibling(log_dir, "staging")
-    staging.mkdir()
-    try:
-        generate_demo_log(staging)
-        _install(staging, log_dir)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return log_dir
-
-
-def generate_demo_log(
-    directory: Path,
-    *,
-    duration: float = 20.0,
-    rate: float = 10.0,
-    fmt: Format = Format.BINARY,
-    start_time: float = 1_600_000_000.0,
-) -> Path:
-    """Write the demo log to *directory*, encoded in *fmt*, and return *directory*.
-
-    Frame ``k`` has the timestamp ``start_time + k / rate``, for every
-    ``k / rate < duration``: 200 frames by default. *directory* is created if
-    needed; a log already in it is removed first, starting with its index.
-
-    Every file is written to a temporary file, synced and renamed into place,
-    and the index goes last: a log whose index exists is complete.
-
-    Raises :class:`ValueError` if *duration* or *rate* is not positive.
-    """
-    if not (duration > 0 and rate > 0):
-        raise ValueError(f"duration and rate must be positive, not {duration!r} and {rate!r}")
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    _remove_log(directory)
-
-    times = [k / rate for k in range(_frame_count(duration, rate))]
-    timestamps = [start_time + t for t in times]
-    metadata = _metadata(timestamps[0], timestamps[-1])
-    write_atomically(directory / f"{METADATA_FILE}{fmt.suffix}", encode(metadata, fmt))
-    drive = _Drive(np.random.default_rng(SEED))
-    for index, (t, timestamp) in enumerate(zip(times, timestamps)):
-        frame = drive.frame(t, timestamp)
-        write_atomically(directory / f"{index + 2}-frame{fmt.suffix}", encode(frame, fmt))
-    write_atomically(directory / INDEX_FILE, encode_json(_index(timestamps)))
-    return directory
-
-
-# --------------------------------------------------------------------------
-# Log files
-
-
-def _frame_count(duration: float, rate: float) -> int:
-    """Count the ``k`` with ``k / rate < duration``, forgiving float rounding."""
-    return max(1, math.ceil(duration * rate - 1e-9))
-
-
-def _index(timestamps: Sequence[float]) -> dict[str, Any]:
-    """Return the ``0-frame.json`` index of the frames with these *timestamps*."""
-    return {
-        "startTime": timestamps[0],
-        "endTime": timestamps[-1],
-        "timing": [[t, t, i, f"{i + 2}-frame"] for i, t in enumerate(timestamps)],
-    }
-
-
-def _is_complete(directory: Path) -> bool:
-    """Tell whether *directory* holds an index and every message it names."""
-    try:
-        timing = decode_json((directory / INDEX_FILE).read_bytes())["timing"]
-        names = [METADATA_FILE, *(entry[3] for entry in timing)]
-    except (OSError, DecodeError, LookupError, TypeError):
-        return False
-    return all(any((directory / f"{name}{fmt.suffix}").is_file() for fmt in Format) for name in names)
-
-
-def _message_files(directory: Path) -> Iterator[Path]:
-    """Yield the message files of a log, ``<n>-frame.json|glb|pbe``."""
-    for path in directory.iterdir():
-        stem, _, suffix = path.name.partition(".")
-        number, _, kind = stem.partition("-")
-        if number.isdigit() and kind == "frame" and suffix in ("json", "glb", "pbe"):
-            yield path
-
-
-def _remove_log(directory: Path) -> None:
-    """Remove the log in *directory*, index first, so that it never looks complete."""
-    (directory / INDEX_FILE).unlink(missing_ok=True)
-    for path in list(_message_files(directory)):
-        path.unlink()
-
-
-def _unique_sibling(path: Path, purpose: str) -> Path:
-    """Return an unused hidden path in the directory of *path*."""
-    return path.with_name(f".{path.name}.{purpose}-{os.getpid()}-{secrets.token_hex(4)}")
-
-
-def _install(staging: Path, log_dir: Path) -> None:
-    """Rename the complete log *staging* to *log_dir*, unless another process did first."""
-    if log_dir.exists() and not _is_complete(log_dir):
-        _discard(log_dir)
-    try:
-        staging.rename(log_dir)
-    except OSError:
-        # Renaming onto a directory that is not empty fails: another process won.
-        if not _is_complete(log_dir):
-            raise
-
-
-def _discard(directory: Path) -> None:
-    """Delete *directory*, renaming it first so that it disappears at once."""
-    trash = _unique_sibling(directory, "trash")
-    try:
-        directory.rename(trash)
-    except FileNotFoundError:
-        return  # another process discarded it
-    shutil.rmtree(trash)
-
-
-# --------------------------------------------------------------------------
-# Metadata
-
 #: Colour of each class of road user, as in the KITTI logs of streetscape.gl.
 CLASS_COLORS = {"Car": "#50B3FF", "Cyclist": "#957FCE", "Pedestrian": "#FFC6AF"}
 
 
-def _metadata(start_time: float, end_time: float) -> dict[str, Any]:
-    """Return the ``xviz/metadata`` envelope of a log spanning these times."""
-    return {
-        "type": "xviz/metadata",
-        "data": {
-            "version": "2.0.0",
-            "log_info": {
-                "description": "xviz-server demo: a simulated drive around a city block",
-                "start_time": start_time,
-                "end_time": end_time,
-            },
-            "streams": _streams(),
-            "ui_config": _ui_config(),
-        },
-    }
+def is_demo(path: Path) -> bool:
+    """Never: the demo is only served when asked for (``--dataset demo``), never found on disk."""
+    return False
 
 
-def _streams() -> dict[str, dict[str, Any]]:
-    """Describe every stream that the frames carry."""
-    class_styles = [
-        {"name": name, "style": {"fill_color": f"{color}80", "stroke_color": color}}
-        for name, color in CLASS_COLORS.items()
-    ]
-    return {
-        POSE: {"category": "POSE"},
-        LIDAR: {
-            "category": "PRIMITIVE",
-            "primitive_type": "POINT",
-            "coordinate": "VEHICLE_RELATIVE",
-            "stream_style": {"radius_pixels": 2},
-        },
-        OBJECT_SHAPES: {
-            "category": "PRIMITIVE",
-            "primitive_type": "POLYGON",
-            "coordinate": "IDENTITY",
-            "stream_style": {"extruded": True, "fill_color": "#FFFFFF40", "stroke_width": 0.1},
-            "style_classes": class_styles,
-        },
-        OBJECT_LABELS: {
-            "category": "PRIMITIVE",
-            "primitive_type": "TEXT",
-            "coordinate": "IDENTITY",
-            "stream_style": {"text_size": 14, "fill_color": "#DCDCCD", "text_anchor": "MIDDLE"},
-        },
-        OBJECT_CENTERS: {
-            "category": "PRIMITIVE",
-            "primitive_type": "CIRCLE",
-            "coordinate": "IDENTITY",
-            "stream_style": {"radius": 0.2, "fill_color": "#FFC043"},
-        },
-        OBJECT_TABLE: {"category": "UI_PRIMITIVE", "ui_primitive_type": "TREETABLE"},
-        TRAJECTORY: {
-            "category": "PRIMITIVE",
-            "primitive_type": "POLYLINE",
-            "coordinate": "VEHICLE_RELATIVE",
-            "stream_style": {"stroke_color": "#47B27588", "stroke_width": 1.4, "stroke_width_min_pixels": 1},
-        },
-        VELOCITY: {"category": "TIME_SERIES", "scalar_type": "FLOAT", "units": "m/s"},
-        ACCELERATION: {"category": "TIME_SERIES", "scalar_type": "FLOAT", "units": "m/s^2"},
-        AUTONOMY_STATE: {"category": "TIME_SERIES", "scalar_type": "STRING"},
-    }
+@dataclass
+class DemoDrive:
+    """The simulated drive as a dataset: ``duration`` seconds at ``rate`` frames a second from ``start_time``.
 
+    ``path`` is only the name it is served under. Frame ``k`` has the
+    timestamp ``start_time + k / rate``, for every ``k / rate < duration``:
+    200 frames by default.
+    """
 
-def _ui_config() -> dict[str, Any]:
-    """Describe the declarative UI: a metrics panel and a table of road users."""
-    metrics = [
-        {"type": "METRIC", "title": "Velocity", "description": "The vehicle's speed", "streams": [VELOCITY]},
-        {
-            "type": "METRIC",
-            "title": "Acceleration",
-            "description": "The acceleration of the vehicle along its heading",
-            "streams": [ACCELERATION],
-        },
-    ]
-    table = {
-        "type": "TABLE",
-        "title": "Road users",
-        "description": f"Every road user within {PERCEPTION_RANGE:.0f} m, nearest first",
-        "stream": OBJECT_TABLE,
-    }
-    return {
-        "Metrics": {
-            "name": "Metrics",
-            "needed_streams": [VELOCITY, ACCELERATION],
-            "config": {"type": "PANEL", "name": "Metrics", "children": metrics},
-        },
-        "Road users": {
-            "name": "Road users",
-            "needed_streams": [OBJECT_TABLE],
-            "config": {"type": "PANEL", "name": "Road users", "children": [table]},
-        },
-    }
+    path: Path = Path("demo")
+    duration: float = 20.0
+    rate: float = 10.0
+    start_time: float = 1_600_000_000.0
+    image_max_width: int | None = None  # accepted like every dataset's option; the demo has no images
+
+    def __post_init__(self) -> None:
+        if not (self.duration > 0 and self.rate > 0):
+            raise ValueError(f"duration and rate must be positive, not {self.duration!r} and {self.rate!r}")
+        self.path = Path(self.path)
+        self.name = self.path.name
+
+    @cached_property
+    def times(self) -> np.ndarray:
+        """UNIX time of every frame."""
+        count = max(1, math.ceil(self.duration * self.rate - 1e-9))  # k / rate < duration, forgiving rounding
+        return self.start_time + np.arange(count) / self.rate
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def metadata(self) -> dict[str, Any]:
+        """The data of the demo's ``xviz/metadata``: every stream, styles and two UI panels."""
+        meta = MetadataBuilder()
+        meta.log_info(
+            start_time=float(self.times[0]),
+            end_time=float(self.times[-1]),
+            description="xviz-server demo: a simulated drive around a city block",
+        )
+        meta.pose(POSE)
+        meta.primitive(LIDAR, "POINT", coordinate="VEHICLE_RELATIVE", style={"radius_pixels": 2})
+        meta.primitive(
+            OBJECT_SHAPES,
+            "POLYGON",
+            coordinate="IDENTITY",
+            style={"extruded": True, "fill_color": "#FFFFFF40", "stroke_width": 0.1},
+            style_classes={name: {"fill_color": f"{color}80", "stroke_color": color} for name, color in CLASS_COLORS.items()},
+        )
+        meta.primitive(OBJECT_LABELS, "TEXT", coordinate="IDENTITY", style={"text_size": 14, "fill_color": "#DCDCCD", "text_anchor": "MIDDLE"})
+        meta.primitive(OBJECT_CENTERS, "CIRCLE", coordinate="IDENTITY", style={"radius": 0.2, "fill_color": "#FFC043"})
+        meta.ui_primitive(OBJECT_TABLE)
+        meta.primitive(
+            TRAJECTORY,
+            "POLYLINE",
+            coordinate="VEHICLE_RELATIVE",
+            style={"stroke_color": "#47B27588", "stroke_width": 1.4, "stroke_width_min_pixels": 1},
+        )
+        meta.time_series(VELOCITY, "FLOAT", units="m/s")
+        meta.time_series(ACCELERATION, "FLOAT", units="m/s^2")
+        meta.time_series(AUTONOMY_STATE, "STRING")
+        meta.ui_panel(
+            ui.panel(
+                "Metrics",
+                ui.metric([VELOCITY], title="Velocity", description="The vehicle's speed"),
+                ui.metric([ACCELERATION], title="Acceleration", description="The acceleration of the vehicle along its heading"),
+            ),
+            needed_streams=[VELOCITY, ACCELERATION],
+        )
+        meta.ui_panel(
+            ui.panel(
+                "Road users",
+                ui.table(OBJECT_TABLE, title="Road users", description=f"Every road user within {PERCEPTION_RANGE:.0f} m, nearest first"),
+            ),
+            needed_streams=[OBJECT_TABLE],
+        )
+        return meta.build()
+
+    def convert(self, frame: int, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The data of frame ``frame``'s ``xviz/state_update``."""
+        t = frame / self.rate
+        return _drive().frame(FrameBuilder(metadata or self.metadata()), t, float(self.times[frame]), frame)
 
 
 # --------------------------------------------------------------------------
@@ -614,35 +447,35 @@ def _beam_box_distances(near: np.ndarray, far: np.ndarray, height: np.ndarray) -
 class _Drive:
     """The simulated drive: the state update at any time."""
 
-    def __init__(self, rng: np.random.Generator) -> None:
-        self._rng = rng
+    def __init__(self) -> None:
         self._route = _Route.around_block(BLOCK_HALF_X, BLOCK_HALF_Y, CORNER_RADIUS)
-        self._scenery = _Boxes.concatenate([_buildings(self._route, rng), _poles(self._route)])
+        scenery = np.random.default_rng(SEED)
+        self._scenery = _Boxes.concatenate([_buildings(self._route, scenery), _poles(self._route)])
 
-    def frame(self, t: float, timestamp: float) -> dict[str, Any]:
-        """Return the ``xviz/state_update`` envelope *t* seconds into the drive.
-
-        Frames use the generator in turn: make them in order of time.
-        """
+    def frame(self, frame: FrameBuilder, t: float, timestamp: float, number: int) -> dict[str, Any]:
+        """The data of the state update *t* seconds into the drive, frame *number* (which seeds its lidar noise)."""
         position, heading = self._route.at(_ego_distance(t))
+        heading = float(heading)
         traffic = self._traffic(t)
         distance = np.hypot(*(traffic.center - position).T)
-        nearby = [i for i in np.argsort(distance, kind="stable") if distance[i] < PERCEPTION_RANGE]
+        nearby = [int(i) for i in np.argsort(distance, kind="stable") if distance[i] < PERCEPTION_RANGE]
         users = [ROAD_USERS[i] for i in nearby]
         obstacles = _Boxes.concatenate([self._scenery, traffic]).within(position, MAX_RANGE)
-        points, colors = _lidar_sweep(position, heading, obstacles, self._rng)
-        update = {
-            "timestamp": timestamp,
-            "poses": {POSE: _pose(timestamp, position, heading)},
-            "primitives": {
-                LIDAR: {"points": [{"points": points, "colors": colors}]},
-                **_road_user_primitives(users, traffic[nearby]),
-                TRAJECTORY: {"polylines": [{"vertices": self._plan(t, position, heading)}]},
-            },
-            "ui_primitives": {OBJECT_TABLE: _road_user_table(users, distance[nearby])},
-            "time_series": _vehicle_series(t, timestamp),
-        }
-        return {"type": "xviz/state_update", "data": {"update_type": "SNAPSHOT", "updates": [update]}}
+        points, colors = _lidar_sweep(position, heading, obstacles, np.random.default_rng((SEED, number)))
+        frame.pose(
+            POSE,
+            timestamp,
+            map_origin=(MAP_ORIGIN["longitude"], MAP_ORIGIN["latitude"], MAP_ORIGIN["altitude"]),
+            position=(float(position[0]), float(position[1]), 0.0),
+            orientation=(0.0, 0.0, heading),
+        )
+        frame.points(LIDAR, points, colors)
+        _road_users(frame, users, traffic[nearby], distance[nearby])
+        frame.polyline(TRAJECTORY, self._plan(t, position, heading))
+        frame.time_series(VELOCITY, timestamp, round(_ego_speed(t), 3))
+        frame.time_series(ACCELERATION, timestamp, round(_ego_acceleration(t), 3))
+        frame.time_series(AUTONOMY_STATE, timestamp, "autonomous" if t >= AUTONOMY_ENGAGED else "manual")
+        return frame.build(timestamp)
 
     def _traffic(self, t: float) -> _Boxes:
         """Return the boxes of ROAD_USERS at time *t*, in order."""
@@ -661,60 +494,29 @@ class _Drive:
         return np.column_stack([forward, left, np.zeros(len(path))]).round(2).astype(np.float32)
 
 
-def _pose(timestamp: float, position: np.ndarray, heading: float) -> dict[str, Any]:
-    return {
-        "timestamp": timestamp,
-        "map_origin": MAP_ORIGIN,
-        "position": [float(position[0]), float(position[1]), 0.0],
-        "orientation": [0.0, 0.0, float(heading)],
-    }
+_shared_drive: _Drive | None = None
 
 
-def _road_user_primitives(users: list[_RoadUser], boxes: _Boxes) -> dict[str, dict[str, Any]]:
-    """Return the footprints, labels and centres of *users*, in the map frame."""
+def _drive() -> _Drive:
+    """The world, made once per process (its scenery is the same for every frame)."""
+    global _shared_drive
+    if _shared_drive is None:
+        _shared_drive = _Drive()
+    return _shared_drive
+
+
+def _road_users(frame: FrameBuilder, users: list[_RoadUser], boxes: _Boxes, distances: np.ndarray) -> None:
+    """Add the footprints, labels, centres and table of *users*, in the map frame, at these *distances*."""
     footprints = np.concatenate([boxes.corners(), np.zeros((len(boxes), 4, 1))], axis=2)
     footprints = footprints.round(2).astype(np.float32)
     centers = boxes.center.round(2).tolist()
-    shapes, labels, circles = [], [], []
     for user, footprint, (x, y), height in zip(users, footprints, centers, boxes.height.tolist()):
-        base = {"object_id": user.object_id}
-        style = {"classes": [user.category], "style": {"height": height}}
-        shapes.append({"base": {**base, **style}, "vertices": footprint})
-        labels.append({"base": base, "position": [x, y, height + 0.5], "text": user.object_id})
-        circles.append({"base": base, "center": [x, y, 0.0], "radius": 0.2})
-    return {
-        OBJECT_SHAPES: {"polygons": shapes},
-        OBJECT_LABELS: {"texts": labels},
-        OBJECT_CENTERS: {"circles": circles},
-    }
-
-
-def _road_user_table(users: list[_RoadUser], distances: np.ndarray) -> dict[str, Any]:
-    """Return a table of *users*, at these *distances* from the vehicle."""
-    columns = [
-        {"display_text": "Object", "type": "STRING"},
-        {"display_text": "Class", "type": "STRING"},
-        {"display_text": "Distance", "type": "DOUBLE", "unit": "m"},
-        {"display_text": "Speed", "type": "DOUBLE", "unit": "m/s"},
-    ]
+        frame.polygon(OBJECT_SHAPES, footprint, id=user.object_id, classes=[user.category], style={"height": height})
+        frame.text(OBJECT_LABELS, (x, y, height + 0.5), user.object_id, id=user.object_id)
+        frame.circle(OBJECT_CENTERS, (x, y, 0.0), 0.2, id=user.object_id)
+    columns = [("Object", "STRING"), ("Class", "STRING"), ("Distance", "DOUBLE", "m"), ("Speed", "DOUBLE", "m/s")]
     nodes = [
-        {"id": i, "column_values": [user.object_id, user.category, f"{distance:.1f}", f"{user.speed:.1f}"]}
+        (i, None, [user.object_id, user.category, round(float(distance), 1), round(user.speed, 1)])
         for i, (user, distance) in enumerate(zip(users, distances))
     ]
-    return {"treetable": {"columns": columns, "nodes": nodes}}
-
-
-def _vehicle_series(t: float, timestamp: float) -> list[dict[str, Any]]:
-    """Return the velocity, acceleration and autonomy state at time *t*."""
-    return [
-        {
-            "timestamp": timestamp,
-            "streams": [VELOCITY, ACCELERATION],
-            "values": {"doubles": [round(_ego_speed(t), 3), round(_ego_acceleration(t), 3)]},
-        },
-        {
-            "timestamp": timestamp,
-            "streams": [AUTONOMY_STATE],
-            "values": {"strings": ["autonomous" if t >= AUTONOMY_ENGAGED else "manual"]},
-        },
-    ]
+    frame.treetable(OBJECT_TABLE, columns, nodes)

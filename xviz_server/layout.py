@@ -1,0 +1,171 @@
+"""The reference log layout, and finding logs and datasets under a root.
+
+A log is a directory of message files, numbered as the reference tools
+number them::
+
+    0-frame.json            the index: {"startTime", "endTime", "timing": [[t_min, t_max, i, "<i+2>-frame"], ...]}
+    1-frame.glb|json|pbe    the metadata message
+    <i+2>-frame.glb|json|pbe   state update i
+
+Every module that reads or writes logs (the static-log provider, the log
+writer, the checker, the tests and benchmarks) takes file names, the index
+document and a frame's time span from here.
+
+:func:`discover` walks a root once and finds both logs in this layout and
+raw datasets (by the detectors it is given).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .messages import is_number
+
+__all__ = [
+    "INDEX_FILE",
+    "INDEX_NUMBER",
+    "METADATA_NUMBER",
+    "FRAME_FILE",
+    "LOG",
+    "Found",
+    "file_number",
+    "frame_name",
+    "frame_files",
+    "is_log_directory",
+    "frame_numbers",
+    "index_document",
+    "update_span",
+    "discover",
+]
+
+INDEX_FILE = "0-frame.json"
+INDEX_NUMBER = 0
+METADATA_NUMBER = 1
+#: A message file's name: its number and its encoding.
+FRAME_FILE = re.compile(r"(\d+)-frame\.(json|glb|pbe)")
+#: The kind :func:`discover` gives a directory in the reference layout.
+LOG = "xviz"
+
+
+def file_number(frame: int) -> int:
+    """The file number of state update ``frame`` (message ``i`` is file ``i + 2``)."""
+    return frame + 2
+
+
+def frame_name(frame: int) -> str:
+    """The index's name for state update ``frame``: ``"<i+2>-frame"``."""
+    return f"{file_number(frame)}-frame"
+
+
+def frame_files(directory: str | os.PathLike[str]) -> dict[int, str]:
+    """Names of the message files of a log directory by file number (0 index, 1 metadata, 2+ frames).
+
+    Names, not paths: a log can hold 100 000 frames, and making a ``Path``
+    for each costs more than listing the directory.
+    """
+    files = {}
+    with os.scandir(directory) as entries:
+        for entry in entries:
+            match = FRAME_FILE.fullmatch(entry.name)
+            if match and entry.is_file():
+                files[int(match.group(1))] = entry.name
+    return files
+
+
+def is_log_directory(directory: str | os.PathLike[str]) -> bool:
+    """Whether ``directory`` holds message files (stops at the first)."""
+    with os.scandir(directory) as entries:
+        return any(FRAME_FILE.fullmatch(entry.name) for entry in entries)
+
+
+def frame_numbers(files: Iterable[int]) -> list[int]:
+    """The state-update numbers among file numbers, in order."""
+    return sorted(number - 2 for number in files if number >= 2)
+
+
+def index_document(spans: Iterable[tuple[float, float]], start: float | None = None, end: float | None = None) -> dict[str, Any]:
+    """The ``0-frame.json`` document of frames ``0, 1, ...`` with these ``(first, last)`` time spans.
+
+    ``start``/``end`` default to the frames' own span (``startTime`` and
+    ``endTime`` are left out of an empty log).
+    """
+    timing = [[first, last, i, frame_name(i)] for i, (first, last) in enumerate(spans)]
+    if timing:
+        start = timing[0][0] if start is None else start
+        end = max(row[1] for row in timing) if end is None else end
+    document: dict[str, Any] = {}
+    if start is not None:
+        document["startTime"] = start
+    if end is not None:
+        document["endTime"] = end
+    document["timing"] = timing
+    return document
+
+
+def update_span(data: Any) -> tuple[float, float] | None:
+    """First and last ``timestamp`` of a state update's data, or ``None`` unless every update has a finite one."""
+    updates = data.get("updates") if isinstance(data, Mapping) else None
+    if not isinstance(updates, list) or not updates:
+        return None
+    times = [u.get("timestamp") if isinstance(u, Mapping) else None for u in updates]
+    if not all(is_number(t) for t in times):
+        return None
+    return float(min(times)), float(max(times))  # type: ignore[type-var]
+
+
+# ------------------------------------------------------------- discovery
+
+
+@dataclass(frozen=True)
+class Found:
+    """A log or dataset found under a root: its name, where it is, and its kind (:data:`LOG` or a dataset kind)."""
+
+    name: str
+    path: Path
+    kind: str
+
+
+def discover(root: Path, detect: Callable[[Path], str | None] | None = None) -> Iterator[Found]:
+    """Every log and dataset under ``root``, in name order of the walk.
+
+    A directory holding message files is a log (:data:`LOG`); ``detect``
+    names the dataset kind of any other directory or file, if any, and must
+    be cheap (it sees every file). A dataset's own folders are not searched
+    further. Names are paths relative to ``root``
+    with ``/`` separators (the root's own name when the root itself is one);
+    a dataset found as a file is named without its suffix (``drive.bag`` is
+    ``drive``). Symbolic links are followed, each real directory once, so
+    a link loop ends; hidden entries are skipped.
+    """
+    root = Path(root)
+    seen: set[str] = set()
+    for directory, subdirectories, files in os.walk(root, followlinks=True):
+        real = os.path.realpath(directory)
+        if real in seen:
+            subdirectories.clear()
+            continue
+        seen.add(real)
+        here = Path(directory)
+        relative = here.relative_to(root).as_posix()
+        name = root.name if relative == "." else relative
+        if any(FRAME_FILE.fullmatch(file) for file in files):
+            subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
+            yield Found(name, here, LOG)  # its files are its frames: no dataset among them
+            continue
+        kind = detect(here) if detect is not None else None
+        if kind is not None:
+            subdirectories.clear()
+            yield Found(name, here, kind)
+            continue
+        subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
+        if detect is not None:
+            for file in sorted(f for f in files if not f.startswith(".")):
+                kind = detect(here / file)
+                if kind is not None:
+                    stem = Path(file).stem
+                    yield Found(stem if relative == "." else f"{relative}/{stem}", here / file, kind)
