@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Set up everything the test suite needs on a fresh machine, then run it.
 # Needs only python3 (>= 3.10) and node/npm; extra arguments go to pytest.
+# The package is type-checked with mypy first (scripts/typecheck.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/venv.sh
 python -m pip install --quiet --disable-pip-version-check -e ".[test,vista]"
 npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
+scripts/typecheck.sh
 exec python -m pytest "$@"

@@ -329,21 +329,33 @@ def test_bad_json_chunk_reports_its_offset():
     assert info.value.offset == 20
 
 
-def test_truncated_or_corrupt_real_frames_only_raise_decode_error(kitti_log: Path):
+def test_truncated_or_corrupt_real_frames_never_decode_silently(kitti_log: Path):
     data = (kitti_log / "4-frame.glb").read_bytes()
     rng = random.Random(4)
     cuts = list(range(0, 2200, 37)) + [len(data) - 1, len(data) // 2]
     for cut in cuts:
         with pytest.raises(DecodeError):
             decode_glb(data[:cut])
+    # The container's own bytes (file header, both chunk headers): any change is an error.
+    json_length = struct.unpack_from("<I", data, 12)[0]
+    bin_header = 20 + -(-json_length // 4) * 4
+    framing = [*range(20), *range(bin_header, bin_header + 8)]
+    for _ in range(300):
+        corrupt = bytearray(data)
+        position = rng.choice(framing)
+        corrupt[position] = rng.choice([value for value in range(256) if value != data[position]])
+        with pytest.raises(DecodeError):
+            decode_glb(bytes(corrupt))
+    # Inside the JSON chunk: an error, or still a JSON object; never another exception.
     for _ in range(300):
         corrupt = bytearray(data)
         for _ in range(rng.randint(1, 4)):
-            corrupt[rng.randrange(0, 2200)] = rng.randrange(256)
+            corrupt[rng.randrange(20, 20 + json_length)] = rng.randrange(256)
         try:
-            decode_glb(bytes(corrupt))
+            message = decode_glb(bytes(corrupt))
         except DecodeError:
-            pass
+            continue
+        assert isinstance(message, dict)
 
 
 def test_invalid_json_text_reports_line_and_column():

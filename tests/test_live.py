@@ -14,8 +14,8 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from helpers import Client, client, running_server, ten_hz, update, write_log
 from xviz_server.codec import Format, decode, encode
-from xviz_server.live.ingest import refusal
-from xviz_server.live import downsample_points
+from xviz_server.auth import ingest_refusal as refusal
+from xviz_server.state import downsample_points
 
 META = {
     "version": "2.0.0",

@@ -1,3 +1,96 @@
-"""xviz-server: an asyncio WebSocket server for the XVIZ v2 protocol."""
+"""xviz-server: an asyncio WebSocket server for the XVIZ v2 protocol.
+
+The public API, importable from here::
+
+    from xviz_server import XVIZServer, Settings
+
+    async with XVIZServer(Settings(port=3000, data_dir=logs)) as server:
+        feed = server.live.feed("car")          # a LiveFeed
+        feed.set_metadata(MetadataBuilder()...build())
+        await feed.publish(FrameBuilder(metadata)...build())
+
+The scripted client is :func:`xviz_server.probe.probe`. Names are imported
+on first use, so that ``import xviz_server`` stays cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
+
+__all__ = [
+    "XVIZServer",
+    "Settings",
+    "LiveFeed",
+    "MetadataBuilder",
+    "FrameBuilder",
+    "LogWriter",
+    "ProbeReport",
+    "XVIZError",
+    "DecodeError",
+    "EncodeError",
+    "MessageError",
+    "SchemaValidationError",
+    "UnknownSchemaError",
+    "LogNotFound",
+    "LogError",
+    "FrameError",
+    "BuilderError",
+    "LogWriteError",
+    "DatasetError",
+    "__version__",
+]
+
+_HOMES = {
+    "XVIZServer": "server",
+    "Settings": "settings",
+    "LiveFeed": "live",
+    "MetadataBuilder": "builder",
+    "FrameBuilder": "builder",
+    "LogWriter": "writer",
+    "ProbeReport": "probe",
+    **dict.fromkeys(
+        [
+            "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
+            "LogNotFound", "LogError", "FrameError", "BuilderError", "LogWriteError", "DatasetError",
+        ],
+        "exceptions",
+    ),
+}
+
+if TYPE_CHECKING:
+    from .builder import FrameBuilder, MetadataBuilder
+    from .exceptions import (
+        BuilderError,
+        DatasetError,
+        DecodeError,
+        EncodeError,
+        FrameError,
+        LogError,
+        LogNotFound,
+        LogWriteError,
+        MessageError,
+        SchemaValidationError,
+        UnknownSchemaError,
+        XVIZError,
+    )
+    from .live import LiveFeed
+    from .probe import ProbeReport
+    from .server import XVIZServer
+    from .settings import Settings
+    from .writer import LogWriter
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'xviz_server' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{home}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_HOMES])

@@ -20,7 +20,8 @@ from .codec import decode
 from .exceptions import DecodeError, MessageError, SchemaValidationError
 from .index import TimeIndex
 from .messages import unwrap
-from .layout import INDEX_FILE, INDEX_NUMBER, LOG, METADATA_NUMBER, discover, file_number, frame_files, frame_name, frame_numbers, update_span
+from .layout import INDEX_FILE, INDEX_NUMBER, LOG, METADATA_NUMBER, discover, file_number, frame_files
+from .layout import frame_name, frame_numbers, update_span
 from .state import update_streams
 from .validation import get_validator
 

@@ -26,27 +26,16 @@ from urllib.parse import parse_qsl, unquote, urlsplit
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
+from websockets.frames import CloseCode
 
-from .codec import Format, decode
+from .codec import Format
 from .exceptions import XVIZError
 from .live import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription
 from .logfmt import log_event
 from .logs import Catalog, Log, check_log_name
 from .metrics import Metrics
-from .session import (
-    CancelStream,
-    Close,
-    ConfigureLive,
-    Event,
-    OpenLog,
-    QueryInstant,
-    Send,
-    SendLiveMetadata,
-    SendLiveUpdate,
-    Session,
-    StreamFrames,
-    SubscribeLive,
-)
+from .session import Close, ConfigureLive, Event, OpenLog, QueryInstant, Send, Session, SubscribeLive
+from .session import CancelStream, SendLiveMetadata, SendLiveUpdate, StreamFrames
 from .settings import Settings
 
 __all__ = ["Connection"]
@@ -108,17 +97,11 @@ class Connection:
             await asyncio.gather(*self._tasks, return_exceptions=True)
             self.metrics.sessions_open.dec()
             code, reason = self.websocket.close_code, self.websocket.close_reason
-            log_event(
-                logger,
-                "session end",
-                remote=remote,
-                log=self.session.log.name if self.session.log else None,
-                format=self.session.format.value,
-                frames=self.frames_sent,
-                bytes=self.bytes_sent,
-                duration=round(time.monotonic() - started, 3),
-                reason=f"{code} {reason}".strip() if code is not None else "connection lost",
-            )
+            reason = f"{code} {reason}".strip() if code is not None else "connection lost"
+            log = self.session.log.name if self.session.log else None
+            duration, fmt = round(time.monotonic() - started, 3), self.session.format.value
+            log_event(logger, "session end", remote=remote, log=log, format=fmt, frames=self.frames_sent,
+                      bytes=self.bytes_sent, duration=duration, reason=reason)
 
     # -- carrying events out ----------------------------------------------
 
@@ -129,8 +112,11 @@ class Connection:
         except (ConnectionClosed, asyncio.CancelledError):
             raise
         except Exception as exc:
-            logger.exception("error handling %s from %s", what, _remote(self.websocket))
-            await self._quietly(self._execute(self.session.internal_error(what, exc)))
+            await self._failed(what, exc)
+
+    async def _failed(self, what: str, exc: Exception) -> None:
+        logger.exception("error handling %s from %s", what, _remote(self.websocket), exc_info=exc)
+        await self._quietly(self._execute(self.session.internal_error(what, exc)))
 
     async def _execute(self, events: list[Event]) -> None:
         for event in events:
@@ -150,37 +136,43 @@ class Connection:
             elif isinstance(event, StreamFrames):
                 stop = asyncio.Event()
                 self._stream = (event, stop)
-                self._spawn(self._run_stream(event, stop))
+                self._spawn(f"transform_log {event.request_id!r}", self._run_stream(event, stop))
             elif isinstance(event, CancelStream):
                 if self._stream is not None and self._stream[0].request_id == event.request_id:
                     self._stream[1].set()
             elif isinstance(event, QueryInstant):
-                self._spawn(self._run_query(event))
+                self._spawn(f"transform_point_in_time {event.request_id!r}", self._run_query(event))
             elif isinstance(event, SubscribeLive):
-                self._spawn(self._run_live(event))
+                self._spawn("the live feed", self._run_live(event), fatal=True)
             elif isinstance(event, ConfigureLive):
                 await self._configure_live(event)
             elif isinstance(event, Close):
                 await self.websocket.close(event.code, event.reason)
 
-    def _spawn(self, coroutine: Coroutine[Any, Any, None]) -> None:
-        task = asyncio.ensure_future(coroutine)
+    def _spawn(self, what: str, coroutine: Coroutine[Any, Any, None], fatal: bool = False) -> None:
+        """Run ``coroutine`` beside the session; if it fails, the client is told (and, if ``fatal``, closed)."""
+
+        async def guarded() -> None:
+            try:
+                await coroutine
+            except ConnectionClosed:
+                pass
+            except Exception as exc:
+                await self._failed(what, exc)
+                if fatal:
+                    await self._quietly(self.websocket.close(CloseCode.INTERNAL_ERROR, f"{what} failed"))
+
+        task = asyncio.ensure_future(guarded())
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
     async def _send(self, event: Send) -> None:
         await self.websocket.send(event.data, text=event.text)
-        kind = event.error or event.notice
-        if kind is not None:
-            if event.error is not None:
-                self.metrics.errors.labels(event.error).inc()
-            log_event(
-                logger,
-                "error sent" if event.error is not None else "notice sent",
-                remote=_remote(self.websocket),
-                kind=kind,
-                message=_message_text(event),
-            )
+        if event.error is not None:
+            self.metrics.errors.labels(event.error).inc()
+            log_event(logger, "error sent", remote=_remote(self.websocket), kind=event.error, message=event.message)
+        elif event.notice is not None:
+            log_event(logger, "notice sent", remote=_remote(self.websocket), kind=event.notice, message=event.message)
 
     async def _send_update(self, data: bytes, fmt: Format) -> None:
         """Send a state update and count it."""
@@ -238,10 +230,9 @@ class Connection:
                     self.metrics.first_frame_seconds.observe(time.perf_counter() - received)
             self.metrics.request_seconds.labels("transform_log").observe(time.perf_counter() - received)
         except ConnectionClosed:
-            return
-        except Exception as exc:
-            logger.exception("error streaming transform_log %r", request.request_id)
-            await self._quietly(self._execute(self.session.internal_error(f"transform_log {request.request_id!r}", exc)))
+            raise
+        except Exception as exc:  # still ends with its done, and the next request starts
+            await self._failed(f"transform_log {request.request_id!r}", exc)
         finally:
             for loading in ahead:
                 loading.cancel()
@@ -254,47 +245,34 @@ class Connection:
         try:
             data = await log.complete_state(request.instant, request.fmt, request.streams, self.settings.lookback)
         except XVIZError as exc:
-            await self._quietly(self._execute(self.session.query_failed(request.request_id, exc)))
+            await self._execute(self.session.query_failed(request.request_id, exc))
             return
-        except Exception as exc:
-            logger.exception("error answering transform_point_in_time %r", request.request_id)
-            what = f"transform_point_in_time {request.request_id!r}"
-            await self._quietly(self._execute(self.session.internal_error(what, exc)))
-            return
-        await self._quietly(self._send_update(data, request.fmt))
+        await self._send_update(data, request.fmt)
         self.metrics.request_seconds.labels("transform_point_in_time").observe(time.perf_counter() - received)
 
     # -- live feeds ---------------------------------------------------------
 
     async def _run_live(self, event: SubscribeLive) -> None:
         """Follow a feed: tell the session what it does, send what the session says."""
-        try:
-            feed = await self._find_feed(event)
-            if feed is None:
-                return
-            self._subscription = subscription = feed.subscribe(self.settings.live_queue, self.session.decimate)
-            self._spawn(self._watch_lag(subscription))
-            state = self._hold(feed.state())
-            await self._execute(self.session.live_joined(feed.name, state, feed.metadata is not None))
-            while True:
-                item = await subscription.next()
-                if isinstance(item, FeedEvent):
-                    if item.kind == "metadata":
-                        await self._execute(self.session.live_started(self._hold(feed.state())))
-                    else:
-                        await self._execute(self.session.live_gone())
-                    continue
-                number = self._hold(item)
-                assert number is not None
-                await self._execute(
-                    self.session.live_update(number, subscription.take_drops(), subscription.lagging_since is not None)
-                )
-        except ConnectionClosed:
-            pass
-        except Exception as exc:
-            logger.exception("error following a live feed for %s", _remote(self.websocket))
-            await self._quietly(self._execute(self.session.internal_error("the live feed", exc)))
-            await self._quietly(self.websocket.close(1011, "live feed failed"))
+        feed = await self._find_feed(event)
+        if feed is None:
+            return
+        self._subscription = subscription = feed.subscribe(self.settings.live_queue, self.session.decimate)
+        self._spawn("a slow live viewer", self._watch_lag(subscription))
+        state = self._hold(feed.state())
+        await self._execute(self.session.live_joined(feed.name, state, feed.metadata is not None))
+        while True:
+            item = await subscription.next()
+            if isinstance(item, FeedEvent):
+                if item.kind == "metadata":
+                    await self._execute(self.session.live_started(self._hold(feed.state())))
+                else:
+                    await self._execute(self.session.live_gone())
+                continue
+            number = self._hold(item)
+            assert number is not None
+            behind = subscription.lagging_since is not None
+            await self._execute(self.session.live_update(number, subscription.take_drops(), behind))
 
     async def _find_feed(self, event: SubscribeLive) -> LiveFeed | None:
         """The feed to follow (waiting for it if it has not started), or ``None`` after telling the client why not."""
@@ -319,11 +297,10 @@ class Connection:
         return update.number
 
     async def _configure_live(self, event: ConfigureLive) -> None:
-        if self._subscription is None:
-            return
-        self._subscription.decimate = event.decimate
-        if event.forward and not await self._subscription.feed.reconfigure(event.forward):
-            logger.info("live feed %r does not accept configuration", self._subscription.feed.name)
+        if (subscription := self._subscription) is not None:
+            subscription.decimate = event.decimate
+            if event.forward and not await subscription.feed.reconfigure(event.forward):
+                logger.info("live feed %r does not accept configuration", subscription.feed.name)
 
     async def _watch_lag(self, subscription: Subscription) -> None:
         """Tell the session how long the viewer has been dropping updates."""
@@ -332,7 +309,7 @@ class Connection:
             await asyncio.sleep(interval)
             since = subscription.lagging_since
             if since is not None:
-                await self._step("a slow live viewer", self.session.live_lagging, time.monotonic() - since)
+                await self._execute(self.session.live_lagging(time.monotonic() - since))
 
 
 async def _wait(stop: asyncio.Event, seconds: float) -> None:
@@ -342,14 +319,6 @@ async def _wait(stop: asyncio.Event, seconds: float) -> None:
             await asyncio.wait_for(stop.wait(), seconds)
         except asyncio.TimeoutError:
             pass
-
-
-def _message_text(event: Send) -> str:
-    """The text of an ``xviz/error`` being sent, for the log."""
-    try:
-        return str(decode(event.data)["data"]["message"])
-    except Exception:  # the log line must not fail over a message it only describes
-        return "?"
 
 
 def _remote(websocket: ServerConnection) -> str:

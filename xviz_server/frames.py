@@ -12,10 +12,10 @@ from typing import Any, Collection, Sequence
 from .codec import Format, decode, edit_glb, encode
 from .exceptions import DecodeError
 from .layout import update_span
-from .state import complete_state, filter_streams
+from .state import complete_state, downsample_points, filter_streams
 from .validation import get_validator
 
-__all__ = ["is_heavy", "validate", "check", "span", "render", "merge", "relabel_complete"]
+__all__ = ["is_heavy", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
 
 
 def is_heavy(*formats: Format) -> bool:
@@ -72,11 +72,19 @@ def span(data: bytes) -> tuple[float, float]:
     return result
 
 
-def render(data: bytes, fmt: Format, streams: Collection[str] | None) -> bytes:
-    """Re-encode a frame in ``fmt``, keeping only ``streams`` when given."""
-    message = _decode_update(data)
+def render(data: bytes, fmt: Format, streams: Collection[str] | None, max_points: int | None = None) -> bytes:
+    """Re-encode a frame in ``fmt``, keeping only ``streams`` and at most ``max_points`` points a cloud when given."""
+    return render_message(_decode_update(data), fmt, streams, max_points)
+
+
+def render_message(
+    message: dict[str, Any], fmt: Format, streams: Collection[str] | None, max_points: int | None = None
+) -> bytes:
+    """:func:`render` for a decoded state update."""
     if streams is not None:
         message = filter_streams(message, streams)
+    if max_points is not None:
+        message = downsample_points(message, max_points)
     return encode(message, fmt)
 
 

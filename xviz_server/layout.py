@@ -88,16 +88,19 @@ def frame_numbers(files: Iterable[int]) -> list[int]:
     return sorted(number - 2 for number in files if number >= 2)
 
 
-def index_document(spans: Iterable[tuple[float, float]], start: float | None = None, end: float | None = None) -> dict[str, Any]:
+def index_document(
+    spans: Iterable[tuple[float, float]], start: float | None = None, end: float | None = None
+) -> dict[str, Any]:
     """The ``0-frame.json`` document of frames ``0, 1, ...`` with these ``(first, last)`` time spans.
 
     ``start``/``end`` default to the frames' own span (``startTime`` and
     ``endTime`` are left out of an empty log).
     """
+    spans = list(spans)
     timing = [[first, last, i, frame_name(i)] for i, (first, last) in enumerate(spans)]
-    if timing:
-        start = timing[0][0] if start is None else start
-        end = max(row[1] for row in timing) if end is None else end
+    if spans:
+        start = spans[0][0] if start is None else start
+        end = max(last for _, last in spans) if end is None else end
     document: dict[str, Any] = {}
     if start is not None:
         document["startTime"] = start
@@ -115,7 +118,8 @@ def update_span(data: Any) -> tuple[float, float] | None:
     times = [u.get("timestamp") if isinstance(u, Mapping) else None for u in updates]
     if not all(is_number(t) for t in times):
         return None
-    return float(min(times)), float(max(times))  # type: ignore[type-var]
+    seconds = [float(t) for t in times if t is not None]
+    return min(seconds), max(seconds)
 
 
 # ------------------------------------------------------------- discovery

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import enum
 import math
-from typing import Any, ClassVar, Literal, Mapping, Union
+from typing import Any, ClassVar, Literal, Mapping, Sequence, Union
 
 import pydantic
 from pydantic import AliasChoices, ConfigDict, Field, field_validator, model_validator
@@ -29,6 +29,9 @@ __all__ = [
     "TransformLog",
     "TransformPointInTime",
     "Reconfigure",
+    "SessionConfig",
+    "merge_patch",
+    "stream_filter",
     "TransformLogDone",
     "Error",
     "LogInfo",
@@ -177,6 +180,49 @@ class Metadata(_Message):
     version: str | None = None
     log_info: LogInfo | None = None
     streams: dict[str, StreamMetadata] = Field(default_factory=dict)
+
+
+class SessionConfig(pydantic.BaseModel):
+    """What a session is sent, changed by ``xviz/reconfigure``.
+
+    ``desired_streams``: streams sent (``None`` or empty: all), applied on top
+    of each request's own filter. ``message_format``: format of later
+    messages (``None``: the session's start format). ``speed``: pace streams
+    at this multiple of the log's rate (``None``: as fast as the client reads).
+    Live sessions only: ``decimate``, send every n-th update; ``max_points``,
+    thin every point cloud to at most this many points.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    desired_streams: list[str] | None = None
+    message_format: Format | None = None
+    speed: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    decimate: int | None = Field(default=None, ge=1)
+    max_points: int | None = Field(default=None, ge=1)
+
+    _case = field_validator("message_format", mode="before")(_upper)
+
+
+def merge_patch(target: Any, patch: Any) -> Any:
+    """RFC 7386 JSON merge patch: ``null`` removes a key, objects merge, the rest replaces."""
+    if not isinstance(patch, dict):
+        return patch
+    result = dict(target) if isinstance(target, dict) else {}
+    for key, value in patch.items():
+        if value is None:
+            result.pop(key, None)
+        else:
+            result[key] = merge_patch(result.get(key), value)
+    return result
+
+
+def stream_filter(*filters: Sequence[str] | None) -> frozenset[str] | None:
+    """Intersect stream filters; ``None`` or empty means every stream."""
+    result: frozenset[str] | None = None
+    for names in filters:
+        if names:
+            result = frozenset(names) if result is None else result & frozenset(names)
+    return result
 
 
 ClientMessage = Union[Start, TransformLog, TransformPointInTime, Reconfigure]

@@ -28,16 +28,17 @@ from urllib.parse import urlsplit
 import orjson
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
+from websockets.typing import Origin
 
 from . import __version__
-from .auth import token_matches
+from .auth import feed_name, ingest_refusal, token_matches
 from .cache import FrameCache
 from .layout import LOG
 from .connection import Connection
 from .datasets import GENERATED, KINDS
 from .exceptions import LogError
 from .live import LiveRegistry
-from .live.ingest import feed_name, refusal, run_ingest
+from .live.ingest import run_ingest
 from .live.record import Recorder
 from .live.replay import replay
 from .logs import Catalog
@@ -101,7 +102,7 @@ class XVIZServer:
             self.settings.host,
             self.settings.port,
             ssl=self._tls(),
-            origins=[*self.settings.allowed_origins, None] if self.settings.allowed_origins else None,
+            origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
             process_request=self._process_request,
             compression="deflate" if self.settings.compression else None,
             max_size=self.settings.max_message_kb * 1024,
@@ -124,10 +125,10 @@ class XVIZServer:
     async def _start_replay(self, directory: Path) -> None:
         """Replay a static log as the live feed named after its folder."""
         catalog = Catalog([directory], self.cache, self.workers)
-        (name,) = await catalog.scan() or [None]
-        if name is None:
+        names = await catalog.scan()
+        if not names:
             raise LogError(f"--live-from {directory}: no log in the reference layout there", log=str(directory))
-        log = await catalog.open(name)
+        log = await catalog.open(names[0])
         feed = self.live.feed(log.name)
         self._replay = asyncio.ensure_future(replay(log, feed, rate=self.settings.rate, loop=self.settings.loop))
         logger.info("replaying %r as a live feed at %gx%s", log.name, self.settings.rate, ", looping" if self.settings.loop else "")
@@ -166,7 +167,7 @@ class XVIZServer:
     async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
         if request.headers.get("Upgrade", "").lower() == "websocket":
             if feed_name(request.path) is not None:
-                reason = refusal(request, connection.remote_address, self.settings.ingest_token)
+                reason = ingest_refusal(request, connection.remote_address, self.settings.ingest_token)
                 if reason is not None:
                     logger.warning("refused a live source from %s: %s", connection.remote_address, reason)
                     return connection.respond(HTTPStatus.FORBIDDEN, reason + "\n")

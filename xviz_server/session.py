@@ -37,48 +37,21 @@ from websockets.frames import CloseCode
 from .codec import Format, decode, encode
 from .exceptions import DecodeError, LogNotFound, MessageError, XVIZError
 from .index import TimeIndex
-from .messages import (
-    Error,
-    Reconfigure,
-    SessionType,
-    Start,
-    TransformLog,
-    TransformLogDone,
-    TransformPointInTime,
-    describe_validation_error,
-    parse_client_message,
-)
+from .messages import Error, Reconfigure, SessionType, Start, TransformLog, TransformLogDone, TransformPointInTime
+from .messages import SessionConfig, describe_validation_error, merge_patch, parse_client_message, stream_filter
 
 __all__ = [
-    "Session",
-    "SessionConfig",
-    "LogView",
-    "Variant",
-    "Event",
-    "Send",
-    "Close",
-    "OpenLog",
-    "StreamFrames",
-    "CancelStream",
-    "QueryInstant",
-    "SubscribeLive",
-    "ConfigureLive",
-    "SendLiveMetadata",
-    "SendLiveUpdate",
+    "Session", "LogView", "Variant", "Event", "Send", "Close", "OpenLog", "StreamFrames", "CancelStream", "QueryInstant",
+    "SubscribeLive", "ConfigureLive", "SendLiveMetadata", "SendLiveUpdate",
 ]
 
 
 class LogView(Protocol):
     """What a session needs to know of an open log (see :class:`xviz_server.logs.Log`)."""
 
-    @property
-    def name(self) -> str: ...
-
-    @property
-    def format(self) -> Format: ...
-
-    @property
-    def index(self) -> TimeIndex: ...
+    name: str
+    format: Format
+    index: TimeIndex
 
     def metadata_message(self, fmt: Format) -> bytes: ...
 
@@ -99,14 +72,16 @@ class Variant:
 class Send:
     """Send ``data``; as a text frame when ``text``.
 
-    ``error`` names the kind of an ``xviz/error`` that reports a problem;
-    ``notice`` the kind of one that only informs (a live feed went away).
+    ``error`` names the kind of an ``xviz/error`` that reports a problem,
+    ``notice`` the kind of one that only informs (a live feed went away);
+    ``message`` is its text, for the server's log.
     """
 
     data: bytes
     text: bool
     error: str | None = None
     notice: str | None = None
+    message: str | None = None
 
 
 @dataclass(frozen=True)
@@ -201,59 +176,6 @@ Event = Union[
 ]
 
 
-# ------------------------------------------------------------ configuration
-
-
-class SessionConfig(pydantic.BaseModel):
-    """What a session is sent, changed by ``xviz/reconfigure``.
-
-    ``desired_streams``: streams sent (``None`` or empty: all), applied on top
-    of each request's own filter. ``message_format``: format of later
-    messages (``None``: the session's start format). ``speed``: pace streams
-    at this multiple of the log's rate (``None``: as fast as the client reads).
-    Live sessions only: ``decimate``, send every n-th update; ``max_points``,
-    thin every point cloud to at most this many points.
-    """
-
-    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
-    desired_streams: list[str] | None = None
-    message_format: Format | None = None
-    speed: float | None = pydantic.Field(default=None, gt=0, allow_inf_nan=False)
-    decimate: int | None = pydantic.Field(default=None, ge=1)
-    max_points: int | None = pydantic.Field(default=None, ge=1)
-
-    @pydantic.field_validator("message_format", mode="before")
-    @classmethod
-    def _upper(cls, value: Any) -> Any:
-        return value.upper() if isinstance(value, str) else value
-
-
-def _merge_patch(target: Any, patch: Any) -> Any:
-    """RFC 7386 JSON merge patch: ``null`` removes a key, objects merge, the rest replaces."""
-    if not isinstance(patch, dict):
-        return patch
-    result = dict(target) if isinstance(target, dict) else {}
-    for key, value in patch.items():
-        if value is None:
-            result.pop(key, None)
-        else:
-            result[key] = _merge_patch(result.get(key), value)
-    return result
-
-
-def _stream_filter(*filters: Sequence[str] | None) -> frozenset[str] | None:
-    """Intersect stream filters; ``None`` or empty means every stream."""
-    result: frozenset[str] | None = None
-    for names in filters:
-        if names:
-            result = frozenset(names) if result is None else result & frozenset(names)
-    return result
-
-
-def _first_problem(exc: pydantic.ValidationError) -> str:
-    return describe_validation_error(exc.errors()[0])
-
-
 # ----------------------------------------------------------------- session
 
 URL_START_KEYS = ("version", "profile", "session_type", "message_format", "log")
@@ -301,7 +223,8 @@ class Session:
             if speed is not None:
                 self.config = SessionConfig.model_validate({"speed": speed})
         except pydantic.ValidationError as exc:
-            events.append(self._error("start", f"bad connection URL parameter: {_first_problem(exc)}"))
+            problem = describe_validation_error(exc.errors()[0])
+            events.append(self._error("start", f"bad connection URL parameter: {problem}"))
             self.start = Start(log=params.get("log"))
         return events + self._begin()
 
@@ -380,7 +303,7 @@ class Session:
         """The session subscribed to ``feed``; ``state`` is the number of the update its latest complete state ends at."""
         self._feed = feed
         if not started:
-            return [self._notice("waiting", f"live feed {feed!r} has not started yet; waiting for it")]
+            return [self._error("waiting", f"live feed {feed!r} has not started yet; waiting for it", notice=True)]
         return self.live_started(state)
 
     def live_started(self, state: int | None) -> list[Event]:
@@ -393,9 +316,8 @@ class Session:
 
     def live_gone(self) -> list[Event]:
         """The feed's source went away."""
-        return [
-            self._notice("gone", f"live feed {self._feed!r} went away; this session stays open and resumes when it comes back")
-        ]
+        text = f"live feed {self._feed!r} went away; this session stays open and resumes when it comes back"
+        return [self._error("gone", text, notice=True)]
 
     def live_update(self, number: int, dropped: int, behind: bool) -> list[Event]:
         """Update ``number`` of the feed is next for this viewer.
@@ -406,10 +328,11 @@ class Session:
         events: list[Event] = []
         if dropped and not self._behind:
             events.append(
-                self._notice(
+                self._error(
                     "behind",
                     f"live feed {self._feed!r}: this viewer is behind; {dropped} updates were dropped "
                     "(the oldest go first; viewers that stay behind are disconnected)",
+                    notice=True,
                 )
             )
         self._behind = behind
@@ -443,7 +366,7 @@ class Session:
     @property
     def variant(self) -> Variant:
         """How this live viewer wants updates now."""
-        return Variant(self.format, _stream_filter(self.config.desired_streams), self.config.max_points)
+        return Variant(self.format, stream_filter(self.config.desired_streams), self.config.max_points)
 
     @property
     def decimate(self) -> int:
@@ -497,7 +420,7 @@ class Session:
             frames=log.index.frames[positions],
             times=log.index.start[positions],
             fmt=self.format,
-            streams=_stream_filter(self.config.desired_streams, request.desired_streams),
+            streams=stream_filter(self.config.desired_streams, request.desired_streams),
             speed=self.config.speed,
         )
         if self._streaming is None:
@@ -517,22 +440,18 @@ class Session:
                 log=log.name,
                 instant=request.query_timestamp,
                 fmt=self.format,
-                streams=_stream_filter(self.config.desired_streams, request.desired_streams),
+                streams=stream_filter(self.config.desired_streams, request.desired_streams),
             )
         ]
 
     def _on_reconfigure(self, request: Reconfigure) -> list[Event]:
         current = self.config.model_dump(mode="json", exclude_none=True)
-        proposed = request.config_update if request.update_type == "FULL" else _merge_patch(current, request.config_update)
+        proposed = request.config_update if request.update_type == "FULL" else merge_patch(current, request.config_update)
         try:
             self.config = SessionConfig.model_validate(proposed)
         except pydantic.ValidationError as exc:
-            known = ", ".join(SessionConfig.model_fields)
-            return [
-                self._error(
-                    "reconfigure", f"xviz/reconfigure: {_first_problem(exc)} (supported keys: {known}); configuration unchanged"
-                )
-            ]
+            problem, known = describe_validation_error(exc.errors()[0]), ", ".join(SessionConfig.model_fields)
+            return [self._error("reconfigure", f"xviz/reconfigure: {problem} (supported keys: {known}); configuration unchanged")]
         if self.is_live:
             return [ConfigureLive(self.decimate, request.config_update)]
         return []
@@ -556,10 +475,9 @@ class Session:
     def _done(self, request: StreamFrames) -> Send:
         return Send(encode(TransformLogDone(id=request.request_id).to_envelope(), request.fmt), text=request.fmt is Format.JSON)
 
-    def _error(self, kind: str, message: str) -> Send:
+    def _error(self, kind: str, message: str, notice: bool = False) -> Send:
         fmt = self.format
-        return Send(encode(Error(message=message).to_envelope(), fmt), text=fmt is Format.JSON, error=kind)
-
-    def _notice(self, kind: str, message: str) -> Send:
-        fmt = self.format
-        return Send(encode(Error(message=message).to_envelope(), fmt), text=fmt is Format.JSON, notice=kind)
+        data = encode(Error(message=message).to_envelope(), fmt)
+        if notice:
+            return Send(data, text=fmt is Format.JSON, notice=kind, message=message)
+        return Send(data, text=fmt is Format.JSON, error=kind, message=message)

@@ -1,4 +1,4 @@
-"""Pure operations on state updates: stream filtering and complete-state merging.
+"""Pure operations on state updates: stream filtering, complete-state merging, point thinning.
 
 A state update's data holds ``updates``, a list of stream sets. A stream set
 carries its streams in maps keyed by stream name (``poses``, ``primitives``,
@@ -12,11 +12,14 @@ from __future__ import annotations
 
 from typing import Any, Collection, Iterable
 
+import numpy as np
+
 __all__ = [
     "COMPLETE_TYPES",
     "update_streams",
     "filter_streams",
     "complete_state",
+    "downsample_points",
 ]
 
 STREAM_MAPS = ("poses", "primitives", "future_instances", "variables", "ui_primitives", "annotations", "links")
@@ -142,3 +145,31 @@ def _merge_stream_set(
     for entry in fresh:
         taken.update(entry["streams"])
     series.extend(fresh)
+
+
+def downsample_points(message: dict[str, Any], max_points: int) -> dict[str, Any]:
+    """``message`` with every point cloud thinned to at most ``max_points`` points.
+
+    Every k-th point is kept (with its colour), k the smallest stride that
+    fits; arrays are sliced, not copied.
+    """
+    def thin(cloud: dict[str, Any]) -> dict[str, Any]:
+        points = cloud.get("points")
+        count = len(points) if points is not None else 0
+        if count <= max_points or not isinstance(points, np.ndarray):
+            return cloud
+        stride = -(-count // max_points)
+        result = {**cloud, "points": points[::stride]}
+        colors = cloud.get("colors")
+        if isinstance(colors, np.ndarray) and len(colors) == count:
+            result["colors"] = colors[::stride]
+        return result
+
+    updates = []
+    for stream_set in message["data"].get("updates") or ():
+        primitives = {
+            name: {**state, "points": [thin(cloud) for cloud in state["points"]]} if "points" in state else state
+            for name, state in (stream_set.get("primitives") or {}).items()
+        }
+        updates.append({**stream_set, "primitives": primitives} if primitives else stream_set)
+    return {**message, "data": {**message["data"], "updates": updates}}

@@ -50,7 +50,7 @@ from referencing.jsonschema import DRAFT202012
 from .exceptions import SchemaValidationError, UnknownSchemaError
 
 if TYPE_CHECKING:
-    from importlib.resources.abc import Traversable
+    from importlib.abc import Traversable
 
 __all__ = ["ARRAY_ROWS", "XVIZValidator", "get_validator"]
 

@@ -16,7 +16,8 @@ import asyncio
 import multiprocessing
 import os
 import threading
-from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+from multiprocessing.context import BaseContext
 from typing import Any, Callable, TypeVar
 
 __all__ = ["Workers"]
@@ -50,11 +51,10 @@ class Workers:
         While the pool is starting, it runs in a thread of this process.
         """
         started = self._start()
+        executor: Executor | None = self._stand_in
         if started.done():
             started.result()  # raises if the pool could not start
             executor = self._processes
-        else:
-            executor = self._stand_in
         return await asyncio.get_running_loop().run_in_executor(executor, function, *args)
 
     async def warm(self) -> None:
@@ -67,6 +67,7 @@ class Workers:
         return self._started
 
     def _start_processes(self) -> None:
+        context: BaseContext
         if "forkserver" in multiprocessing.get_all_start_methods():
             context = multiprocessing.get_context("forkserver")
             context.set_forkserver_preload(_JOB_MODULES)

@@ -65,6 +65,6 @@ def encode(message: Mapping[str, Any], fmt: Format) -> bytes:
 
 def decode(data: bytes | bytearray | memoryview | str) -> Any:
     """Decode a message of either format, told apart by its first bytes."""
-    if detect_format(data) is Format.BINARY:
+    if not isinstance(data, str) and detect_format(data) is Format.BINARY:
         return decode_glb(data)
     return decode_json(data)

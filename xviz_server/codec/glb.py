@@ -174,7 +174,7 @@ class _Packer:
             return array  # no glTF accessor for it: it stays in the JSON
         array = np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("<"))
         width = 1 if array.ndim == 1 else array.shape[1]
-        view = self._add_view(memoryview(array).cast("B"), array.nbytes)
+        view = self._add_view(array.data.cast("B"), array.nbytes)
         self.accessors.append(
             {
                 "bufferView": view,
@@ -312,7 +312,7 @@ def decode_glb(data: bytes | bytearray | memoryview) -> dict[str, Any]:
     """
     document, envelope, binary = _read_document(data)
     views = _read_views(document, binary)
-    resolved = {
+    resolved: dict[str, list[Any]] = {
         "accessors": _read_accessors(document, views),
         "images": _read_images(document, views),
     }

@@ -454,8 +454,8 @@ class _Drive:
 
     def frame(self, frame: FrameBuilder, t: float, timestamp: float, number: int) -> dict[str, Any]:
         """The data of the state update *t* seconds into the drive, frame *number* (which seeds its lidar noise)."""
-        position, heading = self._route.at(_ego_distance(t))
-        heading = float(heading)
+        position, headings = self._route.at(_ego_distance(t))
+        heading = float(headings)
         traffic = self._traffic(t)
         distance = np.hypot(*(traffic.center - position).T)
         nearby = [int(i) for i in np.argsort(distance, kind="stable") if distance[i] < PERCEPTION_RANGE]
@@ -514,7 +514,9 @@ def _road_users(frame: FrameBuilder, users: list[_RoadUser], boxes: _Boxes, dist
         frame.polygon(OBJECT_SHAPES, footprint, id=user.object_id, classes=[user.category], style={"height": height})
         frame.text(OBJECT_LABELS, (x, y, height + 0.5), user.object_id, id=user.object_id)
         frame.circle(OBJECT_CENTERS, (x, y, 0.0), 0.2, id=user.object_id)
-    columns = [("Object", "STRING"), ("Class", "STRING"), ("Distance", "DOUBLE", "m"), ("Speed", "DOUBLE", "m/s")]
+    columns: list[tuple[str, str] | tuple[str, str, str]] = [
+        ("Object", "STRING"), ("Class", "STRING"), ("Distance", "DOUBLE", "m"), ("Speed", "DOUBLE", "m/s")
+    ]
     nodes = [
         (i, None, [user.object_id, user.category, round(float(distance), 1), round(user.speed, 1)])
         for i, (user, distance) in enumerate(zip(users, distances))

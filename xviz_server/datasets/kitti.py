@@ -211,7 +211,7 @@ class Oxts:
         try:
             if len(values) != 30:
                 raise ValueError
-            return cls(*(float(v) for v in values[:25]), *(int(float(v)) for v in values[25:]))
+            return cls(*[float(v) for v in values[:25]], *[int(float(v)) for v in values[25:]])  # type: ignore[arg-type]
         except ValueError:
             raise DatasetError(f"{path}: not an OXTS record of 30 numbers", path=path) from None
 

@@ -154,7 +154,7 @@ class WaymoSegment:
         builder = FrameBuilder(metadata)
         t = float(self.times[index])
         pose = self._array(data, "POSE", where, (4, 4))
-        builder.pose("/vehicle_pose", t, position=pose[:3, 3], orientation=pose_angles(pose[:3, :3]))
+        builder.pose("/vehicle_pose", t, position=pose[:3, 3].tolist(), orientation=pose_angles(pose[:3, :3]))
         points, colors, in_zone = self._lidar(data, where)
         if len(points[~in_zone]):
             builder.points("/lidar/points", points[~in_zone], colors[~in_zone])

@@ -5,6 +5,6 @@ over the network, :mod:`.replay` plays a recorded log as a feed and
 :mod:`.record` writes feeds out as logs.
 """
 
-from .feed import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription, downsample_points
+from .feed import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription
 
-__all__ = ["LiveFeed", "LiveRegistry", "LiveUpdate", "Subscription", "FeedEvent", "downsample_points"]
+__all__ = ["LiveFeed", "LiveRegistry", "LiveUpdate", "Subscription", "FeedEvent"]

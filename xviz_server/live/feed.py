@@ -23,62 +23,18 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Awaitable, Callable, Iterator, Mapping
 
-import numpy as np
 
 from ..codec import Format, decode, detect_format, encode
 from ..exceptions import XVIZError
 from ..messages import XVIZ_VERSION, envelope, unwrap
 from ..session import Variant
-from ..state import COMPLETE_TYPES, complete_state, filter_streams
+from ..frames import render, render_message
+from ..state import COMPLETE_TYPES, complete_state
 from ..work import Workers
 
-__all__ = ["LiveUpdate", "Subscription", "FeedEvent", "LiveFeed", "LiveRegistry", "downsample_points", "render"]
+__all__ = ["LiveUpdate", "Subscription", "FeedEvent", "LiveFeed", "LiveRegistry"]
 
 logger = logging.getLogger(__name__)
-
-Reconfigure = Callable[[dict[str, Any]], Awaitable[None]]
-
-
-def downsample_points(message: dict[str, Any], max_points: int) -> dict[str, Any]:
-    """``message`` with every point cloud thinned to at most ``max_points`` points.
-
-    Every k-th point is kept (with its colour), k the smallest stride that
-    fits; arrays are sliced, not copied.
-    """
-    def thin(cloud: dict[str, Any]) -> dict[str, Any]:
-        points = cloud.get("points")
-        count = len(points) if points is not None else 0
-        if count <= max_points or not isinstance(points, np.ndarray):
-            return cloud
-        stride = -(-count // max_points)
-        result = {**cloud, "points": points[::stride]}
-        colors = cloud.get("colors")
-        if isinstance(colors, np.ndarray) and len(colors) == count:
-            result["colors"] = colors[::stride]
-        return result
-
-    updates = []
-    for stream_set in message["data"].get("updates") or ():
-        primitives = {
-            name: {**state, "points": [thin(cloud) for cloud in state["points"]]} if "points" in state else state
-            for name, state in (stream_set.get("primitives") or {}).items()
-        }
-        updates.append({**stream_set, "primitives": primitives} if primitives else stream_set)
-    return {**message, "data": {**message["data"], "updates": updates}}
-
-
-def render(data: bytes, variant: Variant) -> bytes:
-    """An encoded state update re-encoded for ``variant``; for worker processes (bytes in, bytes out)."""
-    return _render(decode(data), variant)
-
-
-def _render(message: dict[str, Any], variant: Variant) -> bytes:
-    if variant.streams is not None:
-        message = filter_streams(message, variant.streams)
-    if variant.max_points is not None:
-        message = downsample_points(message, variant.max_points)
-    return encode(message, variant.fmt)
-
 
 class LiveUpdate:
     """One state update of a feed, decoded once and encoded once per variant."""
@@ -92,11 +48,6 @@ class LiveUpdate:
             future.set_result(original)
             self._encodings[Variant(detect_format(original))] = future
 
-    @property
-    def timestamp(self) -> float | None:
-        updates = self.message["data"].get("updates") or [{}]
-        return updates[-1].get("timestamp")
-
     async def encoded(self, variant: Variant, workers: Workers) -> bytes:
         """The bytes of this update for ``variant``; the first viewer to ask encodes them."""
         future = self._encodings.get(variant)
@@ -107,11 +58,11 @@ class LiveUpdate:
 
     async def _encode(self, variant: Variant, workers: Workers) -> bytes:
         if variant.fmt is Format.BINARY:
-            return await workers.io(_render, self.message, variant)
+            return await workers.io(render_message, self.message, variant.fmt, variant.streams, variant.max_points)
         # JSON holds the GIL for long: a worker process makes it from GLB bytes,
         # which pickle cheaply where decoded messages (views into a frame) do not.
         glb = await self.encoded(Variant(Format.BINARY), workers)
-        return await workers.cpu(render, glb, variant)
+        return await workers.cpu(render, glb, variant.fmt, variant.streams, variant.max_points)
 
 
 @dataclass(frozen=True)
@@ -151,7 +102,7 @@ class Subscription:
                 oldest = next(i for i in self._queue if isinstance(i, LiveUpdate))
                 self._queue.remove(oldest)
                 self.dropped += 1
-                self.feed.registry.metrics_drop()
+                self.feed.registry.on_drop()
                 if self.lagging_since is None:
                     self.lagging_since = time.monotonic()
         self._queue.append(item)
@@ -190,14 +141,13 @@ class LiveFeed:
         self.name = name
         self.registry = registry
         self.metadata: dict[str, Any] | None = None
-        self.on_reconfigure: Reconfigure | None = None
+        self.on_reconfigure: Callable[[dict[str, Any]], Awaitable[None]] | None = None
         self.connected = False
         self._metadata_messages: dict[Format, bytes] = {}
         self._state: dict[str, Any] | None = None
         self._state_number = -1  # number of the latest update in _state
         self._subscribers: set[Subscription] = set()
         self._numbers = itertools.count()
-        self._listeners: list[Callable[[LiveUpdate], None]] = []
 
     # -- the source side ------------------------------------------------
 
@@ -239,8 +189,8 @@ class LiveFeed:
         self._remember(update)
         for subscriber in self._subscribers:
             subscriber.offer(update)
-        for listener in self._listeners:
-            listener(update)
+        for listener in self.registry.listeners:
+            listener(self, update)
         return update
 
     def disconnect(self) -> None:
@@ -270,10 +220,6 @@ class LiveFeed:
 
     def unsubscribe(self, subscription: Subscription) -> None:
         self._subscribers.discard(subscription)
-
-    def listen(self, listener: Callable[[LiveUpdate], None]) -> None:
-        """Call ``listener`` with every update, synchronously (for recording)."""
-        self._listeners.append(listener)
 
     async def reconfigure(self, config_update: dict[str, Any]) -> bool:
         """Pass a viewer's configuration change to the source; whether it accepts any."""
@@ -314,15 +260,14 @@ class LiveRegistry:
     def __init__(self, workers: Workers, on_drop: Callable[[], None] = lambda: None) -> None:
         self.workers = workers
         self._feeds: dict[str, LiveFeed] = {}
-        self._on_drop = on_drop
-        self._on_feed: list[Callable[[LiveFeed], None]] = []
+        #: Called for every update dropped for a viewer that fell behind.
+        self.on_drop = on_drop
+        #: Called with every feed and update published, synchronously (for recording).
+        self.listeners: list[Callable[[LiveFeed, LiveUpdate], None]] = []
         self._waited: dict[str, _Waited] = {}
 
     def __iter__(self) -> Iterator[LiveFeed]:
         return iter(self._feeds.values())
-
-    def __contains__(self, name: object) -> bool:
-        return name in self._feeds
 
     def names(self) -> list[str]:
         return sorted(self._feeds)
@@ -333,26 +278,15 @@ class LiveRegistry:
         if source is None:
             source = self._feeds[name] = LiveFeed(name, self)
             logger.info("live feed %r created", name)
-            for callback in self._on_feed:
-                callback(source)
             waited = self._waited.pop(name, None)
             if waited is not None:
                 waited.future.set_result(source)
         return source
 
-    def on_feed(self, callback: Callable[[LiveFeed], None]) -> None:
-        """Call ``callback`` with every feed created from now on."""
-        self._on_feed.append(callback)
-
     def find(self, name: str | None, exact: bool) -> LiveFeed | None:
-        """The feed a viewer asking for ``name`` gets now, if any.
-
-        With ``exact``, only the feed of that name. Otherwise (a client that
-        named no feed, or named it only as streetscape.gl's live loader
-        does), the feed of that name if it is running, else the only feed
-        whose source is connected (the streetscape.gl example asks for
-        ``mock``, whatever the feed is called).
-        """
+        """The feed a viewer asking for ``name`` gets now, if any: with ``exact``, only the feed of that name;
+        else that feed if it is running, or the only feed whose source is connected (streetscape.gl's live
+        loader example asks for ``mock``, whatever the feed is called)."""
         found = self._feeds.get(name) if name is not None else None
         if exact or (found is not None and found.metadata is not None):
             return found
@@ -385,6 +319,3 @@ class LiveRegistry:
             waited.viewers -= 1
             if not waited.viewers and self._waited.get(name) is waited:
                 del self._waited[name]
-
-    def metrics_drop(self) -> None:
-        self._on_drop()

@@ -7,62 +7,28 @@ configuration: the ``config_update`` of each viewer's ``xviz/reconfigure``
 is then sent to it as an ``xviz/reconfigure`` message. A bad message gets an
 ``xviz/error`` back; the feed goes on.
 
-Access: with an ingest token configured, the source must give it (header
-``Authorization: Bearer <token>`` or query ``token=``); without one, only
-sources on the loopback interface are accepted.
+Who may push is decided at the handshake (:func:`xviz_server.auth.ingest_refusal`).
 """
 
 from __future__ import annotations
 
-import ipaddress
 import logging
 from typing import Any
-from urllib.parse import parse_qsl, unquote, urlsplit
+from urllib.parse import parse_qsl, urlsplit
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
-from websockets.http11 import Request
 
-from ..auth import token_matches
+from ..auth import feed_name
 from ..codec import decode, encode_json
 from ..exceptions import DecodeError, MessageError, XVIZError
 from .feed import LiveRegistry
-from ..logs import check_log_name
 from ..messages import Error, envelope, unwrap
 
-__all__ = ["INGEST_PREFIX", "feed_name", "refusal", "run_ingest"]
+__all__ = ["run_ingest"]
 
 logger = logging.getLogger(__name__)
-
-INGEST_PREFIX = "/ingest/"
-
-
-def feed_name(path: str) -> str | None:
-    """The feed named by an ingest URL path, or ``None`` if it is not one."""
-    route = unquote(urlsplit(path).path)
-    return route[len(INGEST_PREFIX):] if route.startswith(INGEST_PREFIX) else None
-
-
-def refusal(request: Request, remote: Any, token: str | None) -> str | None:
-    """Why an ingest connection is refused, or ``None`` if it is allowed."""
-    name = feed_name(request.path) or ""
-    try:
-        check_log_name(name)
-    except XVIZError as exc:
-        return f"bad feed name: {exc}"
-    if token is None:
-        host = remote[0] if remote else ""
-        try:
-            if ipaddress.ip_address(host.split("%")[0]).is_loopback:
-                return None
-        except ValueError:
-            pass
-        return "ingest from other hosts needs a token; start the server with --ingest-token"
-    if not token_matches(request, token):
-        return "wrong or missing ingest token"
-    return None
-
 
 async def run_ingest(websocket: ServerConnection, live: LiveRegistry) -> None:
     """Feed the live feed named by the connection's path until the source leaves."""

@@ -76,12 +76,7 @@ class Recorder:
         self._workers = workers
         self._recordings: dict[str, _Recording] = {}
         self._finished: list[_Recording] = []
-        for feed in registry:
-            self._attach(feed)
-        registry.on_feed(self._attach)
-
-    def _attach(self, feed: LiveFeed) -> None:
-        feed.listen(lambda update: self._record(feed, update))
+        registry.listeners.append(self._record)
 
     def _record(self, feed: LiveFeed, update: LiveUpdate) -> None:
         recording = self._recordings.get(feed.name)
