@@ -26,7 +26,7 @@ from websockets.frames import CloseCode
 
 from .codec import Format, decode
 from .exceptions import XVIZError
-from .logfmt import log_event
+from .logfmt import log_event, redact_url
 from .live import FeedEvent, LiveRegistry, LiveSource, LiveUpdate, Subscription, Variant
 from .logs import Catalog, check_log_name
 from .metrics import Metrics
@@ -84,7 +84,7 @@ class Connection:
         started = time.monotonic()
         self.metrics.sessions.inc()
         self.metrics.sessions_open.inc()
-        log_event(logger, "session start", remote=_remote(self.websocket), path=self.websocket.request.path if self.websocket.request else "/")
+        log_event(logger, "session start", remote=_remote(self.websocket), path=redact_url(self.websocket.request.path if self.websocket.request else "/"))
         try:
             await self._guarded("the connection", self.session.connect)
             async for message in self.websocket:
