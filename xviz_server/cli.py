@@ -104,6 +104,7 @@ def _config(args: argparse.Namespace) -> int:
 
 
 def _healthcheck(args: argparse.Namespace) -> int:
+    """Exit status 0 when healthy, else 1 (Docker reserves 2), for wrong settings too."""
     from .healthcheck import ServeProcess, health_url, unhealthy_reason
 
     if args.pid is not None:
@@ -114,13 +115,14 @@ def _healthcheck(args: argparse.Namespace) -> int:
             return 1
         command = [sys.executable, "-m", "xviz_server", "healthcheck", "--timeout", str(args.timeout), *process.arguments]
         try:
-            return subprocess.run(command, env=process.environ, cwd=process.cwd, timeout=args.timeout + 30).returncode
+            status = subprocess.run(command, env=process.environ, cwd=process.cwd, timeout=args.timeout + 30).returncode
+            return 0 if status == 0 else 1
         except subprocess.TimeoutExpired:
             print("xviz-server healthcheck: the check itself timed out", file=sys.stderr)
             return 1
     settings = _settings_or_report(args, "healthcheck")
     if settings is None:
-        return 2
+        return 1
     url = health_url(settings)
     reason = unhealthy_reason(url, args.timeout)
     if reason is not None:
