@@ -98,6 +98,7 @@ limit=900 e build --quiet "${base_arg[@]}" "${build_extra[@]}" -f docker/Dockerf
     || { cat "$work/build.log"; say "FAIL the image does not build"; exit 1; }
 build_time=$(elapsed "$started")
 size=$(e image inspect --format '{{.Size}}' "$image")
+base_size=$(e image inspect --format '{{.Size}}' "${base:-$(sed -n 's/^ARG BASE_IMAGE=//p' docker/Dockerfile)}" 2>/dev/null || echo "")
 
 # -- helpers for containers ---------------------------------------------------
 start() {  # start NAME ARGS...: run a container in the background
@@ -228,14 +229,15 @@ if [ -d "$raw" ]; then
     check "a mounted store: healthy" wait_healthy store
     check "a mounted store: its logs are served, not the demo" \
         sh -c "curl -sf --max-time 10 http://127.0.0.1:$port/ | grep -q '\"name\": \"kitti\"' && ! curl -sf --max-time 10 http://127.0.0.1:$port/ | grep -q '\"name\": \"demo\"'"
-    check "a mounted store: a client reads the converted log" \
-        e exec "$run_id-store" xviz-server probe --timeout 60 "ws://127.0.0.1:3000/?log=kitti" >/dev/null
+    probe_store() { e exec "$run_id-store" xviz-server probe --timeout 60 "ws://127.0.0.1:3000/?log=kitti" >/dev/null; }
+    check "a mounted store: a client reads the converted log" probe_store
 else
     say "SKIPPED the convert service and mounted store: no KITTI excerpt at $raw"
 fi
 
 # -- numbers ----------------------------------------------------------------------
-say "image size $((size / 1000000)) MB, built in $build_time s, healthy $time_to_healthy s after run, stopped in $stop_time s"
+share=${base_size:+, $(((size - base_size) / 1000000)) MB over the base}
+say "image size $((size / 1000000)) MB$share, built in $build_time s, healthy $time_to_healthy s after run, stopped in $stop_time s"
 if [ "$failures" -gt 0 ]; then
     say "$failures check(s) failed"
     exit 1
