@@ -42,18 +42,23 @@ e() { timeout "${limit:-120}" "$engine" "$@"; }
 free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
 
 # -- the engine ---------------------------------------------------------------
+apt_install() {  # apt_install PACKAGE...: as root, from Debian packages
+    [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null || return 1
+    say "installing $* from Debian packages"
+    timeout 600 apt-get update -qq >/dev/null &&
+        DEBIAN_FRONTEND=noninteractive timeout 900 apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+}
+if ! command -v curl >/dev/null || ! command -v openssl >/dev/null; then
+    apt_install curl openssl ca-certificates || { say "FAIL curl and openssl are missing and cannot be installed"; exit 1; }
+fi
 base_arg=()
 build_extra=()
 if command -v docker >/dev/null && timeout 20 docker info >/dev/null 2>&1; then
     engine=docker
 else
     if ! command -v podman >/dev/null || ! command -v mmdebstrap >/dev/null || ! command -v iptables >/dev/null; then
-        [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null || skip "no docker engine, no podman, and not root to install it"
-        say "installing podman, runc, mmdebstrap from Debian packages"
-        timeout 600 apt-get update -qq >/dev/null || skip "apt-get update failed"
-        DEBIAN_FRONTEND=noninteractive timeout 900 apt-get install -y -qq --no-install-recommends \
-            podman runc mmdebstrap iptables uidmap netavark aardvark-dns slirp4netns >/dev/null \
-            || skip "podman could not be installed"
+        apt_install podman runc mmdebstrap iptables uidmap netavark aardvark-dns slirp4netns \
+            || skip "no docker engine, and podman could not be installed (root and apt-get are needed)"
     fi
     engine=podman
     # runc (crun refuses a cgroup v1/v2 hybrid); ulimits the process may set

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 import trustme
+from cryptography.hazmat.primitives import serialization
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
@@ -176,8 +177,9 @@ def pems(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     certificate.private_key_pem.write_to_path(str(files["key"]))
     authority.issue_cert("elsewhere").private_key_pem.write_to_path(str(files["other"]))
     files["garbage"].write_bytes(b"\x00not a pem file\n")
-    subprocess.run(["openssl", "pkey", "-in", str(files["key"]), "-aes256", "-passout", "pass:secret",
-                    "-out", str(files["encrypted"])], check=True)
+    key = serialization.load_pem_private_key(certificate.private_key_pem.bytes(), password=None)
+    files["encrypted"].write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                                     serialization.BestAvailableEncryption(b"secret")))
     for path in files.values():
         path.chmod(0o600)
     return files

@@ -69,7 +69,8 @@ class Settings(BaseSettings):
     ingest_token: str | None = Field(
         default=None,
         description="token that live sources must give to push to /ingest/NAME (Authorization: Bearer or "
-        "?token=); without one, only loopback sources are accepted",
+        "?token=); without one, only loopback sources are accepted. A flag shows in ps: prefer the variable or "
+        "--ingest-token-file",
     )
     ingest_token_file: Path | None = Field(
         default=None,
@@ -89,7 +90,8 @@ class Settings(BaseSettings):
     keyfile: Path | None = Field(default=None, description="TLS private key (PEM) for --certfile")
     viewer_token: str | None = Field(
         default=None,
-        description="token that viewers must give (?token= or Authorization: Bearer) to open a session or list logs",
+        description="token that viewers must give (?token= or Authorization: Bearer) to open a session or list logs. "
+        "A flag shows in ps: prefer the variable or --viewer-token-file",
     )
     viewer_token_file: Path | None = Field(
         default=None,
