@@ -217,25 +217,29 @@ start flag -p "127.0.0.1:$port:8080" "$image" serve --port 8080
 check "serve --port 8080: healthy" wait_healthy flag
 check "serve --port 8080: answers there" test "$(curl -sf --max-time 10 "http://127.0.0.1:$port/healthz")" = ok
 
-# -- the convert service writes a store; the server serves it ---------------------
+# -- the convert service writes into the store a running server serves (as compose runs them)
 raw=$repo/../shared/data/kitti-raw-2011_09_26_drive_0001-head/2011_09_26
 if [ -d "$raw" ]; then
     mkdir -p "$work/store"
     chown 10001 "$work/store" 2>/dev/null || chmod 777 "$work/store"
-    started=$(seconds)
+    port=$(free_port)
+    start compose -p "127.0.0.1:$port:3000" -v "$work/store:/data:ro" -e XVIZ_DATA_DIR=/data "$image"
+    check "an empty store: healthy" wait_healthy compose
     convert() {  # as docker/compose.yaml runs it: the date folder at /raw, the store at /data
         limit=300 e run --rm -v "$raw:/raw:ro" -v "$work/store:/data" "$image" \
             convert kitti /raw /data/kitti --frames 0:10 >"$work/convert.log" 2>&1 || { cat "$work/convert.log"; return 1; }
     }
+    started=$(seconds)
     check "convert: the KITTI date folder mounted at /raw becomes a log in the store" convert
     say "convert took $(elapsed "$started") s"
+    probe_store() { e exec "$run_id-$1" xviz-server probe --timeout 60 "ws://127.0.0.1:3000/?log=kitti" >/dev/null; }
+    check "a log that appears in the store after start is served" probe_store compose
     port=$(free_port)
     start store -p "127.0.0.1:$port:3000" -v "$work/store:/data:ro" "$image"
     check "a mounted store: healthy" wait_healthy store
     check "a mounted store: its logs are served, not the demo" \
         sh -c "curl -sf --max-time 10 http://127.0.0.1:$port/ | grep -q '\"name\": \"kitti\"' && ! curl -sf --max-time 10 http://127.0.0.1:$port/ | grep -q '\"name\": \"demo\"'"
-    probe_store() { e exec "$run_id-store" xviz-server probe --timeout 60 "ws://127.0.0.1:3000/?log=kitti" >/dev/null; }
-    check "a mounted store: a client reads the converted log" probe_store
+    check "a mounted store: a client reads the converted log" probe_store store
 else
     say "SKIPPED the convert service and mounted store: no KITTI excerpt at $raw"
 fi
