@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Build the Docker image and check it as an operator meets it: health (plain,
 # TLS, port by flag and by TOML file), the user it runs as, the demo with
-# nothing mounted, a mounted store written by the `convert` service, no token
-# in the logs, what the image holds, and a SIGTERM stop with a session open.
+# nothing mounted, the `convert` service writing into the store of a running
+# server, a store mounted at start, no token in the logs, what the image
+# holds, and a SIGTERM stop with a session open.
 # Prints the image size, build time, time to healthy and stop time.
 #
 # Engine: docker when an engine answers; else podman, installed from Debian
