@@ -1,14 +1,16 @@
 """The Docker image's steps, run outside Docker: install, entry point, health check, compose file.
 
-There is no Docker engine on the development machine; the Dockerfile's build
-stage runs docker/install.sh and the container runs docker/entrypoint.sh,
-so running those scripts here exercises what the image does.
+The Dockerfile's build stage runs docker/install.sh and the container runs
+docker/entrypoint.sh and ``xviz-server healthcheck --pid 1``, so running those
+here exercises what the image does; scripts/test-image.sh builds and runs
+the image itself where a container engine can run.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -31,21 +33,39 @@ def free_port() -> int:
 
 @pytest.fixture(scope="module")
 def image_prefix(tmp_path_factory) -> Path:
-    """What the build stage makes: a virtual environment with the package installed from the repository."""
+    """What the build stage makes, from a checkout holding a stale build/ folder and other leftovers."""
+    checkout = tmp_path_factory.mktemp("checkout")
+    repo = DOCKER.parent
+    for name in ("pyproject.toml", "README.md", "xviz_server", "providers", "schema", "docker"):
+        copy = shutil.copytree if (repo / name).is_dir() else shutil.copy
+        copy(repo / name, checkout / name)
+    (checkout / "build" / "lib" / "xviz_server").mkdir(parents=True)
+    (checkout / "build" / "lib" / "xviz_server" / "stale_module.py").write_text("raise SystemExit('stale')\n")
     prefix = tmp_path_factory.mktemp("image") / "opt-xviz"
-    result = subprocess.run([str(DOCKER / "install.sh"), str(prefix)], capture_output=True, text=True, timeout=900)
+    result = subprocess.run([str(checkout / "docker" / "install.sh"), str(prefix)], capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("xviz-server ")
     return prefix
 
 
+def test_install_keeps_only_what_serving_uses(image_prefix: Path):
+    (site,) = image_prefix.glob("lib/python3*/site-packages")
+    assert not list(site.glob("xviz_server/**/stale_module.py"))  # only the files the package declares
+    assert not [p.name for p in site.iterdir() if p.name.split("-")[0] in ("pip", "setuptools", "pkg_resources")]
+    assert (site / "numpy").is_dir() and not list((site / "numpy").glob("**/tests"))
+    assert not (image_prefix / "bin" / "pip").exists()
+
+
 def test_dockerfile_uses_the_scripts_and_the_conventions():
     dockerfile = (DOCKER / "Dockerfile").read_text()
     assert "RUN /src/docker/install.sh /opt/xviz" in dockerfile
-    assert 'ENTRYPOINT ["entrypoint.sh"]' in dockerfile and 'HEALTHCHECK' in dockerfile and "EXPOSE 3000" in dockerfile
+    assert 'ENTRYPOINT ["entrypoint.sh"]' in dockerfile and "EXPOSE 3000" in dockerfile
+    assert 'CMD ["xviz-server", "healthcheck", "--pid", "1"]' in dockerfile
     assert re.search(r"^USER xviz$", dockerfile, re.M)
+    assert re.search(r"^ARG BASE_IMAGE=python:3\.\d+-slim-bookworm$", dockerfile, re.M)  # a pinned release
     stages = re.split(r"^FROM ", dockerfile, flags=re.M)[1:]
-    assert len(stages) == 2 and "gcc" in stages[0] and "gcc" not in stages[1]  # no compiler in the final image
+    assert [stage.split()[0] for stage in stages] == ["${BASE_IMAGE}", "${BASE_IMAGE}"]
+    assert "apt-get" not in dockerfile and "XVIZ_DATA_DIR" not in dockerfile  # no compiler; the demo when nothing is mounted
 
 
 def test_compose_file_follows_the_compose_specification():
@@ -59,12 +79,16 @@ def test_compose_file_follows_the_compose_specification():
 def test_entrypoint_serves_reports_health_and_stops_on_sigterm(image_prefix: Path, tmp_path: Path):
     write_log(tmp_path / "data" / "drive", ten_hz(5))
     port = free_port()
-    env = {**os.environ, "PATH": f"{image_prefix / 'bin'}:{DOCKER}:{os.environ['PATH']}", "XVIZ_HOST": "127.0.0.1",
-           "XVIZ_PORT": str(port), "XVIZ_DATA_DIR": str(tmp_path / "data"), "XVIZ_LOG_FORMAT": "json"}
-    server = subprocess.Popen([str(DOCKER / "entrypoint.sh")], env=env, stderr=subprocess.PIPE, text=True)
+    (tmp_path / "server.toml").write_text(f"port = {port}\n")
+    env = {**{k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")},
+           "PATH": f"{image_prefix / 'bin'}:{DOCKER}:{os.environ['PATH']}", "XVIZ_HOST": "127.0.0.1",
+           "XVIZ_CONFIG": str(tmp_path / "server.toml"), "XVIZ_DATA_DIR": str(tmp_path / "data"), "XVIZ_LOG_FORMAT": "json"}
+    server = subprocess.Popen([str(DOCKER / "entrypoint.sh")], env=env, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    # As the image's HEALTHCHECK runs it: with PID 1's settings, here the entry point's process.
+    healthcheck = [str(image_prefix / "bin" / "xviz-server"), "healthcheck", "--pid", str(server.pid)]
     try:
         deadline = time.monotonic() + 60
-        while subprocess.run([str(DOCKER / "healthcheck.sh")], env=env, capture_output=True).returncode != 0:
+        while subprocess.run(healthcheck, capture_output=True, timeout=60).returncode != 0:
             assert time.monotonic() < deadline and server.poll() is None, "the server never became healthy"
             time.sleep(0.3)
         probe = subprocess.run([str(image_prefix / "bin" / "xviz-server"), "probe", f"ws://127.0.0.1:{port}/drive"],
@@ -77,3 +101,25 @@ def test_entrypoint_serves_reports_health_and_stops_on_sigterm(image_prefix: Pat
             server.kill()
     log = server.stderr.read()
     assert '"event":"session end"' in log and '"reason":"1000"' in log  # JSON log lines
+    gone = subprocess.run(["xviz-server", "healthcheck"], env=env, capture_output=True, text=True, timeout=60)
+    assert gone.returncode == 1 and f"unhealthy: http://127.0.0.1:{port}/healthz" in gone.stderr
+
+
+def test_entrypoint_serves_the_demo_with_nothing_mounted(image_prefix: Path, tmp_path: Path):
+    port = free_port()
+    env = {**{k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")},
+           "PATH": f"{image_prefix / 'bin'}:{os.environ['PATH']}", "XVIZ_HOST": "127.0.0.1", "XVIZ_PORT": str(port),
+           "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    assert not Path("/data").exists() or not any(Path("/data").iterdir()), "this machine has a /data store"
+    server = subprocess.Popen([str(DOCKER / "entrypoint.sh")], env=env, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        # The demo is made frame by frame on demand: the first second of it.
+        probe = [str(image_prefix / "bin" / "xviz-server"), "probe", "--timeout", "20", "--end", "+1", f"ws://127.0.0.1:{port}/?log=demo"]
+        deadline = time.monotonic() + 60
+        while (result := subprocess.run(probe, capture_output=True, text=True, timeout=60)).returncode != 0:
+            assert time.monotonic() < deadline and server.poll() is None, result.stdout + result.stderr
+            time.sleep(0.3)
+    finally:
+        server.terminate()
+        server.wait(20)
+    assert "serving the built-in demo log" in server.stderr.read()

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import logging
 import os
+import subprocess
 import sys
 import types
 import typing
@@ -16,8 +17,9 @@ import orjson
 import pydantic
 
 from . import __version__
+from .exceptions import ConfigError
 from .logfmt import configure_logging
-from .settings import Settings, load_settings
+from .settings import SECRETS, Settings, load_settings
 
 __all__ = ["main"]
 
@@ -79,8 +81,11 @@ def _settings_or_report(args: argparse.Namespace, command: str) -> Settings | No
         print(f"xviz-server {command}: {exc}", file=sys.stderr)
     except pydantic.ValidationError as exc:
         for error in exc.errors():
-            option = "--" + "-".join(str(part) for part in error["loc"]).replace("_", "-")
-            print(f"xviz-server {command}: {option}: {error['msg']}", file=sys.stderr)
+            if error["loc"]:
+                option = "--" + "-".join(str(part) for part in error["loc"]).replace("_", "-")
+                print(f"xviz-server {command}: {option}: {error['msg']}", file=sys.stderr)
+            else:  # a ConfigError about several settings: its message names them
+                print(f"xviz-server {command}: {error['ctx']['error']}", file=sys.stderr)
     return None
 
 
@@ -89,7 +94,41 @@ def _config(args: argparse.Namespace) -> int:
     if settings is None:
         return 2
     for name, value in settings.model_dump(mode="json").items():
-        print(f"{name} = {_toml(value)}" if value is not None else f"# {name} is not set")
+        if value is None:
+            print(f"# {name} is not set")
+        elif name in SECRETS:
+            print(f"# {name} is set (not shown)")
+        else:
+            print(f"{name} = {_toml(value)}")
+    return 0
+
+
+def _healthcheck(args: argparse.Namespace) -> int:
+    """Exit status 0 when healthy, else 1 (Docker reserves 2), for wrong settings too."""
+    from .healthcheck import ServeProcess, health_url, unhealthy_reason
+
+    if args.pid is not None:
+        try:
+            process = ServeProcess(args.pid)
+        except ConfigError as exc:
+            print(f"xviz-server healthcheck: {exc}", file=sys.stderr)
+            return 1
+        command = [sys.executable, "-m", "xviz_server", "healthcheck", "--timeout", str(args.timeout), *process.arguments]
+        try:
+            status = subprocess.run(command, env=process.environ, cwd=process.cwd, timeout=args.timeout + 30).returncode
+            return 0 if status == 0 else 1
+        except subprocess.TimeoutExpired:
+            print("xviz-server healthcheck: the check itself timed out", file=sys.stderr)
+            return 1
+    settings = _settings_or_report(args, "healthcheck")
+    if settings is None:
+        return 1
+    url = health_url(settings)
+    reason = unhealthy_reason(url, args.timeout)
+    if reason is not None:
+        print(f"unhealthy: {reason}", file=sys.stderr)
+        return 1
+    print(f"healthy: {url}")
     return 0
 
 
@@ -113,13 +152,13 @@ def _serve(args: argparse.Namespace) -> int:
     configure_logging(settings.log_format)
     if settings.data_dir is None and not settings.dataset:
         settings = settings.model_copy(update={"dataset": ["demo"]})
-        logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo drive as the log 'demo'")
+        logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo log as 'demo'")
     elif settings.data_dir is not None and not settings.data_dir.is_dir():
         print(f"xviz-server serve: --data-dir {settings.data_dir} is not a directory", file=sys.stderr)
         return 2
     try:
         _run_async(run(settings))
-    except ValueError as exc:  # a --dataset that is not KIND:PATH
+    except ValueError as exc:  # a --dataset that is not KIND:PATH, a TLS file that cannot serve (ConfigError)
         print(f"xviz-server serve: {exc}", file=sys.stderr)
         return 2
     return 0
@@ -209,6 +248,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_settings_options(config)
     config.set_defaults(run=_config)
+
+    healthcheck = commands.add_parser(
+        "healthcheck",
+        help="ask a running server's /healthz (for container health checks)",
+        description="Ask GET /healthz of the server that `serve` runs with the same settings (flags, XVIZ_* "
+        "variables, --config), over https when --certfile is set. Exit status 0 when it answers 200, 1 otherwise.",
+    )
+    _add_settings_options(healthcheck)
+    healthcheck.add_argument("--timeout", type=float, default=3.0, metavar="S", help="give up after S seconds (default 3)")
+    healthcheck.add_argument(
+        "--pid", type=int, metavar="PID",
+        help="check the `xviz-server serve` running as process PID, with its own command line and environment "
+        "(read from /proc); in the Docker image, --pid 1",
+    )
+    healthcheck.set_defaults(run=_healthcheck)
 
     validate = commands.add_parser(
         "validate",

@@ -31,7 +31,7 @@ from websockets.frames import CloseCode
 from .codec import Format
 from .exceptions import XVIZError
 from .live import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription
-from .logfmt import log_event
+from .logfmt import log_event, redact_url
 from .logs import Catalog, Log, check_log_name
 from .metrics import Metrics
 from .session import Close, ConfigureLive, Event, OpenLog, QueryInstant, Send, Session, SubscribeLive
@@ -82,7 +82,7 @@ class Connection:
         self.metrics.sessions.inc()
         self.metrics.sessions_open.inc()
         remote = _remote(self.websocket)
-        log_event(logger, "session start", remote=remote, path=self.path)
+        log_event(logger, "session start", remote=remote, path=redact_url(self.path))
         try:
             await self._step("the connection", self.session.connect)
             async for message in self.websocket:

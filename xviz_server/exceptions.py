@@ -20,6 +20,7 @@ __all__ = [
     "BuilderError",
     "LogWriteError",
     "DatasetError",
+    "ConfigError",
 ]
 
 
@@ -131,3 +132,11 @@ class LogWriteError(XVIZError):
     def __init__(self, message: str, *, directory: object) -> None:
         super().__init__(message)
         self.directory = directory
+
+
+class ConfigError(XVIZError, ValueError):
+    """A setting cannot be used as given: the message names the setting or file and says why.
+
+    It is a :class:`ValueError` too, so that settings validation reports it
+    beside the setting's other errors.
+    """

@@ -4,26 +4,61 @@ Events that operators count (a session starting or ending, an error sent)
 go through :func:`log_event`, which keeps their fields apart: the text
 format shows them as ``key=value`` pairs, the JSON format as keys of the
 object, beside ``time``, ``level``, ``logger`` and ``message``.
+
+What clients send reaches the log only through :func:`redact_url` (request
+paths lose the values of credential-looking query parameters) and
+:func:`printable` (every line is one line, with no terminal escape codes):
+both formats escape the non-printable characters of messages and fields.
 """
 
 from __future__ import annotations
 
 import datetime
 import logging
+import re
 import sys
 from typing import Any
+from urllib.parse import unquote_plus
 
 import orjson
 
-__all__ = ["configure_logging", "log_event", "JsonFormatter"]
+__all__ = ["configure_logging", "log_event", "printable", "redact_url", "JsonFormatter", "TextFormatter"]
 
 _FIELDS = "xviz_fields"
+
+#: Query parameters whose value is a credential: their names contain one of these words.
+_CREDENTIAL = re.compile(r"token|auth|key|pass|secret|signature|sig$|credential|session_id", re.IGNORECASE)
+REDACTED = "REDACTED"
+
+
+def redact_url(path: str) -> str:
+    """``path`` (a request target) with the value of every credential-looking query parameter replaced.
+
+    ``/?log=demo&token=s3cret`` becomes ``/?log=demo&token=REDACTED``;
+    parameter names are matched case-insensitively after percent-decoding
+    (``TOKEN``, ``%74oken``, ``access_token``, ``api_key``, ``password`` ...).
+    """
+    route, separator, query = path.partition("?")
+    if not separator:
+        return path
+    parts = []
+    for part in query.split("&"):
+        name, equals, _ = part.partition("=")
+        parts.append(f"{name}={REDACTED}" if equals and _CREDENTIAL.search(unquote_plus(name)) else part)
+    return f"{route}?{'&'.join(parts)}"
+
+
+def printable(text: str) -> str:
+    """``text`` with every non-printable character escaped as in Python (``\\x1b``, ``\\r``, ``\\u2028``)."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
 
 
 def log_event(logger: logging.Logger, event: str, level: int = logging.INFO, **fields: Any) -> None:
     """Log ``event`` with its fields (``remote=...``, ``log=...``)."""
     if logger.isEnabledFor(level):
-        text = " ".join([event, *(f"{key}={value}" for key, value in fields.items())])
+        text = " ".join([event, *(f"{key}={value}" for key, value in fields.items())])  # escaped by the formatters
         logger.log(level, text, extra={_FIELDS: {"event": event, **fields}})
 
 
@@ -35,12 +70,26 @@ class JsonFormatter(logging.Formatter):
             "time": datetime.datetime.fromtimestamp(record.created, datetime.timezone.utc).isoformat(timespec="milliseconds"),
             "level": record.levelname.lower(),
             "logger": record.name,
-            "message": record.getMessage(),
+            "message": printable(record.getMessage()),
         }
-        line.update(getattr(record, _FIELDS, {}))
+        fields = getattr(record, _FIELDS, {})
+        line.update((key, printable(value) if isinstance(value, str) else value) for key, value in fields.items())
         if record.exc_info:
             line["exception"] = self.formatException(record.exc_info)
         return orjson.dumps(line, default=str).decode()
+
+
+class TextFormatter(logging.Formatter):
+    """``time level logger: message``, one line per record; tracebacks follow, each line escaped."""
+
+    def __init__(self) -> None:
+        super().__init__("%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+    def formatMessage(self, record: logging.LogRecord) -> str:
+        return printable(super().formatMessage(record))
+
+    def formatException(self, ei: Any) -> str:
+        return "\n".join(map(printable, super().formatException(ei).split("\n")))
 
 
 def configure_logging(fmt: str = "text", level: int = logging.INFO) -> None:
@@ -49,7 +98,7 @@ def configure_logging(fmt: str = "text", level: int = logging.INFO) -> None:
     if fmt == "json":
         handler.setFormatter(JsonFormatter())
     else:
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        handler.setFormatter(TextFormatter())
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level)

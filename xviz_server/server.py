@@ -19,7 +19,6 @@ import asyncio
 import dataclasses
 import logging
 import signal
-import ssl
 from http import HTTPStatus
 from pathlib import Path
 from typing import Any
@@ -44,6 +43,7 @@ from .live.replay import replay
 from .logs import Catalog
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
+from .tls import server_context
 from .work import Workers
 
 __all__ = ["XVIZServer", "run"]
@@ -90,7 +90,8 @@ class XVIZServer:
         return self._server.sockets[0].getsockname()[1]
 
     async def start(self) -> None:
-        """Find the logs and start listening."""
+        """Find the logs and start listening; raises :class:`~xviz_server.exceptions.ConfigError` for bad TLS files."""
+        tls = server_context(self.settings.certfile, self.settings.keyfile) if self.settings.certfile else None
         names = await self.catalog.scan()
         logger.info("serving %d logs from %s", len(names), self.settings.data_dir or "datasets given on the command line")
         if self.catalog.kinds() - {LOG}:
@@ -101,7 +102,7 @@ class XVIZServer:
             self._handle,
             self.settings.host,
             self.settings.port,
-            ssl=self._tls(),
+            ssl=tls,
             origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
             process_request=self._process_request,
             compression="deflate" if self.settings.compression else None,
@@ -113,14 +114,6 @@ class XVIZServer:
         )
         scheme = "wss" if self.settings.certfile else "ws"
         logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)
-
-    def _tls(self) -> ssl.SSLContext | None:
-        """The TLS context for --certfile/--keyfile, or ``None`` for plain ws:// and http://."""
-        if self.settings.certfile is None:
-            return None
-        context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
-        context.load_cert_chain(self.settings.certfile, self.settings.keyfile)
-        return context
 
     async def _start_replay(self, directory: Path) -> None:
         """Replay a static log as the live feed named after its folder."""
@@ -174,8 +167,8 @@ class XVIZServer:
                 # Sources push whole frames: point clouds and images, megabytes each.
                 connection.protocol.max_message_size = int(self.settings.max_ingest_mb * MB)
                 return None
-            if self.settings.viewer_token and not token_matches(request, self.settings.viewer_token):
-                return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
+            if (refused := self._viewer_refusal(connection, request)) is not None:
+                return refused
             if len(self.sessions) >= self.settings.max_sessions:
                 logger.warning("refused a session: %d sessions open", self.settings.max_sessions)
                 return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "too many sessions, try again later\n")
@@ -184,10 +177,12 @@ class XVIZServer:
         if path == "/healthz":
             return connection.respond(HTTPStatus.OK, "ok\n")
         if path == "/metrics":
+            if self.settings.protect_metrics and (refused := self._viewer_refusal(connection, request)) is not None:
+                return refused
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
         if path in ("/", "/logs"):
-            if self.settings.viewer_token and not token_matches(request, self.settings.viewer_token):
-                return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
+            if (refused := self._viewer_refusal(connection, request)) is not None:
+                return refused
             live = [{"name": feed.name, "connected": feed.connected} for feed in self.live]
             body = {"server": f"xviz-server {__version__}", "logs": await self.catalog.describe(), "live": live}
             return _response(connection, HTTPStatus.OK, orjson.dumps(body, option=orjson.OPT_INDENT_2), "application/json")
@@ -195,6 +190,13 @@ class XVIZServer:
             HTTPStatus.NOT_FOUND,
             "not found: open a WebSocket for an XVIZ session, or GET /, /healthz or /metrics\n",
         )
+
+    def _viewer_refusal(self, connection: ServerConnection, request: Request) -> Response | None:
+        """HTTP 401 when a viewer token is configured and the request does not give it."""
+        if self.settings.viewer_token and not token_matches(request, self.settings.viewer_token):
+            return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
+        return None
+
 
 
 def parse_dataset(text: str) -> tuple[str, Path]:

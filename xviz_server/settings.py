@@ -9,11 +9,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 from .datasets import DEFAULT_IMAGE_WIDTH
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
-__all__ = ["Settings", "load_settings"]
+from .exceptions import ConfigError
+
+__all__ = ["SECRETS", "Settings", "load_settings"]
+
+#: The settings that are secrets: never printed or logged.
+SECRETS = ("ingest_token", "viewer_token")
 
 
 class Settings(BaseSettings):
@@ -65,7 +70,12 @@ class Settings(BaseSettings):
     ingest_token: str | None = Field(
         default=None,
         description="token that live sources must give to push to /ingest/NAME (Authorization: Bearer or "
-        "?token=); without one, only loopback sources are accepted",
+        "?token=); without one, only loopback sources are accepted. A flag shows in ps: prefer the variable or "
+        "--ingest-token-file",
+    )
+    ingest_token_file: Path | None = Field(
+        default=None,
+        description="read --ingest-token from this file (unlike a flag, it is not shown to other users by ps)",
     )
     max_ingest_mb: float = Field(default=64, gt=0, description="largest message a live source may push, MB")
     live_queue: int = Field(default=32, ge=1, description="updates a live viewer may fall behind before the oldest are dropped")
@@ -81,13 +91,57 @@ class Settings(BaseSettings):
     keyfile: Path | None = Field(default=None, description="TLS private key (PEM) for --certfile")
     viewer_token: str | None = Field(
         default=None,
-        description="token that viewers must give (?token= or Authorization: Bearer) to open a session or list logs",
+        description="token that viewers must give (?token= or Authorization: Bearer) to open a session or list logs. "
+        "A flag shows in ps: prefer the variable or --viewer-token-file",
+    )
+    viewer_token_file: Path | None = Field(
+        default=None,
+        description="read --viewer-token from this file (unlike a flag, it is not shown to other users by ps)",
+    )
+    protect_metrics: bool = Field(
+        default=False, description="require the viewer token on GET /metrics too (/healthz always answers)"
     )
     allowed_origins: list[str] = Field(
         default_factory=list,
         description="browser origins allowed to connect, e.g. https://viewer.example.com; repeat for more "
         "(default: any; clients that send no Origin, like scripts, are always allowed)",
     )
+
+
+    @model_validator(mode="before")
+    @classmethod
+    def _read_token_files(cls, data: Any) -> Any:
+        """Take ``<name>_token`` from ``<name>_token_file`` when that is given."""
+        if not isinstance(data, dict):
+            return data
+        for secret in SECRETS:
+            source = data.get(f"{secret}_file")
+            if source is None:
+                continue
+            if data.get(secret) is not None:
+                raise ConfigError(f"give --{secret.replace('_', '-')} or --{secret.replace('_', '-')}-file, not both")
+            data = {**data, secret: _read_token(Path(source))}
+        return data
+
+    @model_validator(mode="after")
+    def _check_combinations(self) -> Settings:
+        if self.keyfile is not None and self.certfile is None:
+            raise ConfigError(f"--keyfile {self.keyfile} without --certfile: give the certificate too (or neither)")
+        if self.protect_metrics and self.viewer_token is None:
+            raise ConfigError("--protect-metrics needs a viewer token (--viewer-token or --viewer-token-file)")
+        return self
+
+
+def _read_token(path: Path) -> str:
+    """The token held by ``path``: its first line, without surrounding white space."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read the token file {path}: {getattr(exc, 'strerror', None) or exc}") from None
+    token = text.strip()
+    if not token or "\n" in token:
+        raise ConfigError(f"the token file {path} must hold one line, the token")
+    return token
 
 
 def load_settings(config: Path | None = None, **flags: Any) -> Settings:

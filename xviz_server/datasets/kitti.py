@@ -62,6 +62,7 @@ __all__ = [
     "KittiDrive",
     "Oxts",
     "Tracklet",
+    "find_drive",
     "footprints",
     "is_kitti_drive",
     "read_calibration",
@@ -72,6 +73,7 @@ __all__ = [
 ]
 
 CAMERAS = ("image_00", "image_01", "image_02", "image_03")
+CALIBRATION = "calib_imu_to_velo.txt"  # the one calibration file the conversion reads
 IMU_HEIGHT = 0.93  # metres above the ground, from the KITTI set-up page
 EARTH_RADIUS = 6378137.0
 TRAJECTORY_LENGTH = 50
@@ -88,6 +90,38 @@ _COLOR_CHANNELS = ((80.0, 80.0), (80.0, 0.0), (60.0, 0.0))  # red, green, blue: 
 def is_kitti_drive(path: Path) -> bool:
     """Whether ``path`` is a KITTI raw drive folder (``oxts`` and ``velodyne_points`` with timestamps)."""
     return (path / "oxts" / "timestamps.txt").is_file() and (path / "velodyne_points" / "data").is_dir()
+
+
+def find_drive(path: Path) -> Path:
+    """The KITTI raw drive folder that ``path`` names, with the calibration beside it.
+
+    ``path`` is a drive folder, a date folder (``2011_09_26``, holding the
+    drives and the ``calib_*.txt`` files) or the folder above date folders.
+    Raises :class:`~xviz_server.exceptions.DatasetError` when it holds no
+    drive, several (listing them, to give one), or when the calibration is
+    not in the drive's parent folder (a drive folder given alone).
+    """
+    if is_kitti_drive(path):
+        drive = path
+    else:
+        drives = sorted(p for p in [*path.glob("*"), *path.glob("*/*")] if p.is_dir() and is_kitti_drive(p))
+        if not drives:
+            raise DatasetError(
+                f"{path}: not a KITTI raw drive, date folder or folder of dates (no drive with oxts/ and velodyne_points/)",
+                path=path,
+            )
+        if len(drives) > 1:
+            listed = ", ".join(str(p) for p in drives)
+            raise DatasetError(f"{path}: {len(drives)} KITTI drives, give one of them: {listed}", path=path)
+        (drive,) = drives
+    calibration = drive.parent / CALIBRATION
+    if not calibration.is_file():
+        raise DatasetError(
+            f"{calibration} not found: KITTI keeps the calibration files in the date folder above each drive; "
+            f"give (or mount) the date folder, or the drive inside it",
+            path=calibration,
+        )
+    return drive
 
 
 def _read_bytes(path: Path) -> bytes:
@@ -335,8 +369,9 @@ def footprints(centers: np.ndarray, yaws: np.ndarray, lengths: np.ndarray, width
 class KittiDrive:
     """A KITTI raw drive: its raw data by frame, and each frame converted to XVIZ.
 
-    ``path`` is the drive folder, or a folder holding one date folder with
-    one drive. Images wider than ``image_max_width`` are scaled down (aspect
+    ``path`` is the drive folder inside its date folder, the date folder
+    (holding one drive), or the folder above date folders (holding one drive
+    in all); see :func:`find_drive`. Images wider than ``image_max_width`` are scaled down (aspect
     kept) and re-encoded as PNG. Small and picklable: worker processes get a
     copy and read the files themselves. Every missing or unreadable file
     raises :class:`~xviz_server.exceptions.DatasetError` naming it.
@@ -348,12 +383,7 @@ class KittiDrive:
     _oxts_cache: dict[int, Oxts] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        self.path = Path(self.path)
-        if not is_kitti_drive(self.path):
-            drives = [p for p in self.path.glob("*/*_sync") if is_kitti_drive(p)]
-            if len(drives) != 1:
-                raise DatasetError(f"{self.path}: not a KITTI raw drive (no oxts/ and velodyne_points/)", path=self.path)
-            self.path = drives[0]
+        self.path = find_drive(Path(self.path))
         self.name = self.path.name
 
     # -- raw data ---------------------------------------------------------
@@ -437,7 +467,7 @@ class KittiDrive:
         See the module docstring for how (0.81, -0.32, 1.73) follows from
         ``calib_imu_to_velo.txt``.
         """
-        path = self.path.parent / "calib_imu_to_velo.txt"
+        path = self.path.parent / CALIBRATION
         translation = self.calibration("imu_to_velo").get("T")
         if translation is None or translation.shape != (3,):
             raise DatasetError(f"{path}: no 'T:' translation of 3 numbers", path=path)

@@ -1,0 +1,255 @@
+#!/usr/bin/env bash
+# Build the Docker image and check it as an operator meets it: health (plain,
+# TLS, port by flag and by TOML file), the user it runs as, the demo with
+# nothing mounted, the `convert` service writing into the store of a running
+# server, a store mounted at start, no token in the logs, what the image
+# holds, and a SIGTERM stop with a session open.
+# Prints the image size, build time, time to healthy and stop time.
+#
+# Engine: docker when an engine answers; else podman, installed from Debian
+# packages when missing (as root), with runc, the container's ulimits set in
+# a containers.conf given by CONTAINERS_CONF, and a base image made by
+# mmdebstrap from the Debian release the Dockerfile names (no registry needed).
+# Where no engine can run containers, it says so and exits 0.
+# Every engine command has a time limit: the script cannot hang CI.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repo=$(pwd)
+run_id=xviz-ci-$$
+image=localhost/xviz-server:ci
+work=$(mktemp -d)
+failures=0
+containers=()
+
+cleanup() {
+    for name in "${containers[@]}"; do
+        timeout 60 "$engine" rm -f "$name" >/dev/null 2>&1 || true
+    done
+    rm -rf "$work"
+}
+engine=true
+trap cleanup EXIT
+
+say() { printf '%s\n' "test-image: $*"; }
+skip() { say "SKIPPED, no container engine can run here: $*"; exit 0; }
+check() {  # check DESCRIPTION COMMAND...: run COMMAND, report, count failures
+    local what=$1
+    shift
+    if "$@"; then say "ok   $what"; else say "FAIL $what"; failures=$((failures + 1)); fi
+}
+seconds() { date +%s.%N; }
+elapsed() { awk -v a="$1" -v b="$(seconds)" 'BEGIN { printf "%.1f", b - a }'; }
+e() { timeout "${limit:-120}" "$engine" "$@"; }
+free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+
+# -- the engine ---------------------------------------------------------------
+apt_install() {  # apt_install PACKAGE...: as root, from Debian packages
+    [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null || return 1
+    say "installing $* from Debian packages"
+    timeout 600 apt-get update -qq >/dev/null &&
+        DEBIAN_FRONTEND=noninteractive timeout 900 apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+}
+if ! command -v curl >/dev/null || ! command -v openssl >/dev/null; then
+    apt_install curl openssl ca-certificates || { say "FAIL curl and openssl are missing and cannot be installed"; exit 1; }
+fi
+base_arg=()
+build_extra=()
+if command -v docker >/dev/null && timeout 20 docker info >/dev/null 2>&1; then
+    engine=docker
+else
+    if ! command -v podman >/dev/null || ! command -v mmdebstrap >/dev/null || ! command -v iptables >/dev/null; then
+        apt_install podman runc mmdebstrap iptables uidmap netavark aardvark-dns slirp4netns \
+            || skip "no docker engine, and podman could not be installed (root and apt-get are needed)"
+    fi
+    engine=podman
+    # runc (crun refuses a cgroup v1/v2 hybrid); ulimits the process may set
+    # without CAP_SYS_RESOURCE: nofile at the hard limit, nproc within pid_max.
+    nofile=$(ulimit -Hn)
+    nproc=$(cat /proc/sys/kernel/pid_max)
+    cat >"$work/containers.conf" <<EOF
+[containers]
+default_ulimits = ["nofile=$nofile:$nofile", "nproc=$nproc:$nproc"]
+[engine]
+runtime = "runc"
+cgroup_manager = "cgroupfs"
+events_logger = "file"
+EOF
+    export CONTAINERS_CONF=$work/containers.conf
+    # No registry: a base made of the Debian release the Dockerfile's BASE_IMAGE names.
+    release=$(sed -n 's/^ARG BASE_IMAGE=.*-\([a-z]*\)$/\1/p' docker/Dockerfile)
+    base=localhost/xviz-base:$release
+    if ! e image exists "$base"; then
+        say "making the base image $base with mmdebstrap"
+        started=$(seconds)
+        limit=900 timeout 900 mmdebstrap --quiet --variant=minbase \
+            --include=python3,python3-venv,python3-pip,ca-certificates,passwd "$release" "$work/base.tar" \
+            || skip "mmdebstrap could not make a $release base"
+        limit=300 e import --quiet "$work/base.tar" "$base" >/dev/null
+        rm -f "$work/base.tar"
+        say "base image made in $(elapsed "$started") s"
+    fi
+    base_arg=(--build-arg "BASE_IMAGE=$base")
+    # RUN steps reach the package index through the host's proxy, whose CA is
+    # in the host's bundle: mounted for RUN steps only, never in a layer.
+    bundle=/etc/ssl/certs/ca-certificates.crt
+    [ -f "$bundle" ] && build_extra=(-v "$bundle:$bundle:ro")
+    build_extra+=(--format docker)  # else podman drops HEALTHCHECK
+    e run --rm "$base" true >/dev/null 2>&1 || skip "podman cannot start a container on this machine"
+fi
+say "engine: $engine ($($engine --version))"
+
+# -- build --------------------------------------------------------------------
+started=$(seconds)
+limit=900 e build --quiet "${base_arg[@]}" "${build_extra[@]}" -f docker/Dockerfile -t "$image" . >"$work/build.log" 2>&1 \
+    || { cat "$work/build.log"; say "FAIL the image does not build"; exit 1; }
+build_time=$(elapsed "$started")
+size=$(e image inspect --format '{{.Size}}' "$image")
+base_size=$(e image inspect --format '{{.Size}}' "${base:-$(sed -n 's/^ARG BASE_IMAGE=//p' docker/Dockerfile)}" 2>/dev/null || echo "")
+
+# -- helpers for containers ---------------------------------------------------
+start() {  # start NAME ARGS...: run a container in the background
+    local name=$run_id-$1
+    shift
+    containers+=("$name")
+    e run -d --name "$name" "$@" >/dev/null 2>>"$work/engine.log"
+}
+healthy() {  # healthy NAME: the image's own HEALTHCHECK command passes
+    if [ "$engine" = podman ]; then
+        e healthcheck run "$run_id-$1" >/dev/null 2>&1
+    else
+        e exec "$run_id-$1" xviz-server healthcheck --pid 1 >/dev/null 2>&1
+    fi
+}
+wait_healthy() {  # wait_healthy NAME: poll for 60 s at most
+    local deadline=$((SECONDS + 60))
+    until healthy "$1"; do
+        [ "$SECONDS" -lt "$deadline" ] || return 1
+        [ "$(e inspect --format '{{.State.Running}}' "$run_id-$1")" = true ] || return 1
+        sleep 0.2
+    done
+}
+logs() { e logs "$run_id-$1" 2>&1; }
+in_image() { e exec "$run_id-plain" "$@"; }
+catalog_has() {  # catalog_has URL NAME...: GET URL lists every log NAME
+    local body
+    body=$(curl -sf --max-time 10 "$1") || return 1
+    shift
+    for name in "$@"; do grep -q "\"name\": \"$name\"" <<<"$body" || return 1; done
+}
+
+# -- plain, nothing mounted: the demo; uid; token redacted; what the image holds
+port=$(free_port)
+started=$(seconds)
+start plain -p "127.0.0.1:$port:3000" -e XVIZ_VIEWER_TOKEN=s3cret-ci-token "$image"
+check "healthy with nothing mounted" wait_healthy plain
+time_to_healthy=$(elapsed "$started")
+check "runs as uid 10001" test "$(in_image id -u)" = 10001
+check "serves the demo with nothing mounted" catalog_has "http://127.0.0.1:$port/?token=s3cret-ci-token" demo
+check "the demo reaches a client (probe, GLB and JSON)" \
+    in_image sh -c 'xviz-server probe --timeout 60 "ws://127.0.0.1:3000/?log=demo&token=s3cret-ci-token" >/dev/null &&
+                    xviz-server probe --timeout 60 --format json "ws://127.0.0.1:3000/?log=demo&token=s3cret-ci-token" >/dev/null'
+check "healthcheck says unhealthy where no server answers" sh -c "! $engine exec $run_id-plain xviz-server healthcheck --port 9 2>/dev/null"
+check "/healthz needs no token" test "$(curl -sf --max-time 10 "http://127.0.0.1:$port/healthz")" = ok
+check "the session was logged with its token redacted" grep -q "token=REDACTED" <<<"$(logs plain)"
+check "the token is in no log line" test "$(logs plain | grep -c s3cret-ci-token)" = 0
+check "config does not print the token" test "$(in_image xviz-server config | grep -c s3cret-ci-token)" = 0
+check "no pip, setuptools or pkg_resources in the environment" \
+    in_image python3 -c 'import importlib.util as u, sys; sys.exit(any(u.find_spec(m) for m in ("pip", "setuptools", "pkg_resources")))'
+check "no numpy tests, no sources, no compiler" \
+    in_image sh -c '! find /opt/xviz -path "*/numpy/*" -name tests | grep -q . && ! test -e /src && ! command -v gcc && ! command -v cc'
+expected=$( (cd xviz_server && find . -name '*.py'
+              cd ../providers && find . -name '*.py' | sed 's|^\./|./providers/|'
+              cd ../schema && find . -name '*.py' | sed 's|^\./|./schema/|') | sort)
+held=$(in_image python3 -c 'import pathlib, xviz_server
+root = pathlib.Path(xviz_server.__file__).parent
+print("\n".join(sorted("./" + str(p.relative_to(root)) for p in root.rglob("*.py"))))' | sort)
+check "the package holds exactly the repository's modules" test "$expected" = "$held"
+
+# SIGTERM with a session open: the client sees 1001, the server exits 0.
+python=$repo/.venv/bin/python
+if [ -x "$python" ]; then
+    timeout 60 "$python" - "$port" >"$work/session.out" 2>&1 <<'EOF' &
+import asyncio, sys
+from websockets.asyncio.client import connect
+async def main():
+    async with connect(f"ws://127.0.0.1:{sys.argv[1]}/?log=demo&token=s3cret-ci-token", open_timeout=20) as ws:
+        await ws.recv()
+        print("open", flush=True)
+        await ws.wait_closed()
+        print(ws.close_code, flush=True)
+asyncio.run(main())
+EOF
+    client=$!
+    deadline=$((SECONDS + 30))
+    until grep -q open "$work/session.out" || [ "$SECONDS" -ge "$deadline" ]; do sleep 0.1; done
+    started=$(seconds)
+    e stop -t 20 "$run_id-plain" >/dev/null 2>>"$work/engine.log"
+    stop_time=$(elapsed "$started")
+    wait "$client" || true
+    check "SIGTERM closes the open session with 1001" test "$(tail -1 "$work/session.out")" = 1001
+    check "SIGTERM: the server exits 0" test "$(e inspect --format '{{.State.ExitCode}}' "$run_id-plain")" = 0
+else
+    say "SKIPPED the SIGTERM check: no $python (run scripts/test.sh first)"
+    stop_time=n/a
+fi
+
+# -- TLS, with the port in a TOML file ------------------------------------------
+tls=$work/tls
+mkdir -m 755 "$tls"
+openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -days 1 -subj /CN=localhost \
+    -addext subjectAltName=IP:127.0.0.1 -keyout "$tls/key.pem" -out "$tls/cert.pem" 2>/dev/null
+printf 'port = 8443\ncertfile = "/tls/cert.pem"\nkeyfile = "/tls/key.pem"\n' >"$tls/server.toml"
+chown 10001 "$tls/key.pem" 2>/dev/null || chmod 644 "$tls/key.pem"
+chmod 644 "$tls/cert.pem" "$tls/server.toml"
+port=$(free_port)
+start tls -p "127.0.0.1:$port:8443" -v "$tls:/tls:ro" -e XVIZ_CONFIG=/tls/server.toml "$image"
+check "TLS (port 8443 from the TOML file): healthy" wait_healthy tls
+check "TLS: https answers with the certificate" test "$(curl -sf --max-time 10 --cacert "$tls/cert.pem" "https://127.0.0.1:$port/healthz")" = ok
+key_alone() {  # exits non-zero at once, saying what to give
+    local out
+    if out=$(limit=60 e run --rm -e XVIZ_KEYFILE=/tls/key.pem -v "$tls:/tls:ro" "$image" 2>&1); then return 1; fi
+    grep -q 'without --certfile' <<<"$out"
+}
+check "a key without a certificate: exits non-zero at once, naming the fix" key_alone
+
+# -- port by flag ----------------------------------------------------------------
+port=$(free_port)
+start flag -p "127.0.0.1:$port:8080" "$image" serve --port 8080
+check "serve --port 8080: healthy" wait_healthy flag
+check "serve --port 8080: answers there" test "$(curl -sf --max-time 10 "http://127.0.0.1:$port/healthz")" = ok
+
+# -- the convert service writes into the store a running server serves (as compose runs them)
+raw=$repo/../shared/data/kitti-raw-2011_09_26_drive_0001-head/2011_09_26
+if [ -d "$raw" ]; then
+    mkdir -p "$work/store"
+    chown 10001 "$work/store" 2>/dev/null || chmod 777 "$work/store"
+    port=$(free_port)
+    start compose -p "127.0.0.1:$port:3000" -v "$work/store:/data:ro" -e XVIZ_DATA_DIR=/data "$image"
+    check "an empty store: healthy" wait_healthy compose
+    convert() {  # as docker/compose.yaml runs it: the date folder at /raw, the store at /data
+        limit=300 e run --rm -v "$raw:/raw:ro" -v "$work/store:/data" "$image" \
+            convert kitti /raw /data/kitti --frames 0:10 >"$work/convert.log" 2>&1 || { cat "$work/convert.log"; return 1; }
+    }
+    started=$(seconds)
+    check "convert: the KITTI date folder mounted at /raw becomes a log in the store" convert
+    say "convert took $(elapsed "$started") s"
+    probe_store() { e exec "$run_id-$1" xviz-server probe --timeout 60 "ws://127.0.0.1:3000/?log=kitti" >/dev/null; }
+    check "a log that appears in the store after start is served" probe_store compose
+    port=$(free_port)
+    start store -p "127.0.0.1:$port:3000" -v "$work/store:/data:ro" "$image"
+    check "a mounted store: healthy" wait_healthy store
+    check "a mounted store: its logs are served, not the demo" \
+        sh -c "curl -sf --max-time 10 http://127.0.0.1:$port/ | grep -q '\"name\": \"kitti\"' && ! curl -sf --max-time 10 http://127.0.0.1:$port/ | grep -q '\"name\": \"demo\"'"
+    check "a mounted store: a client reads the converted log" probe_store store
+else
+    say "SKIPPED the convert service and mounted store: no KITTI excerpt at $raw"
+fi
+
+# -- numbers ----------------------------------------------------------------------
+share=${base_size:+, $(((size - base_size) / 1000000)) MB over the base}
+say "image size $((size / 1000000)) MB$share, built in $build_time s, healthy $time_to_healthy s after run, stopped in $stop_time s"
+if [ "$failures" -gt 0 ]; then
+    say "$failures check(s) failed"
+    exit 1
+fi
+say "all checks passed"
