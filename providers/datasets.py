@@ -52,7 +52,7 @@ class DatasetProvider:
                 else:
                     subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
         for kind, path in self._explicit:
-            found[path.name] = (kind, path)
+            found[path.stem if path.is_file() else path.name] = (kind, path)  # drive.tfrecord is served as drive
         self._found = found
         return sorted(found)
 

@@ -197,8 +197,8 @@ def parse_dataset(text: str) -> tuple[str, Path]:
         raise ValueError(f"--dataset {text!r}: give KIND:PATH, like kitti:/data/2011_09_26_drive_0001_sync")
     if kind not in KINDS:
         raise ValueError(f"--dataset {text!r}: unknown kind {kind!r}; known: {', '.join(sorted(KINDS))}")
-    if not Path(path).is_dir():
-        raise ValueError(f"--dataset {text!r}: {path} is not a directory")
+    if not Path(path).exists():
+        raise ValueError(f"--dataset {text!r}: {path}: no such file or directory")
     return kind, Path(path)
 
 

@@ -46,7 +46,7 @@ class Dataset(Protocol):
 #: recognises its layout. Modules are imported when first needed.
 KINDS: dict[str, tuple[str, str, str]] = {
     "kitti": ("kitti", "KittiDrive", "is_kitti_drive"),
-    "waymo": ("waymo", "WaymoSegment", "is_waymo_segment"),
+    "waymo": ("waymo", "open_segment", "is_waymo_segment"),
     "vista": ("vista", "VistaTrace", "is_vista_trace"),
 }
 
