@@ -17,9 +17,6 @@ import numpy as np
 from xviz_server.datasets import waymo_frame_pb2 as pb
 from xviz_server.datasets.tfrecord import write_records
 
-LASERS = {"TOP": 1, "FRONT": 2, "SIDE_LEFT": 3, "SIDE_RIGHT": 4, "REAR": 5}
-CAMERAS = {"FRONT": 1, "FRONT_LEFT": 2, "FRONT_RIGHT": 3, "SIDE_LEFT": 4, "SIDE_RIGHT": 5}
-
 
 def matrix(array: np.ndarray, level: int = 6) -> bytes:
     """A float array as a zlib-compressed MatrixFloat, as ``range_image_compressed`` holds it."""
@@ -44,7 +41,7 @@ def pose_matrix(yaw: float, translation: Sequence[float], roll: float = 0.0, pit
 
 
 def calibration(laser: str, extrinsic: np.ndarray, beams: Sequence[float] = (), low: float = 0.0, high: float = 0.0) -> pb.LaserCalibration:
-    return pb.LaserCalibration(name=LASERS[laser], beam_inclinations=list(beams), beam_inclination_min=low,
+    return pb.LaserCalibration(name=laser, beam_inclinations=list(beams), beam_inclination_min=low,
                                beam_inclination_max=high, extrinsic=transform(extrinsic))
 
 
@@ -69,14 +66,14 @@ def frame(
     message.context.name = "test-segment"
     message.context.laser_calibrations.extend(calibrations)
     for name, (first, second, pixel_pose) in (lasers or {}).items():
-        laser = message.lasers.add(name=LASERS[name])
+        laser = message.lasers.add(name=name)
         laser.ri_return1.range_image_compressed = matrix(first)
         if pixel_pose is not None:
             laser.ri_return1.range_image_pose_compressed = matrix(pixel_pose)
         if second is not None:
             laser.ri_return2.range_image_compressed = matrix(second)
     for name, data in (images or {}).items():
-        message.images.add(name=CAMERAS[name], image=data)
+        message.images.add(name=name, image=data)
     for (x, y, z, length, width, height, heading), kind, object_id in labels:
         label = message.laser_labels.add(type=kind, id=object_id)  # type: ignore[arg-type]
         label.box.center_x, label.box.center_y, label.box.center_z = x, y, z
@@ -89,16 +86,22 @@ def write_segment(path: Path, frames: Sequence[pb.Frame]) -> Path:
     return path
 
 
-def real_size_frame(micros: int, rng: np.random.Generator, cameras: dict[str, bytes]) -> pb.Frame:
+def real_size_frame(
+    micros: int, rng: np.random.Generator, cameras: dict[str, bytes], returns_top: tuple[float, float], returns_short: tuple[float, float],
+) -> pb.Frame:
     """A frame at the sizes of the real data: a 64 x 2650 TOP range image with pixel poses,
-    four 200 x 600 short-range ones, both returns, the given camera images, 60 labels."""
+    four 200 x 600 short-range ones, the given camera images, 60 labels.
+
+    ``returns_top`` and ``returns_short`` are the shares of the pixels with a
+    first and a second return, for the TOP and the short-range lidars.
+    """
     calibrations, lasers = [], {}
     for name, (height, width) in {"TOP": (64, 2650), "FRONT": (200, 600), "SIDE_LEFT": (200, 600),
                                   "SIDE_RIGHT": (200, 600), "REAR": (200, 600)}.items():
-        calibrations.append(calibration(name, pose_matrix(0.1, (1.0, 0.0, 2.0)), np.linspace(-0.3, 0.04, height) if name == "TOP" else (),
+        calibrations.append(calibration(name, pose_matrix(0.1, (1.0, 0.0, 2.0)), np.linspace(-0.3, 0.04, height).tolist() if name == "TOP" else [],
                                         -1.5, 0.5))
         returns: list[Any] = []
-        for share in (0.7, 0.1):  # the second return has few echoes
+        for share in returns_top if name == "TOP" else returns_short:
             image = np.zeros((height, width, 4), np.float32)
             hit = rng.uniform(size=(height, width)) < share
             image[..., 0] = np.where(hit, np.round(rng.uniform(2, 75, (height, width)) / 0.0058) * 0.0058, -1)

@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["row_inclinations", "column_azimuths", "ray_directions", "rotations", "to_frame_vehicle"]
+__all__ = ["row_inclinations", "column_azimuths", "ray_directions", "to_frame_vehicle"]
 
 
 def row_inclinations(beams: Sequence[float], low: float, high: float, height: int) -> np.ndarray:
@@ -45,36 +45,34 @@ def column_azimuths(extrinsic: np.ndarray, width: int) -> np.ndarray:
 
 
 def ray_directions(inclinations: np.ndarray, azimuths: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """(H, W, 3) unit direction of every pixel, turned by ``rotation`` (lidar to vehicle)."""
+    """(H, W, 3) float32 unit direction of every pixel, turned by ``rotation`` (lidar to vehicle)."""
     cos_i, sin_i = np.cos(inclinations)[:, None], np.sin(inclinations)[:, None]
     rays = np.stack(
         np.broadcast_arrays(np.cos(azimuths) * cos_i, np.sin(azimuths) * cos_i, sin_i), axis=-1
     )
-    return rays @ rotation.T
-
-
-def rotations(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotation matrices Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
-    return np.stack(
-        [
-            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
-            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
-            np.stack([-sp, cp * sr, cp * cr], axis=-1),
-        ],
-        axis=-2,
-    )
+    return (rays @ rotation.T).astype(np.float32)
 
 
 def to_frame_vehicle(points: np.ndarray, pixel_poses: np.ndarray, frame_pose: np.ndarray) -> np.ndarray:
     """Points in the vehicle frame of their pixels' poses, (N, 3), to that of ``frame_pose``.
 
     ``pixel_poses`` is (N, 6): roll, pitch, yaw, x, y, z of each point's
-    vehicle-to-world pose; ``frame_pose`` the frame's (4, 4) vehicle-to-world
-    transform. Computed in float64, since world coordinates are large.
+    vehicle-to-world pose, whose rotation is Rz(yaw) Ry(pitch) Rx(roll);
+    ``frame_pose`` the frame's (4, 4) vehicle-to-world transform. The world
+    positions are only ever subtracted from each other, in float64, so the
+    rest is computed in float32 without losing precision far from the
+    world's origin.
     """
-    poses = pixel_poses.astype(np.float64)
-    inverse = frame_pose[:3, :3].T
-    turn = inverse @ rotations(poses[:, 0], poses[:, 1], poses[:, 2])
-    shift = (poses[:, 3:6] - frame_pose[:3, 3]) @ inverse.T
-    return np.einsum("nij,nj->ni", turn, points) + shift
+    x, y, z = points.T
+    roll, pitch, yaw = (pixel_poses[:, i] for i in range(3))
+    cos, sin = np.cos(roll), np.sin(roll)
+    y, z = cos * y - sin * z, sin * y + cos * z
+    cos, sin = np.cos(pitch), np.sin(pitch)
+    x, z = cos * x + sin * z, cos * z - sin * x
+    cos, sin = np.cos(yaw), np.sin(yaw)
+    x, y = cos * x - sin * y, sin * x + cos * y
+    shift = (pixel_poses[:, 3:6] - frame_pose[:3, 3]).astype(np.float32)
+    x, y, z = x + shift[:, 0], y + shift[:, 1], z + shift[:, 2]
+    # The inverse rotation, R^T, spelled out: numpy's (N, 3) @ (3, 3) is many times slower.
+    rotation = frame_pose[:3, :3].astype(np.float32)
+    return np.stack([x * rotation[0, j] + y * rotation[1, j] + z * rotation[2, j] for j in range(3)], axis=1)

@@ -96,15 +96,21 @@ def pose_angles(matrix: np.ndarray) -> tuple[float, float, float]:
     return roll, pitch, yaw
 
 
+_DARK = np.array([40, 80, 200], np.float32)
+_SPAN = np.array([255, 230, 60], np.float32) - _DARK
+
+
 def intensity_colors(intensity: np.ndarray) -> np.ndarray:
     """uint8 RGBA colours of lidar returns by intensity: dim blue to bright yellow.
 
     Waymo intensities are mostly below 1 with a long tail; tanh compresses
     the tail.
     """
-    level = np.tanh(np.clip(intensity, 0, None) * 2.0)[:, None]
-    dark, bright = np.array([40, 80, 200, 255]), np.array([255, 230, 60, 255])
-    return (dark + (bright - dark) * level).astype(np.uint8)
+    level = np.tanh(np.maximum(intensity, 0, dtype=np.float32) * np.float32(2.0))
+    colors = np.full((len(level), 4), 255, np.uint8)
+    for channel in range(3):  # a channel at a time, in float32: a few times faster than (N, 4) float64
+        colors[:, channel] = _DARK[channel] + _SPAN[channel] * level
+    return colors
 
 
 @dataclass
@@ -181,12 +187,13 @@ class WaymoLog(abc.ABC):
         metadata = metadata or self.metadata()
         frame = self.read(index)
         builder = FrameBuilder(metadata)
-        builder.pose("/vehicle_pose", frame.time, position=frame.pose[:3, 3], orientation=pose_angles(frame.pose[:3, :3]))
-        outside = ~frame.in_zone
-        if outside.any():
-            builder.points("/lidar/points", frame.points[outside], intensity_colors(frame.intensity[outside]))
+        builder.pose("/vehicle_pose", frame.time, position=frame.pose[:3, 3].tolist(), orientation=pose_angles(frame.pose[:3, :3]))
+        points, intensity = frame.points, frame.intensity
         if frame.in_zone.any():
-            builder.points("/lidar/no_label_zone", frame.points[frame.in_zone])
+            builder.points("/lidar/no_label_zone", points[frame.in_zone])
+            points, intensity = points[~frame.in_zone], intensity[~frame.in_zone]
+        if len(points):
+            builder.points("/lidar/points", points, intensity_colors(intensity))
         for stream in metadata["streams"]:
             camera = stream.removeprefix("/camera/").upper()
             if stream.startswith("/camera/") and camera in frame.images:
