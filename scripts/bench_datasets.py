@@ -22,6 +22,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -97,8 +98,8 @@ def vista_trace(directory: Path, frames: int) -> Path:
     return directory
 
 
-def per_frame(kind: str, path: Path, frames: int) -> tuple[float, int]:
-    dataset = open_dataset(kind, path)
+def per_frame(kind: str, path: Path, frames: int, options: dict[str, Any]) -> tuple[float, int]:
+    dataset = open_dataset(kind, path, **options)
     metadata = dataset.metadata()
     times, size = [], 0
     for frame in range(min(frames, len(dataset))):
@@ -114,19 +115,22 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=10)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
-        rows = [("kitti", KITTI, "real drive 0001 excerpt")]
-        rows.append(("waymo", waymo_segment(Path(scratch) / "waymo", args.frames), ".npz generated at real size (returns 70% of every lidar)"))
+        scaled: dict[str, Any] = {}  # cameras scaled down to the default 400 pixels
+        rows = [("kitti", KITTI, scaled, "real drive 0001 excerpt")]
+        npz = waymo_segment(Path(scratch) / "waymo", args.frames)
+        rows.append(("waymo", npz, scaled, ".npz generated at real size (returns 70% of every lidar)"))
         # As many first returns as the .npz row, plus second returns; then the TOP lidar nearly full and the
-        # short-range ones (20 m reach) sparse, as in a street scene.
+        # short-range ones (20 m reach) sparse, as in a street scene; that one also with the JPEGs passed through.
         for label, top, short in (("as dense as .npz", (0.7, 0.1), (0.7, 0.1)), ("street-like", (0.9, 0.1), (0.1, 0.01))):
             tfrecord = waymo_tfrecord(Path(scratch) / f"waymo-{len(rows)}.tfrecord", args.frames, top, short)
             returns = f"returns TOP {top[0]:.0%}+{top[1]:.0%}, short-range {short[0]:.0%}+{short[1]:.0%}"
-            rows.append(("waymo", tfrecord, f".tfrecord {label}: {returns}, {tfrecord.stat().st_size / args.frames / 1e6:.1f} MB/frame"))
-        rows.append(("vista", vista_trace(Path(scratch) / "vista", args.frames), "generated at real size"))
+            rows.append(("waymo", tfrecord, scaled, f".tfrecord {label}: {returns}, {tfrecord.stat().st_size / args.frames / 1e6:.1f} MB/frame"))
+        rows.append(("waymo", tfrecord, {"image_max_width": 1920}, ".tfrecord street-like, JPEGs passed through (--image-max-width 1920)"))
+        rows.append(("vista", vista_trace(Path(scratch) / "vista", args.frames), scaled, "generated at real size"))
         print(f"{'dataset':8} {'ms/frame':>9} {'GLB size':>10}  input")
         reference = None
-        for kind, path, note in rows:
-            ms, size = per_frame(kind, path, args.frames)
+        for kind, path, options, note in rows:
+            ms, size = per_frame(kind, path, args.frames, options)
             reference = reference or ms
             print(f"{kind:8} {ms:9.1f} {size / 1e6:8.2f} MB  {note} ({ms / reference:.1f}x KITTI)")
 

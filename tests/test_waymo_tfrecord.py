@@ -5,6 +5,8 @@ from __future__ import annotations
 import io
 import logging
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +17,6 @@ from test_interop import xviz_decode
 from waymo_records import calibration, frame, jpeg_image, pose_matrix, write_segment
 from xviz_server.check import check_paths
 from xviz_server.codec import Format, encode
-from xviz_server.convert import convert
 from xviz_server.datasets import detect, open_dataset
 from xviz_server.datasets.tfrecord import RecordFile, masked_crc, write_records
 from xviz_server.datasets.waymo import WaymoSegment
@@ -217,6 +218,7 @@ def test_npz_and_tfrecord_give_the_same_log(scene):
 def test_camera_jpeg_passes_through_or_is_scaled_down(tmp_path: Path):
     small, big = jpeg_image(300, 200, (10, 200, 10)), jpeg_image(1920, 1280, (10, 10, 200))
     record = frame(T0, np.eye(4), [], None, {"FRONT": small, "SIDE_LEFT": big}, LABELS)
+    record.lasers.add(name="TOP")  # a laser without range images, as stripped releases have them
     segment = WaymoRecordSegment(write_segment(tmp_path / "cams.tfrecord", [record]), image_max_width=400)
     data = segment.read(0)
     assert data.images["FRONT"] == small
@@ -294,9 +296,12 @@ def test_a_bad_range_image_is_named(tmp_path: Path):
         segment.read(2)
 
 
-def test_convert_check_serve_and_the_client_reads_it(scene, tmp_path: Path):
+def test_convert_command_and_the_client_reads_it(scene, tmp_path: Path):
     tfrecord, _, _ = scene
-    convert("waymo", tfrecord, tmp_path / "log", frames="1:3", processes=1)
+    command = [sys.executable, "-m", "xviz_server", "convert", "waymo", str(tfrecord), str(tmp_path / "log"), "--frames", "1:3"]
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "converting 2 of 2 frames of segment-15 to" in done.stderr
     report = check_paths([tmp_path / "log"])
     assert report.ok, report.render()
     files = sorted((tmp_path / "log").glob("*-frame.glb"), key=lambda p: int(p.name.split("-")[0]))
@@ -315,6 +320,21 @@ async def test_serve_a_segment_file(scene):
         assert "/lidar/points" in metadata["data"]["streams"]
         await c.send("transform_log", {"id": "w"})
         assert timestamps(await c.until("transform_log_done", "w")) == [1557000000.0, 1557000000.1, 1557000000.2]
+
+
+async def test_a_corrupt_record_is_an_error_and_the_rest_is_served(scene):
+    tfrecord, _, _ = scene
+    record = RecordFile(tfrecord).records[1]
+    data = bytearray(tfrecord.read_bytes())
+    data[record.offset + 12 + record.length - 10] ^= 0x55
+    tfrecord.write_bytes(bytes(data))
+    async with running_server(None, dataset=[f"waymo:{tfrecord}"]) as server, client(server, "/segment-15") as c:
+        await c.recv()
+        await c.send("transform_log", {"id": "w"})
+        messages = await c.until("transform_log_done", "w")
+        errors = [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
+        assert timestamps(messages) == [1557000000.0, 1557000000.2]
+        assert len(errors) == 1 and f"segment-15.tfrecord: record 1 at offset {record.offset}: data CRC mismatch" in errors[0]
 
 
 def test_glb_of_a_frame_encodes(scene):
