@@ -153,6 +153,32 @@ def test_masked_crc_of_the_crc32c_check_value():
     assert masked_crc(b"123456789") == (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
 
 
+def test_matrix_data_as_bytes_reads_waymos_packed_floats():
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    from xviz_server.datasets import waymo_frame_pb2 as pb
+
+    # Waymo's own definition: proto2, `repeated float data = 1 [packed = true]; optional MatrixShape shape = 2;`
+    file = descriptor_pb2.FileDescriptorProto(name="waymo_test.proto", package="waymo_test", syntax="proto2")
+    shape = file.message_type.add(name="MatrixShape")
+    shape.field.add(name="dims", number=1, type=descriptor_pb2.FieldDescriptorProto.TYPE_INT32,
+                    label=descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED)
+    matrix = file.message_type.add(name="MatrixFloat")
+    data = matrix.field.add(name="data", number=1, type=descriptor_pb2.FieldDescriptorProto.TYPE_FLOAT,
+                            label=descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED)
+    data.options.packed = True
+    matrix.field.add(name="shape", number=2, type=descriptor_pb2.FieldDescriptorProto.TYPE_MESSAGE,
+                     label=descriptor_pb2.FieldDescriptorProto.LABEL_OPTIONAL, type_name=".waymo_test.MatrixShape")
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(file)
+    theirs = message_factory.GetMessageClass(pool.FindMessageTypeByName("waymo_test.MatrixFloat"))()
+    values = [1.5, -2.25, 75.0, 0.0, -1.0, 3.0e-3]
+    theirs.data.extend(values)
+    theirs.shape.dims.extend([1, 2, 3])
+    ours = pb.MatrixFloat.FromString(theirs.SerializeToString())
+    assert np.frombuffer(ours.data, "<f4").tolist() == pytest.approx(values) and list(ours.shape.dims) == [1, 2, 3]
+
+
 def test_index_is_one_pass_over_headers(tmp_path: Path):
     payloads = [b"a" * 10, b"", b"b" * 70_000]
     write_records(tmp_path / "x.tfrecord", payloads)
@@ -282,18 +308,31 @@ def test_a_corrupt_header_ends_the_index(scene, caplog):
     assert "record 1 at offset 20: no timestamp_micros" in caplog.text
 
 
-def test_a_bad_range_image_is_named(tmp_path: Path):
+def test_a_bad_frame_or_range_image_is_named(tmp_path: Path, monkeypatch):
     image = np.full((2, 4, 4), 5.0, np.float32)
     good = frame(T0, np.eye(4), [calibration("FRONT", np.eye(4), (), -0.2, 0.2)], {"FRONT": (image, None, None)})
     bad = frame(T0 + 100_000, np.eye(4), [calibration("FRONT", np.eye(4), (0.1,), 0, 0)], {"FRONT": (image, None, None)})
     no_zlib = frame(T0 + 200_000, np.eye(4), [], None)
-    no_zlib.lasers.add(name=2).ri_return1.range_image_compressed = b"not zlib"
-    segment = WaymoRecordSegment(write_segment(tmp_path / "bad.tfrecord", [good, bad, no_zlib]))
-    assert len(segment.read(0).points) == 8
+    no_zlib.lasers.add(name="FRONT").ri_return1.range_image_compressed = b"not zlib"
+    cut = frame(T0 + 300_000, np.eye(4), [calibration("FRONT", np.eye(4), (), -0.2, 0.2)], {"FRONT": (image, None, None)})
+    cut.lasers[0].ri_return1.range_image_compressed = cut.lasers[0].ri_return1.range_image_compressed[:-8]
+    records = [f.SerializeToString() for f in (good, bad, no_zlib, cut)]
+    records.append(b"\x10\x80\x80\x80\x80\x80\x80\x80\x80\x01\xff")  # timestamp_micros, then a field cut short
+    path = tmp_path / "bad.tfrecord"
+    write_records(path, records)
+    segment = WaymoRecordSegment(path)
+    assert len(segment) == 5 and len(segment.read(0).points) == 8
     with pytest.raises(DatasetError, match="record 1 at offset .*: laser FRONT: 1 beam inclinations for 2 rows"):
         segment.read(1)
     with pytest.raises(DatasetError, match="record 2 at offset .*: laser FRONT return 1: not zlib data"):
         segment.read(2)
+    with pytest.raises(DatasetError, match="record 3 at offset .*: laser FRONT return 1: the zlib data is cut short"):
+        segment.read(3)
+    with pytest.raises(DatasetError, match="record 4 at offset .*: not a Waymo Frame"):
+        segment.read(4)
+    monkeypatch.setattr("xviz_server.datasets.waymo_tfrecord.MAX_MATRIX_BYTES", 100)  # a 2 x 4 x 4 matrix is 140 bytes
+    with pytest.raises(DatasetError, match="record 0 at offset 0: laser FRONT return 1: more than 100 bytes decompressed"):
+        segment.read(0)
 
 
 def test_convert_command_and_the_client_reads_it(scene, tmp_path: Path):
