@@ -53,11 +53,12 @@ logger = logging.getLogger(__name__)
 #: The largest decompressed matrix accepted (a TOP range image is 2.7 MB).
 MAX_MATRIX_BYTES = 64 << 20
 
-# The field numbers of Frame.timestamp_micros and of the protobuf wire types.
+# The field number of Frame.timestamp_micros, and the protobuf wire types.
 _TIMESTAMP_FIELD = 2
 _VARINT, _FIXED64, _LENGTH_DELIMITED, _FIXED32 = 0, 1, 2, 5
-# How much of a record to read first when looking for its timestamp: the
-# Frame's context, before it, is a few kilobytes.
+# How much of a record to read first when looking for its timestamp: fields
+# are written in number order, so only the Frame's context, a few kilobytes,
+# comes before it (more is read, up to the whole record, if not).
 _PEEK = 16 << 10
 
 
