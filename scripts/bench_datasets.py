@@ -5,7 +5,9 @@
 
 KITTI is the real drive in shared/data; Waymo and VISTA frames are generated
 at their real sizes (Waymo: a 64 x 2650 top range image, four 200 x 600
-short-range ones and five 1920 x 1280 camera images; VISTA: one 1280 x 720
+short-range ones and five 1920 x 1280 camera images, both as the per-frame
+.npz dictionaries and as a .tfrecord segment of Frame messages with both
+returns, the TOP per-pixel pose and JPEG cameras; VISTA: one 1280 x 720
 camera video and 100 000-point lidar sweeps). Each frame is converted and
 encoded as GLB; the report gives the median milliseconds per frame and the
 encoded size.
@@ -14,10 +16,13 @@ encoded size.
 from __future__ import annotations
 
 import argparse
+import io
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -25,7 +30,8 @@ from xviz_server.codec import Format, encode
 from xviz_server.datasets import open_dataset
 from xviz_server.messages import envelope
 
-KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
+REPO = Path(__file__).resolve().parents[1]
+KITTI = REPO.parent / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
 
 
 def waymo_segment(directory: Path, frames: int) -> Path:
@@ -45,6 +51,24 @@ def waymo_segment(directory: Path, frames: int) -> Path:
         arrays["LABEL_IDS"] = np.array([f"obj-{k}" for k in range(60)])
         np.savez(directory / f"{1_557_000_000_000_000 + i * 100_000}.npz", **arrays)
     return directory
+
+
+def waymo_tfrecord(path: Path, frames: int, returns_top: tuple[float, float], returns_short: tuple[float, float]) -> Path:
+    sys.path.insert(0, str(REPO / "tests"))
+    from PIL import Image
+    from waymo_records import real_size_frame, write_segment
+
+    rng = np.random.default_rng(0)
+    cameras = {}
+    for camera in ("FRONT", "FRONT_LEFT", "FRONT_RIGHT", "SIDE_LEFT", "SIDE_RIGHT"):
+        # A photo-like JPEG: smooth shading and grain.
+        shade = np.linspace(0, 200, 1920)[None, :, None] + np.linspace(0, 50, 1280)[:, None, None]
+        pixels = np.clip(shade + rng.normal(0, 8, (1280, 1920, 3)), 0, 255).astype(np.uint8)
+        out = io.BytesIO()
+        Image.fromarray(pixels).save(out, format="JPEG", quality=90)
+        cameras[camera] = out.getvalue()
+    return write_segment(path, [real_size_frame(1_557_000_000_000_000 + i * 100_000, rng, cameras, returns_top, returns_short)
+                                for i in range(frames)])
 
 
 def vista_trace(directory: Path, frames: int) -> Path:
@@ -74,8 +98,8 @@ def vista_trace(directory: Path, frames: int) -> Path:
     return directory
 
 
-def per_frame(kind: str, path: Path, frames: int) -> tuple[float, int]:
-    dataset = open_dataset(kind, path)
+def per_frame(kind: str, path: Path, frames: int, options: dict[str, Any]) -> tuple[float, int]:
+    dataset = open_dataset(kind, path, **options)
     metadata = dataset.metadata()
     times, size = [], 0
     for frame in range(min(frames, len(dataset))):
@@ -91,13 +115,22 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=10)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
-        rows = [("kitti", KITTI, "real drive 0001 excerpt")]
-        rows.append(("waymo", waymo_segment(Path(scratch) / "waymo", args.frames), "generated at real size"))
-        rows.append(("vista", vista_trace(Path(scratch) / "vista", args.frames), "generated at real size"))
+        scaled: dict[str, Any] = {}  # cameras scaled down to the default 400 pixels
+        rows = [("kitti", KITTI, scaled, "real drive 0001 excerpt")]
+        npz = waymo_segment(Path(scratch) / "waymo", args.frames)
+        rows.append(("waymo", npz, scaled, ".npz generated at real size (returns 70% of every lidar)"))
+        # As many first returns as the .npz row, plus second returns; then the TOP lidar nearly full and the
+        # short-range ones (20 m reach) sparse, as in a street scene; that one also with the JPEGs passed through.
+        for label, top, short in (("as dense as .npz", (0.7, 0.1), (0.7, 0.1)), ("street-like", (0.9, 0.1), (0.1, 0.01))):
+            tfrecord = waymo_tfrecord(Path(scratch) / f"waymo-{len(rows)}.tfrecord", args.frames, top, short)
+            returns = f"returns TOP {top[0]:.0%}+{top[1]:.0%}, short-range {short[0]:.0%}+{short[1]:.0%}"
+            rows.append(("waymo", tfrecord, scaled, f".tfrecord {label}: {returns}, {tfrecord.stat().st_size / args.frames / 1e6:.1f} MB/frame"))
+        rows.append(("waymo", tfrecord, {"image_max_width": 1920}, ".tfrecord street-like, JPEGs passed through (--image-max-width 1920)"))
+        rows.append(("vista", vista_trace(Path(scratch) / "vista", args.frames), scaled, "generated at real size"))
         print(f"{'dataset':8} {'ms/frame':>9} {'GLB size':>10}  input")
         reference = None
-        for kind, path, note in rows:
-            ms, size = per_frame(kind, path, args.frames)
+        for kind, path, options, note in rows:
+            ms, size = per_frame(kind, path, args.frames, options)
             reference = reference or ms
             print(f"{kind:8} {ms:9.1f} {size / 1e6:8.2f} MB  {note} ({ms / reference:.1f}x KITTI)")
 

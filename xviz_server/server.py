@@ -212,7 +212,7 @@ def parse_dataset(text: str) -> tuple[str, Path]:
     if kind not in KINDS:
         raise ValueError(f"--dataset {text!r}: unknown kind {kind!r}; known: {', '.join(sorted(KINDS))}")
     if not Path(path).exists():
-        raise ValueError(f"--dataset {text!r}: {path} does not exist")
+        raise ValueError(f"--dataset {text!r}: {path}: no such file or directory")
     return kind, Path(path)
 
 

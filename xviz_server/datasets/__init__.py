@@ -46,7 +46,7 @@ class Dataset(Protocol):
 #: recognises its layout. Modules are imported when first needed.
 KINDS: dict[str, tuple[str, str, str]] = {
     "kitti": ("kitti", "KittiDrive", "is_kitti_drive"),
-    "waymo": ("waymo", "WaymoSegment", "is_waymo_segment"),
+    "waymo": ("waymo", "open_segment", "is_waymo_segment"),
     "vista": ("vista", "VistaTrace", "is_vista_trace"),
     "demo": ("demo", "DemoDrive", "is_demo"),
 }
@@ -57,7 +57,7 @@ DEFAULT_IMAGE_WIDTH = 400
 
 
 #: Kinds whose datasets are single files, by file suffix: other files are never datasets.
-FILE_KINDS: dict[str, str] = {}
+FILE_KINDS: dict[str, str] = {".tfrecord": "waymo"}
 
 
 def _member(kind: str, position: int) -> Callable[..., Any]:

@@ -3,10 +3,27 @@
 from __future__ import annotations
 
 import io
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-__all__ = ["jpeg"]
+from ..codec.image import sniff_image
+from ..exceptions import DatasetError
+
+if TYPE_CHECKING:
+    from PIL.Image import Image
+
+__all__ = ["jpeg", "scaled_jpeg"]
+
+
+def _height(width: int, height: int, max_width: int) -> int:
+    return max(1, round(height * max_width / width))
+
+
+def _encode(picture: Image, quality: int) -> bytes:
+    out = io.BytesIO()
+    picture.save(out, format="JPEG", quality=quality)
+    return out.getvalue()
 
 
 def jpeg(image: np.ndarray, max_width: int, quality: int = 85) -> bytes:
@@ -15,8 +32,30 @@ def jpeg(image: np.ndarray, max_width: int, quality: int = 85) -> bytes:
 
     picture = Image.fromarray(image)
     if picture.width > max_width:
-        height = max(1, round(picture.height * max_width / picture.width))
-        picture = picture.resize((max_width, height), Image.Resampling.BILINEAR)
-    out = io.BytesIO()
-    picture.save(out, format="JPEG", quality=quality)
-    return out.getvalue()
+        picture = picture.resize((max_width, _height(picture.width, picture.height, max_width)), Image.Resampling.BILINEAR)
+    return _encode(picture, quality)
+
+
+def scaled_jpeg(data: bytes, max_width: int, quality: int = 85) -> bytes:
+    """A JPEG image as it is if at most ``max_width`` pixels wide, else scaled down to it (aspect kept).
+
+    Scaling decodes the image at the smallest of 1/2, 1/4, 1/8 of its size
+    that is still as wide as ``max_width`` (JPEG decoders do this for a
+    fraction of the cost of a full decode), resizes it and encodes it again.
+    Raises :class:`~xviz_server.exceptions.DatasetError` if ``data`` is not
+    a JPEG image, or cannot be decoded when it has to be scaled.
+    """
+    info = sniff_image(data)
+    if info is None or info.mime_type != "image/jpeg":
+        raise DatasetError("not a JPEG image")
+    if info.width <= max_width:
+        return data
+    from PIL import Image
+
+    size = (max_width, _height(info.width, info.height, max_width))
+    try:
+        with Image.open(io.BytesIO(data)) as picture:
+            picture.draft("RGB", size)
+            return _encode(picture.convert("RGB").resize(size, Image.Resampling.BILINEAR), quality)
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise DatasetError(f"not a decodable JPEG image: {exc}") from None

@@ -1,0 +1,162 @@
+"""TFRecord files: an index of the records, and reading one with its checksums.
+
+A TFRecord file is a sequence of records, each framed as:
+
+* the length of the data, uint64 little-endian;
+* the masked CRC32C of those 8 bytes, uint32 little-endian;
+* the data;
+* the masked CRC32C of the data, uint32 little-endian.
+
+A masked CRC is ``((crc >> 15 | crc << 17) + 0xA282EAD8) mod 2**32``.
+
+:class:`RecordFile` indexes a file in one pass over the record headers,
+seeking past the data, and checks the length's CRC on the way, since a wrong
+length would lose every record after it. The data's CRC is checked when the
+record is read. The index ends at the first record whose header is corrupt
+or whose data runs past the end of the file: that record stays in the index,
+and reading it raises :class:`~xviz_server.exceptions.DatasetError` naming
+the file, the record and its offset, as does reading a record whose data's
+CRC does not match. Every other record reads as usual.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable
+
+import google_crc32c
+
+from ..exceptions import DatasetError
+
+__all__ = ["Record", "RecordFile", "is_tfrecord", "masked_crc", "write_records"]
+
+_HEADER = struct.Struct("<QI")
+_FOOTER = struct.Struct("<I")
+_MASK_DELTA = 0xA282EAD8
+
+
+def masked_crc(data: bytes) -> int:
+    """The masked CRC32C of ``data``, as TFRecord framing stores it."""
+    crc = google_crc32c.value(data)
+    return (((crc >> 15) | (crc << 17)) + _MASK_DELTA) & 0xFFFFFFFF
+
+
+@dataclass(frozen=True)
+class Record:
+    """Where a record is in its file, and what is wrong with its framing, if anything."""
+
+    #: Position in the file, from 0.
+    number: int
+    #: Byte offset of the record's header.
+    offset: int
+    #: Length of the data, as the header says.
+    length: int
+    #: Why the record cannot be read (a corrupt header, data cut short), or ``None``.
+    problem: str | None = None
+
+    @property
+    def data_offset(self) -> int:
+        return self.offset + _HEADER.size
+
+
+def is_tfrecord(path: Path) -> bool:
+    """Whether ``path`` is a file that starts with a TFRecord header whose CRC matches."""
+    try:
+        with open(path, "rb") as file:
+            header = file.read(_HEADER.size)
+    except OSError:
+        return False
+    return len(header) == _HEADER.size and masked_crc(header[:8]) == _HEADER.unpack(header)[1]
+
+
+class RecordFile:
+    """The records of a TFRecord file; indexed at once, read on demand.
+
+    Raises :class:`~xviz_server.exceptions.DatasetError` if the file cannot
+    be read.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.records = self._index()
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def where(self, number: int) -> str:
+        """``FILE: record N at offset O``, to start an error message about record ``number``."""
+        return f"{self.path}: record {number} at offset {self.records[number].offset}"
+
+    def read(self, number: int) -> bytes:
+        """The data of record ``number``, its CRC checked; raises :class:`DatasetError` naming it."""
+        record = self.records[number]
+        if record.problem is not None:
+            raise DatasetError(f"{self.where(number)}: {record.problem}", path=self.path)
+        try:
+            with open(self.path, "rb", buffering=0) as file:
+                file.seek(record.data_offset)
+                data = file.read(record.length)
+                footer = file.read(_FOOTER.size)
+        except OSError as exc:
+            raise DatasetError(f"{self.where(number)}: cannot read: {exc}", path=self.path) from None
+        if len(data) < record.length or len(footer) < _FOOTER.size:
+            raise DatasetError(f"{self.where(number)}: truncated: the file is shorter than when it was indexed", path=self.path)
+        if masked_crc(data) != _FOOTER.unpack(footer)[0]:
+            raise DatasetError(f"{self.where(number)}: data CRC mismatch: the record is corrupt", path=self.path)
+        return data
+
+    def head(self, number: int, size: int) -> bytes:
+        """Up to ``size`` first bytes of record ``number``'s data, unchecked: to peek at a field.
+
+        For a record whose header is corrupt, the bytes after the header,
+        whatever its length says.
+        """
+        record = self.records[number]
+        try:
+            with open(self.path, "rb", buffering=0) as file:
+                file.seek(record.data_offset)
+                return file.read(size if record.problem is not None else min(size, record.length))
+        except OSError as exc:
+            raise DatasetError(f"{self.where(number)}: cannot read: {exc}", path=self.path) from None
+
+    def _index(self) -> list[Record]:
+        records: list[Record] = []
+        try:
+            with open(self.path, "rb", buffering=0) as file:
+                size = os.fstat(file.fileno()).st_size
+                offset = 0
+                while offset < size:
+                    file.seek(offset)
+                    record = self._header(len(records), offset, file.read(_HEADER.size), size)
+                    records.append(record)
+                    if record.problem is not None:
+                        break
+                    offset = record.data_offset + record.length + _FOOTER.size
+        except OSError as exc:
+            raise DatasetError(f"{self.path}: cannot read: {exc}", path=self.path) from None
+        return records
+
+    @staticmethod
+    def _header(number: int, offset: int, header: bytes, size: int) -> Record:
+        if len(header) < _HEADER.size:
+            return Record(number, offset, 0, f"truncated header: {len(header)} of {_HEADER.size} bytes")
+        length, crc = _HEADER.unpack(header)
+        if masked_crc(header[:8]) != crc:
+            return Record(number, offset, 0, "length CRC mismatch: the header is corrupt; records after it cannot be found")
+        end = offset + _HEADER.size + length + _FOOTER.size
+        if end > size:
+            return Record(number, offset, length, f"truncated: the record needs {end - offset} bytes, the file has {size - offset}")
+        return Record(number, offset, length)
+
+
+def write_records(path: Path, records: Iterable[bytes]) -> None:
+    """Write ``records`` to a TFRecord file at ``path``."""
+    with open(path, "wb") as file:
+        for data in records:
+            length = struct.pack("<Q", len(data))
+            file.write(length + _FOOTER.pack(masked_crc(length)))
+            file.write(data)
+            file.write(_FOOTER.pack(masked_crc(data)))
