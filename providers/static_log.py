@@ -1,8 +1,9 @@
 """Static logs: directories of pre-encoded frames in the reference layout.
 
-A log directory holds ``0-frame.json`` (the index), ``1-frame.(json|glb)``
-(the metadata message) and ``<i+2>-frame.(json|glb)`` (message ``i``, a
-state update). The provider serves every such directory under a root; a
+A log directory holds ``0-frame.json`` (the index), ``1-frame.(json|glb|pbe)``
+(the metadata message) and ``<i+2>-frame.(json|glb|pbe)`` (message ``i``, a
+state update). Protobuf (PBE) frames are served as GLB: each is transcoded
+when read, and the frame cache keeps the GLB. The provider serves every such directory under a root; a
 log's name is its path relative to the root, with ``/`` separators (or the
 root's own name when the root itself is a log). Symbolic links inside the
 root are followed.
@@ -22,9 +23,9 @@ from typing import Any
 
 import orjson
 
-from ..codec import Format, decode, detect_format
+from ..codec import Format, decode, detect_format, is_pbe
 from ..exceptions import DecodeError, FrameError, LogError, MessageError
-from ..frames import is_heavy, span
+from ..frames import is_heavy, render, span
 from ..index import TimeIndex
 from ..messages import unwrap
 from ..work import Workers
@@ -35,7 +36,7 @@ logger = logging.getLogger(__name__)
 
 FRAME_FILE = re.compile(r"(\d+)-frame\.(json|glb|pbe)")
 INDEX_FILE = "0-frame.json"
-_FORMATS = {"json": Format.JSON, "glb": Format.BINARY}
+_FORMATS = {"json": Format.JSON, "glb": Format.BINARY, "pbe": Format.BINARY}
 
 
 def frame_files(directory: str | os.PathLike[str]) -> dict[int, str]:
@@ -96,16 +97,10 @@ class StaticLog:
         metadata_file = files.get(1)
         if metadata_file is None:
             raise LogError(
-                f"log {name!r} has no metadata file (1-frame.glb or 1-frame.json) in {directory}", log=name
-            )
-        suffix = metadata_file.rpartition(".")[2]
-        if suffix not in _FORMATS:
-            raise LogError(
-                f"log {name!r} is stored as protobuf ({metadata_file}), which this server does not read; "
-                "convert it to GLB",
+                f"log {name!r} has no metadata file (1-frame.glb, 1-frame.json or 1-frame.pbe) in {directory}",
                 log=name,
             )
-        self.format = _FORMATS[suffix]
+        self.format = _FORMATS[metadata_file.rpartition(".")[2]]
 
     def _read(self, number: int) -> bytes:
         file = self._files.get(number)
@@ -167,12 +162,20 @@ class StaticLog:
     async def read(self, frame: int) -> bytes:
         name = self.describe_frame(frame)
         try:
-            return await self._workers.io(self._read, frame + 2)
+            data = await self._workers.io(self._read, frame + 2)
         except OSError as exc:
             raise FrameError(
                 f"cannot read frame {frame} ({name}) of log {self.name!r}: {exc.strerror or exc}",
                 log=self.name,
                 frame=frame,
+            ) from None
+        if not is_pbe(data):
+            return data
+        try:
+            return await self._workers.io(render, data, Format.BINARY, None)
+        except DecodeError as exc:
+            raise FrameError(
+                f"frame {frame} ({name}) of log {self.name!r} is corrupt: {exc}", log=self.name, frame=frame
             ) from None
 
     def describe_frame(self, frame: int) -> str:
