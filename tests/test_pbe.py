@@ -466,7 +466,7 @@ async def test_damaged_pbe_frames_are_named_and_the_rest_is_served(damaged: Path
         five, seven, nine = ([e for e in errors if f"({name})" in e] for name in ("5-frame.pbe", "7-frame.pbe", "9-frame.pbe"))
         # 23 = "PBE1", then the type's tag, length and 17 letters: where the truncated data field starts
         assert "PBE message corrupt at offset 23: xviz.v2.Envelope.data: needs" in five[0]
-        assert "xviz.v2.StateUpdate.updates.primitives.value: varint longer than 10 bytes" in seven[0]
+        assert "xviz.v2.Envelope.data.value.updates.primitives.value: varint longer than 10 bytes" in seven[0]
         assert "holds 'xviz/metadata', not xviz/state_update" in nine[0]
         # the log stays usable: a point-in-time query after the bad frames
         async with client(server, "/damaged") as c:

@@ -7,7 +7,9 @@ Layout of a message::
                                                          value: <xviz.v2.StateUpdate>}}
 
 The messages are declared in ``xviz_v2.proto`` beside this module. This
-module only reads them: PBE logs are served as GLB or JSON.
+module only reads them: PBE logs are served as GLB or JSON. The envelope's
+``type`` is read first, then the whole message is parsed once by the
+protobuf runtime, with the ``Any`` read as the message that type names.
 
 Decoding gives the envelope that the same message has as GLB (see
 :mod:`~xviz_server.codec.glb`), with what ``@xviz/io`` changes on the way
@@ -39,7 +41,7 @@ from __future__ import annotations
 
 import codecs
 import functools
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, cast
 
 import numpy as np
 from google.protobuf import json_format
@@ -49,14 +51,18 @@ from google.protobuf.message import Message
 from google.protobuf.unknown_fields import UnknownFieldSet
 
 from ..exceptions import DecodeError
-from .xviz_v2_pb2 import Envelope, Metadata, StateUpdate
+from .xviz_v2_pb2 import Envelope, MetadataEnvelope, StateUpdateEnvelope
 
 __all__ = ["PBE_MAGIC", "is_pbe", "decode_pbe"]
 
 PBE_MAGIC = b"PBE1"
 
-#: The message each envelope type holds.
-_MESSAGES: dict[str, type[Message]] = {"xviz/metadata": Metadata, "xviz/state_update": StateUpdate}
+#: The envelope, read with the message it holds, of each envelope type.
+_ENVELOPES: dict[str, type[MetadataEnvelope | StateUpdateEnvelope]] = {
+    "xviz/metadata": MetadataEnvelope,
+    "xviz/state_update": StateUpdateEnvelope,
+}
+_ENVELOPE = "xviz.v2.Envelope"  # how errors name the envelope, whichever reading of it is used
 
 _FLOAT32 = np.dtype("<f4")
 _UINT8 = np.dtype("<u1")
@@ -90,57 +96,52 @@ def decode_pbe(data: bytes | bytearray | memoryview) -> dict[str, Any]:
     buffer = memoryview(data).cast("B")
     if bytes(buffer[:4]) != PBE_MAGIC:
         raise DecodeError(f"not a PBE message: magic {bytes(buffer[:4])!r} at offset 0", offset=0)
-    envelope = Envelope()
-    _parse(envelope, buffer[4:], 4, "xviz.v2.Envelope")
-    kind = envelope.type
-    message_class = _MESSAGES.get(kind)
-    if message_class is None:
+    body = buffer[4:]
+    kind = _envelope_type(body)
+    envelope_class = _ENVELOPES.get(kind)
+    if envelope_class is None:
         if not kind:
             raise DecodeError(
                 "PBE message has no envelope type: only messages written with an envelope "
                 "(@xviz/io's default) can be read",
                 offset=4,
             )
-        raise DecodeError(f"PBE envelope holds {kind!r}; logs hold only {' and '.join(_MESSAGES)}", offset=4)
-    name = message_class.DESCRIPTOR.full_name
+        raise DecodeError(f"PBE envelope holds {kind!r}; logs hold only {' and '.join(_ENVELOPES)}", offset=4)
+    envelope = envelope_class()
+    try:
+        envelope.ParseFromString(body)  # type: ignore[arg-type]  # any buffer: a memoryview is not copied
+    except ProtobufDecodeError as exc:
+        found = _locate(body, cast(Descriptor, envelope.DESCRIPTOR), _ENVELOPE)
+        if found is None:  # the wire format holds; the runtime refuses something else
+            raise DecodeError(f"PBE message cannot be parsed: {exc}", offset=4) from None
+        raise _corrupt(4 + found[0], found[1]) from None
+    name = envelope.data.value.DESCRIPTOR.full_name
     type_url = envelope.data.type_url
     if type_url and type_url.rpartition("/")[2] != name:
         raise DecodeError(f"PBE envelope of type {kind!r} holds a {type_url!r}, not a {name}", offset=4)
-    value = envelope.data.value
-    message = message_class()
-    _parse(message, value, 4 + _value_offset(buffer[4:], len(value)), name)
     try:
-        content = _message(message)
+        content = _message(envelope.data.value)
     except _FieldError as exc:
         raise DecodeError(f"PBE {name}{''.join(reversed(exc.path))}: {exc}") from None
     return {"type": kind, "data": content}
 
 
-def _parse(message: Message, data: bytes | memoryview, base: int, name: str) -> None:
-    """Parse ``data`` into ``message``; on failure, find and name the offset at fault."""
+def _envelope_type(body: memoryview) -> str:
+    """The ``type`` of an envelope, read from its first level of fields only."""
+    kind, offset = memoryview(b""), 0
     try:
-        message.ParseFromString(data)
-    except ProtobufDecodeError as exc:
-        found = _locate(memoryview(data).cast("B"), message.DESCRIPTOR, name)
-        if found is None:  # the wire format holds; the runtime refuses something else
-            raise DecodeError(f"PBE {name} at offset {base} cannot be parsed: {exc}", offset=base) from None
-        offset, problem = found
-        raise DecodeError(f"PBE message corrupt at offset {base + offset}: {problem}", offset=base + offset) from None
+        for number, wire_type, start, end in _fields(body):
+            if number == 1 and wire_type == 2:
+                kind, offset = body[start:end], start
+        return codecs.decode(kind, "utf-8")
+    except _WireError as exc:
+        raise _corrupt(4 + exc.offset, _wire_problem(exc, cast(Descriptor, Envelope.DESCRIPTOR), _ENVELOPE)) from None
+    except UnicodeDecodeError as exc:
+        raise _corrupt(4 + offset + exc.start, f"{_ENVELOPE}.type is not UTF-8 text") from None
 
 
-def _value_offset(envelope: memoryview, length: int) -> int:
-    """Where the ``Any.value`` bytes of ``length`` start in a parsed envelope.
-
-    The value is the last bytes of the ``data`` field as @xviz/io writes it;
-    the offset only serves error messages, so a writer that orders the
-    fields otherwise gets offsets relative to the value instead.
-    """
-    for number, _, start, end in _fields(envelope):
-        if number == 2:
-            for inner, _, value_start, value_end in _fields(envelope[start:end]):
-                if inner == 2 and value_end - value_start == length:
-                    return start + value_start
-    return 0
+def _corrupt(offset: int, problem: str) -> DecodeError:
+    return DecodeError(f"PBE message corrupt at offset {offset}: {problem}", offset=offset)
 
 
 # --------------------------------------------------------------------------
@@ -234,7 +235,12 @@ def _primitive(message: Message, name: str, result: dict[str, Any]) -> None:
     """
     data = b"".join(getattr(message, name))
     number = message.DESCRIPTOR.fields_by_name[name].number
-    unpacked = [f.data for f in UnknownFieldSet(message) if f.field_number == number and f.wire_type == _FIXED32]
+    unknown = UnknownFieldSet(message)
+    unpacked = [
+        field.data
+        for field in (unknown[i] for i in range(len(unknown)))
+        if field.field_number == number and field.wire_type == _FIXED32
+    ]
     if unpacked and data:
         raise _FieldError("mixes packed and unpacked floats, whose order protobuf does not keep")
     if len(data) % 4:
@@ -328,8 +334,12 @@ def _locate(data: memoryview, descriptor: Descriptor, path: str) -> tuple[int, s
                 except UnicodeDecodeError as exc:
                     return start + exc.start, f"{where} is not UTF-8 text"
     except _WireError as exc:
-        if exc.number is None:
-            return exc.offset, f"{path}: {exc}"
-        field = descriptor.fields_by_number.get(exc.number)
-        return exc.offset, f"{path}.{field.name if field else f'<field {exc.number}>'}: {exc}"
+        return exc.offset, _wire_problem(exc, descriptor, path)
     return None
+
+
+def _wire_problem(exc: _WireError, descriptor: Descriptor, path: str) -> str:
+    if exc.number is None:
+        return f"{path}: {exc}"
+    field = descriptor.fields_by_number.get(exc.number)
+    return f"{path}.{field.name if field else f'<field {exc.number}>'}: {exc}"

@@ -48,6 +48,38 @@ class Envelope(_message.Message):
     data: _any_pb2.Any
     def __init__(self, type: _Optional[str] = ..., data: _Optional[_Union[_any_pb2.Any, _Mapping]] = ...) -> None: ...
 
+class MetadataEnvelope(_message.Message):
+    __slots__ = ("type", "data")
+    TYPE_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    type: str
+    data: MetadataAny
+    def __init__(self, type: _Optional[str] = ..., data: _Optional[_Union[MetadataAny, _Mapping]] = ...) -> None: ...
+
+class MetadataAny(_message.Message):
+    __slots__ = ("type_url", "value")
+    TYPE_URL_FIELD_NUMBER: _ClassVar[int]
+    VALUE_FIELD_NUMBER: _ClassVar[int]
+    type_url: str
+    value: Metadata
+    def __init__(self, type_url: _Optional[str] = ..., value: _Optional[_Union[Metadata, _Mapping]] = ...) -> None: ...
+
+class StateUpdateEnvelope(_message.Message):
+    __slots__ = ("type", "data")
+    TYPE_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    type: str
+    data: StateUpdateAny
+    def __init__(self, type: _Optional[str] = ..., data: _Optional[_Union[StateUpdateAny, _Mapping]] = ...) -> None: ...
+
+class StateUpdateAny(_message.Message):
+    __slots__ = ("type_url", "value")
+    TYPE_URL_FIELD_NUMBER: _ClassVar[int]
+    VALUE_FIELD_NUMBER: _ClassVar[int]
+    type_url: str
+    value: StateUpdate
+    def __init__(self, type_url: _Optional[str] = ..., value: _Optional[_Union[StateUpdate, _Mapping]] = ...) -> None: ...
+
 class StyleObjectValue(_message.Message):
     __slots__ = ("fill_color", "stroke_color", "stroke_width", "radius", "text_size", "text_rotation", "text_anchor", "text_baseline", "height")
     FILL_COLOR_FIELD_NUMBER: _ClassVar[int]

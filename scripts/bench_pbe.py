@@ -1,0 +1,94 @@
+#!/usr/bin/env python3
+"""Benchmark serving a protobuf (PBE) frame: PBE -> GLB, the transcode a PBE log's frame gets once.
+
+    python scripts/bench_pbe.py [FRAME.pbe] [--repeat N]
+
+Without a frame, the KITTI frame ``2-frame.glb`` (121 015 points, four
+camera images) is written as PBE by @xviz/io 1.0.13's XVIZProtobufWriter
+(``tests/interop/xviz-write.js``; run ``npm ci --prefix tests/interop``
+first). Prints the median time of decoding the PBE frame, of turning it into
+a GLB frame and into a JSON one, with references measured in the same run:
+copying the frame's bytes once, and re-encoding the same frame read from GLB.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import shutil
+import statistics
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from xviz_server.codec import Format, decode_pbe, encode
+from xviz_server.frames import render
+
+REPOSITORY = Path(__file__).resolve().parents[1]
+KITTI_LOG = REPOSITORY.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
+
+
+def median_ms(function: Callable[[], Any], repeat: int) -> float:
+    function()  # warm up
+    gc.disable()
+    try:
+        times = []
+        for _ in range(repeat):
+            start = time.perf_counter()
+            function()
+            times.append(time.perf_counter() - start)
+    finally:
+        gc.enable()
+    return statistics.median(times) * 1000
+
+
+def kitti_frame_as_pbe(directory: Path) -> Path:
+    """KITTI's first state update written by @xviz/io's protobuf writer into ``directory``."""
+    source = directory / "source"
+    source.mkdir()
+    for name in ("1-frame.glb", "2-frame.glb"):
+        (source / name).symlink_to(KITTI_LOG / name)
+    node = shutil.which("node")
+    if node is None:
+        raise SystemExit("node is needed to write the PBE frame with @xviz/io")
+    script = REPOSITORY / "tests" / "interop" / "xviz-write.js"
+    subprocess.run([node, str(script), str(source), f"BINARY_PBE:{directory / 'pbe'}"], check=True)
+    return directory / "pbe" / "2-frame.pbe"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("frame", nargs="?", type=Path)
+    parser.add_argument("--repeat", type=int, default=50)
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory() as scratch:
+        path = args.frame or kitti_frame_as_pbe(Path(scratch))
+        data = path.read_bytes()
+    message = decode_pbe(data)
+    glb = encode(message, Format.BINARY)
+    points = sum(
+        len(point["points"])
+        for update in message["data"]["updates"]
+        for primitives in (update.get("primitives") or {}).values()
+        for point in primitives.get("points") or ()
+    )
+
+    rows = [
+        ("copy frame bytes (reference)", median_ms(lambda: bytearray(data), args.repeat)),
+        ("PBE decode", median_ms(lambda: decode_pbe(data), args.repeat)),
+        ("PBE -> GLB (served once per frame)", median_ms(lambda: render(data, Format.BINARY, None), args.repeat)),
+        ("GLB -> GLB (same frame, reference)", median_ms(lambda: render(glb, Format.BINARY, None), args.repeat)),
+        ("PBE -> JSON", median_ms(lambda: render(data, Format.JSON, None), max(5, args.repeat // 10))),
+    ]
+    copy_ms = rows[0][1]
+    print(f"frame: {path.name} ({len(data) / 1e6:.2f} MB, {points} points)")
+    print(f"{'operation':40} {'median ms':>10} {'x copy':>8}")
+    for name, ms in rows:
+        print(f"{name:40} {ms:10.3f} {ms / copy_ms:8.2f}")
+
+
+if __name__ == "__main__":
+    main()
