@@ -9,12 +9,20 @@ camera images) is written as PBE by @xviz/io 1.0.13's XVIZProtobufWriter
 first). Prints the median time of decoding the PBE frame, of turning it into
 a GLB frame and into a JSON one, with references measured in the same run:
 copying the frame's bytes once, and re-encoding the same frame read from GLB.
+
+It also prints the page faults per run: the PBE path allocates about 6 MB
+per frame (the runtime's copy of the points and images, Python's copy of
+them, the GLB), and when malloc hands that memory back to the kernel after
+each frame, faulting it in again can cost far more than the decoding. Run
+with ``MALLOC_TRIM_THRESHOLD_=268435456 MALLOC_MMAP_THRESHOLD_=33554432`` to
+see the time with memory reused.
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import resource
 import shutil
 import statistics
 import subprocess
@@ -30,9 +38,11 @@ REPOSITORY = Path(__file__).resolve().parents[1]
 KITTI_LOG = REPOSITORY.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
 
 
-def median_ms(function: Callable[[], Any], repeat: int) -> float:
+def measure(function: Callable[[], Any], repeat: int) -> tuple[float, float]:
+    """The median time of ``function`` in milliseconds, and its page faults per run."""
     function()  # warm up
     gc.disable()
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     try:
         times = []
         for _ in range(repeat):
@@ -41,7 +51,8 @@ def median_ms(function: Callable[[], Any], repeat: int) -> float:
             times.append(time.perf_counter() - start)
     finally:
         gc.enable()
-    return statistics.median(times) * 1000
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
+    return statistics.median(times) * 1000, faults / repeat
 
 
 def kitti_frame_as_pbe(directory: Path) -> Path:
@@ -77,17 +88,17 @@ def main() -> None:
     )
 
     rows = [
-        ("copy frame bytes (reference)", median_ms(lambda: bytearray(data), args.repeat)),
-        ("PBE decode", median_ms(lambda: decode_pbe(data), args.repeat)),
-        ("PBE -> GLB (served once per frame)", median_ms(lambda: render(data, Format.BINARY, None), args.repeat)),
-        ("GLB -> GLB (same frame, reference)", median_ms(lambda: render(glb, Format.BINARY, None), args.repeat)),
-        ("PBE -> JSON", median_ms(lambda: render(data, Format.JSON, None), max(5, args.repeat // 10))),
+        ("copy frame bytes (reference)", measure(lambda: bytearray(data), args.repeat)),
+        ("PBE decode", measure(lambda: decode_pbe(data), args.repeat)),
+        ("PBE -> GLB (served once per frame)", measure(lambda: render(data, Format.BINARY, None), args.repeat)),
+        ("GLB -> GLB (same frame, reference)", measure(lambda: render(glb, Format.BINARY, None), args.repeat)),
+        ("PBE -> JSON", measure(lambda: render(data, Format.JSON, None), max(5, args.repeat // 10))),
     ]
-    copy_ms = rows[0][1]
+    copy_ms = rows[0][1][0]
     print(f"frame: {path.name} ({len(data) / 1e6:.2f} MB, {points} points)")
-    print(f"{'operation':40} {'median ms':>10} {'x copy':>8}")
-    for name, ms in rows:
-        print(f"{name:40} {ms:10.3f} {ms / copy_ms:8.2f}")
+    print(f"{'operation':40} {'median ms':>10} {'x copy':>8} {'faults':>8}")
+    for name, (ms, faults) in rows:
+        print(f"{name:40} {ms:10.3f} {ms / copy_ms:8.2f} {faults:8.0f}")
 
 
 if __name__ == "__main__":
