@@ -21,15 +21,14 @@ see the time with memory reused.
 from __future__ import annotations
 
 import argparse
-import gc
 import resource
 import shutil
-import statistics
 import subprocess
 import tempfile
-import time
 from pathlib import Path
 from typing import Any, Callable
+
+from bench_codec import median_ms
 
 from xviz_server.codec import Format, decode_pbe, encode
 from xviz_server.frames import render
@@ -40,19 +39,10 @@ KITTI_LOG = REPOSITORY.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001
 
 def measure(function: Callable[[], Any], repeat: int) -> tuple[float, float]:
     """The median time of ``function`` in milliseconds, and its page faults per run."""
-    function()  # warm up
-    gc.disable()
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    try:
-        times = []
-        for _ in range(repeat):
-            start = time.perf_counter()
-            function()
-            times.append(time.perf_counter() - start)
-    finally:
-        gc.enable()
+    ms = median_ms(function, repeat)
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
-    return statistics.median(times) * 1000, faults / repeat
+    return ms, faults / (repeat + 1)  # median_ms runs it once more to warm up
 
 
 def kitti_frame_as_pbe(directory: Path) -> Path:
