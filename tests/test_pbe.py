@@ -305,6 +305,7 @@ def test_points_in_several_packed_runs_or_unpacked():
     assert runs["colors"].shape == (4, 4) and runs["colors"].tobytes() == bytes(range(16))
     unpacked = cloud_of(points_message(unpacked=tuple(floats.tolist()), colors=bytes(range(12))))
     assert np.array_equal(unpacked["points"], floats.reshape(4, 3)) and unpacked["colors"].shape == (4, 3)
+    assert cloud_of(points_message(b"")) == {}  # one empty run: no points
 
 
 def test_any_type_url_with_the_standard_prefix_is_read():

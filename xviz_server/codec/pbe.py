@@ -248,6 +248,7 @@ def _primitive(message: Message, name: str, result: dict[str, Any]) -> None:
     floats = np.array(unpacked, dtype="<u4").view(_FLOAT32) if unpacked else np.frombuffer(data, dtype=_FLOAT32)
     if floats.size % 3:
         raise _FieldError(f"holds {floats.size} floats, not x, y, z triples")
+    result.pop(name, None)  # the runs of bytes, as the generic conversion left them
     if floats.size:
         result[name] = floats.reshape(-1, 3)
     colors = result.get("colors")
