@@ -1,7 +1,9 @@
 """Static logs: directories of pre-encoded frames in the reference layout.
 
 A log directory (see :mod:`xviz_server.layout`) holds the index, the
-metadata message and one file per state update, as JSON or GLB.
+metadata message and one file per state update, as JSON, GLB or protobuf
+(PBE). PBE frames are served as GLB: each is transcoded when read, and the
+frame cache keeps the GLB.
 
 An index that is missing, unreadable or disagrees with the frame files is
 rebuilt by reading every frame once; the rebuilt index is kept for the life
@@ -17,9 +19,9 @@ from typing import Any
 
 import orjson
 
-from ..codec import Format, decode, detect_format
+from ..codec import Format, decode, detect_format, is_pbe
 from ..exceptions import DecodeError, FrameError, LogError, MessageError
-from ..frames import is_heavy, span
+from ..frames import is_heavy, render, span
 from ..index import TimeIndex
 from ..layout import INDEX_FILE, INDEX_NUMBER, METADATA_NUMBER, Found, file_number, frame_files, frame_name, frame_numbers
 from ..messages import unwrap
@@ -29,7 +31,7 @@ __all__ = ["StaticLogProvider", "StaticLog"]
 
 logger = logging.getLogger(__name__)
 
-_FORMATS = {"json": Format.JSON, "glb": Format.BINARY}
+_FORMATS = {"json": Format.JSON, "glb": Format.BINARY, "pbe": Format.BINARY}
 
 
 class StaticLogProvider:
@@ -57,16 +59,10 @@ class StaticLog:
         metadata_file = files.get(METADATA_NUMBER)
         if metadata_file is None:
             raise LogError(
-                f"log {name!r} has no metadata file (1-frame.glb or 1-frame.json) in {directory}", log=name
-            )
-        suffix = metadata_file.rpartition(".")[2]
-        if suffix not in _FORMATS:
-            raise LogError(
-                f"log {name!r} is stored as protobuf ({metadata_file}), which this server does not read; "
-                "convert it to GLB",
+                f"log {name!r} has no metadata file (1-frame.glb, 1-frame.json or 1-frame.pbe) in {directory}",
                 log=name,
             )
-        self.format = _FORMATS[suffix]
+        self.format = _FORMATS[metadata_file.rpartition(".")[2]]
 
     def _read(self, number: int) -> bytes:
         file = self._files.get(number)
@@ -128,12 +124,20 @@ class StaticLog:
     async def read(self, frame: int) -> bytes:
         name = self.describe_frame(frame)
         try:
-            return await self._workers.io(self._read, file_number(frame))
+            data = await self._workers.io(self._read, file_number(frame))
         except OSError as exc:
             raise FrameError(
                 f"cannot read frame {frame} ({name}) of log {self.name!r}: {exc.strerror or exc}",
                 log=self.name,
                 frame=frame,
+            ) from None
+        if not is_pbe(data):
+            return data
+        try:
+            return await self._workers.io(render, data, Format.BINARY, None)
+        except DecodeError as exc:
+            raise FrameError(
+                f"frame {frame} ({name}) of log {self.name!r} is corrupt: {exc}", log=self.name, frame=frame
             ) from None
 
     def describe_frame(self, frame: int) -> str:

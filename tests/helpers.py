@@ -25,6 +25,13 @@ from xviz_server.server import XVIZServer
 from xviz_server.settings import Settings
 
 INTEROP = Path(__file__).parent / "interop"
+#: A 2 x 1 PNG image.
+PNG_2X1 = bytes.fromhex(
+    "89504e470d0a1a0a0000000d494844520000000200000001080200000"
+    "07b40e8dd0000001049444154789c63f8cfc0c0c0c0c00000001eff01ff"
+    "987385d10000000049454e44ae426082"
+)
+
 DRIVER = INTEROP / "xviz-session.js"
 
 

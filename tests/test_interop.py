@@ -12,14 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import assert_same_parse, sha, xviz_decode
+from helpers import PNG_2X1, assert_same_parse, sha, xviz_decode
 from xviz_server.codec import Format, decode_glb, encode
 
-PNG_2X1 = bytes.fromhex(
-    "89504e470d0a1a0a0000000d494844520000000200000001080200000"
-    "07b40e8dd0000001049444154789c63f8cfc0c0c0c0c00000001eff01ff"
-    "987385d10000000049454e44ae426082"
-)
 
 
 METADATA = {

@@ -88,8 +88,8 @@ async def test_unknown_log_then_a_good_one(root: Path):
 @pytest.mark.parametrize(
     "log, expected",
     [
-        ("no-metadata", "log 'no-metadata' has no metadata file (1-frame.glb or 1-frame.json)"),
-        ("protobuf", "log 'protobuf' is stored as protobuf (1-frame.pbe)"),
+        ("no-metadata", "log 'no-metadata' has no metadata file (1-frame.glb, 1-frame.json or 1-frame.pbe)"),
+        ("protobuf", "log 'protobuf': 1-frame.pbe is not a readable XVIZ message: PBE message corrupt at offset 4"),
     ],
 )
 async def test_logs_that_cannot_be_served_say_why(root: Path, log: str, expected: str):

@@ -1,6 +1,6 @@
 """Check XVIZ files and log directories against the schema: ``xviz-server validate``.
 
-A file is decoded (GLB or JSON), its envelope recognised and its content
+A file is decoded (GLB, JSON or PBE), its envelope recognised and its content
 validated against the XVIZ v2 schema. A log directory in the reference
 layout is checked as a whole as well: ``1-frame`` must be the metadata,
 every later frame a state update, the index (``0-frame.json``) must name
@@ -84,7 +84,7 @@ def check_paths(paths: Iterable[Path]) -> Report:
         if path.is_dir():
             logs = list(_log_directories(path))
             if not logs:
-                reports.append(FileReport(path, problems=["no XVIZ log (no N-frame.json/.glb files) in this directory"]))
+                reports.append(FileReport(path, problems=["no XVIZ log (no N-frame.json/.glb/.pbe files) in this directory"]))
             for directory in logs:
                 reports += check_log(directory)
         elif path.is_file():
@@ -135,7 +135,7 @@ def check_log(directory: Path) -> list[FileReport]:
     metadata_file = files.get(METADATA_NUMBER)
     declared: set[str] = set()
     if metadata_file is None:
-        reports.append(FileReport(directory, problems=["no metadata file (1-frame.json or 1-frame.glb)"]))
+        reports.append(FileReport(directory, problems=["no metadata file (1-frame.json, 1-frame.glb or 1-frame.pbe)"]))
     else:
         report, data = check_file(metadata_file, "xviz/metadata")
         reports.append(report)

@@ -1,4 +1,4 @@
-"""Encoding and decoding of XVIZ messages: JSON and GLB.
+"""Encoding and decoding of XVIZ messages: JSON and GLB, and reading protobuf (PBE).
 
 This layer is pure: bytes in, envelopes out, and back. An envelope is a
 plain ``dict`` (``{"type": "xviz/<name>", "data": {...}}``) whose large
@@ -14,6 +14,7 @@ from typing import Any, Mapping
 from ..exceptions import DecodeError
 from .glb import decode_glb, edit_glb, encode_glb, is_glb
 from .json import decode_json, encode_json
+from .pbe import decode_pbe, is_pbe
 
 __all__ = [
     "Format",
@@ -25,9 +26,9 @@ __all__ = [
     "edit_glb",
     "encode_json",
     "decode_json",
+    "decode_pbe",
+    "is_pbe",
 ]
-
-PBE_MAGIC = b"PBE1"
 
 
 class Format(str, enum.Enum):
@@ -46,15 +47,16 @@ def detect_format(data: bytes | bytearray | memoryview | str) -> Format:
     """Tell a GLB message from a JSON one by its first bytes.
 
     Raises :class:`~xviz_server.exceptions.DecodeError` for protobuf (PBE)
-    messages, which are not supported.
+    messages: :func:`decode` reads them, but they are never sent as they
+    are, so they have no :class:`Format`.
     """
     if isinstance(data, str):
         return Format.JSON
     head = bytes(data[:4])
     if is_glb(head):
         return Format.BINARY
-    if head == PBE_MAGIC:
-        raise DecodeError("protobuf (PBE1) XVIZ messages are not supported; use GLB or JSON", offset=0)
+    if is_pbe(head):
+        raise DecodeError("a protobuf (PBE1) XVIZ message has no wire format: decode it and encode it as GLB or JSON", offset=0)
     return Format.JSON
 
 
@@ -64,7 +66,11 @@ def encode(message: Mapping[str, Any], fmt: Format) -> bytes:
 
 
 def decode(data: bytes | bytearray | memoryview | str) -> Any:
-    """Decode a message of either format, told apart by its first bytes."""
-    if not isinstance(data, str) and detect_format(data) is Format.BINARY:
+    """Decode a JSON, GLB or PBE message, told apart by its first bytes."""
+    if isinstance(data, str):
+        return decode_json(data)
+    if is_pbe(data):
+        return decode_pbe(data)
+    if detect_format(data) is Format.BINARY:
         return decode_glb(data)
     return decode_json(data)
