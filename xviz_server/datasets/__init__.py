@@ -48,6 +48,7 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "kitti": ("kitti", "KittiDrive", "is_kitti_drive"),
     "waymo": ("waymo", "WaymoSegment", "is_waymo_segment"),
     "vista": ("vista", "VistaTrace", "is_vista_trace"),
+    "rosbag": ("ros", "RosBag", "is_rosbag"),
 }
 
 

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import io
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-__all__ = ["jpeg"]
+if TYPE_CHECKING:
+    from PIL.Image import Image as Picture
+
+__all__ = ["jpeg", "fit_width", "encode_like"]
 
 
 def jpeg(image: np.ndarray, max_width: int, quality: int = 85) -> bytes:
@@ -19,4 +23,24 @@ def jpeg(image: np.ndarray, max_width: int, quality: int = 85) -> bytes:
         picture = picture.resize((max_width, height), Image.Resampling.BILINEAR)
     out = io.BytesIO()
     picture.save(out, format="JPEG", quality=quality)
+    return out.getvalue()
+
+
+def fit_width(picture: Picture, max_width: int) -> Picture:
+    """``picture`` scaled to ``max_width`` if wider, its height rounded down, as the official KITTI converter did."""
+    if picture.width <= max_width:
+        return picture
+    from PIL import Image
+
+    size = (max_width, max(1, picture.height * max_width // picture.width))
+    return picture.resize(size, Image.Resampling.BILINEAR, reducing_gap=2.0)
+
+
+def encode_like(mime_type: str, picture: Picture, quality: int = 85) -> bytes:
+    """``picture`` encoded as ``image/jpeg`` (at ``quality``) or else as PNG (fast, level 1)."""
+    out = io.BytesIO()
+    if mime_type == "image/jpeg":
+        picture.convert("RGB").save(out, format="JPEG", quality=quality)
+    else:
+        picture.save(out, format="PNG", compress_level=1)
     return out.getvalue()

@@ -1,0 +1,189 @@
+"""A bag opened through its own index: its topics, the time of every message, one message at a time.
+
+The three containers are read with ``rosbags``: a ROS 1 bag (``.bag``), a
+ROS 2 bag (a folder with ``metadata.yaml`` and ``.db3`` or ``.mcap``
+files) and a bare ``.mcap`` file. The record time of each message comes
+from the container's index, with no message read:
+
+* ROS 1: the index records after each chunk (``rosbags`` reads them at open);
+* ROS 2 sqlite3: the ``timestamp`` column of the ``messages`` table;
+* MCAP: the message index records after each chunk, located by the
+  summary's chunk indexes (one read per chunk). An MCAP file without a
+  summary (a recording cut short) is read through once at open instead.
+
+A ROS 1 bag whose recording was cut short has no index (``index_pos`` 0):
+it is refused with an error that says to run ``rosbag reindex`` on it.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...exceptions import DatasetError
+
+__all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC"]
+
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+_MESSAGE_INDEX = 0x07
+
+
+def is_rosbag(path: Path) -> bool:
+    """Whether ``path`` is a ROS 1 bag, an MCAP file (by their first bytes) or a ROS 2 bag folder."""
+    magic = {".bag": ROS1_MAGIC, ".mcap": MCAP_MAGIC}.get(path.suffix)
+    if magic is None:
+        return (path / "metadata.yaml").is_file()
+    try:
+        with path.open("rb") as file:
+            return file.read(len(magic)) == magic
+    except OSError:  # a folder named like a bag, unreadable file
+        return False
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic of the bag: its message type (``sensor_msgs/msg/PointCloud2``) and record times."""
+
+    name: str
+    msgtype: str
+    #: Record time of every message, int64 nanoseconds, sorted.
+    times: np.ndarray
+    connections: tuple[Any, ...]
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def at_or_before(self, t: int) -> int:
+        """The index of the last message recorded at or before ``t`` (ns); -1 if none."""
+        return int(np.searchsorted(self.times, t, side="right")) - 1
+
+
+def _import_rosbags() -> Any:
+    try:
+        import rosbags.highlevel
+    except ImportError:
+        raise DatasetError("reading ROS bags needs the rosbags package: pip install 'xviz-server[ros]'") from None
+    return rosbags
+
+
+class Bag:
+    """An open bag. Every failure of the reader on a damaged file is a
+    :class:`~xviz_server.exceptions.DatasetError` naming the file (and the
+    topic, for a message). Safe to use from several threads."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        rosbags = _import_rosbags()
+        from rosbags.typesys import Stores, get_typestore
+
+        self._lock = threading.Lock()
+        try:
+            reader = rosbags.highlevel.AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+            reader.open()
+        except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
+            raise DatasetError(f"{self.path}: cannot open the bag: {_reason(exc)}", path=self.path) from None
+        self._reader = reader
+        by_topic: dict[str, list[Any]] = {}
+        for connection in reader.connections:
+            by_topic.setdefault(connection.topic, []).append(connection)
+        self.topics: dict[str, Topic] = {}
+        for name, connections in sorted(by_topic.items()):
+            try:
+                times = np.sort(np.concatenate([self._times(c) for c in connections]))
+            except Exception as exc:  # noqa: BLE001
+                raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {_reason(exc)}", path=self.path) from None
+            self.topics[name] = Topic(name, connections[0].msgtype, times, tuple(connections))
+
+    @property
+    def container(self) -> str:
+        """``ROS 1``, ``ROS 2 sqlite3``, ``ROS 2 mcap`` or ``MCAP``."""
+        if self.path.suffix == ".bag":
+            return "ROS 1"
+        if self.path.suffix == ".mcap":
+            return "MCAP"
+        storages = {type(s).__name__ for r in self._reader.readers for s in r.storage.storages}
+        return "ROS 2 mcap" if storages == {"McapReader"} else "ROS 2 sqlite3"
+
+    def close(self) -> None:
+        with self._lock:
+            self._reader.close()
+
+    # -- the index ----------------------------------------------------------
+
+    def _times(self, connection: Any) -> np.ndarray:
+        owner = connection.owner
+        kind = type(owner).__name__
+        if kind == "Reader":  # rosbags.rosbag1.Reader: its index, read at open
+            return np.fromiter((entry.time for entry in owner.indexes[connection.id]), np.int64)
+        if kind == "Sqlite3Reader":
+            rows = owner.dbconn.execute("SELECT timestamp FROM messages WHERE topic_id = ?", (connection.id,))
+            return np.fromiter((row[0] for row in rows), np.int64)
+        if kind == "McapReader":
+            return self._mcap_times(owner, connection)
+        if kind == "DirectoryReader":  # a ROS 2 bag folder: the same topic in each of its storage files
+            parts = [self._times(c) for storage in owner.storages for c in storage.connections
+                     if c.topic == connection.topic and c.msgtype == connection.msgtype]
+            return np.concatenate(parts) if parts else np.empty(0, np.int64)
+        raise DatasetError(f"{self.path}: unknown storage {kind}", path=self.path)
+
+    def _mcap_times(self, owner: Any, connection: Any) -> np.ndarray:
+        if not owner.chunks:  # no summary: read through once
+            return np.fromiter((t for _, t, _ in owner.messages([connection])), np.int64)
+        parts: list[np.ndarray] = []
+        with owner.path.open("rb") as file:
+            for chunk in owner.chunks:
+                offset = chunk.message_index_offsets.get(connection.id)
+                if offset is None:
+                    continue
+                file.seek(offset)
+                head = file.read(15)
+                if len(head) < 15 or head[0] != _MESSAGE_INDEX:
+                    raise DatasetError(f"{owner.path}: no message index at byte {offset}", path=owner.path)
+                _, _, channel, size = struct.unpack("<BQHI", head)
+                body = file.read(size)
+                if channel != connection.id or len(body) != size or size % 16:
+                    raise DatasetError(f"{owner.path}: damaged message index at byte {offset}", path=owner.path)
+                parts.append(np.frombuffer(body, "<u8").reshape(-1, 2)[:, 0].astype(np.int64))
+        return np.concatenate(parts) if parts else np.empty(0, np.int64)
+
+    # -- messages -----------------------------------------------------------
+
+    def message(self, topic: str, index: int) -> tuple[int, Any]:
+        """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
+        info = self.topics[topic]
+        t = int(info.times[index])
+        skip = index - int(np.searchsorted(info.times, t, side="left"))
+        for time, message in self.messages(topic, t, t + 1):
+            if skip == 0:
+                return time, message
+            skip -= 1
+        raise DatasetError(f"{self.path}: topic {topic}: message {index} is in the index but not in the bag", path=self.path)
+
+    def messages(self, topic: str, start: int, stop: int) -> Iterator[tuple[int, Any]]:
+        """The messages of ``topic`` recorded in ``[start, stop)`` ns, decoded, in time order."""
+        info = self.topics[topic]
+        with self._lock:
+            try:
+                raw = list(self._reader.messages(info.connections, start=start, stop=stop))
+            except Exception as exc:  # noqa: BLE001
+                raise DatasetError(f"{self.path}: topic {topic}: cannot read: {_reason(exc)}", path=self.path) from None
+        for connection, time, data in raw:
+            try:
+                message = self._reader.deserialize(data, connection.msgtype)
+            except Exception as exc:  # noqa: BLE001 - a message that does not match its type
+                raise DatasetError(
+                    f"{self.path}: topic {topic}: a {connection.msgtype} message at {time} ns does not decode: {_reason(exc)}",
+                    path=self.path,
+                ) from None
+            yield time, message
+
+
+def _reason(exc: BaseException) -> str:
+    return " ".join(str(arg) for arg in exc.args) or type(exc).__name__
