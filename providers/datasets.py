@@ -1,8 +1,11 @@
 """Raw datasets served as logs, converted on demand.
 
 Datasets are found under the data root by their layout (a KITTI drive
-folder is named by its path below the root) or given explicitly
-(``--dataset kitti:PATH``, named by the folder's base name). The metadata
+folder is named by its path below the root, a dataset in one file, like a
+ROS bag, by its path without the suffix) or given explicitly
+(``--dataset kitti:PATH``, named by the folder's base name or the file's
+name without its suffix; ``--dataset rosbag:PATH?config=FILE`` gives the
+kind's options). The metadata
 and the index come from the dataset's timestamps at once; each frame is
 converted in the process pool when first asked for, encoded as GLB once,
 and kept in the shared frame cache like any other frame. A frame whose raw
@@ -28,12 +31,18 @@ __all__ = ["DatasetProvider", "DatasetLog"]
 class DatasetProvider:
     """Datasets found under ``root`` and those given as ``(kind, path)``."""
 
-    def __init__(self, root: Path | None, explicit: Sequence[tuple[str, Path]], workers: Workers, options: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        root: Path | None,
+        explicit: Sequence[tuple[str, Path] | tuple[str, Path, dict[str, Any]]],
+        workers: Workers,
+        options: dict[str, Any] | None = None,
+    ) -> None:
         self.root = Path(root) if root is not None else None
-        self._explicit = [(kind, Path(path)) for kind, path in explicit]
+        self._explicit = [(entry[0], Path(entry[1]), entry[2] if len(entry) > 2 else {}) for entry in explicit]
         self._workers = workers
         self._options = options or {}
-        self._found: dict[str, tuple[str, Path]] = {}
+        self._found: dict[str, tuple[str, Path, dict[str, Any]]] = {}
 
     @property
     def names(self) -> list[str]:
@@ -41,28 +50,34 @@ class DatasetProvider:
         return sorted(self._found)
 
     def scan(self) -> list[str]:
-        found: dict[str, tuple[str, Path]] = {}
+        found: dict[str, tuple[str, Path, dict[str, Any]]] = {}
         if self.root is not None:
-            for directory, subdirectories, _ in os.walk(self.root, followlinks=True):
+            for directory, subdirectories, files in os.walk(self.root, followlinks=True):
                 kind = detect(Path(directory))
                 if kind is not None:
                     relative = Path(directory).relative_to(self.root).as_posix()
-                    found[self.root.name if relative == "." else relative] = (kind, Path(directory))
+                    found[self.root.name if relative == "." else relative] = (kind, Path(directory), {})
                     subdirectories.clear()  # a dataset's own folders are not datasets
-                else:
-                    subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
-        for kind, path in self._explicit:
-            found[path.name] = (kind, path)
+                    continue
+                subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
+                for file in sorted(f for f in files if not f.startswith(".")):  # a dataset in one file: drive.bag
+                    path = Path(directory) / file
+                    kind = detect(path)
+                    if kind is not None:
+                        found[path.relative_to(self.root).with_suffix("").as_posix()] = (kind, path, {})
+        for kind, path, options in self._explicit:
+            found[path.stem if path.is_file() else path.name] = (kind, path, options)
         self._found = found
         return sorted(found)
 
     async def open(self, name: str) -> DatasetLog:
-        kind, path = self._found[name]
+        kind, path, own = self._found[name]
+        options = {**self._options, **own}
         try:
-            dataset = await self._workers.io(lambda: open_dataset(kind, path, **self._options))
+            dataset = await self._workers.io(lambda: open_dataset(kind, path, **options))
         except DatasetError as exc:
             raise LogError(f"log {name!r}: {exc}", log=name) from None
-        return DatasetLog(name, kind, dataset, self._options, self._workers)
+        return DatasetLog(name, kind, dataset, options, self._workers)
 
 
 class DatasetLog:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import urllib.parse
 import logging
 import signal
 import ssl
@@ -33,7 +34,7 @@ from . import __version__
 from .auth import token_matches
 from .cache import FrameCache
 from .connection import Connection
-from .datasets import KINDS
+from .datasets import KINDS, dataset_options
 from .exceptions import LogError
 from .ingest import feed_name, refusal, run_ingest
 from .live import LiveRegistry
@@ -190,16 +191,24 @@ class XVIZServer:
         )
 
 
-def parse_dataset(text: str) -> tuple[str, Path]:
-    """``kitti:/data/drive`` as ``("kitti", Path("/data/drive"))``; raises :class:`ValueError`."""
-    kind, separator, path = text.partition(":")
+def parse_dataset(text: str) -> tuple[str, Path, dict[str, str]]:
+    """``kitti:/data/drive`` as ``("kitti", Path("/data/drive"), {})``; raises :class:`ValueError`.
+
+    Options of the kind follow the path as a query: ``rosbag:/data/drive.bag?config=map.toml``.
+    """
+    kind, separator, rest = text.partition(":")
+    path, _, query = rest.partition("?")
     if not separator or not kind or not path:
         raise ValueError(f"--dataset {text!r}: give KIND:PATH, like kitti:/data/2011_09_26_drive_0001_sync")
     if kind not in KINDS:
         raise ValueError(f"--dataset {text!r}: unknown kind {kind!r}; known: {', '.join(sorted(KINDS))}")
-    if not Path(path).is_dir():
-        raise ValueError(f"--dataset {text!r}: {path} is not a directory")
-    return kind, Path(path)
+    if not Path(path).exists():
+        raise ValueError(f"--dataset {text!r}: {path} does not exist")
+    options = dict(urllib.parse.parse_qsl(query))
+    if unknown := sorted(options.keys() - dataset_options(kind)):
+        raise ValueError(f"--dataset {text!r}: {kind} takes no option {', '.join(unknown)}; it takes: "
+                         f"{', '.join(sorted(dataset_options(kind))) or 'none'}")
+    return kind, Path(path), options
 
 
 def _response(connection: ServerConnection, status: HTTPStatus, body: bytes, content_type: str) -> Response:

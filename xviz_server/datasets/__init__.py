@@ -9,6 +9,7 @@ converts one frame at a time, so that a server can serve it on demand and
 from __future__ import annotations
 
 import importlib
+import inspect
 from pathlib import Path
 from typing import Any, Callable, Protocol
 
@@ -18,7 +19,7 @@ from ..codec import Format, encode
 from ..exceptions import DatasetError
 from ..messages import envelope
 
-__all__ = ["Dataset", "KINDS", "open_dataset", "detect", "convert_frame"]
+__all__ = ["Dataset", "KINDS", "open_dataset", "detect", "dataset_options", "convert_frame"]
 
 
 class Dataset(Protocol):
@@ -64,6 +65,11 @@ def open_dataset(kind: str, path: Path, **options: Any) -> Dataset:
     if not Path(path).exists():
         raise DatasetError(f"{path}: no such file or directory", path=path)
     return _member(kind, 1)(Path(path), **options)
+
+
+def dataset_options(kind: str) -> frozenset[str]:
+    """The options the dataset class of ``kind`` takes besides its path (``image_max_width``, ``config`` ...)."""
+    return frozenset(inspect.signature(_member(kind, 1)).parameters) - {"path"}
 
 
 def detect(path: Path) -> str | None:

@@ -32,7 +32,9 @@ __all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC"]
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+_MESSAGE = 0x05
 _MESSAGE_INDEX = 0x07
+_CHUNK_CACHE = 4  # decompressed MCAP chunks kept: a frame reads a few neighbouring ones
 
 
 def is_rosbag(path: Path) -> bool:
@@ -56,6 +58,8 @@ class Topic:
     #: Record time of every message, int64 nanoseconds, sorted.
     times: np.ndarray
     connections: tuple[Any, ...]
+    #: For MCAP storage: where each message is, (file, chunk, offset in the chunk), int64 (N, 3).
+    places: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.times)
@@ -93,13 +97,22 @@ class Bag:
         by_topic: dict[str, list[Any]] = {}
         for connection in reader.connections:
             by_topic.setdefault(connection.topic, []).append(connection)
+        self._storages: dict[Path, int] = {}
+        self._chunks: dict[tuple[int, int], bytes] = {}
         self.topics: dict[str, Topic] = {}
         for name, connections in sorted(by_topic.items()):
             try:
-                times = np.sort(np.concatenate([self._times(c) for c in connections]))
+                indexes = [self._index(c) for c in connections]
+            except DatasetError:
+                raise
             except Exception as exc:  # noqa: BLE001
                 raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {_reason(exc)}", path=self.path) from None
-            self.topics[name] = Topic(name, connections[0].msgtype, times, tuple(connections))
+            times = np.concatenate([i[0] for i in indexes])
+            order = np.argsort(times, kind="stable")
+            places = [i[1] for i in indexes]
+            located = np.concatenate(places)[order] if all(p is not None for p in places) else None  # type: ignore[arg-type]
+            self.topics[name] = Topic(name, connections[0].msgtype, times[order], tuple(connections), located)
+        self._mcaps = {self._storages[o.path]: o for o in self._mcap_owners() if o.path in self._storages}
 
     @property
     def container(self) -> str:
@@ -117,28 +130,33 @@ class Bag:
 
     # -- the index ----------------------------------------------------------
 
-    def _times(self, connection: Any) -> np.ndarray:
+    def _index(self, connection: Any) -> tuple[np.ndarray, np.ndarray | None]:
+        """Record times of a connection's messages and, for MCAP, where each is: (file, chunk, offset)."""
         owner = connection.owner
         kind = type(owner).__name__
         if kind == "Reader":  # rosbags.rosbag1.Reader: its index, read at open
-            return np.fromiter((entry.time for entry in owner.indexes[connection.id]), np.int64)
+            return np.fromiter((entry.time for entry in owner.indexes[connection.id]), np.int64), None
         if kind == "Sqlite3Reader":
             rows = owner.dbconn.execute("SELECT timestamp FROM messages WHERE topic_id = ?", (connection.id,))
-            return np.fromiter((row[0] for row in rows), np.int64)
+            return np.fromiter((row[0] for row in rows), np.int64), None
         if kind == "McapReader":
-            return self._mcap_times(owner, connection)
+            return self._mcap_index(owner, connection)
         if kind == "DirectoryReader":  # a ROS 2 bag folder: the same topic in each of its storage files
-            parts = [self._times(c) for storage in owner.storages for c in storage.connections
+            parts = [self._index(c) for storage in owner.storages for c in storage.connections
                      if c.topic == connection.topic and c.msgtype == connection.msgtype]
-            return np.concatenate(parts) if parts else np.empty(0, np.int64)
+            times = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int64)
+            places = [p[1] for p in parts]
+            return times, (np.concatenate(places) if parts and all(p is not None for p in places) else None)  # type: ignore[arg-type]
         raise DatasetError(f"{self.path}: unknown storage {kind}", path=self.path)
 
-    def _mcap_times(self, owner: Any, connection: Any) -> np.ndarray:
+    def _mcap_index(self, owner: Any, connection: Any) -> tuple[np.ndarray, np.ndarray | None]:
         if not owner.chunks:  # no summary: read through once
-            return np.fromiter((t for _, t, _ in owner.messages([connection])), np.int64)
-        parts: list[np.ndarray] = []
+            return np.fromiter((t for _, t, _ in owner.messages([connection])), np.int64), None
+        number = self._storages.setdefault(owner.path, len(self._storages))
+        times: list[np.ndarray] = []
+        places: list[np.ndarray] = []
         with owner.path.open("rb") as file:
-            for chunk in owner.chunks:
+            for chunk_number, chunk in enumerate(owner.chunks):
                 offset = chunk.message_index_offsets.get(connection.id)
                 if offset is None:
                     continue
@@ -150,15 +168,58 @@ class Bag:
                 body = file.read(size)
                 if channel != connection.id or len(body) != size or size % 16:
                     raise DatasetError(f"{owner.path}: damaged message index at byte {offset}", path=owner.path)
-                parts.append(np.frombuffer(body, "<u8").reshape(-1, 2)[:, 0].astype(np.int64))
-        return np.concatenate(parts) if parts else np.empty(0, np.int64)
+                entries = np.frombuffer(body, "<u8").reshape(-1, 2).astype(np.int64)
+                times.append(entries[:, 0])
+                place = np.empty((len(entries), 3), np.int64)
+                place[:, 0], place[:, 1], place[:, 2] = number, chunk_number, entries[:, 1]
+                places.append(place)
+        if not times:
+            return np.empty(0, np.int64), np.empty((0, 3), np.int64)
+        return np.concatenate(times), np.concatenate(places)
+
+    def _mcap_message(self, place: np.ndarray, topic: str) -> bytes:
+        """The payload of the MCAP message record at ``place``, through a cache of recently decompressed chunks."""
+        storage, chunk_number, offset = (int(v) for v in place)
+        key = (storage, chunk_number)
+        data = self._chunks.pop(key, None)
+        if data is None:
+            data = self._read_chunk(self._mcaps[storage], chunk_number)
+            while len(self._chunks) >= _CHUNK_CACHE:
+                self._chunks.pop(next(iter(self._chunks)))
+        self._chunks[key] = data
+        if offset + 31 > len(data) or data[offset] != _MESSAGE:
+            raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk_number}", path=self.path)
+        (length,) = struct.unpack_from("<Q", data, offset + 1)
+        return data[offset + 9 + 22 : offset + 9 + length]
+
+    def _read_chunk(self, owner: Any, number: int) -> bytes:
+        from rosbags.rosbag2.storage_mcap import decompress
+
+        chunk = owner.chunks[number]
+        with owner.path.open("rb") as file:
+            file.seek(chunk.chunk_start_offset + 9 + 24)
+            (crc,) = struct.unpack("<I", file.read(4))
+            file.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
+            compressed = file.read(chunk.compressed_size)
+        return decompress(compressed, chunk.compression, chunk.uncompressed_size, crc)
 
     # -- messages -----------------------------------------------------------
+
+    def _mcap_owners(self) -> list[Any]:
+        owners = []
+        for reader in self._reader.readers:
+            storage = getattr(reader, "storage", None)
+            owners += getattr(storage, "storages", None) or ([storage] if type(storage).__name__ == "McapReader" else [])
+        return owners
 
     def message(self, topic: str, index: int) -> tuple[int, Any]:
         """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
         info = self.topics[topic]
         t = int(info.times[index])
+        if info.places is not None:
+            with self._lock:
+                data = self._guard(topic, lambda: self._mcap_message(info.places[index], topic))  # type: ignore[index]
+            return t, self._decode(topic, info.msgtype, t, data)
         skip = index - int(np.searchsorted(info.times, t, side="left"))
         for time, message in self.messages(topic, t, t + 1):
             if skip == 0:
@@ -169,20 +230,32 @@ class Bag:
     def messages(self, topic: str, start: int, stop: int) -> Iterator[tuple[int, Any]]:
         """The messages of ``topic`` recorded in ``[start, stop)`` ns, decoded, in time order."""
         info = self.topics[topic]
+        if info.places is not None:
+            first, last = np.searchsorted(info.times, [start, stop], side="left")
+            for index in range(int(first), int(last)):
+                yield self.message(topic, index)
+            return
         with self._lock:
-            try:
-                raw = list(self._reader.messages(info.connections, start=start, stop=stop))
-            except Exception as exc:  # noqa: BLE001
-                raise DatasetError(f"{self.path}: topic {topic}: cannot read: {_reason(exc)}", path=self.path) from None
+            raw = self._guard(topic, lambda: list(self._reader.messages(info.connections, start=start, stop=stop)))
         for connection, time, data in raw:
-            try:
-                message = self._reader.deserialize(data, connection.msgtype)
-            except Exception as exc:  # noqa: BLE001 - a message that does not match its type
-                raise DatasetError(
-                    f"{self.path}: topic {topic}: a {connection.msgtype} message at {time} ns does not decode: {_reason(exc)}",
-                    path=self.path,
-                ) from None
-            yield time, message
+            yield time, self._decode(topic, connection.msgtype, time, data)
+
+    def _guard(self, topic: str, read: Any) -> Any:
+        try:
+            return read()
+        except DatasetError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
+            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {_reason(exc)}", path=self.path) from None
+
+    def _decode(self, topic: str, msgtype: str, time: int, data: bytes) -> Any:
+        try:
+            return self._reader.deserialize(data, msgtype)
+        except Exception as exc:  # noqa: BLE001 - a message that does not match its type
+            raise DatasetError(
+                f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {_reason(exc)}",
+                path=self.path,
+            ) from None
 
 
 def _reason(exc: BaseException) -> str:

@@ -58,9 +58,10 @@ def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_sca
         data = data[: message.height * message.row_step].reshape(message.height, message.row_step)[:, :row]
     records = np.frombuffer(np.ascontiguousarray(data[: count * message.point_step]).data, dtype=dtype, count=count)
     points = np.empty((count, 3), dtype=np.float32)
+    finite = np.ones(count, dtype=bool)
     for column, axis in enumerate("xyz"):
         points[:, column] = records[axis]
-    finite = np.isfinite(points).all(axis=1)
+        finite &= np.isfinite(points[:, column])
     keep = None if finite.all() else finite
     if keep is not None:
         points = points[keep]
