@@ -96,15 +96,17 @@ class Mapping:
         return []
 
     def describe(self) -> str:
-        """The mapping in a few words, for ``inspect``."""
-        made = ", ".join(self.streams())
+        """The mapping in a few words, for ``inspect``: ``POINT /velodyne_points``."""
         words = {
             "points": "POINT", "image": "IMAGE", "markers": "POLYGON/POLYLINE/POINT/CIRCLE/TEXT", "path": "POLYLINE",
-            "series": "TIME_SERIES", "pose": "pose source -> /vehicle_pose", "origin": "map_origin",
-            "transforms": "transform tree", "unused": "not used", "unknown": "unknown type, ignored",
+            "series": "TIME_SERIES", "pose": "pose source of /vehicle_pose", "origin": "map_origin",
+            "transforms": "transform tree", "unused": "not used", "unknown": "unknown type, not served",
             "excluded": "excluded by the configuration",
         }[self.role]
-        return f"{words} {made}".strip() if self.role not in ("pose",) or not made else f"{words}; {made}"
+        made = ", ".join(self.streams())
+        if self.role == "pose" and made:
+            return f"{words}; TIME_SERIES {made}"
+        return f"{words} {made}".rstrip()
 
 
 def _stream_name(topic: str, config: RosConfig) -> str:
