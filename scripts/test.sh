@@ -4,6 +4,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/venv.sh
-python -m pip install --quiet --disable-pip-version-check -e ".[test,vista]"
+python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros]"
 npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
 exec python -m pytest "$@"

@@ -26,14 +26,20 @@ def jpeg(image: np.ndarray, max_width: int, quality: int = 85) -> bytes:
     return out.getvalue()
 
 
-def fit_width(picture: Picture, max_width: int) -> Picture:
-    """``picture`` scaled to ``max_width`` if wider, its height rounded down, as the official KITTI converter did."""
+def fit_width(picture: Picture, max_width: int, reducing_gap: float = 2.0) -> Picture:
+    """``picture`` scaled to ``max_width`` if wider, its height rounded down, bilinear.
+
+    With the default ``reducing_gap`` this is the official KITTI converter's
+    scaling; a smaller one first shrinks by a whole factor with a box filter
+    (see Pillow's ``Image.resize``), which is several times faster for large
+    reductions.
+    """
     if picture.width <= max_width:
         return picture
     from PIL import Image
 
     size = (max_width, max(1, picture.height * max_width // picture.width))
-    return picture.resize(size, Image.Resampling.BILINEAR, reducing_gap=2.0)
+    return picture.resize(size, Image.Resampling.BILINEAR, reducing_gap=reducing_gap)
 
 
 def encode_like(mime_type: str, picture: Picture, quality: int = 85) -> bytes:

@@ -109,8 +109,8 @@ class Bag:
                 raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {_reason(exc)}", path=self.path) from None
             times = np.concatenate([i[0] for i in indexes])
             order = np.argsort(times, kind="stable")
-            places = [i[1] for i in indexes]
-            located = np.concatenate(places)[order] if all(p is not None for p in places) else None  # type: ignore[arg-type]
+            places = [i[1] for i in indexes if i[1] is not None]
+            located = np.concatenate(places)[order] if len(places) == len(indexes) else None
             self.topics[name] = Topic(name, connections[0].msgtype, times[order], tuple(connections), located)
         self._mcaps = {self._storages[o.path]: o for o in self._mcap_owners() if o.path in self._storages}
 
@@ -145,8 +145,8 @@ class Bag:
             parts = [self._index(c) for storage in owner.storages for c in storage.connections
                      if c.topic == connection.topic and c.msgtype == connection.msgtype]
             times = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int64)
-            places = [p[1] for p in parts]
-            return times, (np.concatenate(places) if parts and all(p is not None for p in places) else None)  # type: ignore[arg-type]
+            places = [p[1] for p in parts if p[1] is not None]
+            return times, (np.concatenate(places) if parts and len(places) == len(parts) else None)
         raise DatasetError(f"{self.path}: unknown storage {kind}", path=self.path)
 
     def _mcap_index(self, owner: Any, connection: Any) -> tuple[np.ndarray, np.ndarray | None]:
@@ -177,7 +177,7 @@ class Bag:
             return np.empty(0, np.int64), np.empty((0, 3), np.int64)
         return np.concatenate(times), np.concatenate(places)
 
-    def _mcap_message(self, place: np.ndarray, topic: str) -> bytes:
+    def _mcap_message(self, place: np.ndarray, topic: str) -> memoryview:
         """The payload of the MCAP message record at ``place``, through a cache of recently decompressed chunks."""
         storage, chunk_number, offset = (int(v) for v in place)
         key = (storage, chunk_number)
@@ -190,7 +190,7 @@ class Bag:
         if offset + 31 > len(data) or data[offset] != _MESSAGE:
             raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk_number}", path=self.path)
         (length,) = struct.unpack_from("<Q", data, offset + 1)
-        return data[offset + 9 + 22 : offset + 9 + length]
+        return memoryview(data)[offset + 9 + 22 : offset + 9 + length]
 
     def _read_chunk(self, owner: Any, number: int) -> bytes:
         from rosbags.rosbag2.storage_mcap import decompress
@@ -202,11 +202,10 @@ class Bag:
             file.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
             compressed = file.read(chunk.compressed_size)
         return decompress(compressed, chunk.compression, chunk.uncompressed_size, crc)
-
     # -- messages -----------------------------------------------------------
 
     def _mcap_owners(self) -> list[Any]:
-        owners = []
+        owners: list[Any] = []
         for reader in self._reader.readers:
             storage = getattr(reader, "storage", None)
             owners += getattr(storage, "storages", None) or ([storage] if type(storage).__name__ == "McapReader" else [])
@@ -248,7 +247,7 @@ class Bag:
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
             raise DatasetError(f"{self.path}: topic {topic}: cannot read: {_reason(exc)}", path=self.path) from None
 
-    def _decode(self, topic: str, msgtype: str, time: int, data: bytes) -> Any:
+    def _decode(self, topic: str, msgtype: str, time: int, data: bytes | memoryview) -> Any:
         try:
             return self._reader.deserialize(data, msgtype)
         except Exception as exc:  # noqa: BLE001 - a message that does not match its type

@@ -16,6 +16,8 @@ __all__ = ["cloud_points", "image_bytes", "compressed_image_bytes", "IMAGE_ENCOD
 # sensor_msgs/PointField datatypes.
 _FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 _BAYER = {"rggb": (0, 1, 1, 2), "bggr": (2, 1, 1, 0), "gbrg": (1, 2, 0, 1), "grbg": (1, 0, 2, 1)}  # channel of each 2x2 cell
+#: Images are first shrunk by a whole factor with a box filter, then resampled (see ``fit_width``).
+_REDUCING_GAP = 1.0
 IMAGE_ENCODINGS = (
     "rgb8", "bgr8", "rgba8", "bgra8", "mono8", "8uc1", "mono16", "16uc1", "8uc3",
     *(f"bayer_{pattern}8" for pattern in _BAYER),
@@ -116,10 +118,10 @@ def _debayer(raw: np.ndarray, pattern: tuple[int, int, int, int]) -> np.ndarray:
 
 
 def image_bytes(message: Any, max_width: int, where: str) -> bytes:
-    """A ``sensor_msgs/Image`` as PNG, scaled down to ``max_width`` like the KITTI converter's images."""
+    """A ``sensor_msgs/Image`` as PNG, scaled down to ``max_width`` (height rounded down, as KITTI's)."""
     from PIL import Image
 
-    return encode_like("image/png", fit_width(Image.fromarray(_pixels(message, where)), max_width))
+    return encode_like("image/png", fit_width(Image.fromarray(_pixels(message, where)), max_width, _REDUCING_GAP))
 
 
 def compressed_image_bytes(message: Any, max_width: int, where: str) -> bytes:
@@ -136,6 +138,6 @@ def compressed_image_bytes(message: Any, max_width: int, where: str) -> bytes:
 
     try:
         with Image.open(io.BytesIO(data)) as picture:
-            return encode_like(info.mime_type, fit_width(picture, max_width))
+            return encode_like(info.mime_type, fit_width(picture, max_width, _REDUCING_GAP))
     except (OSError, ValueError) as exc:
         raise DatasetError(f"{where}: cannot decode the {info.mime_type} image: {exc}") from None
