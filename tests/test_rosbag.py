@@ -18,6 +18,7 @@ from PIL import Image
 from rosbag_kitti import (
     CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, FIX_TOPIC, GRAY_TOPIC, IMU_TOPIC, RAW, Messages, kitti_messages, write_bag,
 )
+from interop_session import run_xviz_session_async
 from serving import client, running_server, timestamps
 from test_interop import sha, xviz_decode
 from xviz_server.cli import main
@@ -416,6 +417,28 @@ async def test_served_over_a_socket_beside_a_broken_bag(bags: dict[str, Path], t
                 messages = await c.until("transform_log_done", "all")
                 assert len(timestamps(messages)) == FRAMES
                 assert not [m for m in messages if m["type"] == "xviz/error"]
+
+
+async def test_streetscape_session_against_a_served_bag(bags: dict[str, Path], drive: KittiDrive):
+    """The node driver talks to the server as streetscape.gl does and parses every frame with @xviz/parser."""
+    session = [
+        {"wait": "metadata"},
+        {"send_transform_log": {"id": "0", "from_start": -1}},
+        {"wait": "done", "id": "0"},
+        {"close": True},
+    ]
+    async with running_server(None, dataset=[f"rosbag:{bags['ros1']}"]) as server:
+        url = f"ws://127.0.0.1:{server.port}/?log=drive&profile=default&message_format=BINARY"
+        result = await run_xviz_session_async(url, session, timeout=180)
+    assert result.ok, result.stderr
+    assert result.summary["errors"] == []
+    assert result.messages[0]["parsed"]["start_time"] == drive.times[0]
+    updates = result.of_type("xviz/state_update")
+    assert [u["parsed"]["timestamp"] for u in updates] == drive.times[:FRAMES].tolist()
+    for frame, update in enumerate(updates):
+        cloud = update["parsed"]["streams"][CLOUD_TOPIC]["pointCloud"]
+        assert cloud["positions"]["sha256"] == sha(np.ascontiguousarray(drive.velodyne(frame)[:, :3]))
+        assert update["parsed"]["poses"]["/vehicle_pose"]["yaw"] == pytest.approx(drive.oxts(frame).yaw, abs=1e-6)
 
 
 # -- inspect --------------------------------------------------------------------------

@@ -146,7 +146,8 @@ class Bag:
                      if c.topic == connection.topic and c.msgtype == connection.msgtype]
             times = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int64)
             places = [p[1] for p in parts if p[1] is not None]
-            return times, (np.concatenate(places) if parts and len(places) == len(parts) else None)
+            direct = parts and len(places) == len(parts) and owner.metadata.compression_mode != "message"
+            return times, (np.concatenate(places) if direct else None)  # compressed messages: through rosbags
         raise DatasetError(f"{self.path}: unknown storage {kind}", path=self.path)
 
     def _mcap_index(self, owner: Any, connection: Any) -> tuple[np.ndarray, np.ndarray | None]:
