@@ -11,6 +11,10 @@ from the container's index, with no message read:
   summary's chunk indexes (one read per chunk). An MCAP file without a
   summary (a recording cut short) is read through once at open instead.
 
+ROS 1 and MCAP messages are then read at the offset their index gives,
+through a small cache of decompressed chunks; sqlite3 messages through
+rosbags' query by time.
+
 A ROS 1 bag whose recording was cut short has no index (``index_pos`` 0):
 it is refused with an error that says to run ``rosbag reindex`` on it.
 """
@@ -32,9 +36,11 @@ __all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC"]
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-_MESSAGE = 0x05
+_MESSAGE = 0x05  # MCAP opcodes
 _MESSAGE_INDEX = 0x07
-_CHUNK_CACHE = 4  # decompressed MCAP chunks kept: a frame reads a few neighbouring ones
+_ROS1_MESSAGE = 0x02  # ROS 1 record ops
+_ROS1_CONNECTION = 0x07
+_CHUNK_CACHE = 4  # decompressed chunks kept: a frame reads a few neighbouring ones
 
 
 def is_rosbag(path: Path) -> bool:
@@ -58,7 +64,8 @@ class Topic:
     #: Record time of every message, int64 nanoseconds, sorted.
     times: np.ndarray
     connections: tuple[Any, ...]
-    #: For MCAP storage: where each message is, (file, chunk, offset in the chunk), int64 (N, 3).
+    #: Where each message is, int64 (N, 3): storage, chunk, offset in the decompressed chunk; ``None`` when
+    #: messages are read through rosbags (sqlite3, MCAP without a summary, ROS 2 compressed per message).
     places: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -97,7 +104,7 @@ class Bag:
         by_topic: dict[str, list[Any]] = {}
         for connection in reader.connections:
             by_topic.setdefault(connection.topic, []).append(connection)
-        self._storages: dict[Path, int] = {}
+        self._storages: dict[int, Any] = {}  # by number: the rosbags storage readers messages are read from directly
         self._chunks: dict[tuple[int, int], bytes] = {}
         self.topics: dict[str, Topic] = {}
         for name, connections in sorted(by_topic.items()):
@@ -112,7 +119,6 @@ class Bag:
             places = [i[1] for i in indexes if i[1] is not None]
             located = np.concatenate(places)[order] if len(places) == len(indexes) else None
             self.topics[name] = Topic(name, connections[0].msgtype, times[order], tuple(connections), located)
-        self._mcaps = {self._storages[o.path]: o for o in self._mcap_owners() if o.path in self._storages}
 
     @property
     def container(self) -> str:
@@ -135,7 +141,10 @@ class Bag:
         owner = connection.owner
         kind = type(owner).__name__
         if kind == "Reader":  # rosbags.rosbag1.Reader: its index, read at open
-            return np.fromiter((entry.time for entry in owner.indexes[connection.id]), np.int64), None
+            entries = np.array(owner.indexes[connection.id], dtype=np.int64).reshape(-1, 3)  # time, chunk_pos, offset
+            place = entries.copy()
+            place[:, 0] = self._number(owner)
+            return entries[:, 0].copy(), place
         if kind == "Sqlite3Reader":
             rows = owner.dbconn.execute("SELECT timestamp FROM messages WHERE topic_id = ?", (connection.id,))
             return np.fromiter((row[0] for row in rows), np.int64), None
@@ -153,7 +162,7 @@ class Bag:
     def _mcap_index(self, owner: Any, connection: Any) -> tuple[np.ndarray, np.ndarray | None]:
         if not owner.chunks:  # no summary: read through once
             return np.fromiter((t for _, t, _ in owner.messages([connection])), np.int64), None
-        number = self._storages.setdefault(owner.path, len(self._storages))
+        number = self._number(owner)
         times: list[np.ndarray] = []
         places: list[np.ndarray] = []
         with owner.path.open("rb") as file:
@@ -178,39 +187,27 @@ class Bag:
             return np.empty(0, np.int64), np.empty((0, 3), np.int64)
         return np.concatenate(times), np.concatenate(places)
 
-    def _mcap_message(self, place: np.ndarray, topic: str) -> memoryview:
-        """The payload of the MCAP message record at ``place``, through a cache of recently decompressed chunks."""
-        storage, chunk_number, offset = (int(v) for v in place)
-        key = (storage, chunk_number)
-        data = self._chunks.pop(key, None)
-        if data is None:
-            data = self._read_chunk(self._mcaps[storage], chunk_number)
-            while len(self._chunks) >= _CHUNK_CACHE:
-                self._chunks.pop(next(iter(self._chunks)))
-        self._chunks[key] = data
-        if offset + 31 > len(data) or data[offset] != _MESSAGE:
-            raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk_number}", path=self.path)
-        (length,) = struct.unpack_from("<Q", data, offset + 1)
-        return memoryview(data)[offset + 9 + 22 : offset + 9 + length]
+    def _number(self, owner: Any) -> int:
+        number = next((n for n, known in self._storages.items() if known is owner), len(self._storages))
+        self._storages[number] = owner
+        return number
 
-    def _read_chunk(self, owner: Any, number: int) -> bytes:
-        from rosbags.rosbag2.storage_mcap import decompress
-
-        chunk = owner.chunks[number]
-        with owner.path.open("rb") as file:
-            file.seek(chunk.chunk_start_offset + 9 + 24)
-            (crc,) = struct.unpack("<I", file.read(4))
-            file.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
-            compressed = file.read(chunk.compressed_size)
-        return decompress(compressed, chunk.compression, chunk.uncompressed_size, crc)
     # -- messages -----------------------------------------------------------
 
-    def _mcap_owners(self) -> list[Any]:
-        owners: list[Any] = []
-        for reader in self._reader.readers:
-            storage = getattr(reader, "storage", None)
-            owners += getattr(storage, "storages", None) or ([storage] if type(storage).__name__ == "McapReader" else [])
-        return owners
+    def _payload(self, place: np.ndarray, topic: str) -> memoryview:
+        """The serialized message at ``place``, through a cache of recently decompressed chunks."""
+        storage, chunk, offset = (int(v) for v in place)
+        owner = self._storages[storage]
+        data = self._chunks.pop((storage, chunk), None)
+        if data is None:
+            data = _read_chunk(owner, chunk)
+            while len(self._chunks) >= _CHUNK_CACHE:
+                self._chunks.pop(next(iter(self._chunks)))
+        self._chunks[(storage, chunk)] = data
+        found = (_ros1_record if type(owner).__name__ == "Reader" else _mcap_record)(data, offset)
+        if found is None:
+            raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path)
+        return found
 
     def message(self, topic: str, index: int) -> tuple[int, Any]:
         """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
@@ -218,7 +215,7 @@ class Bag:
         t = int(info.times[index])
         if info.places is not None:
             with self._lock:
-                data = self._guard(topic, lambda: self._mcap_message(info.places[index], topic))  # type: ignore[index]
+                data = self._guard(topic, lambda: self._payload(info.places[index], topic))  # type: ignore[index]
             return t, self._decode(topic, info.msgtype, t, data)
         skip = index - int(np.searchsorted(info.times, t, side="left"))
         for time, message in self.messages(topic, t, t + 1):
@@ -256,6 +253,59 @@ class Bag:
                 f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {_reason(exc)}",
                 path=self.path,
             ) from None
+
+
+def _read_chunk(owner: Any, key: int) -> bytes:
+    """The decompressed records of a chunk: MCAP chunk number ``key``, or the ROS 1 chunk at byte ``key``."""
+    with owner.path.open("rb") as file:
+        if type(owner).__name__ == "Reader":
+            chunk = owner.chunks[key]
+            file.seek(chunk.datapos)
+            return bytes(chunk.decompressor(file.read(chunk.datasize)))
+        from rosbags.rosbag2.storage_mcap import decompress
+
+        info = owner.chunks[key]
+        file.seek(info.chunk_start_offset + 9 + 24)
+        (crc,) = struct.unpack("<I", file.read(4))
+        file.seek(info.chunk_start_offset + 9 + 40 + len(info.compression))
+        return bytes(decompress(file.read(info.compressed_size), info.compression, info.uncompressed_size, crc))
+
+
+def _mcap_record(data: bytes, offset: int) -> memoryview | None:
+    """The payload of the MCAP message record at ``offset``: after opcode, length, channel, sequence and two times."""
+    if offset + 31 > len(data) or data[offset] != _MESSAGE:
+        return None
+    (length,) = struct.unpack_from("<Q", data, offset + 1)
+    return memoryview(data)[offset + 31 : offset + 9 + length]
+
+
+def _ros1_record(data: bytes, offset: int) -> memoryview | None:
+    """The data of the ROS 1 message record at ``offset`` (connection records before it are skipped)."""
+    while offset + 4 <= len(data):
+        (header_length,) = struct.unpack_from("<I", data, offset)
+        header, end = data[offset + 4 : offset + 4 + header_length], offset + 4 + header_length
+        if end + 4 > len(data):
+            return None
+        (data_length,) = struct.unpack_from("<I", data, end)
+        op = _ros1_op(header)
+        if op == _ROS1_MESSAGE:
+            return memoryview(data)[end + 4 : end + 4 + data_length]
+        if op != _ROS1_CONNECTION:
+            return None
+        offset = end + 4 + data_length
+    return None
+
+
+def _ros1_op(header: bytes) -> int | None:
+    """The ``op`` field of a ROS 1 record header (fields ``name=value``, each after its uint32 length)."""
+    position = 0
+    while position + 4 <= len(header):
+        (size,) = struct.unpack_from("<I", header, position)
+        name, _, value = header[position + 4 : position + 4 + size].partition(b"=")
+        if name == b"op":
+            return value[0] if value else None
+        position += 4 + size
+    return None
 
 
 def _reason(exc: BaseException) -> str:

@@ -53,6 +53,7 @@ logger = logging.getLogger(__name__)
 POSE_STREAM = "/vehicle_pose"
 DEFAULT_RATE = 10.0  # Hz, when the bag has no point cloud
 _FIXED_FRAMES = ("map", "odom", "world")
+_FIRST_FIXES = 100  # fixes looked at for the map origin: the first with a position (status >= 0) wins
 _MARKER_STYLES: dict[str, dict[str, Any]] = {
     "polygons": {"extruded": True, "fill_color": "#50B3FF80", "stroke_color": "#50B3FF"},
     "polylines": {"stroke_color": "#FFC043", "stroke_width": 0.2, "stroke_width_min_pixels": 1},
@@ -231,15 +232,15 @@ class RosBag:
 
     @cached_property
     def map_origin(self) -> tuple[float, float, float] | None:
-        """Longitude, latitude and altitude of the first fix of the first NavSatFix topic, if any."""
+        """Longitude, latitude and altitude of the first fix (with a position) of the first NavSatFix topic, if any."""
         topics = [t for t, info in self.bag.topics.items() if info.msgtype == NAV_SAT_FIX and len(info) and self.settings.wants(t)]
         if self.pose_source.kind == "fix":
             topics.insert(0, self.pose_source.topic)  # type: ignore[arg-type]
         for topic in topics:
-            for _, fix in self.bag.messages(topic, int(self.bag.topics[topic].times[0]), 2**63 - 1):
-                if np.isfinite([fix.latitude, fix.longitude, fix.altitude]).all():
+            for index in range(min(len(self.bag.topics[topic]), _FIRST_FIXES)):
+                _, fix = self.bag.message(topic, index)
+                if np.isfinite([fix.latitude, fix.longitude, fix.altitude]).all() and fix.status.status >= 0:
                     return (float(fix.longitude), float(fix.latitude), float(fix.altitude))
-                break  # the first fix only: reading on would read the whole topic
         return None
 
     # -- XVIZ ---------------------------------------------------------------
