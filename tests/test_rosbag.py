@@ -84,6 +84,7 @@ def test_detects_the_three_containers_by_their_first_bytes(bags: dict[str, Path]
         assert is_rosbag(path) and detect(path) == "rosbag"
     (tmp_path / "notes.bag").write_text("a shopping bag")
     (tmp_path / "folder.mcap").mkdir()
+    (tmp_path / "metadata.yaml").write_text("title: a static site\n")
     assert not is_rosbag(tmp_path / "notes.bag") and not is_rosbag(tmp_path / "folder.mcap") and not is_rosbag(tmp_path)
     assert [open_dataset("rosbag", p).name for p in bags.values()] == ["drive", "drive", "drive"]
 

@@ -32,10 +32,11 @@ import numpy as np
 
 from ...exceptions import DatasetError
 
-__all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC"]
+__all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY"]
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+ROS2_KEY = b"rosbag2_bagfile_information"  # the top key of a ROS 2 bag's metadata.yaml
 _MESSAGE = 0x05  # MCAP opcodes
 _MESSAGE_INDEX = 0x07
 _ROS1_MESSAGE = 0x02  # ROS 1 record ops
@@ -44,15 +45,16 @@ _CHUNK_CACHE = 4  # decompressed chunks kept: a frame reads a few neighbouring o
 
 
 def is_rosbag(path: Path) -> bool:
-    """Whether ``path`` is a ROS 1 bag, an MCAP file (by their first bytes) or a ROS 2 bag folder."""
+    """Whether ``path`` is a ROS 1 bag or an MCAP file (by their first bytes), or a ROS 2 bag folder (by the top
+    key of its ``metadata.yaml``)."""
     magic = {".bag": ROS1_MAGIC, ".mcap": MCAP_MAGIC}.get(path.suffix)
-    if magic is None:
-        return (path / "metadata.yaml").is_file()
+    start, target = (len(magic), path) if magic is not None else (256, path / "metadata.yaml")
     try:
-        with path.open("rb") as file:
-            return file.read(len(magic)) == magic
-    except OSError:  # a folder named like a bag, unreadable file
+        with target.open("rb") as file:
+            head = file.read(start)
+    except OSError:  # no such file, a folder named like a bag, unreadable
         return False
+    return head == magic if magic is not None else ROS2_KEY in head
 
 
 @dataclass(frozen=True)
