@@ -5,7 +5,7 @@ frame's time in the KITTI converter (the OXTS time, in whole
 milliseconds), so that a bag's frame ``i`` is KITTI's frame ``i``:
 
 * ``/kitti/velo/pointcloud``: the velodyne sweep as ``PointCloud2`` (x, y,
-  z, intensity float32) in frame ``velo_link``;
+  z, intensity float32) in frame ``/velo_link`` (a ROS 1 style leading slash);
 * ``/kitti/camera_gray_left/image_raw`` (mono8) and
   ``/kitti/camera_color_left/image_raw`` (rgb8): the PNGs' pixels as
   ``Image``; ``/kitti/camera_color_right/image_raw/compressed``: the PNG
@@ -137,7 +137,7 @@ def kitti_messages(drive: KittiDrive, m: Messages, frames: int | None = None) ->
 
     static = [
         m.transform(times[0], "base_link", "velo_link", *inverse(imu_to_velo)),
-        m.transform(times[0], "/velo_link", "camera_gray_left", *inverse(velo_to_cam)),  # a ROS 1 style leading slash
+        m.transform(times[0], "velo_link", "camera_gray_left", *inverse(velo_to_cam)),
     ]
     yield "/tf_static", "tf2_msgs/msg/TFMessage", times[0], m.tf2_msgs__TFMessage(transforms=static)
     origin = drive.oxts(0)
@@ -168,7 +168,7 @@ def kitti_messages(drive: KittiDrive, m: Messages, frames: int | None = None) ->
                 covariance=np.zeros(36)),
         )
         yield "/odom", "nav_msgs/msg/Odometry", t, odometry
-        yield CLOUD_TOPIC, "sensor_msgs/msg/PointCloud2", t, m.cloud(t, np.array(drive.velodyne(i)))
+        yield CLOUD_TOPIC, "sensor_msgs/msg/PointCloud2", t, m.cloud(t, np.array(drive.velodyne(i)), "/velo_link")
         yield GRAY_TOPIC, "sensor_msgs/msg/Image", t, m.image(t, drive.image_path("image_00", i).read_bytes(), "camera_gray_left")
         yield COLOR_TOPIC, "sensor_msgs/msg/Image", t, m.image(t, drive.image_path("image_02", i).read_bytes(), "camera_color_left")
         yield COMPRESSED_TOPIC, "sensor_msgs/msg/CompressedImage", t, m.compressed(t, drive.image_path("image_03", i).read_bytes(), "camera_color_right")
@@ -179,13 +179,17 @@ def kitti_messages(drive: KittiDrive, m: Messages, frames: int | None = None) ->
         ])
 
 
-def marker(m: Messages, t: int, *, action: int, kind: int, id: int, x: float, text: str) -> Any:
+def marker(m: Messages, t: int, *, action: int, kind: int, id: int, x: float, text: str = "", frame: str = "base_link",
+           points: list[tuple[float, float, float]] | None = None, lifetime: int = 0, scale: float = 4.0) -> Any:
+    """A Marker: namespace ``boxes``, orange, at (x, 0, 0.75), scaled (scale, 2, 1.5); ``lifetime`` in ns."""
     pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=x, y=0.0, z=0.75), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
-    lifetime = m.builtin_interfaces__Duration(sec=0, nanosec=0)
+    lifetime_message = m.builtin_interfaces__Duration(sec=lifetime // 10**9, nanosec=lifetime % 10**9)
+    color = m.std_msgs__ColorRGBA(r=1.0, g=0.5, b=0.0, a=1.0)
     fields: dict[str, Any] = dict(
-        header=m.header(t, "base_link"), ns="boxes", id=id, type=kind, action=action, pose=pose,
-        scale=m.vector(4.0, 2.0, 1.5), color=m.std_msgs__ColorRGBA(r=1.0, g=0.5, b=0.0, a=1.0),
-        lifetime=lifetime, frame_locked=False, points=[], colors=[], text=text, mesh_resource="", mesh_use_embedded_materials=False,
+        header=m.header(t, frame), ns="boxes", id=id, type=kind, action=action, pose=pose,
+        scale=m.vector(scale, 2.0, 1.5), color=color, lifetime=lifetime_message, frame_locked=False,
+        points=[m.geometry_msgs__Point(x=p[0], y=p[1], z=p[2]) for p in points or []],
+        colors=[color for _ in points or []], text=text, mesh_resource="", mesh_use_embedded_materials=False,
     )
     if not m.ros1:
         fields["texture_resource"] = ""

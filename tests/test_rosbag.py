@@ -16,7 +16,8 @@ import pytest
 from PIL import Image
 
 from rosbag_kitti import (
-    CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, FIX_TOPIC, GRAY_TOPIC, IMU_TOPIC, RAW, Messages, kitti_messages, write_bag,
+    CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, FIX_TOPIC, GRAY_TOPIC, IMU_TOPIC, RAW, Messages, kitti_messages, marker,
+    write_bag,
 )
 from interop_session import run_xviz_session_async
 from serving import client, running_server, timestamps
@@ -186,6 +187,48 @@ def test_no_pose_source_and_no_cloud(drive: KittiDrive, tmp_path: Path):
     update = bag.convert(len(bag) - 1)["updates"][0]
     assert update["poses"]["/vehicle_pose"]["position"] == [0.0, 0.0, 0.0]
     assert GRAY_TOPIC in update["primitives"]
+
+
+def test_markers_paths_numbers_in_the_map_frame(tmp_path: Path):
+    """A PoseStamped pose in ``map``; markers and a path in ``map`` are drawn relative to the vehicle."""
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS2_HUMBLE)
+    t0, tick = 1_700_000_000 * 10**9, 100_000_000
+    ahead = [(0.0, 0.0, 0.0), (0.0, 5.0, 0.0)]
+    messages: list[tuple[str, str, int, Any]] = []
+    for i in range(5):
+        pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
+        messages.append(("/pose", "geometry_msgs/msg/PoseStamped", t0 + i * tick, m.geometry_msgs__PoseStamped(header=m.header(t0, "map"), pose=pose)))
+        messages.append(("/speed", "std_msgs/msg/Float64", t0 + i * tick, m.std_msgs__Float64(data=1.5 * i)))
+    marker_type = "visualization_msgs/msg/Marker"
+    messages += [
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=2, id=1, x=10.0, frame="map", scale=2.0)),  # SPHERE
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=4, id=2, x=0.0, frame="map", points=ahead)),  # LINE_STRIP
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=8, id=3, x=0.0, frame="map", points=ahead)),  # POINTS
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=0, id=4, x=0.0, frame="map", lifetime=150_000_000)),  # ARROW
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=5, id=5, x=0.0, frame="map", points=ahead * 2)),  # LINE_LIST
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=6, id=6, x=0.0, frame="map", points=ahead)),  # CUBE_LIST
+        ("/viz", marker_type, t0 + tick, marker(m, t0, action=2, kind=4, id=2, x=0.0, frame="map")),  # DELETE the strip
+    ]
+    stamped = [m.geometry_msgs__PoseStamped(header=m.header(t0, "map"), pose=m.geometry_msgs__Pose(
+        position=m.geometry_msgs__Point(x=x, y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))) for x in (0.0, 5.0, 10.0)]
+    messages.append(("/plan", "nav_msgs/msg/Path", t0, m.nav_msgs__Path(header=m.header(t0, "map"), poses=stamped)))
+    bag = RosBag(write_bag(tmp_path / "viz.mcap", "mcap", iter(sorted(messages, key=lambda e: e[2]))))
+    assert bag.pose_source.kind == "topic" and bag.pose_source.fixed_frame == "map" and len(bag) == 5
+    metadata = bag.metadata()
+    frames = [bag.convert(i, metadata)["updates"][0] for i in range(5)]
+    first, third = frames[0]["primitives"], frames[2]["primitives"]
+    assert first["/viz/circles"]["circles"][0]["center"] == [10.0, 0.0, 0.75] and first["/viz/circles"]["circles"][0]["radius"] == 1.0
+    assert third["/viz/circles"]["circles"][0]["center"] == [8.0, 0.0, 0.75]  # the vehicle moved 2 m along x
+    assert [p["base"]["object_id"] for p in first["/viz/polylines"]["polylines"]] == ["boxes/2", "boxes/4", "boxes/5", "boxes/5"]
+    assert [p["base"]["object_id"] for p in third["/viz/polylines"]["polylines"]] == ["boxes/5", "boxes/5"]  # deleted, expired
+    np.testing.assert_allclose(third["/viz/points"]["points"][0]["points"], [[-2, 0, 0.75], [-2, 5, 0.75]])
+    assert third["/viz/points"]["points"][0]["colors"].tolist() == [[255, 128, 0, 255]] * 2
+    assert len(third["/viz/polygons"]["polygons"]) == 2
+    np.testing.assert_allclose(third["/plan"]["polylines"][0]["vertices"], [[-2, 0, 0], [3, 0, 0], [8, 0, 0]])
+    speeds = [entry["values"]["doubles"][0] for f in frames for entry in f["time_series"] if entry["streams"] == ["/speed"]]
+    assert speeds == [0.0, 1.5, 3.0, 4.5, 6.0]
 
 
 # -- point clouds of any layout -------------------------------------------------
@@ -461,3 +504,33 @@ def test_inspect_lists_topics_rates_and_mapping(bags: dict[str, Path], drive: Ki
     assert "MCAP" in table and CLOUD_TOPIC in table and "POINT" in table
     assert main(["inspect", str(bags["mcap"].parent / "nope.bag")]) == 1
     assert "nope.bag" in capsys.readouterr().err
+
+
+def test_inspect_points_out_topics_on_another_clock(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    """Header stamps in simulation time beside a wall-clock recording: reported, and served on record time."""
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS2_HUMBLE)
+    wall = 1_700_000_000 * 10**9
+    messages = []
+    for i in range(3):
+        t = wall + i * 100_000_000
+        simulated = m.std_msgs__Header(stamp=m.builtin_interfaces__Time(sec=100 + i, nanosec=0), frame_id="base_link")
+        messages.append(("/sim/odom", "nav_msgs/msg/Odometry", t, m.nav_msgs__Odometry(
+            header=simulated, child_frame_id="base_link",
+            pose=m.geometry_msgs__PoseWithCovariance(pose=m.geometry_msgs__Pose(
+                position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0))),
+                covariance=np.zeros(36)),
+            twist=m.geometry_msgs__TwistWithCovariance(twist=m.geometry_msgs__Twist(
+                linear=m.vector(1.0, 0.0, 0.0), angular=m.vector(0.0, 0.0, 0.0)), covariance=np.zeros(36)))))
+        messages.append(("/wall/speed", "std_msgs/msg/Float32", t, m.std_msgs__Float32(data=float(i))))
+        messages.append(("/diagnostics_blob", "std_msgs/msg/String", t, m.std_msgs__String(data="x")))
+    path = write_bag(tmp_path / "clocks.mcap", "mcap", iter(messages))
+    assert main(["inspect", str(path), "--json"]) == 0
+    topics = {t["topic"]: t for t in json.loads(capsys.readouterr().out)["topics"]}
+    assert topics["/sim/odom"]["note"].startswith("header stamps on another clock (-1699999900.0 s")
+    assert topics["/wall/speed"]["note"] == ""  # no header
+    assert topics["/diagnostics_blob"]["maps_to"] == "unknown type, not served"
+    bag = RosBag(path)
+    positions = [bag.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(len(bag))]
+    assert positions == [0.0, 1.0, 2.0]
