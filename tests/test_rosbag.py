@@ -7,6 +7,7 @@ import io
 import json
 import logging
 import math
+import shutil
 import struct
 from pathlib import Path
 from typing import Any, Iterator
@@ -23,7 +24,6 @@ from interop_session import run_xviz_session_async
 from serving import client, running_server, timestamps
 from test_interop import sha, xviz_decode
 from xviz_server.cli import main
-from xviz_server.codec import Format
 from xviz_server.convert import convert
 from xviz_server.datasets import detect, open_dataset
 from xviz_server.datasets.kitti import EARTH_RADIUS, KittiDrive
@@ -361,10 +361,15 @@ def test_dataset_option_in_the_path(bags: dict[str, Path], tmp_path: Path):
 # -- bad input ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("container", ["ros1", "mcap"])
+@pytest.mark.parametrize("container", CONTAINERS)
 def test_truncated_bag_is_an_error_naming_the_file(container: str, bags: dict[str, Path], tmp_path: Path):
     cut = tmp_path / bags[container].name
-    cut.write_bytes(bags[container].read_bytes()[: bags[container].stat().st_size // 2])
+    if container == "sqlite3":  # a folder: cut its database file
+        shutil.copytree(bags[container], cut)
+        (database,) = cut.glob("*.db3")
+        database.write_bytes(database.read_bytes()[: database.stat().st_size // 2])
+    else:
+        cut.write_bytes(bags[container].read_bytes()[: bags[container].stat().st_size // 2])
     with pytest.raises(DatasetError, match=f"{cut}: cannot open the bag: "):
         RosBag(cut)
 
