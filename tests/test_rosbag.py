@@ -511,7 +511,8 @@ def test_inspect_lists_topics_rates_and_mapping(bags: dict[str, Path], drive: Ki
     assert "nope.bag" in capsys.readouterr().err
 
 
-def test_inspect_points_out_topics_on_another_clock(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+def test_inspect_points_out_topics_on_another_clock(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                   caplog: pytest.LogCaptureFixture):
     """Header stamps in simulation time beside a wall-clock recording: reported, and served on record time."""
     from rosbags.typesys import Stores
 
@@ -531,11 +532,21 @@ def test_inspect_points_out_topics_on_another_clock(tmp_path: Path, capsys: pyte
         messages.append(("/wall/speed", "std_msgs/msg/Float32", t, m.std_msgs__Float32(data=float(i))))
         messages.append(("/diagnostics_blob", "std_msgs/msg/String", t, m.std_msgs__String(data="x")))
     path = write_bag(tmp_path / "clocks.mcap", "mcap", iter(messages))
+    bag = RosBag(path)
+    with caplog.at_level(logging.INFO, logger="xviz_server.datasets.ros.dataset"):
+        bag.metadata()
+    assert [r.getMessage() for r in caplog.records] == [
+        f"{path}: topics of types the mapping does not know, not served: /diagnostics_blob (std_msgs/msg/String)"
+    ]
     assert main(["inspect", str(path), "--json"]) == 0
     topics = {t["topic"]: t for t in json.loads(capsys.readouterr().out)["topics"]}
     assert topics["/sim/odom"]["note"].startswith("header stamps on another clock (-1699999900.0 s")
     assert topics["/wall/speed"]["note"] == ""  # no header
     assert topics["/diagnostics_blob"]["maps_to"] == "unknown type, not served"
-    bag = RosBag(path)
-    positions = [bag.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(len(bag))]
+    metadata = bag.metadata()
+    positions = [bag.convert(i, metadata)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(len(bag))]
     assert positions == [0.0, 1.0, 2.0]
+    config = tmp_path / "tf.toml"
+    config.write_text("pose = '/tf'\n")
+    with pytest.raises(DatasetError, match="tf.toml: pose: /tf does not move any frame"):
+        _ = RosBag(path, config=str(config)).pose_source

@@ -135,8 +135,8 @@ class RosBag:
         )
         if choice == "none":
             return PoseSource("none", vehicle or self._first_cloud_frame())
-        if choice in (None, TF) and self.tree.has_tf:
-            source = self._tf_source(vehicle)
+        if choice in (None, TF):
+            source = self._tf_source(vehicle) if self.tree.has_tf else None
             if source is not None:
                 return source
             if choice == TF:
