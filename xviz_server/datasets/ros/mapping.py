@@ -14,7 +14,7 @@ from typing import Any
 
 from .bag import Bag
 from .config import RosConfig
-from .tf import TF, TF_STATIC
+from .tf import TF, TF_STATIC, TF_TYPE
 
 __all__ = ["Mapping", "plan", "SERIES", "MARKER_STREAMS", "POSE_TYPES"]
 
@@ -29,7 +29,6 @@ IMU = "sensor_msgs/msg/Imu"
 MARKER = "visualization_msgs/msg/Marker"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 PATH = "nav_msgs/msg/Path"
-TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 #: Pose sources in the order of preference after /tf.
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, POSE_WITH_COVARIANCE, NAV_SAT_FIX)
@@ -137,7 +136,7 @@ def plan(bag: Bag, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
             role = "series"
         elif msgtype == NAV_SAT_FIX:
             role = "origin"
-        elif msgtype == TF_MESSAGE and topic in (TF, TF_STATIC):
+        elif msgtype == TF_TYPE and topic in (TF, TF_STATIC):
             role = "transforms"
         elif msgtype in POSE_TYPES:
             role = "unused"

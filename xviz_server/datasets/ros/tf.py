@@ -15,7 +15,7 @@ import numpy as np
 from .bag import Bag
 from .geometry import from_transform, interpolate
 
-__all__ = ["frame_name", "TransformTree", "Snapshot", "TF", "TF_STATIC"]
+__all__ = ["frame_name", "TransformTree", "Snapshot", "TF", "TF_STATIC", "TF_TYPE"]
 
 TF = "/tf"
 TF_STATIC = "/tf_static"
