@@ -1,19 +1,22 @@
 """Raw datasets served as logs, converted on demand.
 
 Datasets are found under a data root by their layout (see
-:func:`xviz_server.layout.discover`) or given explicitly (``--dataset
+:func:`xviz_server.layout.discover`: a dataset in one file, like a ROS bag,
+is named by its path without the suffix) or given explicitly (``--dataset
 kitti:PATH``: named by the folder's name, or a file's name without its
-suffix; a folder of datasets of that kind serves each of them). The
-metadata and the index come from the dataset's timestamps at once; each
-frame is converted in the process pool when first asked for, encoded as GLB
-once, and kept in the shared frame cache like any other frame. A frame whose
-raw files are missing or corrupt is an error naming the file; the rest of
-the drive is served.
+suffix; a folder of datasets of that kind serves each of them; ``--dataset
+rosbag:PATH?config=FILE`` gives the kind's options). The metadata and the
+index come from the dataset's timestamps at once; each frame is converted
+in the process pool when first asked for, encoded as GLB once, and kept in
+the shared frame cache like any other frame. A frame whose raw files are
+missing or corrupt is an error naming the file; the rest of the drive is
+served.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
 from ..codec import Format
@@ -26,20 +29,22 @@ from ..work import Workers
 __all__ = ["DatasetProvider", "DatasetLog", "explicit_datasets"]
 
 
-def explicit_datasets(kind: str, path: Path) -> list[Found]:
-    """The datasets a ``--dataset KIND:PATH`` names.
+def explicit_datasets(kind: str, path: Path, options: Mapping[str, str] | None = None) -> list[Found]:
+    """The datasets a ``--dataset KIND:PATH?OPTIONS`` names.
 
-    ``path`` itself, named after it, when it is one dataset or holds one
-    (the dataset opens it; a folder that holds none is named the same, and
-    opening it says what is wrong); each dataset of ``kind`` under it, named
-    by its path below it, when it holds several.
+    ``path`` itself, named after it (a file without its suffix), when it is
+    a dataset; the one dataset of ``kind`` under it, named after ``path``;
+    each of several, named by its path below it. A folder that holds none is
+    named after itself, and opening it says what is wrong.
     """
-    path = Path(path)
-    own = Found(path.stem if path.is_file() else path.name, path, kind)
+    path, given = Path(path), tuple(sorted((options or {}).items()))
+    name = path.stem if path.is_file() else path.name
     if detect(path) == kind or not path.is_dir():
-        return [own]
-    found = [entry for entry in discover(path, detect) if entry.kind == kind]
-    return found if len(found) > 1 else [own]
+        return [Found(name, path, kind, given)]
+    found = [Found(entry.name, entry.path, kind, given) for entry in discover(path, detect) if entry.kind == kind]
+    if len(found) == 1:
+        return [Found(name, found[0].path, kind, given)]
+    return found or [Found(name, path, kind, given)]
 
 
 class DatasetProvider:
@@ -50,11 +55,12 @@ class DatasetProvider:
         self._options = options or {}
 
     async def open(self, found: Found) -> DatasetLog:
+        options = {**self._options, **dict(found.options)}
         try:
-            dataset = await self._workers.io(lambda: open_dataset(found.kind, found.path, **self._options))
+            dataset = await self._workers.io(lambda: open_dataset(found.kind, found.path, **options))
         except DatasetError as exc:
             raise LogError(f"log {found.name!r}: {exc}", log=found.name) from None
-        return DatasetLog(found.name, found.kind, dataset, self._options, self._workers)
+        return DatasetLog(found.name, found.kind, dataset, options, self._workers)
 
 
 class DatasetLog:

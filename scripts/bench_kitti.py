@@ -38,11 +38,17 @@ from xviz_server.messages import envelope
 RAW = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
 
 
-async def served(raw: Path, settle: float) -> tuple[float, float, int]:
-    server = subprocess.Popen([sys.executable, "-m", "xviz_server", "serve", "--dataset", f"kitti:{raw}", "--port", "0"],
+def start_server(dataset: str) -> tuple[subprocess.Popen[str], int]:
+    """``xviz-server serve --dataset DATASET`` in its own process, and the port it listens on."""
+    server = subprocess.Popen([sys.executable, "-m", "xviz_server", "serve", "--dataset", dataset, "--port", "0"],
                               stderr=subprocess.PIPE, text=True)
     assert server.stderr is not None
     port = next(int(m.group(1)) for line in server.stderr if (m := re.search(r"ws://127\.0\.0\.1:(\d+)/", line)))
+    return server, port
+
+
+async def served(raw: Path, settle: float) -> tuple[float, float, int]:
+    server, port = start_server(f"kitti:{raw}")
     try:
         await asyncio.sleep(settle)
         async with websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None) as websocket:

@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/venv.sh
-python -m pip install --quiet --disable-pip-version-check -e ".[test,vista]"
+python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros]"
 npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
 scripts/typecheck.sh
 exec python -m pytest "$@"

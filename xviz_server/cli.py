@@ -204,6 +204,14 @@ def _convert(args: argparse.Namespace) -> int:
     from .convert import convert
     from .exceptions import XVIZError
 
+    from .datasets import dataset_options
+
+    options: dict[str, Any] = {"image_max_width": args.image_max_width}
+    if args.config is not None:
+        if "config" not in dataset_options(args.kind):
+            print(f"xviz-server convert: --config is for rosbag datasets, not {args.kind}", file=sys.stderr)
+            return 2
+        options["config"] = str(args.config)
     try:
         convert(
             args.kind,
@@ -211,7 +219,7 @@ def _convert(args: argparse.Namespace) -> int:
             args.output,
             fmt=Format.JSON if args.format == "json" else Format.BINARY,
             frames=args.frames,
-            options={"image_max_width": args.image_max_width},
+            options=options,
             processes=args.processes,
         )
     except (ValueError, XVIZError) as exc:
@@ -220,6 +228,19 @@ def _convert(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("\nxviz-server convert: interrupted; run the same command again to resume", file=sys.stderr)
         return 130
+    return 0
+
+
+def _inspect(args: argparse.Namespace) -> int:
+    from .datasets.ros.inspect import inspect_bag, render
+    from .exceptions import DatasetError
+
+    try:
+        report = inspect_bag(args.path, None if args.config is None else str(args.config))
+    except DatasetError as exc:
+        print(f"xviz-server inspect: {exc}", file=sys.stderr)
+        return 1
+    print(orjson.dumps(report, option=orjson.OPT_INDENT_2).decode() if args.json else render(report))
     return 0
 
 
@@ -311,7 +332,20 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"scale camera images down to W pixels (default {DEFAULT_IMAGE_WIDTH})",
     )
     convert.add_argument("--processes", type=int, metavar="N", help="worker processes (default: one per core)")
+    convert.add_argument("--config", type=Path, metavar="FILE", help="rosbag: TOML file of the mapping (see README)")
     convert.set_defaults(run=_convert)
+
+    inspect = commands.add_parser(
+        "inspect",
+        help="list a ROS bag's topics and what they would become",
+        description="Print the topics of a ROS 1 bag, ROS 2 bag folder or MCAP file: message type, count, rate, "
+        "time span, and the XVIZ streams the default mapping (or --config) makes of each. Exit status 1 when the "
+        "bag cannot be read.",
+    )
+    inspect.add_argument("path", type=Path, help="a .bag or .mcap file, or a ROS 2 bag folder")
+    inspect.add_argument("--config", type=Path, metavar="FILE", help="TOML file of the mapping")
+    inspect.add_argument("--json", action="store_true", help="print the report as JSON")
+    inspect.set_defaults(run=_inspect)
     return parser
 
 

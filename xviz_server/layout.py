@@ -127,11 +127,12 @@ def update_span(data: Any) -> tuple[float, float] | None:
 
 @dataclass(frozen=True)
 class Found:
-    """A log or dataset found under a root: its name, where it is, and its kind (:data:`LOG` or a dataset kind)."""
+    """A log or dataset: its name, where it is, its kind (:data:`LOG` or a dataset kind), options of its kind."""
 
     name: str
     path: Path
     kind: str
+    options: tuple[tuple[str, str], ...] = ()
 
 
 def discover(root: Path, detect: Callable[[Path], str | None] | None = None) -> Iterator[Found]:

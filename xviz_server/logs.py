@@ -234,8 +234,8 @@ def _complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, 
 class Catalog:
     """Every log under the data roots and every dataset named, by name; each is opened once and shared.
 
-    ``datasets`` are ``(kind, path)`` pairs (``--dataset``); ``options`` go
-    to every dataset (``image_max_width``).
+    ``datasets`` are ``(kind, path, options)`` (``--dataset``); ``options``
+    go to every dataset (``image_max_width``).
     """
 
     def __init__(
@@ -244,12 +244,12 @@ class Catalog:
         cache: FrameCache,
         workers: Workers,
         *,
-        datasets: Sequence[tuple[str, Path]] = (),
+        datasets: Sequence[tuple[str, Path, dict[str, str]]] = (),
         options: dict[str, Any] | None = None,
         validate: bool = False,
     ) -> None:
         self._roots = [Path(root) for root in roots]
-        self._datasets = [(kind, Path(path)) for kind, path in datasets]
+        self._datasets = [(kind, Path(path), options) for kind, path, options in datasets]
         self._logs = StaticLogProvider(workers)
         self._converted = DatasetProvider(workers, options)
         self._cache = cache
@@ -276,8 +276,8 @@ class Catalog:
         for root in self._roots:
             for entry in discover(root, detect):
                 found.setdefault(entry.name, entry)
-        for kind, path in self._datasets:
-            for entry in explicit_datasets(kind, path):
+        for kind, path, given in self._datasets:
+            for entry in explicit_datasets(kind, path, given):
                 found.setdefault(entry.name, entry)
         return found
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import urllib.parse
 import logging
 import signal
 from http import HTTPStatus
@@ -34,7 +35,7 @@ from .auth import feed_name, ingest_refusal, token_matches
 from .cache import FrameCache
 from .layout import LOG
 from .connection import Connection
-from .datasets import GENERATED, KINDS
+from .datasets import GENERATED, KINDS, dataset_options
 from .exceptions import LogError
 from .live import LiveRegistry
 from .live.ingest import run_ingest
@@ -199,21 +200,27 @@ class XVIZServer:
 
 
 
-def parse_dataset(text: str) -> tuple[str, Path]:
-    """``kitti:/data/drive`` as ``("kitti", Path("/data/drive"))``, ``demo`` as ``("demo", Path("demo"))``.
+def parse_dataset(text: str) -> tuple[str, Path, dict[str, str]]:
+    """``kitti:/data/drive`` as ``("kitti", Path("/data/drive"), {})``, ``demo`` as ``("demo", Path("demo"), {})``.
 
-    Raises :class:`ValueError` for an unknown kind or a path that does not exist.
+    Options of the kind follow the path as a query: ``rosbag:/data/drive.bag?config=map.toml``.
+    Raises :class:`ValueError` for an unknown kind or option, or a path that does not exist.
     """
-    kind, separator, path = text.partition(":")
+    kind, separator, rest = text.partition(":")
+    path, _, query = rest.partition("?")
     if kind in GENERATED:
-        return kind, Path(path or kind)
+        return kind, Path(path or kind), {}
     if not separator or not kind or not path:
         raise ValueError(f"--dataset {text!r}: give KIND:PATH, like kitti:/data/2011_09_26_drive_0001_sync")
     if kind not in KINDS:
         raise ValueError(f"--dataset {text!r}: unknown kind {kind!r}; known: {', '.join(sorted(KINDS))}")
     if not Path(path).exists():
         raise ValueError(f"--dataset {text!r}: {path}: no such file or directory")
-    return kind, Path(path)
+    options = dict(urllib.parse.parse_qsl(query))
+    if unknown := sorted(options.keys() - dataset_options(kind)):
+        raise ValueError(f"--dataset {text!r}: {kind} takes no option {', '.join(unknown)}; it takes: "
+                         f"{', '.join(sorted(dataset_options(kind))) or 'none'}")
+    return kind, Path(path), options
 
 
 def _response(connection: ServerConnection, status: HTTPStatus, body: bytes, content_type: str) -> Response:

@@ -44,7 +44,7 @@ import functools
 from typing import Any, Callable, Iterator, cast
 
 import numpy as np
-from google.protobuf import json_format
+from google.protobuf import any_pb2, json_format, struct_pb2  # noqa: F401  (xviz_v2.proto imports any and struct)
 from google.protobuf.descriptor import Descriptor, EnumDescriptor, FieldDescriptor
 from google.protobuf.message import DecodeError as ProtobufDecodeError
 from google.protobuf.message import Message

@@ -9,6 +9,7 @@ converts one frame at a time, so that a server can serve it on demand and
 from __future__ import annotations
 
 import importlib
+import inspect
 from pathlib import Path
 from typing import Any, Callable, Protocol
 
@@ -18,7 +19,10 @@ from ..codec import Format, encode
 from ..exceptions import DatasetError
 from ..messages import envelope
 
-__all__ = ["Dataset", "KINDS", "FILE_KINDS", "GENERATED", "DEFAULT_IMAGE_WIDTH", "open_dataset", "detect", "convert_frame"]
+__all__ = [
+    "Dataset", "KINDS", "FILE_KINDS", "GENERATED", "DEFAULT_IMAGE_WIDTH", "open_dataset", "detect", "dataset_options",
+    "convert_frame",
+]
 
 
 class Dataset(Protocol):
@@ -49,6 +53,7 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "waymo": ("waymo", "open_segment", "is_waymo_segment"),
     "vista": ("vista", "VistaTrace", "is_vista_trace"),
     "demo": ("demo", "DemoDrive", "is_demo"),
+    "rosbag": ("ros", "RosBag", "is_rosbag"),
 }
 #: Kinds made up rather than read: their path is only a name.
 GENERATED = frozenset({"demo"})
@@ -57,7 +62,7 @@ DEFAULT_IMAGE_WIDTH = 400
 
 
 #: Kinds whose datasets are single files, by file suffix: other files are never datasets.
-FILE_KINDS: dict[str, str] = {".tfrecord": "waymo"}
+FILE_KINDS: dict[str, str] = {".tfrecord": "waymo", ".bag": "rosbag", ".mcap": "rosbag"}
 
 
 def _member(kind: str, position: int) -> Callable[..., Any]:
@@ -72,6 +77,11 @@ def open_dataset(kind: str, path: Path, **options: Any) -> Dataset:
     if kind not in GENERATED and not Path(path).exists():
         raise DatasetError(f"{path}: no such file or directory", path=path)
     return _member(kind, 1)(Path(path), **options)
+
+
+def dataset_options(kind: str) -> frozenset[str]:
+    """The options the dataset class of ``kind`` takes besides its path (``image_max_width``, ``config`` ...)."""
+    return frozenset(inspect.signature(_member(kind, 1)).parameters) - {"path"}
 
 
 def detect(path: Path) -> str | None:

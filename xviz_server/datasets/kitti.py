@@ -56,6 +56,7 @@ from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..codec.image import sniff_image
 from ..exceptions import DatasetError
 from . import DEFAULT_IMAGE_WIDTH
+from .images import encode_like, fit_width
 
 __all__ = [
     "FrameObjects",
@@ -441,20 +442,17 @@ class KittiDrive:
         """
         path = self.image_path(camera, frame)
         data = _read_bytes(path)
-        width, height = _png_size(data, path)
+        width, _ = _png_size(data, path)
         if width <= self.image_max_width:
             return data
         from PIL import Image  # only needed to scale down
 
-        size = (self.image_max_width, max(1, height * self.image_max_width // width))
         try:
             with Image.open(io.BytesIO(data)) as picture:
-                scaled = picture.resize(size, Image.Resampling.BILINEAR, reducing_gap=2.0)
+                scaled = fit_width(picture, self.image_max_width)
         except (OSError, ValueError) as exc:
             raise DatasetError(f"{path}: cannot decode the PNG: {exc}", path=path) from None
-        out = io.BytesIO()
-        scaled.save(out, format="PNG", compress_level=1)
-        return out.getvalue()
+        return encode_like("image/png", scaled)
 
     def calibration(self, name: str) -> dict[str, np.ndarray]:
         """The date folder's ``calib_<name>.txt`` (``imu_to_velo``, ``velo_to_cam``, ``cam_to_cam``)."""

@@ -1,0 +1,314 @@
+"""A bag opened through its own index: its topics, the time of every message, one message at a time.
+
+The three containers are read with ``rosbags``: a ROS 1 bag (``.bag``), a
+ROS 2 bag (a folder with ``metadata.yaml`` and ``.db3`` or ``.mcap``
+files) and a bare ``.mcap`` file. The record time of each message comes
+from the container's index, with no message read:
+
+* ROS 1: the index records after each chunk (``rosbags`` reads them at open);
+* ROS 2 sqlite3: the ``timestamp`` column of the ``messages`` table;
+* MCAP: the message index records after each chunk, located by the
+  summary's chunk indexes (one read per chunk). An MCAP file without a
+  summary (a recording cut short) is read through once at open instead.
+
+ROS 1 and MCAP messages are then read at the offset their index gives,
+through a small cache of decompressed chunks; sqlite3 messages through
+rosbags' query by time.
+
+A ROS 1 bag whose recording was cut short has no index (``index_pos`` 0):
+it is refused with an error that says to run ``rosbag reindex`` on it.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...exceptions import DatasetError
+
+__all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY"]
+
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+ROS2_KEY = b"rosbag2_bagfile_information"  # the top key of a ROS 2 bag's metadata.yaml
+_MESSAGE = 0x05  # MCAP opcodes
+_MESSAGE_INDEX = 0x07
+_ROS1_MESSAGE = 0x02  # ROS 1 record ops
+_ROS1_CONNECTION = 0x07
+_CHUNK_CACHE = 4  # decompressed chunks kept: a frame reads a few neighbouring ones
+
+
+def is_rosbag(path: Path) -> bool:
+    """Whether ``path`` is a ROS 1 bag or an MCAP file (by their first bytes), or a ROS 2 bag folder (by the top
+    key of its ``metadata.yaml``)."""
+    magic = {".bag": ROS1_MAGIC, ".mcap": MCAP_MAGIC}.get(path.suffix)
+    start, target = (len(magic), path) if magic is not None else (256, path / "metadata.yaml")
+    try:
+        with target.open("rb") as file:
+            head = file.read(start)
+    except OSError:  # no such file, a folder named like a bag, unreadable
+        return False
+    return head == magic if magic is not None else ROS2_KEY in head
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic of the bag: its message type (``sensor_msgs/msg/PointCloud2``) and record times."""
+
+    name: str
+    msgtype: str
+    #: Record time of every message, int64 nanoseconds, sorted.
+    times: np.ndarray
+    connections: tuple[Any, ...]
+    #: Where each message is, int64 (N, 3): storage, chunk, offset in the decompressed chunk; ``None`` when
+    #: messages are read through rosbags (sqlite3, MCAP without a summary, ROS 2 compressed per message).
+    places: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def at_or_before(self, t: int) -> int:
+        """The index of the last message recorded at or before ``t`` (ns); -1 if none."""
+        return int(np.searchsorted(self.times, t, side="right")) - 1
+
+
+def _import_rosbags() -> Any:
+    try:
+        import rosbags.highlevel
+    except ImportError:
+        raise DatasetError("reading ROS bags needs the rosbags package: pip install 'xviz-server[ros]'") from None
+    return rosbags
+
+
+class Bag:
+    """An open bag. Every failure of the reader on a damaged file is a
+    :class:`~xviz_server.exceptions.DatasetError` naming the file (and the
+    topic, for a message). Safe to use from several threads."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        rosbags = _import_rosbags()
+        from rosbags.typesys import Stores, get_typestore
+
+        self._lock = threading.Lock()
+        try:
+            reader = rosbags.highlevel.AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+            reader.open()
+        except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
+            raise DatasetError(f"{self.path}: cannot open the bag: {_reason(exc)}", path=self.path) from None
+        self._reader = reader
+        by_topic: dict[str, list[Any]] = {}
+        for connection in reader.connections:
+            by_topic.setdefault(connection.topic, []).append(connection)
+        self._storages: dict[int, Any] = {}  # by number: the rosbags storage readers messages are read from directly
+        self._chunks: dict[tuple[int, int], bytes] = {}
+        self.topics: dict[str, Topic] = {}
+        for name, connections in sorted(by_topic.items()):
+            try:
+                indexes = [self._index(c) for c in connections]
+            except DatasetError:
+                raise
+            except Exception as exc:  # noqa: BLE001
+                raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {_reason(exc)}", path=self.path) from None
+            times = np.concatenate([i[0] for i in indexes])
+            order = np.argsort(times, kind="stable")
+            places = [i[1] for i in indexes if i[1] is not None]
+            located = np.concatenate(places)[order] if len(places) == len(indexes) else None
+            self.topics[name] = Topic(name, connections[0].msgtype, times[order], tuple(connections), located)
+
+    @property
+    def container(self) -> str:
+        """``ROS 1``, ``ROS 2 sqlite3``, ``ROS 2 mcap`` or ``MCAP``."""
+        if self.path.suffix == ".bag":
+            return "ROS 1"
+        if self.path.suffix == ".mcap":
+            return "MCAP"
+        storages = {type(s).__name__ for r in self._reader.readers for s in r.storage.storages}
+        return "ROS 2 mcap" if storages == {"McapReader"} else "ROS 2 sqlite3"
+
+    def close(self) -> None:
+        with self._lock:
+            self._reader.close()
+
+    # -- the index ----------------------------------------------------------
+
+    def _index(self, connection: Any) -> tuple[np.ndarray, np.ndarray | None]:
+        """Record times of a connection's messages and, for MCAP, where each is: (file, chunk, offset)."""
+        owner = connection.owner
+        kind = type(owner).__name__
+        if kind == "Reader":  # rosbags.rosbag1.Reader: its index, read at open
+            entries = np.array(owner.indexes[connection.id], dtype=np.int64).reshape(-1, 3)  # time, chunk_pos, offset
+            place = entries.copy()
+            place[:, 0] = self._number(owner)
+            return entries[:, 0].copy(), place
+        if kind == "Sqlite3Reader":
+            rows = owner.dbconn.execute("SELECT timestamp FROM messages WHERE topic_id = ?", (connection.id,))
+            return np.fromiter((row[0] for row in rows), np.int64), None
+        if kind == "McapReader":
+            return self._mcap_index(owner, connection)
+        if kind == "DirectoryReader":  # a ROS 2 bag folder: the same topic in each of its storage files
+            parts = [self._index(c) for storage in owner.storages for c in storage.connections
+                     if c.topic == connection.topic and c.msgtype == connection.msgtype]
+            times = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int64)
+            places = [p[1] for p in parts if p[1] is not None]
+            direct = parts and len(places) == len(parts) and owner.metadata.compression_mode != "message"
+            return times, (np.concatenate(places) if direct else None)  # compressed messages: through rosbags
+        raise DatasetError(f"{self.path}: unknown storage {kind}", path=self.path)
+
+    def _mcap_index(self, owner: Any, connection: Any) -> tuple[np.ndarray, np.ndarray | None]:
+        if not owner.chunks:  # no summary: read through once
+            return np.fromiter((t for _, t, _ in owner.messages([connection])), np.int64), None
+        number = self._number(owner)
+        times: list[np.ndarray] = []
+        places: list[np.ndarray] = []
+        with owner.path.open("rb") as file:
+            for chunk_number, chunk in enumerate(owner.chunks):
+                offset = chunk.message_index_offsets.get(connection.id)
+                if offset is None:
+                    continue
+                file.seek(offset)
+                head = file.read(15)
+                if len(head) < 15 or head[0] != _MESSAGE_INDEX:
+                    raise DatasetError(f"{owner.path}: no message index at byte {offset}", path=owner.path)
+                _, _, channel, size = struct.unpack("<BQHI", head)
+                body = file.read(size)
+                if channel != connection.id or len(body) != size or size % 16:
+                    raise DatasetError(f"{owner.path}: damaged message index at byte {offset}", path=owner.path)
+                entries = np.frombuffer(body, "<u8").reshape(-1, 2).astype(np.int64)
+                times.append(entries[:, 0])
+                place = np.empty((len(entries), 3), np.int64)
+                place[:, 0], place[:, 1], place[:, 2] = number, chunk_number, entries[:, 1]
+                places.append(place)
+        if not times:
+            return np.empty(0, np.int64), np.empty((0, 3), np.int64)
+        return np.concatenate(times), np.concatenate(places)
+
+    def _number(self, owner: Any) -> int:
+        number = next((n for n, known in self._storages.items() if known is owner), len(self._storages))
+        self._storages[number] = owner
+        return number
+
+    # -- messages -----------------------------------------------------------
+
+    def _payload(self, place: np.ndarray, topic: str) -> memoryview:
+        """The serialized message at ``place``, through a cache of recently decompressed chunks."""
+        storage, chunk, offset = (int(v) for v in place)
+        owner = self._storages[storage]
+        data = self._chunks.pop((storage, chunk), None)
+        if data is None:
+            data = _read_chunk(owner, chunk)
+            while len(self._chunks) >= _CHUNK_CACHE:
+                self._chunks.pop(next(iter(self._chunks)))
+        self._chunks[(storage, chunk)] = data
+        found = (_ros1_record if type(owner).__name__ == "Reader" else _mcap_record)(data, offset)
+        if found is None:
+            raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path)
+        return found
+
+    def message(self, topic: str, index: int) -> tuple[int, Any]:
+        """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
+        info = self.topics[topic]
+        t = int(info.times[index])
+        if info.places is not None:
+            with self._lock:
+                data = self._guard(topic, lambda: self._payload(info.places[index], topic))
+            return t, self._decode(topic, info.msgtype, t, data)
+        skip = index - int(np.searchsorted(info.times, t, side="left"))
+        for time, message in self.messages(topic, t, t + 1):
+            if skip == 0:
+                return time, message
+            skip -= 1
+        raise DatasetError(f"{self.path}: topic {topic}: message {index} is in the index but not in the bag", path=self.path)
+
+    def messages(self, topic: str, start: int, stop: int) -> Iterator[tuple[int, Any]]:
+        """The messages of ``topic`` recorded in ``[start, stop)`` ns, decoded, in time order."""
+        info = self.topics[topic]
+        if info.places is not None:
+            first, last = np.searchsorted(info.times, [start, stop], side="left")
+            for index in range(int(first), int(last)):
+                yield self.message(topic, index)
+            return
+        with self._lock:
+            raw = self._guard(topic, lambda: list(self._reader.messages(info.connections, start=start, stop=stop)))
+        for connection, time, data in raw:
+            yield time, self._decode(topic, connection.msgtype, time, data)
+
+    def _guard(self, topic: str, read: Any) -> Any:
+        try:
+            return read()
+        except DatasetError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
+            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {_reason(exc)}", path=self.path) from None
+
+    def _decode(self, topic: str, msgtype: str, time: int, data: bytes | memoryview) -> Any:
+        try:
+            return self._reader.deserialize(data, msgtype)
+        except Exception as exc:  # noqa: BLE001 - a message that does not match its type
+            raise DatasetError(
+                f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {_reason(exc)}",
+                path=self.path,
+            ) from None
+
+
+def _read_chunk(owner: Any, key: int) -> bytes:
+    """The decompressed records of a chunk: MCAP chunk number ``key``, or the ROS 1 chunk at byte ``key``."""
+    with owner.path.open("rb") as file:
+        if type(owner).__name__ == "Reader":
+            chunk = owner.chunks[key]
+            file.seek(chunk.datapos)
+            return bytes(chunk.decompressor(file.read(chunk.datasize)))
+        from rosbags.rosbag2.storage_mcap import decompress
+
+        info = owner.chunks[key]
+        file.seek(info.chunk_start_offset + 9 + 24)
+        (crc,) = struct.unpack("<I", file.read(4))
+        file.seek(info.chunk_start_offset + 9 + 40 + len(info.compression))
+        return bytes(decompress(file.read(info.compressed_size), info.compression, info.uncompressed_size, crc))
+
+
+def _mcap_record(data: bytes, offset: int) -> memoryview | None:
+    """The payload of the MCAP message record at ``offset``: after opcode, length, channel, sequence and two times."""
+    if offset + 31 > len(data) or data[offset] != _MESSAGE:
+        return None
+    (length,) = struct.unpack_from("<Q", data, offset + 1)
+    return memoryview(data)[offset + 31 : offset + 9 + length]
+
+
+def _ros1_record(data: bytes, offset: int) -> memoryview | None:
+    """The data of the ROS 1 message record at ``offset`` (connection records before it are skipped)."""
+    while offset + 4 <= len(data):
+        (header_length,) = struct.unpack_from("<I", data, offset)
+        header, end = data[offset + 4 : offset + 4 + header_length], offset + 4 + header_length
+        if end + 4 > len(data):
+            return None
+        (data_length,) = struct.unpack_from("<I", data, end)
+        op = _ros1_op(header)
+        if op == _ROS1_MESSAGE:
+            return memoryview(data)[end + 4 : end + 4 + data_length]
+        if op != _ROS1_CONNECTION:
+            return None
+        offset = end + 4 + data_length
+    return None
+
+
+def _ros1_op(header: bytes) -> int | None:
+    """The ``op`` field of a ROS 1 record header (fields ``name=value``, each after its uint32 length)."""
+    position = 0
+    while position + 4 <= len(header):
+        (size,) = struct.unpack_from("<I", header, position)
+        name, _, value = header[position + 4 : position + 4 + size].partition(b"=")
+        if name == b"op":
+            return value[0] if value else None
+        position += 4 + size
+    return None
+
+
+def _reason(exc: BaseException) -> str:
+    return " ".join(str(arg) for arg in exc.args) or type(exc).__name__

@@ -1,0 +1,408 @@
+"""A bag as a dataset: its clock, its pose, and each frame converted to XVIZ on demand.
+
+Frames are the ticks of a clock: by default each message of the densest
+``PointCloud2`` topic, else 10 Hz over the bag's span. A frame holds, for
+every stream, the latest message recorded at or before its tick and not
+more than the staleness limit (1 s by default) before it, and the vehicle
+pose interpolated at the tick.
+
+The pose comes from, in this order: ``/tf`` (the vehicle frame in the root
+of its tree: map, odom, world), a ``nav_msgs/Odometry`` topic, a
+``geometry_msgs/PoseStamped`` or ``PoseWithCovarianceStamped`` topic, and
+last a ``sensor_msgs/NavSatFix`` topic (east-north-up metres from the first
+fix, heading from a ``sensor_msgs/Imu`` topic if there is one). The first
+fix of a NavSatFix topic is the ``map_origin``: the origin of the pose's
+frame is taken to be where that fix was. A bag with no pose source gets the
+identity pose. The vehicle frame is ``base_link`` if the transform tree
+has it, else the one the pose is given for, else the first cloud's.
+
+Point clouds are drawn in the vehicle frame: a cloud whose frame is fixed
+to the vehicle (``/tf_static``) gets that transform in the metadata and
+its points as recorded; one whose frame moves is transformed each frame. A
+topic whose messages do not decode, or whose frame cannot be resolved, is
+left out of the frames it would be in, with a warning naming the file and
+topic; the rest of the frame is served.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...builder import FrameBuilder, MetadataBuilder, ui
+from ...exceptions import DatasetError
+from .bag import Bag, is_rosbag
+from .config import RosConfig, load_config
+from .geometry import IDENTITY, apply, enu, from_pose, from_quaternion, interpolate, rpy
+from .mapping import (
+    CLOUD, COMPRESSED_IMAGE, IMU, MARKER_STREAMS, NAV_SAT_FIX, ODOMETRY, POSE_TYPES, SERIES, Mapping, plan,
+)
+from .markers import draw_marker, live_markers, path_vertices
+from .sensors import cloud_points, compressed_image_bytes, image_bytes
+from .tf import TF, Snapshot, TransformTree, frame_name
+
+__all__ = ["RosBag", "PoseSource", "POSE_STREAM"]
+
+logger = logging.getLogger(__name__)
+
+POSE_STREAM = "/vehicle_pose"
+DEFAULT_RATE = 10.0  # Hz, when the bag has no point cloud
+_FIXED_FRAMES = ("map", "odom", "world")
+_FIRST_FIXES = 100  # fixes looked at for the map origin: the first with a position (status >= 0) wins
+_MARKER_STYLES: dict[str, dict[str, Any]] = {
+    "polygons": {"extruded": True, "fill_color": "#50B3FF80", "stroke_color": "#50B3FF"},
+    "polylines": {"stroke_color": "#FFC043", "stroke_width": 0.2, "stroke_width_min_pixels": 1},
+    "points": {"fill_color": "#FFC043", "radius_pixels": 3},
+    "circles": {"fill_color": "#FFC04380"},
+    "texts": {"fill_color": "#DCDCCD", "text_size": 14},
+}
+
+
+@dataclass(frozen=True)
+class PoseSource:
+    """Where the vehicle pose comes from: ``kind`` is ``tf``, ``topic``, ``fix`` or ``none``."""
+
+    kind: str
+    vehicle_frame: str
+    topic: str | None = None
+    fixed_frame: str | None = None
+    imu_topic: str | None = None
+
+    def describe(self) -> str:
+        if self.kind == "tf":
+            return f"/tf: {self.fixed_frame} -> {self.vehicle_frame}"
+        if self.kind == "fix":
+            heading = f", heading from {self.imu_topic}" if self.imu_topic else ", no heading"
+            return f"{self.topic}: east-north-up from the first fix{heading}"
+        if self.kind == "topic":
+            return f"{self.topic} ({self.fixed_frame} -> {self.vehicle_frame})"
+        return "none: the vehicle stays at the origin"
+
+
+@dataclass
+class RosBag:
+    """A ROS 1 bag, ROS 2 bag or MCAP file served as a log, converted frame by frame.
+
+    ``config`` is the path of a TOML configuration (see
+    :mod:`~xviz_server.datasets.ros.config`); its ``image_max_width`` wins
+    over the argument. Picklable: a copy reopens the bag from its index.
+    Opening a damaged bag raises :class:`~xviz_server.exceptions.DatasetError`
+    naming the file.
+    """
+
+    path: Path
+    image_max_width: int = 400
+    config: str | None = None
+    name: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+        if not is_rosbag(self.path):
+            raise DatasetError(
+                f"{self.path}: not a ROS bag (a .bag or .mcap file, or a ROS 2 bag folder with metadata.yaml)", path=self.path
+            )
+        self.name = self.path.stem if self.path.is_file() else self.path.name
+        self.settings: RosConfig = load_config(self.config)
+        self.bag = Bag(self.path)
+        self._staleness = int(self.settings.staleness * 1e9)
+        self.tree = TransformTree(self.bag, self._staleness)
+        self._warned: set[str] = set()
+        if not any(len(topic) for topic in self.bag.topics.values()):
+            raise DatasetError(f"{self.path}: the bag holds no message", path=self.path)
+        if self.settings.clock is not None and self.settings.clock not in self.bag.topics:
+            raise DatasetError(f"{self.config}: clock: the bag has no topic {self.settings.clock}", path=self.config)
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"path": self.path, "image_max_width": self.image_max_width, "config": self.config}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(**state)  # type: ignore[misc]
+
+    # -- the plan -----------------------------------------------------------
+
+    @cached_property
+    def pose_source(self) -> PoseSource:
+        """Where the vehicle pose comes from (see the module documentation)."""
+        choice = self.settings.pose
+        frames = self.tree.frames
+        vehicle = frame_name(self.settings.vehicle_frame) if self.settings.vehicle_frame else (
+            "base_link" if "base_link" in frames else None
+        )
+        if choice == "none":
+            return PoseSource("none", vehicle or self._first_cloud_frame())
+        if choice in (None, TF):
+            source = self._tf_source(vehicle) if self.tree.has_tf else None
+            if source is not None:
+                return source
+            if choice == TF:
+                raise DatasetError(f"{self.config}: pose: /tf does not move {vehicle or 'any frame'}", path=self.config)
+        topics = self.bag.topics
+        if choice not in (None, TF):
+            if choice not in topics or topics[choice].msgtype not in POSE_TYPES:
+                raise DatasetError(f"{self.config}: pose: {choice} is not a topic of {', '.join(POSE_TYPES)}", path=self.config)
+            candidates = [choice]
+        else:
+            candidates = [t for kind in POSE_TYPES for t, info in topics.items()
+                          if info.msgtype == kind and len(info) and self.settings.wants(t)]
+        if not candidates:
+            return PoseSource("none", vehicle or self._first_cloud_frame())
+        topic = candidates[0]
+        msgtype = topics[topic].msgtype
+        if msgtype == NAV_SAT_FIX:
+            imu = next((t for t, info in topics.items() if info.msgtype == IMU and len(info) and self.settings.wants(t)), None)
+            return PoseSource("fix", vehicle or self._first_cloud_frame(), topic, imu_topic=imu)
+        _, first = self.bag.message(topic, 0)
+        child = frame_name(first.child_frame_id) if msgtype == ODOMETRY else None
+        return PoseSource("topic", vehicle or child or self._first_cloud_frame(), topic, frame_name(first.header.frame_id))
+
+    def _tf_source(self, vehicle: str | None) -> PoseSource | None:
+        moving = self.tree.moving
+        if vehicle is None:
+            leaves = sorted(set(moving) - set(moving.values()))
+            vehicle = next((f for f in leaves if "base" in f), leaves[0] if leaves else None)
+        if vehicle is None:
+            return None
+        parents = {**{c: (p, IDENTITY) for c, p in moving.items()}, **self.tree.static}
+        root, _ = Snapshot(parents).to_root(vehicle)
+        chain, frame = set(), vehicle
+        while frame in parents and frame != root:
+            chain.add(frame)
+            frame = parents[frame][0]
+        if root == vehicle or not chain & moving.keys():
+            return None
+        return PoseSource("tf", vehicle, TF, fixed_frame=root)
+
+    def _first_cloud_frame(self) -> str:
+        clouds = [t for t, info in self.bag.topics.items() if info.msgtype == CLOUD and len(info) and self.settings.wants(t)]
+        if not clouds:
+            return "base_link"
+        return frame_name(self._first(clouds[0]).header.frame_id)
+
+    def _first(self, topic: str) -> Any:
+        return self.bag.message(topic, 0)[1]
+
+    @cached_property
+    def mappings(self) -> list[Mapping]:
+        """What every topic becomes."""
+        source = self.pose_source
+        mappings = plan(self.bag, self.settings, source.topic if source.kind in ("topic", "fix") else None)
+        streams = [s for m in mappings for s in m.streams()]
+        if POSE_STREAM in streams or len(set(streams)) != len(streams):
+            twice = sorted({s for s in streams if streams.count(s) > 1 or s == POSE_STREAM})
+            raise DatasetError(f"{self.config or self.path}: streams named twice: {', '.join(twice)}", path=self.config or self.path)
+        return mappings
+
+    @cached_property
+    def cloud_transforms(self) -> dict[str, np.ndarray | None]:
+        """For each mapped cloud topic, its fixed transform into the vehicle frame; ``None`` when it moves."""
+        static = self.tree.static_snapshot()
+        vehicle = self.pose_source.vehicle_frame
+        result: dict[str, np.ndarray | None] = {}
+        for mapping in self.mappings:
+            if mapping.role == "points" and len(self.bag.topics[mapping.topic]):
+                frame = frame_name(self._first(mapping.topic).header.frame_id)
+                result[mapping.topic] = IDENTITY if frame == vehicle else static.lookup(frame, vehicle)
+        return result
+
+    @cached_property
+    def clock(self) -> np.ndarray:
+        """The tick of every frame, int64 ns of record time."""
+        if self.settings.clock is not None:
+            return self.bag.topics[self.settings.clock].times
+        clouds = [self.bag.topics[m.topic] for m in self.mappings if m.role == "points"]
+        if self.settings.rate is None and clouds and max(len(c) for c in clouds):
+            return max(clouds, key=len).times
+        mapped = [self.bag.topics[m.topic].times for m in self.mappings if m.role != "excluded"]
+        every = np.concatenate([t for t in mapped if len(t)] or [t.times for t in self.bag.topics.values() if len(t)])
+        step = int(1e9 / (self.settings.rate or DEFAULT_RATE))
+        return np.arange(int(every.min()), int(every.max()) + 1, step, dtype=np.int64)
+
+    @cached_property
+    def times(self) -> np.ndarray:
+        """UNIX time of every frame, seconds."""
+        return self.clock / 1e9
+
+    def __len__(self) -> int:
+        return len(self.clock)
+
+    @cached_property
+    def map_origin(self) -> tuple[float, float, float] | None:
+        """Longitude, latitude and altitude of the first fix (with a position) of the first NavSatFix topic, if any."""
+        topics = [t for t, info in self.bag.topics.items() if info.msgtype == NAV_SAT_FIX and len(info) and self.settings.wants(t)]
+        if self.pose_source.kind == "fix":
+            topics.insert(0, self.pose_source.topic)  # type: ignore[arg-type]
+        for topic in topics:
+            for index in range(min(len(self.bag.topics[topic]), _FIRST_FIXES)):
+                _, fix = self.bag.message(topic, index)
+                if np.isfinite([fix.latitude, fix.longitude, fix.altitude]).all() and fix.status.status >= 0:
+                    return (float(fix.longitude), float(fix.latitude), float(fix.altitude))
+        return None
+
+    # -- XVIZ ---------------------------------------------------------------
+
+    def metadata(self) -> dict[str, Any]:
+        """The log's metadata, from the bag's index and the first message of each cloud topic."""
+        unknown = sorted(f"{m.topic} ({m.msgtype})" for m in self.mappings if m.role == "unknown")
+        if unknown:
+            logger.info("%s: topics of types the mapping does not know, not served: %s", self.path, ", ".join(unknown))
+        meta = MetadataBuilder()
+        meta.log_info(start_time=float(self.times[0]), end_time=float(self.times[-1]),
+                      source=f"{self.bag.container} bag {self.name}")
+        meta.pose(POSE_STREAM)
+        images, series = [], []
+        for mapping in self.mappings:
+            style = self.settings.stream(mapping.topic).style
+            if mapping.role == "points" and mapping.stream:
+                transform = self.cloud_transforms.get(mapping.topic)
+                meta.primitive(mapping.stream, "POINT", coordinate="VEHICLE_RELATIVE",
+                               transform=None if transform is None or transform is IDENTITY else transform,
+                               style=style or {"fill_color": "#00a", "radius_pixels": 1})
+            elif mapping.role == "image" and mapping.stream:
+                meta.primitive(mapping.stream, "IMAGE")
+                images.append(mapping.stream)
+            elif mapping.role == "path" and mapping.stream:
+                meta.primitive(mapping.stream, "POLYLINE", coordinate="VEHICLE_RELATIVE",
+                               style=style or {"stroke_color": "#47B27588", "stroke_width": 0.3, "stroke_width_min_pixels": 1})
+            elif mapping.role == "markers" and mapping.stream:
+                for suffix, primitive_type in MARKER_STREAMS.items():
+                    meta.primitive(f"{mapping.stream}/{suffix}", primitive_type, coordinate="VEHICLE_RELATIVE",
+                                   style=_MARKER_STYLES[suffix])
+            elif mapping.msgtype in SERIES and mapping.stream:
+                for suffix, scalar_type, units, _ in SERIES[mapping.msgtype]:
+                    meta.time_series(mapping.stream + suffix, scalar_type, units=units)
+                    series.append(mapping.stream + suffix)
+        if series:
+            meta.ui_panel(ui.panel("Metrics", *(ui.metric([s], title=s) for s in series)))
+        if images:
+            meta.ui_panel(ui.panel("Camera", ui.video(images)))
+        return meta.build()
+
+    def convert(self, frame: int, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The state update of ``frame`` (the data of an ``xviz/state_update``)."""
+        metadata = metadata or self.metadata()
+        builder = FrameBuilder(metadata)
+        t = int(self.clock[frame])
+        snapshot = self.tree.at(t)
+        pose = self._pose_at(t, snapshot)
+        builder.pose(POSE_STREAM, t / 1e9, map_origin=self.map_origin, position=pose[:3, 3].tolist(), orientation=rpy(pose))
+        for mapping in self.mappings:
+            if mapping.stream is None:
+                continue
+            try:
+                self._add(builder, mapping, t, snapshot, pose)
+            except DatasetError as exc:
+                self._warn(mapping.topic, str(exc))
+        return builder.build(t / 1e9)
+
+    def _add(self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray) -> None:
+        stream, topic = mapping.stream, mapping.topic
+        assert stream is not None
+        where = f"{self.path}: topic {topic}"
+        if mapping.role == "markers":
+            messages = self.bag.messages(topic, t - self._staleness, t + 1)
+            for marker in live_markers(messages, t):
+                to_vehicle = self._resolve(marker.header.frame_id, snapshot, pose)
+                if to_vehicle is None:
+                    self._warn(topic, f"{where}: frame {marker.header.frame_id!r} is not connected to the vehicle frame")
+                    continue
+                draw_marker(builder, stream, marker, to_vehicle)
+            return
+        latest = self._latest(topic, t)
+        if latest is None:
+            return
+        time, message = latest
+        if mapping.role == "points":
+            config = self.settings.stream(topic)
+            points, colors = cloud_points(message, where, color=config.color, intensity_scale=self.settings.intensity_scale)
+            if self.cloud_transforms.get(topic) is None:
+                to_vehicle = self._resolve(message.header.frame_id, snapshot, pose)
+                if to_vehicle is None:
+                    self._warn(topic, f"{where}: frame {message.header.frame_id!r} is not connected to the vehicle frame")
+                    return
+                points = apply(to_vehicle, points)
+            builder.points(stream, points, colors)
+        elif mapping.role == "image":
+            width = self.settings.image_max_width or self.image_max_width
+            data = (compressed_image_bytes if mapping.msgtype == COMPRESSED_IMAGE else image_bytes)(message, width, where)
+            builder.image(stream, data)
+        elif mapping.role == "path":
+            vertices = path_vertices(message, lambda frame: self._resolve(frame, snapshot, pose))
+            if vertices is not None and len(vertices) >= 2:
+                builder.polyline(stream, vertices)
+        if mapping.msgtype in SERIES:
+            for suffix, _, _, value in SERIES[mapping.msgtype]:
+                builder.time_series(stream + suffix, time / 1e9, value(message))
+
+    def _warn(self, topic: str, message: str) -> None:
+        if topic not in self._warned:
+            self._warned.add(topic)
+            logger.warning("%s (left out of the frames)", message)
+
+    def _latest(self, topic: str, t: int) -> tuple[int, Any] | None:
+        info = self.bag.topics[topic]
+        index = info.at_or_before(t)
+        if index < 0 or t - int(info.times[index]) > self._staleness:
+            return None
+        return self.bag.message(topic, index)
+
+    def _resolve(self, frame_id: str, snapshot: Snapshot, pose: np.ndarray) -> np.ndarray | None:
+        """The transform from ``frame_id`` into the vehicle frame at the snapshot's time."""
+        frame, source = frame_name(frame_id), self.pose_source
+        if frame == source.vehicle_frame:
+            return IDENTITY
+        found = snapshot.lookup(frame, source.vehicle_frame)
+        if found is None and (frame == source.fixed_frame or (source.kind in ("fix", "none") and frame in _FIXED_FRAMES)):
+            return np.linalg.inv(pose)
+        return found
+
+    def _pose_at(self, t: int, snapshot: Snapshot) -> np.ndarray:
+        """The vehicle's transform in the pose's fixed frame at ``t`` ns."""
+        source = self.pose_source
+        if source.kind == "tf":
+            found = snapshot.lookup(source.vehicle_frame, source.fixed_frame)  # type: ignore[arg-type]
+            return IDENTITY if found is None else found
+        if source.kind == "none":
+            return IDENTITY
+        assert source.topic is not None
+        if source.kind == "topic":
+            return self._interpolated(source.topic, t, _message_pose)
+        origin = self.map_origin
+        position = IDENTITY if origin is None else self._interpolated(source.topic, t, lambda fix: _fix_position(fix, origin))
+        if source.imu_topic is None:
+            return position
+        heading = self._interpolated(source.imu_topic, t, _imu_rotation)
+        result = heading.copy()
+        result[:3, 3] = position[:3, 3]
+        return result
+
+    def _interpolated(self, topic: str, t: int, pose_of: Any) -> np.ndarray:
+        """A pose topic at ``t``: interpolated between the messages around it, the first or last outside them."""
+        info = self.bag.topics[topic]
+        index = info.at_or_before(t)
+        if index < 0:
+            return pose_of(self.bag.message(topic, 0)[1])
+        before_time, before = self.bag.message(topic, index)
+        if before_time == t or index + 1 >= len(info):
+            return pose_of(before)
+        after_time, after = self.bag.message(topic, index + 1)
+        return interpolate(pose_of(before), pose_of(after), (t - before_time) / (after_time - before_time))
+
+
+def _message_pose(message: Any) -> np.ndarray:
+    pose = message.pose.pose if hasattr(message.pose, "pose") else message.pose  # Odometry, WithCovariance
+    return from_pose(pose)
+
+
+def _fix_position(fix: Any, origin: tuple[float, float, float]) -> np.ndarray:
+    result = np.eye(4)
+    result[:3, 3] = enu(fix.latitude, fix.longitude, fix.altitude, (origin[1], origin[0], origin[2]))
+    return result
+
+
+def _imu_rotation(imu: Any) -> np.ndarray:
+    return from_quaternion(imu.orientation)
