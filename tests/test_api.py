@@ -42,7 +42,7 @@ def test_an_unknown_name_is_an_attribute_error():
 def test_importing_the_package_imports_nothing_heavy():
     code = "import sys, xviz_server; print(sorted(m for m in sys.modules if m.split('.')[0] in ('websockets', 'numpy', 'xviz_server')))"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert loaded.strip() == "['xviz_server']"
+    assert loaded.strip() == "['xviz_server', 'xviz_server.exceptions']"
 
 
 def test_the_package_declares_its_type_hints():

@@ -20,28 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "XVIZServer",
-    "Settings",
-    "LiveFeed",
-    "MetadataBuilder",
-    "FrameBuilder",
-    "LogWriter",
-    "ProbeReport",
-    "XVIZError",
-    "DecodeError",
-    "EncodeError",
-    "MessageError",
-    "SchemaValidationError",
-    "UnknownSchemaError",
-    "LogNotFound",
-    "LogError",
-    "FrameError",
-    "BuilderError",
-    "LogWriteError",
-    "DatasetError",
-    "__version__",
-]
+from . import exceptions as _exceptions
 
 _HOMES = {
     "XVIZServer": "server",
@@ -51,19 +30,16 @@ _HOMES = {
     "FrameBuilder": "builder",
     "LogWriter": "writer",
     "ProbeReport": "probe",
-    **dict.fromkeys(
-        [
-            "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
-            "LogNotFound", "LogError", "FrameError", "BuilderError", "LogWriteError", "DatasetError",
-        ],
-        "exceptions",
-    ),
+    **dict.fromkeys(_exceptions.__all__, "exceptions"),
 }
+
+__all__ = [*_HOMES, "__version__"]
 
 if TYPE_CHECKING:
     from .builder import FrameBuilder, MetadataBuilder
     from .exceptions import (
         BuilderError,
+        ConfigError,
         DatasetError,
         DecodeError,
         EncodeError,
