@@ -33,7 +33,12 @@ _HOMES = {
     **dict.fromkeys(_exceptions.__all__, "exceptions"),
 }
 
-__all__ = [*_HOMES, "__version__"]
+__all__ = [
+    "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
+    "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
+    "LogNotFound", "LogError", "FrameError", "BuilderError", "LogWriteError", "DatasetError", "ConfigError",
+    "__version__",
+]
 
 if TYPE_CHECKING:
     from .builder import FrameBuilder, MetadataBuilder

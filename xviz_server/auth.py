@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hmac
 import ipaddress
+from collections.abc import Sequence
 from typing import Any
 from urllib.parse import parse_qsl, unquote, urlsplit
 
@@ -43,13 +44,20 @@ def feed_name(path: str) -> str | None:
     return route[len(INGEST_PREFIX):] if route.startswith(INGEST_PREFIX) else None
 
 
-def ingest_refusal(request: Request, remote: Any, token: str | None) -> str | None:
-    """Why an ingest connection is refused, or ``None`` if it is allowed."""
+def ingest_refusal(request: Request, remote: Any, token: str | None, origins: Sequence[str] = ()) -> str | None:
+    """Why an ingest connection is refused, or ``None`` if it is allowed.
+
+    A browser page (a request with an ``Origin``) may push only from one of
+    ``origins``: otherwise any page open on the server's host could.
+    """
     name = feed_name(request.path) or ""
     try:
         check_log_name(name)
     except XVIZError as exc:
         return f"bad feed name: {exc}"
+    origin = request.headers.get("Origin")
+    if origin is not None and origin not in origins:
+        return f"browser pages may not push live feeds (Origin {origin[:100]!r}); allow it with --allowed-origins"
     if token is None:
         host = remote[0] if remote else ""
         try:

@@ -167,8 +167,13 @@ def _check_log_index(directory: Path, files: dict[int, Path], spans: dict[int, t
     named = set(index.frames.tolist())
     if missing := sorted(named - present):
         report.problems.append(f"names frames with no file: {', '.join(frame_name(n) for n in missing[:10])}")
-    if unnamed := sorted(present - named):
-        report.problems.append(f"does not name frames that exist: {', '.join(frame_name(n) for n in unnamed[:10])}")
+    unnamed = sorted(present - named)
+    beyond = [n for n in unnamed if n > max(named, default=-1)]  # written after the index, as a recording cut short leaves them
+    if beyond:
+        shown = ", ".join(frame_name(n) for n in beyond[:10]) + (f" and {len(beyond) - 10} more" if len(beyond) > 10 else "")
+        report.warnings.append(f"{len(beyond)} frames past the index (a recording cut short?): {shown}; servers read them")
+    if inside := [n for n in unnamed if n not in beyond]:
+        report.problems.append(f"does not name frames that exist: {', '.join(frame_name(n) for n in inside[:10])}")
     for start, end, frame in zip(index.start.tolist(), index.end.tolist(), index.frames.tolist()):
         real = spans.get(frame)
         if real is not None and (abs(real[0] - start) > 1e-6 or abs(real[1] - end) > 1e-6):

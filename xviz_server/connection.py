@@ -30,6 +30,7 @@ from websockets.frames import CloseCode
 
 from .codec import Format
 from .exceptions import XVIZError
+from .flow import close, watch_progress
 from .live import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription
 from .logfmt import log_event, redact_url
 from .logs import Catalog, Log, check_log_name
@@ -75,6 +76,7 @@ class Connection:
         self._tasks: set[asyncio.Task[None]] = set()
         self.frames_sent = 0
         self.bytes_sent = 0
+        self.messages_sent = 0
 
     async def run(self) -> None:
         """Serve the session until the client goes away or the server shuts down."""
@@ -84,6 +86,7 @@ class Connection:
         remote = _remote(self.websocket)
         log_event(logger, "session start", remote=remote, path=redact_url(self.path))
         try:
+            self._spawn("a stalled send", watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
             await self._step("the connection", self.session.connect)
             async for message in self.websocket:
                 await self._step("a message", self.session.receive, message)
@@ -130,7 +133,7 @@ class Connection:
                 assert self._subscription is not None
                 metadata = self._subscription.feed.metadata_message(event.fmt)
                 if metadata is not None:
-                    await self.websocket.send(metadata, text=event.fmt is Format.JSON)
+                    await self._write(metadata, event.fmt is Format.JSON)
             elif isinstance(event, OpenLog):
                 await self._open_log(event.name)
             elif isinstance(event, StreamFrames):
@@ -147,7 +150,7 @@ class Connection:
             elif isinstance(event, ConfigureLive):
                 await self._configure_live(event)
             elif isinstance(event, Close):
-                await self.websocket.close(event.code, event.reason)
+                await close(self.websocket, event.code, event.reason, self.websocket.close_timeout or 10.0)
 
     def _spawn(self, what: str, coroutine: Coroutine[Any, Any, None], fatal: bool = False) -> None:
         """Run ``coroutine`` beside the session; if it fails, the client is told (and, if ``fatal``, closed)."""
@@ -160,14 +163,18 @@ class Connection:
             except Exception as exc:
                 await self._failed(what, exc)
                 if fatal:
-                    await self._quietly(self.websocket.close(CloseCode.INTERNAL_ERROR, f"{what} failed"))
+                    await close(self.websocket, CloseCode.INTERNAL_ERROR, f"{what} failed", self.websocket.close_timeout or 10.0)
 
         task = asyncio.ensure_future(guarded())
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
+    async def _write(self, data: bytes, text: bool) -> None:
+        await self.websocket.send(data, text=text)
+        self.messages_sent += 1
+
     async def _send(self, event: Send) -> None:
-        await self.websocket.send(event.data, text=event.text)
+        await self._write(event.data, event.text)
         if event.error is not None:
             self.metrics.errors.labels(event.error).inc()
             log_event(logger, "error sent", remote=_remote(self.websocket), kind=event.error, message=event.message)
@@ -176,7 +183,7 @@ class Connection:
 
     async def _send_update(self, data: bytes, fmt: Format) -> None:
         """Send a state update and count it."""
-        await self.websocket.send(data, text=fmt is Format.JSON)
+        await self._write(data, fmt is Format.JSON)
         self.frames_sent += 1
         self.bytes_sent += len(data)
         self.metrics.frames_sent.labels(fmt.value).inc()
@@ -305,7 +312,7 @@ class Connection:
     async def _watch_lag(self, subscription: Subscription) -> None:
         """Tell the session how long the viewer has been dropping updates."""
         interval = min(1.0, self.settings.live_lag_timeout / 4)
-        while True:
+        while not self.websocket.transport.is_closing():
             await asyncio.sleep(interval)
             since = subscription.lagging_since
             if since is not None:

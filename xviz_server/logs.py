@@ -34,6 +34,9 @@ __all__ = ["Catalog", "Log", "check_log_name"]
 
 logger = logging.getLogger(__name__)
 
+#: Longest component of a log or feed name, in UTF-8 bytes (a file name's limit on common file systems).
+MAX_NAME_PART = 255
+
 
 
 def check_log_name(name: str) -> None:
@@ -42,20 +45,23 @@ def check_log_name(name: str) -> None:
     Names are relative folder paths with ``/`` separators. The name has
     already been percent-decoded once with the rest of the URL; a ``%`` left
     in it, a backslash, an absolute path, a drive letter, an empty, ``.`` or
-    ``..`` component, or a control character are all refused.
+    ``..`` component, a character that is not printable (control characters,
+    DEL, C1 codes), or a component longer than :data:`MAX_NAME_PART` bytes
+    (too long for a file system) are all refused.
     """
     parts = name.split("/")
     if (
         not name
         or name.startswith("/")
-        or any(part in ("", ".", "..") for part in parts)
+        or any(part in ("", ".", "..") or len(part.encode()) > MAX_NAME_PART for part in parts)
         or any(c in name for c in "\\%")
-        or any(ord(c) < 32 for c in name)
+        or not name.isprintable()
         or (len(name) >= 2 and name[1] == ":")
     ):
         raise LogNotFound(
-            f"log name {name!r} is not allowed: a log is named by its folder path inside the data root "
-            "(like 'drive-1' or 'kitti/0005'), without '..', '.', '\\', '%', a leading '/' or a drive",
+            f"log name {name[:300]!r} is not allowed: a log is named by its folder path inside the data root "
+            f"(like 'drive-1' or 'kitti/0005'), in printable characters, at most {MAX_NAME_PART} bytes a "
+            "component, without '..', '.', '\\', '%', a leading '/' or a drive",
             name=name,
             available=[],
         )

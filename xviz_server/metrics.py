@@ -39,6 +39,15 @@ class Metrics:
         self.live_drops = Counter(
             "xviz_live_dropped_updates", "Live updates dropped for viewers that fell behind.", registry=registry
         )
+        self.record_dropped = Counter(
+            "xviz_record_dropped_updates", "Live updates not recorded because the disk could not keep up.", registry=registry
+        )
+        self.record_errors = Counter(
+            "xviz_record_errors", "Recordings ended by a write error (or a recorder fault).", registry=registry
+        )
+        self.ingest_refused = Counter(
+            "xviz_ingest_refused", "Messages from live sources refused at the door.", registry=registry
+        )
         self.request_seconds = Histogram(
             "xviz_request_seconds",
             "Time to answer a request, from receipt to its last message, by request type.",

@@ -52,6 +52,8 @@ __all__ = ["XVIZServer", "run"]
 logger = logging.getLogger(__name__)
 
 MB = 1 << 20
+#: Seconds that closing the server may take before the connections still open are aborted.
+SHUTDOWN_TIMEOUT = 10.0
 
 
 class XVIZServer:
@@ -80,7 +82,12 @@ class XVIZServer:
         self.live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
         self._server: Server | None = None
         self._replay: asyncio.Task[None] | None = None
-        self._recorder = Recorder(settings.record, self.live, self.workers) if settings.record else None
+        self._recorder = None
+        if settings.record is not None:
+            self._recorder = Recorder(
+                settings.record, self.live, self.workers, self.metrics, rotate_mb=settings.record_rotate_mb,
+                max_mb=settings.record_max_mb, min_free_mb=settings.record_min_free_mb,
+            )
         #: The sessions running now.
         self.sessions: set[Connection] = set()
 
@@ -115,6 +122,11 @@ class XVIZServer:
         )
         scheme = "wss" if self.settings.certfile else "ws"
         logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)
+        if self.settings.ingest_token is None:
+            logger.warning(
+                "live ingest (/ingest/NAME) is open to every local process without --ingest-token; "
+                "behind a reverse proxy on this host every client is local: set --ingest-token"
+            )
 
     async def _start_replay(self, directory: Path) -> None:
         """Replay a static log as the live feed named after its folder."""
@@ -128,12 +140,24 @@ class XVIZServer:
         logger.info("replaying %r as a live feed at %gx%s", log.name, self.settings.rate, ", looping" if self.settings.loop else "")
 
     async def close(self) -> None:
-        """Close every session with 1001 (going away) and stop listening."""
+        """Stop listening and close every connection with 1001 (going away), in at most :data:`SHUTDOWN_TIMEOUT` s.
+
+        Connections that cannot be closed cleanly by then (a client that
+        stopped reading cannot take the closing frame) are aborted; then the
+        recordings are finished.
+        """
         if self._replay is not None:
             self._replay.cancel()
-        if self._server is not None:
-            self._server.close(close_connections=True)
-            await self._server.wait_closed()
+        if (server := self._server) is not None:
+            server.close(close_connections=True)
+            try:
+                await asyncio.wait_for(asyncio.shield(server.wait_closed()), SHUTDOWN_TIMEOUT)
+            except asyncio.TimeoutError:
+                stuck = list(server.all_connections)  # closing ones too: .connections has only open ones
+                logger.warning("shutdown: aborting %d connections that did not close in %g s", len(stuck), SHUTDOWN_TIMEOUT)
+                for connection in stuck:
+                    connection.transport.abort()
+                await server.wait_closed()
             self._server = None
         if self._recorder is not None:
             await self._recorder.close()
@@ -149,7 +173,7 @@ class XVIZServer:
     async def _handle(self, websocket: ServerConnection) -> None:
         assert websocket.request is not None
         if feed_name(websocket.request.path) is not None:
-            await run_ingest(websocket, self.live)
+            await run_ingest(websocket, self.live, self.workers, self.settings, self.metrics)
             return
         connection = Connection(websocket, self.catalog, self.live, self.metrics, self.settings)
         self.sessions.add(connection)
@@ -161,7 +185,7 @@ class XVIZServer:
     async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
         if request.headers.get("Upgrade", "").lower() == "websocket":
             if feed_name(request.path) is not None:
-                reason = ingest_refusal(request, connection.remote_address, self.settings.ingest_token)
+                reason = ingest_refusal(request, connection.remote_address, self.settings.ingest_token, self.settings.allowed_origins)
                 if reason is not None:
                     logger.warning("refused a live source from %s: %s", connection.remote_address, reason)
                     return connection.respond(HTTPStatus.FORBIDDEN, reason + "\n")

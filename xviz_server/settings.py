@@ -86,6 +86,11 @@ class Settings(BaseSettings):
     rate: float = Field(default=1.0, gt=0, description="playback rate of --live-from (1 is real time)")
     loop: bool = Field(default=False, description="replay --live-from over and over")
     record: Path | None = Field(default=None, description="record every live feed as a static log under this directory")
+    record_rotate_mb: float = Field(default=1024, gt=0, description="start a new recording of a feed past this size, MB")
+    record_max_mb: float | None = Field(default=None, gt=0, description="record at most this much in all, MB (default: no cap)")
+    record_min_free_mb: float = Field(
+        default=1024, ge=0, description="stop recording when the disk has less free space than this, MB"
+    )
     log_format: Literal["text", "json"] = Field(default="text", description="log lines as text or as JSON objects")
     certfile: Path | None = Field(default=None, description="TLS certificate (PEM) to serve wss:// and https://")
     keyfile: Path | None = Field(default=None, description="TLS private key (PEM) for --certfile")

@@ -20,6 +20,7 @@ __all__ = [
     "filter_streams",
     "complete_state",
     "downsample_points",
+    "shift_times",
 ]
 
 STREAM_MAPS = ("poses", "primitives", "future_instances", "variables", "ui_primitives", "annotations", "links")
@@ -172,4 +173,23 @@ def downsample_points(message: dict[str, Any], max_points: int) -> dict[str, Any
             for name, state in (stream_set.get("primitives") or {}).items()
         }
         updates.append({**stream_set, "primitives": primitives} if primitives else stream_set)
+    return {**message, "data": {**message["data"], "updates": updates}}
+
+
+def shift_times(message: dict[str, Any], seconds: float) -> dict[str, Any]:
+    """A state-update envelope with every timestamp (stream sets, poses, time series) ``seconds`` later."""
+    updates = []
+    for stream_set in message["data"].get("updates") or ():
+        shifted = {**stream_set, "timestamp": stream_set["timestamp"] + seconds}
+        if "poses" in stream_set:
+            shifted["poses"] = {
+                name: {**pose, "timestamp": pose["timestamp"] + seconds} if "timestamp" in pose else pose
+                for name, pose in stream_set["poses"].items()
+            }
+        if "time_series" in stream_set:
+            shifted["time_series"] = [
+                {**entry, "timestamp": entry["timestamp"] + seconds} if "timestamp" in entry else entry
+                for entry in stream_set["time_series"]
+            ]
+        updates.append(shifted)
     return {**message, "data": {**message["data"], "updates": updates}}

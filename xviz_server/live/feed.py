@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
+import math
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -35,6 +36,9 @@ from ..work import Workers
 __all__ = ["LiveUpdate", "Subscription", "FeedEvent", "LiveFeed", "LiveRegistry"]
 
 logger = logging.getLogger(__name__)
+
+#: Seconds a feed's name and latest state are kept for a source that left.
+GRACE = 30.0
 
 class LiveUpdate:
     """One state update of a feed, decoded once and encoded once per variant."""
@@ -143,6 +147,9 @@ class LiveFeed:
         self.metadata: dict[str, Any] | None = None
         self.on_reconfigure: Callable[[dict[str, Any]], Awaitable[None]] | None = None
         self.connected = False
+        #: Who feeds it (a source's address), kept for :data:`GRACE` seconds after the source leaves.
+        self.owner: str | None = None
+        self._left_at = -math.inf
         self._metadata_messages: dict[Format, bytes] = {}
         self._state: dict[str, Any] | None = None
         self._state_number = -1  # number of the latest update in _state
@@ -194,10 +201,41 @@ class LiveFeed:
         return update
 
     def disconnect(self) -> None:
-        """The system feeding this feed went away; viewers are told and wait for it."""
+        """The system feeding this feed went away; viewers are told and wait for it.
+
+        Its latest state is kept for :data:`GRACE` seconds (a source that
+        comes back goes on where it was), then freed.
+        """
         self.connected = False
+        self._left_at = time.monotonic()
         for subscriber in self._subscribers:
             subscriber.offer(FeedEvent("gone"))
+        asyncio.get_running_loop().call_later(GRACE, self._forget, self._left_at)
+        if self.metadata is None:  # it never started: nothing to keep
+            self.registry.drop(self)
+
+    def claim(self, source: str) -> None:
+        """Let ``source`` feed this feed; raises :class:`~xviz_server.exceptions.XVIZError` if it may not.
+
+        A feed has one source at a time, and the name stays its previous
+        source's for :data:`GRACE` seconds after that one left. A different
+        source taking over starts afresh: its viewers get its metadata as new.
+        """
+        if self.connected:
+            raise XVIZError(f"live feed {self.name!r} already has a source")
+        if self.owner not in (None, source):
+            if time.monotonic() - self._left_at < GRACE:
+                raise XVIZError(
+                    f"live feed {self.name!r} is kept for its previous source for {GRACE:g} s after it left; "
+                    "use another name or try again later"
+                )
+            logger.warning("live feed %r taken over by %s (its source was %s)", self.name, source, self.owner)
+            self.metadata, self._state = None, None
+        self.owner = source
+
+    def _forget(self, left_at: float) -> None:
+        if not self.connected and self._left_at == left_at:
+            self._state = None
 
     # -- the viewer side --------------------------------------------------
 
@@ -282,6 +320,11 @@ class LiveRegistry:
             if waited is not None:
                 waited.future.set_result(source)
         return source
+
+    def drop(self, feed: LiveFeed) -> None:
+        """Forget ``feed`` (one that never started and has no source)."""
+        if self._feeds.get(feed.name) is feed:
+            del self._feeds[feed.name]
 
     def find(self, name: str | None, exact: bool) -> LiveFeed | None:
         """The feed a viewer asking for ``name`` gets now, if any: with ``exact``, only the feed of that name;
