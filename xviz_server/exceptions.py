@@ -20,6 +20,7 @@ __all__ = [
     "BuilderError",
     "LogWriteError",
     "DatasetError",
+    "WorkerError",
 ]
 
 
@@ -131,3 +132,7 @@ class LogWriteError(XVIZError):
     def __init__(self, message: str, *, directory: object) -> None:
         super().__init__(message)
         self.directory = directory
+
+
+class WorkerError(XVIZError):
+    """A job's worker process died twice: once in the pool it was sent to, once in the pool that replaced it."""

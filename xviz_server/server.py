@@ -4,7 +4,8 @@ HTTP requests that are not WebSocket handshakes get:
 
 * ``GET /`` (or ``/logs``): the catalog, JSON: every log with its format,
   frame count, time range and stream names;
-* ``GET /healthz``: ``ok``;
+* ``GET /healthz``: ``ok``, or HTTP 503 saying what is broken (a worker
+  process pool that lost a process and is not yet replaced);
 * ``GET /metrics``: the metrics in Prometheus text format.
 
 A WebSocket connection on ``/ingest/<name>`` is a live source feeding the
@@ -182,6 +183,9 @@ class XVIZServer:
             return None
         path = urlsplit(request.path).path
         if path == "/healthz":
+            problems = self.workers.health()
+            if problems:
+                return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "".join(f"{problem}\n" for problem in problems))
             return connection.respond(HTTPStatus.OK, "ok\n")
         if path == "/metrics":
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
