@@ -3,8 +3,8 @@
 A log directory (see :mod:`xviz_server.layout`) holds the index, the
 metadata message and one file per state update, as JSON or GLB.
 
-An index that is missing, unreadable or disagrees with the frame files is
-rebuilt by reading every frame once; the rebuilt index is kept for the life
+An index that is missing, unreadable, disagrees with the frame files or
+whose times go back from a frame to the next is rebuilt by reading every frame once; the rebuilt index is kept for the life
 of the server.
 """
 
@@ -104,13 +104,16 @@ class StaticLog:
             logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
             return None
         frames = set(frame_numbers(self._files))
-        if set(index.frames.tolist()) == frames:
-            return index
-        logger.warning(
-            "log %r: %s names %d frames but the directory has %d; rebuilding it from the frames",
-            self.name, INDEX_FILE, len(index), len(frames),
-        )
-        return None
+        if set(index.frames.tolist()) != frames:
+            logger.warning(
+                "log %r: %s names %d frames but the directory has %d; rebuilding it from the frames",
+                self.name, INDEX_FILE, len(index), len(frames),
+            )
+            return None
+        if not index.in_frame_order:
+            logger.warning("log %r: the times of %s are not in frame order; rebuilding it from the frames", self.name, INDEX_FILE)
+            return None
+        return index
 
     async def _build_index(self, frames: list[int]) -> TimeIndex:
         spans = []

@@ -18,7 +18,7 @@ from typing import Any, Sequence
 
 from . import frames
 from .cache import FrameCache
-from .codec import Format, detect_format, encode
+from .codec import Format, cut_glb, detect_format, encode
 from .exceptions import DecodeError, FrameError, LogError, LogNotFound, SchemaValidationError, XVIZError
 from .index import TimeIndex
 from .messages import XVIZ_VERSION, envelope, is_number
@@ -145,9 +145,11 @@ class Log:
     async def _read(self, number: int) -> bytes:
         data = await self._source.read(number)
         try:
-            update_type, stream_sets = await self._run(
-                frames.check, data, self._validate, formats=(detect_format(data),)
-            )
+            fmt = detect_format(data)
+            if fmt is Format.BINARY and len(cut := cut_glb(data)) < len(data):
+                logger.warning("log %r: frame %d has %d bytes after its GLB end; they are not served", self.name, number, len(data) - len(cut))
+                data = cut
+            update_type, stream_sets = await self._run(frames.check, data, self._validate, formats=(fmt,))
         except (DecodeError, SchemaValidationError) as exc:
             raise self._corrupt(number, exc) from None
         self._update_types[number] = update_type

@@ -9,10 +9,11 @@ arrays may be numpy arrays and whose images may be ``bytes`` or
 from __future__ import annotations
 
 import enum
+import re
 from typing import Any, Mapping
 
 from ..exceptions import DecodeError
-from .glb import decode_glb, edit_glb, encode_glb, is_glb
+from .glb import cut_glb, decode_glb, edit_glb, encode_glb, is_glb
 from .json import decode_json, encode_json
 
 __all__ = [
@@ -23,11 +24,13 @@ __all__ = [
     "encode_glb",
     "decode_glb",
     "edit_glb",
+    "cut_glb",
     "encode_json",
     "decode_json",
 ]
 
 PBE_MAGIC = b"PBE1"
+_JSON_START = re.compile(rb"[ \t\r\n]*[{\[]")  # how an XVIZ JSON message starts
 
 
 class Format(str, enum.Enum):
@@ -64,7 +67,18 @@ def encode(message: Mapping[str, Any], fmt: Format) -> bytes:
 
 
 def decode(data: bytes | bytearray | memoryview | str) -> Any:
-    """Decode a message of either format, told apart by its first bytes."""
-    if not isinstance(data, str) and detect_format(data) is Format.BINARY:
+    """Decode a message of either format, told apart by its first bytes.
+
+    Raises :class:`~xviz_server.exceptions.DecodeError`; for bytes that
+    start like neither format, it says so rather than where the JSON fails.
+    """
+    if isinstance(data, str):
+        return decode_json(data)
+    if detect_format(data) is Format.BINARY:
         return decode_glb(data)
-    return decode_json(data)
+    try:
+        return decode_json(data)
+    except DecodeError:
+        if _JSON_START.match(data):
+            raise
+        raise DecodeError(f"not a GLB or JSON frame: it starts with {bytes(data[:8])!r}", offset=0) from None
