@@ -6,12 +6,16 @@ Real sockets on loopback, real files, real worker processes killed with a signal
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import signal
 from pathlib import Path
 
-from helpers import client, running_server, ten_hz, timestamps, write_log
-from xviz_server.codec import Format
+import numpy as np
+from websockets.asyncio.client import connect
+
+from helpers import client, running_server, ten_hz, timestamps, update, write_log
+from xviz_server.codec import Format, encode
 
 
 async def http(port: int, request: bytes, timeout: float = 10) -> bytes:
@@ -84,3 +88,51 @@ async def test_a_killed_worker_process_is_replaced_and_healthz_says_so_meanwhile
             await asyncio.sleep(0.05)
         assert await get(server.port, "/healthz") == (200, b"ok\n")
         assert await server.workers.cpu(os.getpid) != os.getpid()  # processes again, not the stand-in thread
+
+
+# ------------------------------------------------------------------ logs as found
+
+
+async def test_an_index_whose_times_go_back_is_rebuilt_and_frames_come_in_time_order(tmp_path: Path):
+    log = write_log(tmp_path / "reversed", ten_hz(5), fmt=Format.JSON)
+    index = json.loads((log / "0-frame.json").read_text())
+    times = [row[0] for row in index["timing"]]
+    for row, t in zip(index["timing"], reversed(times)):  # the right frames, times reversed
+        row[0] = row[1] = t
+    (log / "0-frame.json").write_text(json.dumps(index))
+    async with running_server(tmp_path) as server:
+        assert await transform(server, "/reversed") == times
+
+
+async def test_a_glb_frame_is_served_without_the_bytes_after_its_declared_end(tmp_path: Path):
+    log = write_log(tmp_path / "padded", ten_hz(3))
+    whole = (log / "3-frame.glb").read_bytes()
+    (log / "3-frame.glb").write_bytes(whole + b"\x00junk" * 1000)
+    async with running_server(tmp_path) as server, client(server, "/padded") as c:
+        await c.recv()
+        await c.send("transform_log", {"id": "t"})
+        messages = await c.until("transform_log_done", "t")
+        assert timestamps(messages) == [100.0, 100.1, 100.2]
+        assert messages[1]["_bytes"] == len(whole)
+
+
+async def test_a_frame_of_random_bytes_is_named_as_neither_glb_nor_json(tmp_path: Path):
+    log = write_log(tmp_path / "noise", ten_hz(3))
+    (log / "3-frame.glb").write_bytes(np.random.default_rng(17).bytes(4096))
+    async with running_server(tmp_path) as server, client(server, "/noise") as c:
+        await c.recv()
+        await c.send("transform_log", {"id": "t"})
+        messages = await c.until("transform_log_done", "t")
+        errors = [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
+        assert len(errors) == 1 and "3-frame.glb" in errors[0] and "not a GLB or JSON frame" in errors[0], errors
+        assert "UTF-8" not in errors[0]
+        assert timestamps(messages) == [100.0, 100.2]
+
+
+async def test_an_ingest_error_names_the_feed_once(tmp_path: Path):
+    async with running_server(tmp_path) as server:
+        async with connect(f"ws://127.0.0.1:{server.port}/ingest/car2") as source:
+            await source.send(encode({"type": "xviz/state_update", "data": update(1.0)}, Format.JSON))
+            error = json.loads(await asyncio.wait_for(source.recv(), 10))
+            assert error["type"] == "xviz/error"
+            assert error["data"]["message"].count("live feed 'car2'") == 1, error

@@ -58,7 +58,7 @@ async def run_ingest(websocket: ServerConnection, live: LiveRegistry) -> None:
                 else:
                     raise XVIZError(f"a live source sends xviz/metadata and xviz/state_update, not {kind!r}")
             except (DecodeError, MessageError, XVIZError) as exc:
-                await websocket.send(encode_json(Error(message=f"live feed {name!r}: {exc}").to_envelope()), text=True)
+                await websocket.send(encode_json(Error(message=f"live feed {name!r}: {str(exc).removeprefix(f'live feed {name!r}: ')}").to_envelope()), text=True)
     except ConnectionClosed:
         pass
     finally:
