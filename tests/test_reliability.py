@@ -9,9 +9,11 @@ import asyncio
 import json
 import os
 import signal
+import ssl
 from pathlib import Path
 
 import numpy as np
+import pytest
 from websockets.asyncio.client import connect
 
 from helpers import client, running_server, ten_hz, timestamps, update, write_log
@@ -136,3 +138,37 @@ async def test_an_ingest_error_names_the_feed_once(tmp_path: Path):
             error = json.loads(await asyncio.wait_for(source.recv(), 10))
             assert error["type"] == "xviz/error"
             assert error["data"]["message"].count("live feed 'car2'") == 1, error
+
+
+# ------------------------------------------------------------------ what is not a GET
+
+
+@pytest.mark.parametrize(
+    "request_bytes",
+    [
+        b"POST / HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 5\r\n\r\nhello",  # curl -d hello
+        b"POST / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",  # curl -X POST
+        b"PUT /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+    ],
+)
+async def test_a_request_other_than_get_is_answered_405(tmp_path: Path, request_bytes: bytes):
+    write_log(tmp_path / "small", ten_hz(3))
+    async with running_server(tmp_path) as server:
+        head, _, body = (await http(server.port, request_bytes)).partition(b"\r\n\r\n")
+        lines = head.split(b"\r\n")
+        assert lines[0] == b"HTTP/1.1 405 Method Not Allowed"
+        assert b"Allow: GET" in lines and b"only GET" in body
+        assert await get(server.port, "/healthz") == (200, b"ok\n")
+        assert await transform(server, "/small") == [100.0, 100.1, 100.2]
+
+
+async def test_a_tls_handshake_on_a_plain_port_is_closed_and_logged(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    async with running_server(tmp_path) as server:
+        context = ssl.create_default_context()
+        with pytest.raises((ssl.SSLError, ConnectionError)):
+            async with asyncio.timeout(10):
+                await asyncio.open_connection("127.0.0.1", server.port, ssl=context, server_hostname="localhost")
+        assert any("TLS handshake" in record.getMessage() and "--certfile" in record.getMessage() for record in caplog.records)
+        assert await get(server.port, "/healthz") == (200, b"ok\n")
+        head, _, body = (await http(server.port, b"\x00\x01\x02\x03 garbage\r\n\r\n")).partition(b"\r\n\r\n")
+        assert head.startswith(b"HTTP/1.1 400 Bad Request") and b"not an HTTP request" in body

@@ -1,6 +1,7 @@
 """The XVIZ server: WebSocket sessions and a few HTTP endpoints on one port.
 
-HTTP requests that are not WebSocket handshakes get:
+Only GET is served (see :mod:`xviz_server.gate`); HTTP requests that are not
+WebSocket handshakes get:
 
 * ``GET /`` (or ``/logs``): the catalog, JSON: every log with its format,
   frame count, time range and stream names;
@@ -38,6 +39,7 @@ from .layout import LOG
 from .connection import Connection
 from .datasets import GENERATED, KINDS
 from .exceptions import LogError
+from .gate import GatedConnection
 from .live import LiveRegistry
 from .live.ingest import run_ingest
 from .live.record import Recorder
@@ -111,6 +113,7 @@ class XVIZServer:
             ping_timeout=self.settings.idle_timeout,
             close_timeout=min(10.0, self.settings.idle_timeout),
             server_header=f"xviz-server/{__version__}",
+            create_connection=GatedConnection,
         )
         scheme = "wss" if self.settings.certfile else "ws"
         logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)
