@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import shutil
 import signal
 import ssl
 from pathlib import Path
@@ -172,3 +173,29 @@ async def test_a_tls_handshake_on_a_plain_port_is_closed_and_logged(tmp_path: Pa
         assert await get(server.port, "/healthz") == (200, b"ok\n")
         head, _, body = (await http(server.port, b"\x00\x01\x02\x03 garbage\r\n\r\n")).partition(b"\r\n\r\n")
         assert head.startswith(b"HTTP/1.1 400 Bad Request") and b"not an HTTP request" in body
+
+
+# ------------------------------------------------------------------ logs that change
+
+
+async def test_a_log_copied_in_while_served_is_read_again_and_a_removed_one_goes(tmp_path: Path):
+    complete = write_log(tmp_path / "source", ten_hz(10))
+    growing = tmp_path / "logs" / "growing"
+    growing.mkdir(parents=True)
+    # The copy has reached the metadata and four frames; the index comes last.
+    for file in ["1-frame.glb", "2-frame.glb", "3-frame.glb", "4-frame.glb", "5-frame.glb"]:
+        shutil.copy(complete / file, growing / file)
+    async with running_server(tmp_path / "logs") as server:
+        assert await transform(server, "/growing") == [100.0, 100.1, 100.2, 100.3]
+        for file in sorted(complete.iterdir()):
+            shutil.copy(file, growing / file.name)
+        assert await transform(server, "/growing") == [round(100 + i / 10, 3) for i in range(10)]
+        status, body = await get(server.port, "/")
+        assert [(log["name"], log["frames"]) for log in json.loads(body)["logs"]] == [("growing", 10)]
+
+        shutil.rmtree(growing)
+        async with client(server, "/growing") as c:
+            error = await c.recv()
+            assert error["type"] == "xviz/error" and "'growing' is gone" in error["data"]["message"], error
+        status, body = await get(server.port, "/")
+        assert json.loads(body)["logs"] == []
