@@ -120,7 +120,7 @@ class StaticLog:
         for frame in frames:
             try:
                 data = await self.read(frame)
-                run = self._workers.cpu if is_heavy(detect_format(data)) else self._workers.io
+                run = self._workers.cpu if is_heavy(len(data), detect_format(data)) else self._workers.io
                 start, end = await run(span, data)
             except (FrameError, DecodeError) as exc:
                 logger.warning("log %r: frame %d left out of the index: %s", self.name, frame, exc)

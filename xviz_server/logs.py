@@ -156,7 +156,8 @@ class Log:
             if fmt is Format.BINARY and len(cut := cut_glb(data)) < len(data):
                 logger.warning("log %r: frame %d has %d bytes after its GLB end; they are not served", self.name, number, len(data) - len(cut))
                 data = cut
-            update_type, stream_sets = await self._run(frames.check, data, self._validate, formats=(fmt,))
+            heavy = self._validate or frames.is_heavy(len(data), fmt)  # schema checks take long at any size
+            update_type, stream_sets = await self._run(heavy, frames.check, data, self._validate)
         except (DecodeError, SchemaValidationError) as exc:
             raise self._corrupt(number, exc) from None
         self._update_types[number] = update_type
@@ -167,7 +168,8 @@ class Log:
     async def _render(self, number: int, fmt: Format, streams: frozenset[str] | None) -> bytes:
         data = await self._checked(number)
         try:
-            return await self._run(frames.render, data, fmt, streams, formats=(detect_format(data), fmt))
+            heavy = frames.is_heavy(len(data), detect_format(data), fmt)
+            return await self._run(heavy, frames.render, data, fmt, streams)
         except DecodeError as exc:
             raise self._corrupt(number, exc) from None
 
@@ -214,13 +216,12 @@ class Log:
             if self._update_types.get(number) in COMPLETE_TYPES:
                 break
         data = [await self._checked(number) for number in numbers]
-        formats = {detect_format(d) for d in data} | {fmt}
-        message, _ = await self._run(frames.merge, data, fmt, streams, formats=tuple(formats))
+        heavy = frames.is_heavy(sum(map(len, data)), fmt, *map(detect_format, data))
+        message, _ = await self._run(heavy, frames.merge, data, fmt, streams)
         return message
 
-    async def _run(self, function: Any, *args: Any, formats: Sequence[Format]) -> Any:
-        worker = self._workers.cpu if frames.is_heavy(*formats) else self._workers.io
-        return await worker(function, *args)
+    async def _run(self, heavy: bool, function: Any, *args: Any) -> Any:
+        return await (self._workers.cpu if heavy else self._workers.io)(function, *args)
 
     def _corrupt(self, number: int, exc: Exception) -> FrameError:
         where = getattr(self._source, "describe_frame", lambda n: f"frame {n}")(number)
