@@ -44,10 +44,10 @@ from xviz_server.codec import Format, encode  # noqa: E402
 from xviz_server.work import Workers  # noqa: E402
 
 
-def start_server(root: Path) -> tuple[subprocess.Popen[str], int]:
-    """``xviz-server serve`` on a free loopback port; its standard error is drained in a thread."""
+def start_server(root: Path, *options: str) -> tuple[subprocess.Popen[str], int]:
+    """``xviz-server serve`` on a free loopback port, and the port; its standard error is drained in a thread."""
     server = subprocess.Popen(
-        [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root), "--host", "127.0.0.1", "--port", "0"],
+        [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root), "--host", "127.0.0.1", "--port", "0", *options],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO,
     )
     assert server.stderr is not None
