@@ -17,10 +17,10 @@ __all__ = [
     "LogNotFound",
     "LogError",
     "FrameError",
+    "WorkerError",
     "BuilderError",
     "LogWriteError",
     "DatasetError",
-    "WorkerError",
 ]
 
 
@@ -110,6 +110,10 @@ class FrameError(XVIZError):
         self.frame = frame
 
 
+class WorkerError(XVIZError):
+    """A job's worker process died twice: once in the pool it was sent to, once in the pool that replaced it."""
+
+
 class BuilderError(XVIZError):
     """The builder was given something XVIZ cannot carry; the message names the stream and field."""
 
@@ -132,7 +136,3 @@ class LogWriteError(XVIZError):
     def __init__(self, message: str, *, directory: object) -> None:
         super().__init__(message)
         self.directory = directory
-
-
-class WorkerError(XVIZError):
-    """A job's worker process died twice: once in the pool it was sent to, once in the pool that replaced it."""

@@ -9,7 +9,6 @@ arrays may be numpy arrays and whose images may be ``bytes`` or
 from __future__ import annotations
 
 import enum
-import re
 from typing import Any, Mapping
 
 from ..exceptions import DecodeError
@@ -30,7 +29,6 @@ __all__ = [
 ]
 
 PBE_MAGIC = b"PBE1"
-_JSON_START = re.compile(rb"[ \t\r\n]*[{\[]")  # how an XVIZ JSON message starts
 
 
 class Format(str, enum.Enum):
@@ -67,18 +65,7 @@ def encode(message: Mapping[str, Any], fmt: Format) -> bytes:
 
 
 def decode(data: bytes | bytearray | memoryview | str) -> Any:
-    """Decode a message of either format, told apart by its first bytes.
-
-    Raises :class:`~xviz_server.exceptions.DecodeError`; for bytes that
-    start like neither format, it says so rather than where the JSON fails.
-    """
-    if isinstance(data, str):
-        return decode_json(data)
-    if detect_format(data) is Format.BINARY:
+    """Decode a message of either format, told apart by its first bytes."""
+    if not isinstance(data, str) and detect_format(data) is Format.BINARY:
         return decode_glb(data)
-    try:
-        return decode_json(data)
-    except DecodeError:
-        if _JSON_START.match(data):
-            raise
-        raise DecodeError(f"not a GLB or JSON frame: it starts with {bytes(data[:8])!r}", offset=0) from None
+    return decode_json(data)
