@@ -37,6 +37,7 @@ __all__ = [
     "LogNotFound",
     "LogError",
     "FrameError",
+    "WorkerError",
     "BuilderError",
     "LogWriteError",
     "DatasetError",
@@ -54,7 +55,7 @@ _HOMES = {
     **dict.fromkeys(
         [
             "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
-            "LogNotFound", "LogError", "FrameError", "BuilderError", "LogWriteError", "DatasetError",
+            "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
         ],
         "exceptions",
     ),
@@ -74,6 +75,7 @@ if TYPE_CHECKING:
         MessageError,
         SchemaValidationError,
         UnknownSchemaError,
+        WorkerError,
         XVIZError,
     )
     from .live import LiveFeed
