@@ -75,19 +75,21 @@ def handshake(path: str) -> bytes:
 
 async def fresh_client(port: int, log: str) -> int:
     """State updates a new, well-behaved client gets for the whole log (0 when it gets none in 30 s)."""
+    async def whole_log() -> int:
+        async with connect(f"ws://127.0.0.1:{port}/{log}", max_size=None) as websocket:
+            await websocket.recv()
+            await websocket.send(REQUEST)
+            count = 0
+            while True:
+                message = await websocket.recv()
+                head = message[:400].encode() if isinstance(message, str) else message[:400]
+                if b"xviz/transform_log_done" in head:
+                    return count
+                count += 1
+
     try:
-        async with asyncio.timeout(30):
-            async with connect(f"ws://127.0.0.1:{port}/{log}", max_size=None) as websocket:
-                await websocket.recv()
-                await websocket.send(REQUEST)
-                count = 0
-                while True:
-                    message = await websocket.recv()
-                    head = message[:400].encode() if isinstance(message, str) else message[:400]
-                    if b"xviz/transform_log_done" in head:
-                        return count
-                    count += 1
-    except (TimeoutError, OSError, ConnectionClosed) as exc:
+        return await asyncio.wait_for(whole_log(), 30)
+    except (asyncio.TimeoutError, OSError, ConnectionClosed) as exc:
         print(f"a fresh client failed: {exc!r}")
         return 0
 
@@ -102,7 +104,7 @@ async def aborted(port: int, log: str, count: int) -> int:
         async with limit:
             try:
                 websocket = await connect(f"ws://127.0.0.1:{port}/{log}", max_size=None, open_timeout=10)
-            except (TimeoutError, OSError, InvalidHandshake):
+            except (asyncio.TimeoutError, OSError, InvalidHandshake):
                 return
             opened += 1
             await websocket.send(REQUEST)

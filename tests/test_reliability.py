@@ -22,20 +22,18 @@ from xviz_server.codec import Format, encode
 
 
 async def http(port: int, request: bytes, timeout: float = 10) -> bytes:
-    """Send ``request`` as it is and read the answer until the server closes or stops sending."""
+    """Send ``request`` as it is and read the answer until the server closes or its body is whole."""
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     try:
         writer.write(request)
         await writer.drain()
         answer = b""
-        with_timeout = asyncio.timeout(timeout)
-        async with with_timeout:
-            while chunk := await reader.read(65536):
-                answer += chunk
-                head, _, body = answer.partition(b"\r\n\r\n")
-                length = next((int(line.split(b":")[1]) for line in head.split(b"\r\n") if line.lower().startswith(b"content-length:")), None)
-                if length is not None and len(body) >= length:
-                    break
+        while chunk := await asyncio.wait_for(reader.read(65536), timeout):
+            answer += chunk
+            head, _, body = answer.partition(b"\r\n\r\n")
+            length = next((int(line.split(b":")[1]) for line in head.split(b"\r\n") if line.lower().startswith(b"content-length:")), None)
+            if length is not None and len(body) >= length:
+                break
         return answer
     finally:
         writer.close()
@@ -167,8 +165,7 @@ async def test_a_tls_handshake_on_a_plain_port_is_closed_and_logged(tmp_path: Pa
     async with running_server(tmp_path) as server:
         context = ssl.create_default_context()
         with pytest.raises((ssl.SSLError, ConnectionError)):
-            async with asyncio.timeout(10):
-                await asyncio.open_connection("127.0.0.1", server.port, ssl=context, server_hostname="localhost")
+            await asyncio.wait_for(asyncio.open_connection("127.0.0.1", server.port, ssl=context, server_hostname="localhost"), 10)
         assert any("TLS handshake" in record.getMessage() and "--certfile" in record.getMessage() for record in caplog.records)
         assert await get(server.port, "/healthz") == (200, b"ok\n")
         head, _, body = (await http(server.port, b"\x00\x01\x02\x03 garbage\r\n\r\n")).partition(b"\r\n\r\n")
