@@ -8,10 +8,11 @@ GLB log. In turn:
 
 1. ``--aborted`` sessions ask for the whole log and drop the connection
    (TCP reset) at once, 20 at a time;
-2. ``--stalled`` sessions with a 4 KB receive buffer ask for the whole log
-   and never read, for ``--hold`` seconds;
-3. ``--slowloris`` connections send their handshake one byte a second, for
-   ``--hold`` seconds.
+2. ``--slowloris`` connections send their handshake one byte a second, for
+   ``--hold`` seconds;
+3. ``--stalled`` sessions with a 4 KB receive buffer ask for the whole log
+   and never read, for ``--hold`` seconds, and are still there when the
+   server gets SIGTERM.
 
 After each phase: the server's resident memory and open file descriptors,
 how many of the phase's connections the server had closed, and whether a
@@ -188,6 +189,7 @@ def main() -> None:
             write_log(root / "generated", ten_hz(25, points=100_000))
             log = "generated"
         server, port = start_server(root, "--idle-timeout", "5")
+        held: list[socket.socket] = []
         try:
             frames = asyncio.run(fresh_client(port, log))
             rss, fds = usage(server.pid)
@@ -202,22 +204,21 @@ def main() -> None:
             rss, fds = usage(server.pid)
             print(f"{f'{opened} aborted sessions ({took:.1f} s)':<34}{rss:8.1f}{fds:6d}   {'-':>16}   {asyncio.run(fresh_client(port, log)):>19}")
 
+            closed, loris = slowloris(port, args.slowloris, args.hold)
+            rss, fds = usage(server.pid)
+            fresh = asyncio.run(fresh_client(port, log))
+            print(f"{f'{args.slowloris} slowloris, {args.hold:g} s':<34}{rss:8.1f}{fds:6d}   {closed:>8} of {args.slowloris:<5}   {fresh:>19}")
+            for sock in loris:
+                sock.close()
+            time.sleep(2)
+            rss, fds = usage(server.pid)
+            print(f"{'slowloris closed, 2 s later':<34}{rss:8.1f}{fds:6d}")
+
             closed, held = stalled(port, log, args.stalled, args.hold)
             rss, fds = usage(server.pid)
             fresh = asyncio.run(fresh_client(port, log))
             print(f"{f'{args.stalled} stalled readers, {args.hold:g} s':<34}{rss:8.1f}{fds:6d}   {closed:>8} of {args.stalled:<5}   {fresh:>19}")
-            for sock in held:
-                sock.close()
-
-            closed, held = slowloris(port, args.slowloris, args.hold)
-            rss, fds = usage(server.pid)
-            fresh = asyncio.run(fresh_client(port, log))
-            print(f"{f'{args.slowloris} slowloris, {args.hold:g} s':<34}{rss:8.1f}{fds:6d}   {closed:>8} of {args.slowloris:<5}   {fresh:>19}")
-            for sock in held:
-                sock.close()
-            time.sleep(2)
-            rss, fds = usage(server.pid)
-            print(f"{'all closed, 2 s later':<34}{rss:8.1f}{fds:6d}")
+            print("(the stalled readers stay connected through SIGTERM)")
         finally:
             started = time.perf_counter()
             server.send_signal(signal.SIGTERM)
@@ -228,6 +229,8 @@ def main() -> None:
                 server.kill()
                 server.wait()
                 print("SIGTERM: still running after 30 s; killed")
+            for sock in held:
+                sock.close()
 
 
 if __name__ == "__main__":
