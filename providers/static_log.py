@@ -4,8 +4,8 @@ A log directory (see :mod:`xviz_server.layout`) holds the index, the
 metadata message and one file per state update, as JSON or GLB.
 
 An index that is missing, unreadable, disagrees with the frame files or
-whose times go back from a frame to the next is rebuilt by reading every frame once; the rebuilt index is kept for the life
-of the server.
+whose times go back from a frame to the next is rebuilt by reading every
+frame once; the rebuilt index is kept while the log is open.
 """
 
 from __future__ import annotations
