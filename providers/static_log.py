@@ -5,9 +5,9 @@ metadata message and one file per state update, as JSON, GLB or protobuf
 (PBE). PBE frames are served as GLB: each is transcoded when read, and the
 frame cache keeps the GLB.
 
-An index that is missing, unreadable or disagrees with the frame files is
-rebuilt by reading every frame once; the rebuilt index is kept for the life
-of the server.
+An index that is missing, unreadable, disagrees with the frame files or
+whose times go back from a frame to the next is rebuilt by reading every
+frame once; the rebuilt index is kept while the log is open.
 """
 
 from __future__ import annotations
@@ -100,20 +100,23 @@ class StaticLog:
             logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
             return None
         frames = set(frame_numbers(self._files))
-        if set(index.frames.tolist()) == frames:
-            return index
-        logger.warning(
-            "log %r: %s names %d frames but the directory has %d; rebuilding it from the frames",
-            self.name, INDEX_FILE, len(index), len(frames),
-        )
-        return None
+        if set(index.frames.tolist()) != frames:
+            logger.warning(
+                "log %r: %s names %d frames but the directory has %d; rebuilding it from the frames",
+                self.name, INDEX_FILE, len(index), len(frames),
+            )
+            return None
+        if not index.in_frame_order:
+            logger.warning("log %r: the times of %s are not in frame order; rebuilding it from the frames", self.name, INDEX_FILE)
+            return None
+        return index
 
     async def _build_index(self, frames: list[int]) -> TimeIndex:
         spans = []
         for frame in frames:
             try:
                 data = await self.read(frame)
-                run = self._workers.cpu if is_heavy(detect_format(data)) else self._workers.io
+                run = self._workers.cpu if is_heavy(len(data), detect_format(data)) else self._workers.io
                 start, end = await run(span, data)
             except (FrameError, DecodeError) as exc:
                 logger.warning("log %r: frame %d left out of the index: %s", self.name, frame, exc)

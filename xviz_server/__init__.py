@@ -36,7 +36,7 @@ _HOMES = {
 __all__ = [
     "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
-    "LogNotFound", "LogError", "FrameError", "BuilderError", "LogWriteError", "DatasetError", "ConfigError",
+    "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError", "ConfigError",
     "__version__",
 ]
 
@@ -55,6 +55,7 @@ if TYPE_CHECKING:
         MessageError,
         SchemaValidationError,
         UnknownSchemaError,
+        WorkerError,
         XVIZError,
     )
     from .live import LiveFeed

@@ -17,6 +17,7 @@ __all__ = [
     "LogNotFound",
     "LogError",
     "FrameError",
+    "WorkerError",
     "BuilderError",
     "LogWriteError",
     "DatasetError",
@@ -108,6 +109,10 @@ class FrameError(XVIZError):
         super().__init__(message)
         self.log = log
         self.frame = frame
+
+
+class WorkerError(XVIZError):
+    """A job's worker process died twice: once in the pool it was sent to, once in the pool that replaced it."""
 
 
 class BuilderError(XVIZError):

@@ -15,16 +15,23 @@ from .layout import update_span
 from .state import complete_state, downsample_points, filter_streams
 from .validation import get_validator
 
-__all__ = ["is_heavy", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
+__all__ = ["HEAVY_JSON_BYTES", "is_heavy", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
 
 
-def is_heavy(*formats: Format) -> bool:
-    """Whether a job touching these formats belongs in a worker process.
+#: Size above which a job on JSON runs in a worker process (see :func:`is_heavy`).
+HEAVY_JSON_BYTES = 64 * 1024
 
-    Decoding and encoding GLB takes well under a millisecond for a 2 MB
-    frame; JSON takes tens of milliseconds and holds the GIL.
+
+def is_heavy(size: int, *formats: Format) -> bool:
+    """Whether a job on ``size`` bytes of frames, touching these formats, belongs in a worker process.
+
+    Decoding and encoding GLB is a fraction of a millisecond even for a
+    large frame. Parsing or writing JSON holds the GIL in proportion to its
+    size: up to :data:`HEAVY_JSON_BYTES` that costs less than the hop to a
+    worker process (``scripts/bench_point_in_time.py`` measures both), so
+    only larger JSON jobs go there.
     """
-    return Format.JSON in formats
+    return size > HEAVY_JSON_BYTES and Format.JSON in formats
 
 
 def _decode_update(data: bytes) -> dict[str, Any]:

@@ -82,6 +82,11 @@ class TimeIndex:
         start = start[order]
         return cls(start, np.maximum(start, end[order]), frames[order])
 
+    @property
+    def in_frame_order(self) -> bool:
+        """Whether time order is frame order (times never go back from one frame to the next), as the layout requires."""
+        return bool((self.frames[1:] > self.frames[:-1]).all())
+
     def __len__(self) -> int:
         return len(self.start)
 

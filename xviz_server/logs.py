@@ -11,23 +11,26 @@ runs in :class:`~xviz_server.work.Workers`.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
+import os
+import stat
 import time
 from pathlib import Path
 from typing import Any, Sequence
 
 from . import frames
 from .cache import FrameCache
-from .codec import Format, detect_format, encode
+from .codec import Format, cut_glb, detect_format, encode
 from .exceptions import DecodeError, FrameError, LogError, LogNotFound, SchemaValidationError, XVIZError
 from .index import TimeIndex
 from .messages import XVIZ_VERSION, envelope, is_number
 from .state import COMPLETE_TYPES
-from .layout import LOG, Found, discover, is_log_directory
+from .layout import INDEX_FILE, LOG, Found, discover, is_log_directory
 from .providers import LogSource, Provider
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
-from .datasets import FILE_KINDS, detect
+from .datasets import FILE_KINDS, GENERATED, detect
 from .work import Workers
 
 __all__ = ["Catalog", "Log", "check_log_name"]
@@ -37,6 +40,7 @@ logger = logging.getLogger(__name__)
 #: Longest component of a log or feed name, in UTF-8 bytes (a file name's limit on common file systems).
 MAX_NAME_PART = 255
 
+_openings = itertools.count()
 
 
 def check_log_name(name: str) -> None:
@@ -81,6 +85,9 @@ class Log:
     ) -> None:
         self.name = source.name
         self.format = source.format
+        # Frames are cached under this key: a log read again after a change
+        # on disk never gets the frames of the log it replaces.
+        self._key = (source.name, next(_openings))
         self.index = index
         self.metadata = _complete_metadata(metadata, index)
         self._source = source
@@ -142,18 +149,21 @@ class Log:
             data = await self._checked(number)
             if detect_format(data) is fmt:
                 return data
-        return await self._cache.get((self.name, number, fmt, streams), lambda: self._render(number, fmt, streams))
+        return await self._cache.get((self._key, number, fmt, streams), lambda: self._render(number, fmt, streams))
 
     async def _checked(self, number: int) -> bytes:
         """The frame as the source stores it, checked to be a readable state update."""
-        return await self._cache.get((self.name, number, None, None), lambda: self._read(number))
+        return await self._cache.get((self._key, number, None, None), lambda: self._read(number))
 
     async def _read(self, number: int) -> bytes:
         data = await self._source.read(number)
         try:
-            update_type, stream_sets = await self._run(
-                frames.check, data, self._validate, formats=(detect_format(data),)
-            )
+            fmt = detect_format(data)
+            if fmt is Format.BINARY and len(cut := cut_glb(data)) < len(data):
+                logger.warning("log %r: frame %d has %d bytes after its GLB end; they are not served", self.name, number, len(data) - len(cut))
+                data = cut
+            heavy = self._validate or frames.is_heavy(len(data), fmt)  # schema checks take long at any size
+            update_type, stream_sets = await self._run(heavy, frames.check, data, self._validate)
         except (DecodeError, SchemaValidationError) as exc:
             raise self._corrupt(number, exc) from None
         self._update_types[number] = update_type
@@ -164,7 +174,8 @@ class Log:
     async def _render(self, number: int, fmt: Format, streams: frozenset[str] | None) -> bytes:
         data = await self._checked(number)
         try:
-            return await self._run(frames.render, data, fmt, streams, formats=(detect_format(data), fmt))
+            heavy = frames.is_heavy(len(data), detect_format(data), fmt)
+            return await self._run(heavy, frames.render, data, fmt, streams)
         except DecodeError as exc:
             raise self._corrupt(number, exc) from None
 
@@ -199,7 +210,7 @@ class Log:
                     return data
                 if fmt is Format.BINARY:
                     return await self._workers.io(frames.relabel_complete, data)
-        key = (self.name, "state", position, fmt, streams, lookback)
+        key = (self._key, "state", position, fmt, streams, lookback)
         return await self._cache.get(key, lambda: self._merge(position, fmt, streams, lookback))
 
     async def _merge(self, position: int, fmt: Format, streams: frozenset[str] | None, lookback: int) -> bytes:
@@ -211,17 +222,38 @@ class Log:
             if self._update_types.get(number) in COMPLETE_TYPES:
                 break
         data = [await self._checked(number) for number in numbers]
-        formats = {detect_format(d) for d in data} | {fmt}
-        message, _ = await self._run(frames.merge, data, fmt, streams, formats=tuple(formats))
+        heavy = frames.is_heavy(sum(map(len, data)), fmt, *map(detect_format, data))
+        message, _ = await self._run(heavy, frames.merge, data, fmt, streams)
         return message
 
-    async def _run(self, function: Any, *args: Any, formats: Sequence[Format]) -> Any:
-        worker = self._workers.cpu if frames.is_heavy(*formats) else self._workers.io
-        return await worker(function, *args)
+    async def _run(self, heavy: bool, function: Any, *args: Any) -> Any:
+        return await (self._workers.cpu if heavy else self._workers.io)(function, *args)
 
     def _corrupt(self, number: int, exc: Exception) -> FrameError:
         where = getattr(self._source, "describe_frame", lambda n: f"frame {n}")(number)
         return FrameError(f"frame {number} ({where}) of log {self.name!r} is corrupt: {exc}", log=self.name, frame=number)
+
+
+def _stamp(path: Path) -> tuple[int, ...] | None:
+    """What tells that a log or dataset changed on disk, or ``None`` when it is gone.
+
+    For a folder, its modification time (a file added, removed or renamed in
+    it) and the time and size of its index file, which writers such as the
+    reference tools write last; for a file, its time and size. Two
+    ``stat`` calls: cheap enough for every open.
+    """
+    try:
+        own = os.stat(path)
+    except OSError:
+        return None
+    stamp: tuple[int, ...] = (own.st_mtime_ns, own.st_size)
+    if stat.S_ISDIR(own.st_mode):
+        try:
+            index = os.stat(os.path.join(path, INDEX_FILE))
+        except OSError:
+            return stamp
+        stamp += (index.st_mtime_ns, index.st_size)
+    return stamp
 
 
 def _complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, Any]:
@@ -263,6 +295,7 @@ class Catalog:
         self._validate = validate
         self._found: dict[str, Found] = {}
         self._open: dict[str, asyncio.Task[Log]] = {}
+        self._stamps: dict[str, tuple[int, ...]] = {}  # what _stamp() said when each was opened
 
     def names(self) -> list[str]:
         """Names of the logs known since the last scan."""
@@ -275,6 +308,9 @@ class Catalog:
     async def scan(self) -> list[str]:
         """Look for logs again (a log added to a data directory appears, a removed one goes)."""
         self._found = await self._workers.io(self._discover)
+        for gone in self._open.keys() - self._found.keys():
+            del self._open[gone]
+            self._stamps.pop(gone, None)
         return self.names()
 
     def _discover(self) -> dict[str, Found]:
@@ -307,6 +343,9 @@ class Catalog:
         Raises :class:`~xviz_server.exceptions.LogNotFound` for a name that is
         not allowed or not served, and :class:`~xviz_server.exceptions.LogError`
         for a log that cannot be served. A failed open is tried again next time.
+
+        An open log is read again when its folder or file has changed since
+        (see :func:`_stamp`); sessions that have it keep the one they have.
         """
         check_log_name(name)
         found = self._found.get(name)
@@ -318,10 +357,20 @@ class Catalog:
             available = self.names()
             shown = ", ".join(repr(n) for n in available[:20]) or "none"
             raise LogNotFound(f"no log named {name!r}; available: {shown}", name=name, available=available)
+        stamp = () if found.kind in GENERATED else await self._workers.io(_stamp, found.path)
+        if stamp is None:
+            self._found.pop(name, None)
+            self._open.pop(name, None)
+            self._stamps.pop(name, None)
+            raise LogNotFound(f"log {name!r} is gone: {found.path} was removed", name=name, available=self.names())
         task = self._open.get(name)
+        if task is not None and self._stamps.get(name) != stamp:
+            logger.info("log %r changed on disk; reading it again", name)
+            task = None
         if task is None or (task.done() and (task.cancelled() or task.exception() is not None)):
             task = asyncio.ensure_future(self._open_log(found))
             self._open[name] = task
+            self._stamps[name] = stamp
         return await asyncio.shield(task)
 
     async def _open_log(self, found: Found) -> Log:

@@ -1,10 +1,12 @@
 """The XVIZ server: WebSocket sessions and a few HTTP endpoints on one port.
 
-HTTP requests that are not WebSocket handshakes get:
+Only GET is served (see :mod:`xviz_server.gate`); HTTP requests that are not
+WebSocket handshakes get:
 
 * ``GET /`` (or ``/logs``): the catalog, JSON: every log with its format,
   frame count, time range and stream names;
-* ``GET /healthz``: ``ok``;
+* ``GET /healthz``: ``ok``, or HTTP 503 saying what is broken (a worker
+  process pool that lost a process and is not yet replaced);
 * ``GET /metrics``: the metrics in Prometheus text format.
 
 A WebSocket connection on ``/ingest/<name>`` is a live source feeding the
@@ -37,6 +39,7 @@ from .layout import LOG
 from .connection import Connection
 from .datasets import GENERATED, KINDS, dataset_options
 from .exceptions import LogError
+from .gate import GatedConnection
 from .live import LiveRegistry
 from .live.ingest import run_ingest
 from .live.record import Recorder
@@ -119,6 +122,7 @@ class XVIZServer:
             ping_timeout=self.settings.idle_timeout,
             close_timeout=min(10.0, self.settings.idle_timeout),
             server_header=f"xviz-server/{__version__}",
+            create_connection=GatedConnection,
         )
         scheme = "wss" if self.settings.certfile else "ws"
         logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)
@@ -200,6 +204,9 @@ class XVIZServer:
             return None
         path = urlsplit(request.path).path
         if path == "/healthz":
+            problems = self.workers.health()
+            if problems:
+                return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "".join(f"{problem}\n" for problem in problems))
             return connection.respond(HTTPStatus.OK, "ok\n")
         if path == "/metrics":
             if self.settings.protect_metrics and (refused := self._viewer_refusal(connection, request)) is not None:

@@ -8,25 +8,36 @@ imports numpy and this package once, then forks the workers), so it starts
 from a thread, and until it is up such work runs in a single thread rather
 than wait: a single one, because the GIL lets no two of these jobs run at
 once, and there the first job asked for is the first done.
+
+A worker process that dies (killed, out of memory) breaks the whole process
+pool: every job in it fails with ``BrokenProcessPool``. The pool is then
+replaced, the same way it was first started, and the job is tried once more;
+:meth:`Workers.health` tells a pool that is broken and not yet replaced.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import multiprocessing
 import os
 import threading
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.context import BaseContext
 from typing import Any, Callable, TypeVar
+
+from .exceptions import WorkerError
 
 __all__ = ["Workers"]
 
 T = TypeVar("T")
 
+logger = logging.getLogger(__name__)
+
 # What jobs sent to the process pool use: imported once by the fork server
 # (or by each worker, where there is no fork server).
-_JOB_MODULES = ["xviz_server.frames", "xviz_server.live", "xviz_server.builder", "xviz_server.datasets"]
+_JOB_MODULES = ["xviz_server.frames", "xviz_server.admission", "xviz_server.live", "xviz_server.builder", "xviz_server.datasets"]
 
 
 class Workers:
@@ -48,14 +59,46 @@ class Workers:
     async def cpu(self, function: Callable[..., T], *args: Any) -> T:
         """Run ``function(*args)`` in the process pool; it must be picklable.
 
-        While the pool is starting, it runs in a thread of this process.
+        While the pool is starting, it runs in a thread of this process. When
+        a worker process dies, the pool is replaced and the job tried once
+        more; raises :class:`~xviz_server.exceptions.WorkerError` when it dies
+        again.
         """
-        started = self._start()
-        executor: Executor | None = self._stand_in
-        if started.done():
+        loop = asyncio.get_running_loop()
+        for attempt in range(2):
+            started = self._start()
+            if not started.done():
+                return await loop.run_in_executor(self._stand_in, function, *args)
             started.result()  # raises if the pool could not start
-            executor = self._processes
-        return await asyncio.get_running_loop().run_in_executor(executor, function, *args)
+            pool = self._processes
+            try:
+                return await loop.run_in_executor(pool, function, *args)
+            except BrokenProcessPool:
+                logger.warning("a worker process died running %s; replacing the process pool", _name(function))
+                self._replace(pool)
+        raise WorkerError(f"a worker process died running {_name(function)}, in the process pool and in its replacement")
+
+    def health(self) -> list[str]:
+        """What is wrong with the workers now, one sentence each; empty when nothing is.
+
+        A broken process pool found here is replaced (the next job would
+        replace it too).
+        """
+        started, pool = self._started, self._processes
+        if started is None or not started.done():
+            return []
+        if started.exception() is not None:
+            return [f"the worker processes could not start: {started.exception()}"]
+        if pool is None:
+            return []
+        try:  # submit() is where a pool tells that it is broken
+            pool.submit(_nothing)
+        except BrokenProcessPool:
+            self._replace(pool)
+            return ["a worker process died: the process pool is broken, and being replaced"]
+        except RuntimeError:  # shut down: the server is closing
+            return ["the worker processes are shut down"]
+        return []
 
     async def warm(self) -> None:
         """Start the worker processes now and wait until they are up."""
@@ -65,6 +108,17 @@ class Workers:
         if self._started is None:
             self._started = self._threads.submit(self._start_processes)
         return self._started
+
+    def _replace(self, broken: ProcessPoolExecutor | None) -> None:
+        """Start a new process pool in place of ``broken``, unless that was done already."""
+        with self._lock:
+            if self._processes is not broken or self._closed:
+                return
+            self._processes = None
+            self._started = None
+        if broken is not None:
+            broken.shutdown(wait=False, cancel_futures=True)
+        self._start()
 
     def _start_processes(self) -> None:
         context: BaseContext
@@ -89,6 +143,14 @@ class Workers:
         self._stand_in.shutdown(wait=False, cancel_futures=True)
         if self._processes is not None:
             self._processes.shutdown(wait=False, cancel_futures=True)
+
+
+def _name(function: Callable[..., Any]) -> str:
+    return getattr(function, "__qualname__", repr(function))
+
+
+def _nothing() -> None:
+    pass
 
 
 def _import_job_modules() -> None:

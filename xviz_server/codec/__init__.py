@@ -12,7 +12,7 @@ import enum
 from typing import Any, Mapping
 
 from ..exceptions import DecodeError
-from .glb import decode_glb, edit_glb, encode_glb, is_glb
+from .glb import cut_glb, decode_glb, edit_glb, encode_glb, is_glb
 from .json import decode_json, encode_json
 from .pbe import decode_pbe, is_pbe
 
@@ -24,6 +24,7 @@ __all__ = [
     "encode_glb",
     "decode_glb",
     "edit_glb",
+    "cut_glb",
     "encode_json",
     "decode_json",
     "decode_pbe",

@@ -69,7 +69,7 @@ from pygltflib import (
 from ..exceptions import DecodeError, EncodeError
 from .image import sniff_image
 
-__all__ = ["encode_glb", "decode_glb", "edit_glb", "is_glb"]
+__all__ = ["encode_glb", "decode_glb", "edit_glb", "cut_glb", "is_glb"]
 
 MAGIC_GLTF = b"glTF"
 MAGIC_XVIZ = b"XVIZ"
@@ -107,6 +107,18 @@ def _pad4(n: int) -> int:
 def is_glb(data: bytes | bytearray | memoryview) -> bool:
     """Tell whether ``data`` starts like a GLB message (current or legacy magic)."""
     return bytes(data[:4]) in (MAGIC_GLTF, MAGIC_XVIZ)
+
+
+def cut_glb(data: bytes) -> bytes:
+    """A GLB message without what follows the length its header declares; ``data`` itself when nothing does.
+
+    Anything else (a header too short to declare a length) is returned as it
+    is, for :func:`decode_glb` to report.
+    """
+    if len(data) < _HEADER.size:
+        return data
+    _, _, total = _HEADER.unpack_from(data, 0)
+    return data[:total] if len(data) > total else data
 
 
 # --------------------------------------------------------------------------

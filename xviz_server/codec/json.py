@@ -10,6 +10,7 @@ carries images.
 from __future__ import annotations
 
 import base64
+import re
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ from ..exceptions import DecodeError, EncodeError
 __all__ = ["encode_json", "decode_json"]
 
 _OPTIONS = orjson.OPT_SERIALIZE_NUMPY
+_JSON_START = re.compile(rb"[ \t\r\n]*[{\[]")  # how JSON text of an object or array starts
 
 
 def _default(value: Any) -> Any:
@@ -50,11 +52,15 @@ def decode_json(data: bytes | bytearray | memoryview | str) -> Any:
     """Decode UTF-8 JSON text.
 
     Raises :class:`~xviz_server.exceptions.DecodeError` with the offset of
-    the first invalid character.
+    the first invalid character, or, for bytes that do not start as an XVIZ
+    JSON message does (``{``), saying that they are no XVIZ frame at all
+    (:func:`~xviz_server.codec.decode` has told them from GLB already).
     """
     try:
         return orjson.loads(data)
     except orjson.JSONDecodeError as exc:
+        if not isinstance(data, str) and not _JSON_START.match(data):
+            raise DecodeError(f"not a GLB or JSON frame: it starts with {bytes(data[:8])!r}", offset=0) from None
         raise DecodeError(
             f"invalid JSON at line {exc.lineno} column {exc.colno} "
             f"(offset {exc.pos}): {exc.msg}",

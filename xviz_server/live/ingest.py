@@ -73,7 +73,10 @@ async def run_ingest(
     try:
         async for data in websocket:
             raw = data.encode() if isinstance(data, str) else data
-            run = workers.cpu if len(raw) > LARGE_JSON and raw[:4] != b"glTF" else workers.io
+            run = workers.io
+            if len(raw) > LARGE_JSON and raw[:4] != b"glTF":
+                await workers.warm()  # not the stand-in thread: parsing holds the GIL for seconds
+                run = workers.cpu
             try:
                 kind, glb = await run(admit, raw, limit)
                 if kind == "xviz/metadata":

@@ -1,0 +1,158 @@
+"""Point-in-time latency on a long JSON log of small frames, against a short one in the same run.
+
+    .venv/bin/python scripts/bench_point_in_time.py [--frames 20000] [--rounds 2000] [--seed 17]
+
+1. A server (``xviz-server serve``, its own process) serves two generated JSON
+   logs of the same small frames (a pose, a 10-point cloud, a time series):
+   one of ``--frames`` frames and one of 11. One websockets client holds a
+   session on each and, ``--rounds`` times, asks each in turn for the state
+   at a random instant (``transform_point_in_time``), awaiting each answer.
+   Nearly every answer on the long log is a first read of its frame; the
+   short log's are cached after the first few. The goal: p99 on the long
+   log at most 5 ms and at most twice the short log's p50.
+2. Where JSON work should leave the event loop's process: the time a frame
+   check holds the GIL against the round trip of the same job through a
+   worker process, by frame size (what ``frames.HEAVY_JSON_BYTES`` is set
+   from).
+
+Percentiles are numpy.percentile over the measured round trips.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from websockets.asyncio.client import ClientConnection, connect
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+
+from helpers import ten_hz, update, write_log  # noqa: E402
+
+from xviz_server import frames  # noqa: E402
+from xviz_server.codec import Format, encode  # noqa: E402
+from xviz_server.work import Workers  # noqa: E402
+
+
+def start_server(root: Path, *options: str) -> tuple[subprocess.Popen[str], int]:
+    """``xviz-server serve`` on a free loopback port, and the port; its standard error is drained in a thread."""
+    server = subprocess.Popen(
+        [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root), "--host", "127.0.0.1", "--port", "0", *options],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )
+    assert server.stderr is not None
+    for text in server.stderr:
+        match = re.search(r"listening on ws://127\.0\.0\.1:(\d+)/", text)
+        if match:
+            threading.Thread(target=server.stderr.read, daemon=True).start()
+            return server, int(match.group(1))
+    raise RuntimeError("the server exited before listening")
+
+
+async def ask(websocket: ClientConnection, request_id: str, instant: float) -> float:
+    """Seconds from sending a point-in-time request to receiving its answer."""
+    started = time.perf_counter()
+    await websocket.send(json.dumps({"type": "xviz/transform_point_in_time", "data": {"id": request_id, "query_timestamp": instant}}))
+    answer = json.loads(await websocket.recv())
+    elapsed = time.perf_counter() - started
+    if answer["type"] != "xviz/state_update":
+        raise RuntimeError(f"expected a state update, got {answer}")
+    return elapsed
+
+
+async def latencies(port: int, logs: dict[str, tuple[float, float]], rounds: int, seed: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    sessions = {}
+    for name in logs:
+        sessions[name] = await connect(f"ws://127.0.0.1:{port}/{name}", max_size=None)
+        await sessions[name].recv()  # metadata
+    measured: dict[str, list[float]] = {name: [] for name in logs}
+    try:
+        for round_number in range(rounds):
+            for name, (start, end) in logs.items():
+                instant = float(rng.uniform(start, end))
+                measured[name].append(await ask(sessions[name], f"{name}-{round_number}", instant))
+    finally:
+        for websocket in sessions.values():
+            await websocket.close()
+    return {name: np.array(values) * 1e3 for name, values in measured.items()}
+
+
+async def job_costs(points: list[int]) -> list[tuple[int, float, float]]:
+    """For frames of each cloud size: bytes, median ms the check holds the GIL, median ms of its worker-process round trip."""
+    workers = Workers(processes=1)
+    await workers.warm()
+    rows = []
+    try:
+        for count in points:
+            data = encode({"type": "xviz/state_update", "data": update(100.0, points=count)}, Format.JSON)
+            repeats = max(20, min(300, 3_000_000 // len(data)))
+            held, hop = [], []
+            for _ in range(repeats):
+                started = time.perf_counter()
+                frames.check(data)
+                held.append(time.perf_counter() - started)
+                started = time.perf_counter()
+                await workers.cpu(frames.check, data)
+                hop.append(time.perf_counter() - started)
+            rows.append((len(data), float(np.median(held)) * 1e3, float(np.median(hop)) * 1e3))
+    finally:
+        workers.close()
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--frames", type=int, default=20_000)
+    parser.add_argument("--rounds", type=int, default=2_000)
+    parser.add_argument("--seed", type=int, default=17)
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory() as directory:
+        root = Path(directory)
+        started = time.perf_counter()
+        logs = {"long": ten_hz(args.frames), "short": ten_hz(11)}
+        spans = {}
+        for name, updates in logs.items():
+            write_log(root / name, updates, fmt=Format.JSON)
+            spans[name] = (updates[0]["updates"][0]["timestamp"], updates[-1]["updates"][0]["timestamp"] + 0.1)
+        frame_bytes = (root / "long" / "2-frame.json").stat().st_size
+        print(f"generated {args.frames} + 11 JSON frames of {frame_bytes} bytes in {time.perf_counter() - started:.1f} s")
+        server, port = start_server(root)
+        try:
+            measured = asyncio.run(latencies(port, spans, args.rounds, args.seed))
+        finally:
+            server.terminate()
+            server.wait(30)
+
+    print(f"\n1. transform_point_in_time, {args.rounds} random instants a log, answers awaited one by one (ms)")
+    print(f"{'log':<22}{'p50':>8}{'p90':>8}{'p99':>8}{'max':>8}")
+    for name, label in (("long", f"{args.frames} frames"), ("short", "11 frames")):
+        values = measured[name]
+        print(f"{label:<22}" + "".join(f"{np.percentile(values, q):8.2f}" for q in (50, 90, 99)) + f"{values.max():8.2f}")
+    p99_long = float(np.percentile(measured["long"], 99))
+    p50_short = float(np.percentile(measured["short"], 50))
+    print(f"p99 of the long log / p50 of the short log: {p99_long / p50_short:.2f} (goal <= 2); p99 {p99_long:.2f} ms (goal <= 5)")
+
+    print(f"\n2. frames.check on a JSON frame: GIL held in this process vs a worker-process round trip (median ms);"
+          f" HEAVY_JSON_BYTES = {frames.HEAVY_JSON_BYTES}")
+    print(f"{'frame bytes':>12}{'GIL held':>10}{'process':>10}")
+    rows = asyncio.run(job_costs([10, 300, 1000, 2000, 3000, 4000, 8000, 20000]))
+    for size, held, hop in rows:
+        print(f"{size:12d}{held:10.3f}{hop:10.3f}")
+    crossing = next((size for size, held, hop in rows if held > hop), None)
+    print(f"smallest frame whose check holds the GIL longer than a process round trip: {crossing} bytes")
+
+
+if __name__ == "__main__":
+    main()
