@@ -20,6 +20,7 @@ __all__ = [
     "BuilderError",
     "LogWriteError",
     "DatasetError",
+    "DependencyError",
 ]
 
 
@@ -131,3 +132,7 @@ class LogWriteError(XVIZError):
     def __init__(self, message: str, *, directory: object) -> None:
         super().__init__(message)
         self.directory = directory
+
+
+class DependencyError(XVIZError, ImportError):
+    """An installed library is a version that xviz-server was not tested with."""

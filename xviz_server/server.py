@@ -35,6 +35,7 @@ from .cache import FrameCache
 from .connection import Connection
 from .datasets import KINDS
 from .exceptions import LogError
+from .framing import FramingConnection
 from .ingest import feed_name, refusal, run_ingest
 from .live import LiveRegistry
 from .logs import Catalog
@@ -103,6 +104,7 @@ class XVIZServer:
             ping_timeout=self.settings.idle_timeout,
             close_timeout=min(10.0, self.settings.idle_timeout),
             server_header=f"xviz-server/{__version__}",
+            create_connection=FramingConnection,  # large frames leave without a copy
         )
         scheme = "wss" if self.settings.certfile else "ws"
         logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)
