@@ -25,9 +25,9 @@ from websockets.frames import Frame, Opcode
 from websockets.protocol import OPEN
 from websockets.server import ServerProtocol
 
-from interop_session import run_xviz_session_async
 from serving import running_server
-from test_interop import assert_same_parse, xviz_decode
+from test_interop_server import originals  # noqa: F401 (a fixture)
+from test_interop_server import test_streetscape_client_session as streetscape_session
 from xviz_server.codec import Format, decode, encode
 from xviz_server.framing import SEPARATE_PAYLOAD, FramingConnection, FramingProtocol, frame_header
 from xviz_server.live import Variant
@@ -301,30 +301,6 @@ def test_live_fan_out_shares_one_payload_and_every_viewer_gets_it(root: Path, ki
 
 
 @pytest.mark.parametrize("fmt", ["BINARY", "JSON"])
-def test_published_client_reads_every_frame_on_uvloop(root: Path, kitti_log: Path, fmt: str):
-    files = [kitti_log / f"{i}-frame.glb" for i in range(1, 27)]
-    originals = {line["parsed"]["timestamp"]: line["parsed"] for line in xviz_decode(files)[1:]}
-    session = [
-        {"wait": "metadata"},
-        {"send_transform_log": {"id": "0", "from_start": -1}},
-        {"wait": "done", "id": "0"},
-        {"close": True},
-    ]
-
-    async def scenario() -> Any:
-        async with running_server(root) as server:
-            url = f"ws://127.0.0.1:{server.port}/?log=kitti&message_format={fmt}"
-            return await run_xviz_session_async(url, session, timeout=180)
-
-    result = uvloop.run(scenario())
-    assert result.ok, result.stderr
-    assert result.summary["errors"] == [] and result.summary["closed"]["code"] == 1000
-    updates = result.of_type("xviz/state_update")
-    assert [u["parsed"]["timestamp"] for u in updates] == sorted(originals)
-    for update in updates:
-        expected = originals[update["parsed"]["timestamp"]]
-        if fmt == "BINARY":
-            assert update["parsed"] == expected
-        else:
-            assert_same_parse(update["parsed"], expected, str(update["parsed"]["timestamp"]))
-    assert all(m["kind"] == ("text" if fmt == "JSON" else "binary") for m in result.messages)
+def test_published_client_reads_every_frame_on_uvloop(root: Path, originals: dict[float, dict], fmt: str):
+    """tests/test_interop_server.py's streetscape.gl session, on the server's own event loop."""
+    uvloop.run(streetscape_session(root, originals, fmt))
