@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import uvloop
 
 from helpers import assert_same_parse, run_xviz_session_async, running_server, xviz_decode
 
@@ -43,6 +44,16 @@ SESSION = [
 
 @pytest.mark.parametrize("fmt", ["BINARY", "JSON"])
 async def test_streetscape_client_session(root: Path, originals: dict[float, dict], fmt: str):
+    await streetscape_session(root, originals, fmt)
+
+
+@pytest.mark.parametrize("fmt", ["BINARY", "JSON"])
+def test_streetscape_client_session_on_uvloop(root: Path, originals: dict[float, dict], fmt: str):
+    """The same session on the event loop the server runs on (frames leave through the transport's writev)."""
+    uvloop.run(streetscape_session(root, originals, fmt))
+
+
+async def streetscape_session(root: Path, originals: dict[float, dict], fmt: str) -> None:
     async with running_server(root) as server:
         url = f"ws://127.0.0.1:{server.port}/?log=kitti&worker=true&profile=default&message_format={fmt}"
         result = await run_xviz_session_async(url, SESSION, timeout=180)

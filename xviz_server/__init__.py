@@ -36,7 +36,8 @@ _HOMES = {
 __all__ = [
     "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
-    "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError", "ConfigError",
+    "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
+    "ConfigError", "DependencyError",
     "__version__",
 ]
 
@@ -45,6 +46,7 @@ if TYPE_CHECKING:
     from .exceptions import (
         BuilderError,
         ConfigError,
+        DependencyError,
         DatasetError,
         DecodeError,
         EncodeError,

@@ -22,6 +22,7 @@ __all__ = [
     "LogWriteError",
     "DatasetError",
     "ConfigError",
+    "DependencyError",
 ]
 
 
@@ -145,3 +146,6 @@ class ConfigError(XVIZError, ValueError):
     It is a :class:`ValueError` too, so that settings validation reports it
     beside the setting's other errors.
     """
+
+class DependencyError(XVIZError, ImportError):
+    """An installed library is a version that xviz-server was not tested with."""

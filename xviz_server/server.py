@@ -39,6 +39,7 @@ from .layout import LOG
 from .connection import Connection
 from .datasets import GENERATED, KINDS, dataset_options
 from .exceptions import LogError
+from .framing import FramingConnection
 from .gate import GatedConnection
 from .live import LiveRegistry
 from .live.ingest import run_ingest
@@ -57,6 +58,10 @@ logger = logging.getLogger(__name__)
 MB = 1 << 20
 #: Seconds that closing the server may take before the connections still open are aborted.
 SHUTDOWN_TIMEOUT = 10.0
+
+
+class _Connection(GatedConnection, FramingConnection):
+    """The server's connections: GET requests only (:mod:`.gate`), large frames sent without a copy (:mod:`.framing`)."""
 
 
 class XVIZServer:
@@ -122,7 +127,7 @@ class XVIZServer:
             ping_timeout=self.settings.idle_timeout,
             close_timeout=min(10.0, self.settings.idle_timeout),
             server_header=f"xviz-server/{__version__}",
-            create_connection=GatedConnection,
+            create_connection=_Connection,
         )
         scheme = "wss" if self.settings.certfile else "ws"
         logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)

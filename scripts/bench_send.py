@@ -1,0 +1,317 @@
+#!/usr/bin/env python3
+"""Benchmark sending a whole log: xviz-server against raw TCP and bare websockets, in one run.
+
+    .venv/bin/python scripts/bench_send.py [--frames 154] [--repeats 4] [--trials 5] [--clients 1 4]
+
+A longer log is made from the 25 real KITTI GLB frames (2.1 MB each), repeated
+with shifted timestamps (``--frames``). Three servers, each its own process on
+uvloop, send it whole, ``--repeats`` times per reader and measurement:
+
+* raw TCP: ``transport.write(frame)`` per frame, no framing, flow control
+  like websockets' (the reference: what the machine moves);
+* bare websockets (asyncio API, no compression): ``await websocket.send(frame)``;
+* xviz-server: ``xviz/transform_log`` of the whole log, from a warm cache.
+
+Readers are separate processes (``--clients`` of them at once) that read with
+``recv_into`` a reused buffer, parsing only the WebSocket headers, so that
+the server is the bottleneck. Each trial measures every (server, readers)
+pair, in turn. Reported per pair: MB/s of payload (10^6 B/s; median trial),
+server CPU seconds per GB, and the medians of the per-trial ratios to raw TCP.
+The machine may be shared with other work: the cores other processes used
+during each measurement are shown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import base64
+import json
+import os
+import shutil
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_server import KITTI, Process, cpu_seconds, other_cores, other_cpu, start_server  # noqa: E402
+
+MB = 1e6
+HIGH_WATER = 2**15  # websockets' default write limit, for the raw server's flow control
+
+# ================================================================ the log
+
+
+def long_log(source: Path, target: Path, frames: int) -> list[Path]:
+    """``frames`` state updates: the source's, repeated with their timestamps shifted; the frame files in order."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from xviz_server.codec import edit_glb
+
+    originals = sorted(source.glob("*-frame.glb"), key=lambda p: int(p.name.split("-")[0]))[1:]
+    index = json.loads((source / "0-frame.json").read_text())
+    period = index["endTime"] - index["startTime"] + 0.1
+
+    def shifted(value: Any, offset: float) -> Any:
+        if isinstance(value, dict):
+            return {k: (v + offset if k == "timestamp" and isinstance(v, (int, float)) else shifted(v, offset)) for k, v in value.items()}
+        if isinstance(value, list):
+            return [shifted(v, offset) for v in value]
+        return value
+
+    target.mkdir(parents=True)
+    shutil.copy(source / "1-frame.glb", target / "1-frame.glb")
+    timing, paths = [], []
+    for k in range(frames):
+        offset = (k // len(originals)) * period
+        original = originals[k % len(originals)]
+        path = target / f"{k + 2}-frame.glb"
+        path.write_bytes(edit_glb(original.read_bytes(), lambda envelope: shifted(envelope, offset)))
+        start, end, *_ = index["timing"][k % len(originals)]
+        timing.append([start + offset, end + offset, k, path.stem])
+        paths.append(path)
+    (target / "0-frame.json").write_text(json.dumps({"startTime": timing[0][0], "endTime": timing[-1][1], "timing": timing}))
+    return paths
+
+
+# ================================================================ servers
+
+
+async def raw_server(frames: list[bytes]) -> None:
+    """Per request line: an 8-byte length, then every frame with ``transport.write``."""
+    total = sum(map(len, frames)).to_bytes(8, "big")
+
+    class Sender(asyncio.Protocol):
+        def connection_made(self, transport: Any) -> None:
+            self.transport = transport
+            transport.set_write_buffer_limits(HIGH_WATER)
+            self.resume = asyncio.Event()
+            self.resume.set()
+            self.requests: asyncio.Queue[None] = asyncio.Queue()
+            self.task = asyncio.ensure_future(self.serve())
+
+        def data_received(self, data: bytes) -> None:
+            for _ in range(data.count(b"\n")):
+                self.requests.put_nowait(None)
+
+        def pause_writing(self) -> None:
+            self.resume.clear()
+
+        def resume_writing(self) -> None:
+            self.resume.set()
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self.task.cancel()
+
+        async def serve(self) -> None:
+            while True:
+                await self.requests.get()
+                self.transport.write(total)
+                for frame in frames:
+                    self.transport.write(frame)
+                    await self.resume.wait()
+
+    server = await asyncio.get_running_loop().create_server(Sender, "127.0.0.1", 0)
+    print(f"listening on ws://127.0.0.1:{server.sockets[0].getsockname()[1]}/", file=sys.stderr, flush=True)
+    await asyncio.Future()
+
+
+async def websockets_server(frames: list[bytes]) -> None:
+    """Per text message: every frame with ``send``, then ``done``."""
+    from websockets.asyncio.server import serve
+
+    async def handler(websocket: Any) -> None:
+        async for _ in websocket:
+            for frame in frames:
+                await websocket.send(frame)
+            await websocket.send("done")
+
+    async with serve(handler, "127.0.0.1", 0, compression=None, max_size=None) as server:
+        print(f"listening on ws://127.0.0.1:{server.sockets[0].getsockname()[1]}/", file=sys.stderr, flush=True)
+        await asyncio.Future()
+
+
+# ================================================================ readers
+
+
+class Reader:
+    """A blocking socket reading responses into one reused buffer."""
+
+    def __init__(self, port: int) -> None:
+        self.sock = socket.create_connection(("127.0.0.1", port))
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        self.pending = bytearray()
+        self.buffer = memoryview(bytearray(1 << 20))
+
+    def take(self, n: int) -> bytes:
+        while len(self.pending) < n:
+            chunk = self.sock.recv(1 << 16)
+            if not chunk:
+                raise ConnectionError("the server closed the connection")
+            self.pending += chunk
+        data = bytes(self.pending[:n])
+        del self.pending[:n]
+        return data
+
+    def skip(self, n: int) -> None:
+        used = min(n, len(self.pending))
+        del self.pending[:used]
+        n -= used
+        while n:
+            got = self.sock.recv_into(self.buffer, min(n, len(self.buffer)))
+            if not got:
+                raise ConnectionError("the server closed the connection")
+            n -= got
+
+    def handshake(self, path: str) -> None:
+        key = base64.b64encode(os.urandom(16)).decode()
+        self.sock.sendall(f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                          f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
+        while b"\r\n\r\n" not in self.pending:
+            self.pending += self.sock.recv(1 << 16)
+        head, _, rest = bytes(self.pending).partition(b"\r\n\r\n")
+        if not head.startswith(b"HTTP/1.1 101"):
+            raise ConnectionError(head.decode(errors="replace"))
+        self.pending = bytearray(rest)
+
+    def send_text(self, text: str) -> None:
+        payload = text.encode()
+        assert len(payload) < 126
+        self.sock.sendall(bytes([0x81, 0x80 | len(payload)]) + bytes(4) + payload)  # zero mask key
+
+    def frame(self) -> tuple[int, int, bytes | None]:
+        """The next frame's opcode, length and payload (``None`` for large payloads, skipped)."""
+        first, second = self.take(2)
+        length = second & 0x7F
+        if length >= 126:
+            length = int.from_bytes(self.take(2 if length == 126 else 8), "big")
+        opcode = first & 0x0F
+        if length >= 1 << 16:
+            self.skip(length)
+            return opcode, length, None
+        payload = self.take(length)
+        if opcode == 0x9:  # ping: answer, or the server closes us
+            self.sock.sendall(bytes([0x8A, 0x80 | length]) + bytes(4) + payload)
+        return opcode, length, payload
+
+    def websocket_response(self) -> int:
+        """Payload bytes of data frames until a small one saying done (xviz-server sends it as GLB or JSON)."""
+        total = 0
+        while True:
+            opcode, length, payload = self.frame()
+            if opcode in (0x1, 0x2) and payload is not None and b"done" in payload:
+                return total
+            if opcode in (0x0, 0x2):
+                total += length
+
+
+def reader_main(kind: str, port: int, repeats: int) -> None:
+    """Connect, say ``ready``, wait for ``go`` on stdin, read ``repeats`` responses, print the result."""
+    reader = Reader(port)
+    if kind != "raw":
+        reader.handshake("/kitti" if kind == "xviz-server" else "/")
+    if kind == "xviz-server":
+        reader.frame()  # metadata
+    print("ready", flush=True)
+    sys.stdin.readline()
+    started, total = time.time(), 0
+    for r in range(repeats):
+        if kind == "raw":
+            reader.sock.sendall(b"go\n")
+            length = int.from_bytes(reader.take(8), "big")
+            reader.skip(length)
+            total += length
+        else:
+            reader.send_text(json.dumps({"type": "xviz/transform_log", "data": {"id": str(r)}}) if kind == "xviz-server" else "go")
+            total += reader.websocket_response()
+    print(json.dumps({"start": started, "end": time.time(), "bytes": total}), flush=True)
+
+
+def measure(kind: str, server: Process, clients: int, repeats: int) -> dict[str, float]:
+    readers = [subprocess.Popen([sys.executable, __file__, "--role", "reader", kind, str(server.port), str(repeats)],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) for _ in range(clients)]
+    for reader in readers:
+        assert reader.stdout is not None and reader.stdout.readline().strip() == "ready", f"{kind}: a reader failed"
+    cpu, others, wall = cpu_seconds(server.pid), other_cpu(), time.perf_counter()
+    for reader in readers:
+        assert reader.stdin is not None
+        reader.stdin.write("go\n")
+        reader.stdin.flush()
+    results = [json.loads(reader.communicate()[0]) for reader in readers]
+    cpu = cpu_seconds(server.pid) - cpu
+    busy = other_cores(others, wall)
+    total = sum(r["bytes"] for r in results)
+    seconds = max(r["end"] for r in results) - min(r["start"] for r in results)
+    return {"mb_s": total / seconds / MB, "cpu_s_per_gb": cpu / (total / 1e9), "others": busy, "bytes": total}
+
+
+# ================================================================ main
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--frames", type=int, default=154, help="state updates in the log (the 25 KITTI frames repeated)")
+    parser.add_argument("--repeats", type=int, default=4, help="times each reader reads the log per measurement")
+    parser.add_argument("--trials", type=int, default=5)
+    parser.add_argument("--clients", type=int, nargs="+", default=[1, 4])
+    parser.add_argument("--kitti", type=Path, default=KITTI)
+    parser.add_argument("--json", type=Path, help="write the results here")
+    parser.add_argument("--role", nargs="+", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.role:
+        role, *rest = args.role
+        if role == "reader":
+            reader_main(rest[0], int(rest[1]), int(rest[2]))
+            return
+        import uvloop
+
+        frames = [Path(p).read_bytes() for p in json.loads(Path(rest[0]).read_text())]
+        uvloop.run(raw_server(frames) if role == "raw" else websockets_server(frames))
+        return
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "logs"
+        paths = long_log(args.kitti, root / "kitti", args.frames)
+        listing = Path(tmp) / "frames.json"
+        listing.write_text(json.dumps([str(p) for p in paths]))
+        log_mb = sum(p.stat().st_size for p in paths) / MB
+        print(f"log: {args.frames} frames, {log_mb:.0f} MB; each reader reads it {args.repeats} times per measurement; "
+              f"{args.trials} trials; {os.cpu_count()} cores")
+        cache_mb = str(int(log_mb * 1.2 + 64))
+        with (Process([sys.executable, __file__, "--role", "raw", str(listing)], r"ws://127\.0\.0\.1:(\d+)/", "raw") as raw,
+              Process([sys.executable, __file__, "--role", "websockets", str(listing)], r"ws://127\.0\.0\.1:(\d+)/", "websockets") as bare,
+              start_server(root, "--cache-mb", cache_mb) as ours):
+            servers = {"raw TCP": ("raw", raw), "websockets": ("websockets", bare), "xviz-server": ("xviz-server", ours)}
+            measure("xviz-server", ours, 1, 1)  # warm the cache
+            runs: dict[tuple[str, int], list[dict[str, float]]] = {(name, n): [] for name in servers for n in args.clients}
+            for trial in range(args.trials):
+                for clients in args.clients:
+                    for name, (kind, process) in servers.items():
+                        result = measure(kind, process, clients, args.repeats)
+                        runs[name, clients].append(result)
+                        print(f"  trial {trial + 1} {name:>12} x{clients}: {result['mb_s']:7.0f} MB/s "
+                              f"{result['cpu_s_per_gb']:.3f} CPU s/GB (others used {result['others']:.2f} cores)", flush=True)
+    print()
+    print(f"{'server':>12} {'readers':>7} {'MB/s':>7} {'x raw':>6} {'CPU s/GB':>9} {'x raw':>6}")
+    table = {}
+    for (name, clients), results in runs.items():
+        reference = runs["raw TCP", clients]
+        row = {
+            "mb_s": statistics.median(r["mb_s"] for r in results),
+            "cpu_s_per_gb": statistics.median(r["cpu_s_per_gb"] for r in results),
+            "speed_ratio": statistics.median(r["mb_s"] / ref["mb_s"] for r, ref in zip(results, reference)),
+            "cpu_ratio": statistics.median(r["cpu_s_per_gb"] / ref["cpu_s_per_gb"] for r, ref in zip(results, reference)),
+            "trials": results,
+        }
+        table[f"{name} x{clients}"] = row
+        print(f"{name:>12} {clients:>7} {row['mb_s']:7.0f} {row['speed_ratio']:6.2f} {row['cpu_s_per_gb']:9.3f} {row['cpu_ratio']:6.2f}")
+    if args.json:
+        args.json.write_text(json.dumps(table, indent=2))
+
+
+if __name__ == "__main__":
+    main()
