@@ -6,4 +6,9 @@ cd "$(dirname "$0")/.."
 source scripts/venv.sh
 python -m pip install --quiet --disable-pip-version-check -e ".[test,vista]"
 npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
+# The viewer's browser tests: the bundle, playwright-core (in viewer/) and Debian's chromium.
+scripts/build-viewer.sh
+if ! command -v chromium >/dev/null 2>&1; then
+    apt-get update -q && apt-get install -y -q chromium
+fi
 exec python -m pytest "$@"

@@ -2,8 +2,10 @@
 
 HTTP requests that are not WebSocket handshakes get:
 
-* ``GET /`` (or ``/logs``): the catalog, JSON: every log with its format,
-  frame count, time range and stream names;
+* ``GET /`` from a browser: the viewer page (see :mod:`xviz_server.viewer`);
+* ``GET /api/logs`` (or ``/logs``, or ``/`` from any other client): the
+  catalog, JSON: every log with its format, frame count, time range and
+  stream names, and the live feeds;
 * ``GET /healthz``: ``ok``;
 * ``GET /metrics``: the metrics in Prometheus text format.
 
@@ -45,6 +47,7 @@ from .providers.static_log import StaticLogProvider
 from .record import Recorder
 from .replay import replay
 from .settings import Settings
+from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
 
 __all__ = ["XVIZServer", "run"]
@@ -75,6 +78,8 @@ class XVIZServer:
         self._recorder = Recorder(settings.record, self.live, self.workers) if settings.record else None
         #: The sessions running now.
         self.sessions: set[Connection] = set()
+        #: The built-in viewer's page and assets.
+        self.viewer = ViewerPage(STATIC_DIR, self.workers)
 
     @property
     def port(self) -> int:
@@ -178,7 +183,9 @@ class XVIZServer:
             return connection.respond(HTTPStatus.OK, "ok\n")
         if path == "/metrics":
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
-        if path in ("/", "/logs"):
+        if (page := await self.viewer.respond(connection, request)) is not None:
+            return page
+        if path in ("/", "/logs", "/api/logs"):
             if self.settings.viewer_token and not token_matches(request, self.settings.viewer_token):
                 return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
             live = [{"name": feed.name, "connected": feed.connected} for feed in self.live]
@@ -186,7 +193,7 @@ class XVIZServer:
             return _response(connection, HTTPStatus.OK, orjson.dumps(body, option=orjson.OPT_INDENT_2), "application/json")
         return connection.respond(
             HTTPStatus.NOT_FOUND,
-            "not found: open a WebSocket for an XVIZ session, or GET /, /healthz or /metrics\n",
+            "not found: open a WebSocket for an XVIZ session, or GET /, /api/logs, /healthz or /metrics\n",
         )
 
 
