@@ -64,7 +64,7 @@ def accepted_encodings(request: Request) -> set[str]:
         coding, *params = (part.strip() for part in item.split(";"))
         quality = next((param[2:] for param in params if param.startswith("q=")), "1")
         try:
-            if float(quality) > 0:
+            if coding and float(quality) > 0:
                 accepted.add(coding.lower())
         except ValueError:
             continue

@@ -12,12 +12,16 @@ import {serverUrl} from './page';
 
 const MAP_STYLE = 'mapbox://styles/mapbox/light-v9';
 
-/** A WebSocket class that also reports every close to `onClose`. */
+/** A WebSocket class that also reports every close to `onClose(event, opened)`. */
 function watchedSocket(onClose) {
   return class WatchedSocket extends WebSocket {
     constructor(url, protocols) {
       super(url, protocols);
-      this.addEventListener('close', onClose);
+      let opened = false;
+      this.addEventListener('open', () => {
+        opened = true;
+      });
+      this.addEventListener('close', event => onClose(event, opened));
     }
   };
 }
@@ -71,9 +75,8 @@ export default class Viewer extends React.Component {
         console.error('xviz-server viewer:', error); // eslint-disable-line no-console
         this.setState({error: errorText(error)});
       });
-    this.log.connect().catch(() => {
-      this.setState({error: 'Cannot connect to the server (it is gone, or it refused the session).'});
-    });
+    // Refusals are reported by _onSocketClose as they happen; the loader gives up after a few.
+    this.log.connect().catch(() => {});
   }
 
   componentWillUnmount() {
@@ -81,8 +84,16 @@ export default class Viewer extends React.Component {
     this.log.close();
   }
 
-  _onSocketClose = event => {
+  _onSocketClose = (event, opened) => {
     if (this.closed) {
+      return;
+    }
+    if (!opened) {
+      this.setState({
+        error:
+          'The server refused the session or cannot be reached: it is gone, or its ' +
+          '--viewer-token or --allowed-origins do not admit this page.'
+      });
       return;
     }
     const reason = event.reason ? `: ${event.reason}` : '';
