@@ -4,7 +4,8 @@
 //
 // Options: url; screenshot (PNG path); click (a log name to click in the catalog
 // first); frames (WebSocket frames to wait for, default 3); timeout (ms, default
-// 30000). Prints one JSON object: frames received over the page's WebSockets,
+// 30000); settle (ms to wait before the report, default 1000); viewport ({width,
+// height}, default 1280x800); draw (false: only load the page, wait for nothing). Prints one JSON object: frames received over the page's WebSockets,
 // whether and when (ms after navigation) the 3D canvas first showed a picture, the
 // canvas box in the screenshot, the stream list's text, the error banners, the page
 // errors and console errors, and the catalog's text when one was shown.
@@ -14,7 +15,7 @@ import {createRequire} from 'node:module';
 const require = createRequire(new URL('../viewer/package.json', import.meta.url));
 const {chromium} = require('playwright-core');
 
-const options = {frames: 3, timeout: 30000, ...JSON.parse(process.argv[2])};
+const options = {frames: 3, timeout: 30000, draw: true, viewport: {width: 1280, height: 800}, ...JSON.parse(process.argv[2])};
 const CANVAS = '#deckgl-overlay';
 // A blank canvas is one flat colour; a drawn one (car, points, grid) varies.
 const DRAWN_STDDEV = 4;
@@ -35,7 +36,7 @@ const browser = await chromium.launch({
 });
 const report = {failedRequests: [], drawn: false, firstDrawnMs: null, pageErrors: [], consoleErrors: [], alerts: []};
 try {
-  const page = await browser.newPage({viewport: {width: 1280, height: 800}});
+  const page = await browser.newPage({viewport: options.viewport});
   const start = Date.now();
   page.on('pageerror', error => report.pageErrors.push(String(error)));
   page.on('console', message => {
@@ -58,7 +59,7 @@ try {
         super(...args);
         this.addEventListener('message', () => {
           window.__xvizMessages.count++;
-          window.__xvizMessages.first = window.__xvizMessages.first ?? performance.now();
+          window.__xvizMessages.first = window.__xvizMessages.first ?? performance.timeOrigin + performance.now();
         });
       }
     };
@@ -72,7 +73,7 @@ try {
     report.catalogText = await page.locator('table.catalog').innerText();
     await link.click();
   }
-  const deadline = start + options.timeout;
+  const deadline = options.draw ? start + options.timeout : start;
   while (Date.now() < deadline) {
     if ((await page.locator(CANVAS).count()) > 0 && (await messages()).count >= options.frames) {
       const png = await page.locator(CANVAS).screenshot();
@@ -92,7 +93,7 @@ try {
   await page.waitForTimeout(options.settle ?? 1000);
   const received = await messages();
   report.frames = received.count;
-  report.firstFrameMs = received.first === null ? null : Math.round(received.first);
+  report.firstFrameMs = received.first === null ? null : Math.round(received.first - start);
   report.alerts = await page.locator('[role=alert]').allInnerTexts();
   const streams = page.locator('section.streams');
   report.streamsText = (await streams.count()) > 0 ? await streams.innerText() : '';
