@@ -43,7 +43,7 @@ function formatTimestamp(seconds) {
 function createLoader({name, live, token, onClose}) {
   const options = {
     logGuid: name,
-    bufferLength: live ? 10 : 30,
+    bufferLength: live ? 10 : 5, // seconds of log the page holds (and asks for at once)
     serverConfig: {
       serverUrl: serverUrl(),
       defaultLogLength: 30,
