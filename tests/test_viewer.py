@@ -22,6 +22,7 @@ import pytest
 from PIL import Image
 
 from serving import running_server
+from xviz_server.codec import Format
 from xviz_server.demo import generate_demo_log
 from xviz_server.server import XVIZServer
 from xviz_server.viewer import STATIC_DIR, ViewerPage, accepted_encodings
@@ -167,6 +168,20 @@ async def test_the_kitti_log_opens_directly(tmp_path: Path, kitti_log: Path):
     assert_drawn_cleanly(report)
     assert_stream_list_shows(report, streams)
     assert report["frames"] >= 26  # metadata and the 25 frames: the log is shorter than the page's buffer
+
+
+@browser
+async def test_json_logs_and_converted_datasets_open(tmp_path: Path, shared_dir: Path):
+    generate_demo_log(tmp_path / "demo-json", duration=2.0, fmt=Format.JSON)
+    drive = shared_dir / "data" / "kitti-raw-2011_09_26_drive_0001-head" / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    async with running_server(tmp_path, dataset=[f"kitti:{drive}"]) as server:
+        names = {summary["name"]: summary for summary in await server.catalog.describe()}
+        (dataset,) = set(names) - {"demo-json"}
+        assert names["demo-json"]["format"] == "JSON"
+        reports = {name: await open_page(server, f"/?log={name}", name.replace("/", "_")) for name in names}
+    for name, report in reports.items():
+        assert_drawn_cleanly(report)
+        assert_stream_list_shows(report, names[name]["streams"])
 
 
 @browser

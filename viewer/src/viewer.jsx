@@ -42,7 +42,8 @@ function formatTimestamp(seconds) {
 
 function createLoader({name, live, token, onClose}) {
   const options = {
-    logGuid: name,
+    // The loaders put it in the URL as it is; the server decodes the query.
+    logGuid: encodeURIComponent(name),
     bufferLength: live ? 10 : 5, // seconds of log the page holds (and asks for at once)
     serverConfig: {
       serverUrl: serverUrl(),
