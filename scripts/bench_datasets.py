@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import io
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -54,9 +53,8 @@ def waymo_segment(directory: Path, frames: int) -> Path:
 
 
 def waymo_tfrecord(path: Path, frames: int, returns_top: tuple[float, float], returns_short: tuple[float, float]) -> Path:
-    sys.path.insert(0, str(REPO / "tests"))
     from PIL import Image
-    from waymo_records import real_size_frame, write_segment
+    from waymo_frames import real_size_frame, write_segment  # scripts/ is on the path of a script run from it
 
     rng = np.random.default_rng(0)
     cameras = {}

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import websockets
 
+from benchkit import percentile
+
 REPO = Path(__file__).resolve().parents[1]
 FRAME = REPO.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head" / "2-frame.glb"
 METADATA = FRAME.with_name("1-frame.glb")
@@ -121,7 +123,7 @@ def run(command: list[str], args: argparse.Namespace) -> dict:
     return {
         "received": [n for r in results for n in r["received"]],
         "p50": statistics.median(latencies),
-        "p99": latencies[int(len(latencies) * 0.99) - 1],
+        "p99": percentile(latencies, 99),
         "max": latencies[-1],
         "mb_s": sum(r["bytes"] for r in results) / args.seconds / 1e6,
     }

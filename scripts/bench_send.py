@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_server import KITTI, Process, cpu_seconds, other_cores, other_cpu, start_server  # noqa: E402
+from benchproc import KITTI, Process, cpu_seconds, other_cores, other_cpu, start_server  # noqa: E402
 
 MB = 1e6
 HIGH_WATER = 2**15  # websockets' default write limit, for the raw server's flow control

@@ -32,7 +32,6 @@ import signal
 import socket
 import struct
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -42,10 +41,8 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
 REPO = Path(__file__).resolve().parents[1]
 KITTI = REPO.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
-sys.path.insert(0, str(REPO / "tests"))
-
 from bench_point_in_time import start_server  # noqa: E402  (scripts/ is on the path of a script run from it)
-from helpers import ten_hz, write_log  # noqa: E402
+from benchkit import write_log  # noqa: E402
 
 REQUEST = json.dumps({"type": "xviz/transform_log", "data": {"id": "soak"}}).encode()
 
@@ -186,7 +183,7 @@ def main() -> None:
             (root / "kitti").symlink_to(KITTI)
             log = "kitti"
         else:
-            write_log(root / "generated", ten_hz(25, points=100_000))
+            write_log(root / "generated", 25, points=100_000)
             log = "generated"
         server, port = start_server(root, "--idle-timeout", "5")
         held: list[socket.socket] = []

@@ -7,5 +7,10 @@ cd "$(dirname "$0")/.."
 source scripts/venv.sh
 python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros]"
 npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
+# The viewer's browser tests: the bundle, playwright-core (in viewer/) and Debian's chromium.
+scripts/build-viewer.sh
+if ! command -v chromium >/dev/null 2>&1; then
+    apt-get update -q && apt-get install -y -q chromium
+fi
 scripts/typecheck.sh
 exec python -m pytest "$@"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,8 @@ def _shared_dir() -> Path:
 
 
 SHARED_DIR = _shared_dir()
+# Test data that the benchmarks generate too (scripts/waymo_frames.py) lives beside them.
+sys.path.append(str(Path(__file__).resolve().parents[1] / "scripts"))
 KITTI_LOG = SHARED_DIR / "data" / "kitti-2011_09_26_drive_0001-head"
 FIXTURES = SHARED_DIR / "conformance" / "fixtures"
 
@@ -30,6 +33,15 @@ def shared_dir() -> Path:
 def kitti_log(shared_dir: Path) -> Path:
     """The official 25-frame KITTI GLB log."""
     return shared_dir / "data" / "kitti-2011_09_26_drive_0001-head"
+
+
+@pytest.fixture
+def kitti_root(tmp_path: Path, kitti_log: Path) -> Path:
+    """A data directory holding the official KITTI log as ``kitti``."""
+    data = tmp_path / "logs"
+    data.mkdir()
+    (data / "kitti").symlink_to(kitti_log)
+    return data
 
 
 @pytest.fixture(autouse=True)

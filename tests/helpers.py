@@ -144,6 +144,16 @@ def write_log(
     return directory
 
 
+def write_demo(directory: Path, duration: float = 0.5, fmt: Format = Format.BINARY) -> Path:
+    """The built-in demo drive, ``duration`` seconds of it, written as a static log by ``convert``."""
+    import io
+
+    from xviz_server.convert import convert
+
+    convert("demo", Path("demo"), directory, fmt=fmt, options={"duration": duration}, processes=1, out=io.StringIO())
+    return directory
+
+
 def ten_hz(count: int, start: float = 100.0, **kwargs: Any) -> list[dict[str, Any]]:
     return [update(round(start + i / 10, 3), **kwargs) for i in range(count)]
 

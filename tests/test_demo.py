@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import math
 from pathlib import Path
 from typing import Any
@@ -10,10 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from helpers import client, running_server, timestamps, xviz_decode
+from helpers import client, running_server, timestamps, write_demo, xviz_decode
 from xviz_server.check import check_paths
 from xviz_server.codec import Format, decode, decode_json, encode
-from xviz_server.convert import convert
 from xviz_server.datasets.demo import DemoDrive
 from xviz_server.validation import get_validator
 
@@ -30,11 +28,6 @@ PRIMITIVE_TYPES = {
     "images": "IMAGE",
 }
 SCALAR_TYPES = {"doubles": "FLOAT", "int32s": "INT32", "bools": "BOOL", "strings": "STRING"}
-
-
-def write_demo(directory: Path, duration: float = SHORT, fmt: Format = Format.BINARY) -> Path:
-    convert("demo", Path("demo"), directory, fmt=fmt, options={"duration": duration}, processes=1, out=io.StringIO())
-    return directory
 
 
 @pytest.fixture(scope="module")

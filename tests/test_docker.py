@@ -22,6 +22,8 @@ import pytest
 
 from helpers import ten_hz, write_log
 
+pytestmark = pytest.mark.slow
+
 DOCKER = Path(__file__).resolve().parents[1] / "docker"
 
 

@@ -207,25 +207,17 @@ def test_bytes_on_the_wire_are_websockets_bytes(loop: str, deflate: bool, tls: b
 # ------------------------------------------------------------------ the server
 
 
-@pytest.fixture
-def root(tmp_path: Path, kitti_log: Path) -> Path:
-    data = tmp_path / "logs"
-    data.mkdir()
-    (data / "kitti").symlink_to(kitti_log)
-    return data
-
-
 def transform_log(request_id: str) -> str:
     return json.dumps({"type": "xviz/transform_log", "data": {"id": request_id}})
 
 
-def test_stalled_clients_keep_evicted_frames_and_bounded_buffers(root: Path, kitti_log: Path):
+def test_stalled_clients_keep_evicted_frames_and_bounded_buffers(kitti_root: Path, kitti_log: Path):
     """Ten clients stop reading mid-log while a small cache evicts the frames they wait on; they get every byte."""
     files = [(kitti_log / f"{i}-frame.glb").read_bytes() for i in range(2, 27)]
     largest = max(map(len, files))
 
     async def scenario() -> None:
-        async with running_server(root, cache_mb=3, read_ahead=1) as server:
+        async with running_server(kitti_root, cache_mb=3, read_ahead=1) as server:
             stalled = []
             for i in range(10):
                 websocket = await connect(f"ws://127.0.0.1:{server.port}/kitti", max_size=None, max_queue=1)
@@ -255,11 +247,11 @@ def test_stalled_clients_keep_evicted_frames_and_bounded_buffers(root: Path, kit
     uvloop.run(scenario())
 
 
-def test_a_live_viewer_that_stops_reading_large_frames_is_closed_by_the_lag_limit(root: Path, kitti_log: Path, kitti_frame: bytes):
+def test_a_live_viewer_that_stops_reading_large_frames_is_closed_by_the_lag_limit(kitti_root: Path, kitti_log: Path, kitti_frame: bytes):
     metadata = decode((kitti_log / "1-frame.glb").read_bytes())["data"]
 
     async def scenario() -> None:
-        async with running_server(root, live_queue=2, live_lag_timeout=0.5) as server:
+        async with running_server(kitti_root, live_queue=2, live_lag_timeout=0.5) as server:
             feed = server.live.feed("car")
             feed.set_metadata(metadata)
             slow = await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None, max_queue=1)
@@ -278,11 +270,11 @@ def test_a_live_viewer_that_stops_reading_large_frames_is_closed_by_the_lag_limi
     uvloop.run(scenario())
 
 
-def test_live_fan_out_shares_one_payload_and_every_viewer_gets_it(root: Path, kitti_log: Path, kitti_frame: bytes):
+def test_live_fan_out_shares_one_payload_and_every_viewer_gets_it(kitti_root: Path, kitti_log: Path, kitti_frame: bytes):
     metadata = (kitti_log / "1-frame.glb").read_bytes()
 
     async def scenario() -> None:
-        async with running_server(root) as server:
+        async with running_server(kitti_root) as server:
             feed = server.live.feed("car")
             feed.set_metadata(decode(metadata)["data"])
             viewers = [await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None) for _ in range(20)]

@@ -15,14 +15,6 @@ import uvloop
 from helpers import assert_same_parse, run_xviz_session_async, running_server, xviz_decode
 
 
-@pytest.fixture
-def root(tmp_path: Path, kitti_log: Path) -> Path:
-    data = tmp_path / "logs"
-    data.mkdir()
-    (data / "kitti").symlink_to(kitti_log)
-    return data
-
-
 @pytest.fixture(scope="module")
 def originals(kitti_log: Path) -> dict[float, dict]:
     """The client's parse of every original KITTI frame, by timestamp."""
@@ -42,19 +34,21 @@ SESSION = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["BINARY", "JSON"])
-async def test_streetscape_client_session(root: Path, originals: dict[float, dict], fmt: str):
-    await streetscape_session(root, originals, fmt)
+async def test_streetscape_client_session(kitti_root: Path, originals: dict[float, dict], fmt: str):
+    await streetscape_session(kitti_root, originals, fmt)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["BINARY", "JSON"])
-def test_streetscape_client_session_on_uvloop(root: Path, originals: dict[float, dict], fmt: str):
+def test_streetscape_client_session_on_uvloop(kitti_root: Path, originals: dict[float, dict], fmt: str):
     """The same session on the event loop the server runs on (frames leave through the transport's writev)."""
-    uvloop.run(streetscape_session(root, originals, fmt))
+    uvloop.run(streetscape_session(kitti_root, originals, fmt))
 
 
-async def streetscape_session(root: Path, originals: dict[float, dict], fmt: str) -> None:
-    async with running_server(root) as server:
+async def streetscape_session(kitti_root: Path, originals: dict[float, dict], fmt: str) -> None:
+    async with running_server(kitti_root) as server:
         url = f"ws://127.0.0.1:{server.port}/?log=kitti&worker=true&profile=default&message_format={fmt}"
         result = await run_xviz_session_async(url, SESSION, timeout=180)
     assert result.ok, result.stderr

@@ -62,6 +62,7 @@ async def test_live_session_gets_metadata_state_then_every_update(root: Path):
             assert error["type"] == "xviz/error" and "not available in a LIVE session" in error["data"]["message"]
 
 
+@pytest.mark.slow
 async def test_ten_hz_to_twenty_viewers_one_of_them_stalled(root: Path):
     async with running_server(root, live_queue=8, live_lag_timeout=60) as server:
         feed = server.live.feed("car")

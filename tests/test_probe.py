@@ -55,6 +55,7 @@ def errors(report: ProbeReport) -> str:
         (Format.JSON, "+1", "+1.5", 5),  # JSON frames take ~0.2 s each to decode and validate
     ],
 )
+@pytest.mark.slow
 async def test_clean_run_on_the_real_log(root: Path, fmt: Format, start: str | None, end: str | None, frames: int):
     async with running_server(root) as server:
         url = f"ws://127.0.0.1:{server.port}/?log=kitti"

@@ -147,6 +147,7 @@ def rss_bytes() -> int:
         return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
+@pytest.mark.slow
 async def test_clients_dropping_mid_stream_leak_nothing(root: Path):
     async def cycle(server, abort: bool) -> None:
         websocket = await connect(f"ws://127.0.0.1:{server.port}/kitti", max_size=None)

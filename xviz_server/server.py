@@ -3,8 +3,10 @@
 Only GET is served (see :mod:`xviz_server.gate`); HTTP requests that are not
 WebSocket handshakes get:
 
-* ``GET /`` (or ``/logs``): the catalog, JSON: every log with its format,
-  frame count, time range and stream names;
+* ``GET /`` from a browser: the viewer page (see :mod:`xviz_server.viewer`);
+* ``GET /api/logs`` (or ``/logs``, or ``/`` from any other client): the
+  catalog, JSON: every log with its format, frame count, time range and
+  stream names, and the live feeds;
 * ``GET /healthz``: ``ok``, or HTTP 503 saying what is broken (a worker
   process pool that lost a process and is not yet replaced);
 * ``GET /metrics``: the metrics in Prometheus text format.
@@ -49,6 +51,7 @@ from .logs import Catalog
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
 from .tls import server_context
+from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
 
 __all__ = ["XVIZServer", "run"]
@@ -98,6 +101,8 @@ class XVIZServer:
             )
         #: The sessions running now.
         self.sessions: set[Connection] = set()
+        #: The built-in viewer's page and assets.
+        self.viewer = ViewerPage(STATIC_DIR, self.workers)
 
     @property
     def port(self) -> int:
@@ -217,7 +222,9 @@ class XVIZServer:
             if self.settings.protect_metrics and (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
-        if path in ("/", "/logs"):
+        if (page := await self.viewer.respond(connection, request)) is not None:
+            return page
+        if path in ("/", "/logs", "/api/logs"):
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
             live = [{"name": feed.name, "connected": feed.connected} for feed in self.live]
@@ -225,7 +232,7 @@ class XVIZServer:
             return _response(connection, HTTPStatus.OK, orjson.dumps(body, option=orjson.OPT_INDENT_2), "application/json")
         return connection.respond(
             HTTPStatus.NOT_FOUND,
-            "not found: open a WebSocket for an XVIZ session, or GET /, /healthz or /metrics\n",
+            "not found: open a WebSocket for an XVIZ session, or GET /, /api/logs, /healthz or /metrics\n",
         )
 
     def _viewer_refusal(self, connection: ServerConnection, request: Request) -> Response | None:

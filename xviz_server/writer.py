@@ -215,7 +215,7 @@ class LogWriter:
 
     def _frame_span(self, index: int) -> tuple[float, float]:
         span = self._spans.get(index)
-        if span is None:  # written by an earlier run: read it (decoding GLB takes well under 1 ms)
+        if span is None:  # written by an earlier run: read it (decoding GLB is cheap)
             message = self._decode(self._path(file_number(index)).read_bytes(), f"frame {index}")
             span = self._spans[index] = self._span(index, message)
         return span

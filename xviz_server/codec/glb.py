@@ -37,10 +37,10 @@ into the given buffer and images as ``memoryview`` slices of it: nothing is
 copied. The decoder also reads the ``extensions.AVS_xviz`` form, the legacy
 ``XVIZ`` magic and the legacy chunk types 0 (JSON) and 1 (BIN).
 
-The container code is written here rather than on pygltflib: pygltflib takes
-5.9 ms to load a 2.1 MB KITTI frame, drops the ``xviz`` key, and cannot read
-the golden files (see ``scripts/bench_codec.py``). pygltflib still provides
-the glTF constants.
+The container code is written here rather than on pygltflib: pygltflib is
+far slower on a point-cloud frame (``scripts/bench_codec.py`` and the README
+give the numbers), drops the ``xviz`` key, and cannot read the golden files.
+pygltflib still provides the glTF constants.
 """
 
 from __future__ import annotations

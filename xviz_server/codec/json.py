@@ -1,8 +1,7 @@
 """XVIZ messages as JSON.
 
-Encoding uses orjson, which writes numpy arrays natively (about 13x faster
-than the standard library on a 121k-point KITTI frame, see
-``scripts/bench_codec.py``). Binary image data (``bytes`` or ``memoryview``,
+Encoding uses orjson, which writes numpy arrays natively (far faster than
+the standard library on a point cloud: ``scripts/bench_codec.py``). Binary image data (``bytes`` or ``memoryview``,
 as the GLB decoder returns it) becomes base64 text, which is how XVIZ JSON
 carries images.
 """

@@ -81,6 +81,7 @@ class _Recording:
                 await io(writer.write_frame, self._count, data)
                 self._count, self.size = self._count + 1, self.size + len(data)
                 self._recorder.written += len(data)
+                self._queue.task_done()
                 if self._queue.empty() and time.monotonic() - indexed_at >= INDEX_INTERVAL:
                     await io(writer.write_index)
                     indexed_at = time.monotonic()
@@ -100,9 +101,9 @@ class _Recording:
 
     async def finish(self) -> None:
         """Write what is queued and the final index."""
-        deadline = time.monotonic() + FINISH_TIMEOUT
-        while not self._queue.empty() and not self._task.done() and time.monotonic() < deadline:
-            await asyncio.sleep(0.01)
+        written = asyncio.ensure_future(self._queue.join())
+        await asyncio.wait([written, self._task], timeout=FINISH_TIMEOUT, return_when=asyncio.FIRST_COMPLETED)
+        written.cancel()
         self._task.cancel()
         await asyncio.gather(self._task, return_exceptions=True)
         logger.info("recorded %d updates in %s", self._count, self.directory)

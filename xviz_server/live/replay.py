@@ -27,7 +27,11 @@ async def replay(log: Log, feed: LiveFeed, *, rate: float = 1.0, loop: bool = Fa
     skipped with a warning.
     """
     clock = asyncio.get_running_loop()
-    feed.set_metadata(log.metadata)
+    metadata = log.metadata
+    if loop:  # the feed goes on past the log's end: viewers (streetscape.gl) must not stop there
+        info = {key: value for key, value in (metadata.get("log_info") or {}).items() if key != "end_time"}
+        metadata = {**metadata, "log_info": info}
+    feed.set_metadata(metadata)
     starts = log.index.start
     step = float(np.median(np.diff(starts))) if len(starts) > 1 else 0.1
     period = float(starts[-1] - starts[0]) + step if len(starts) else 0.0

@@ -1,0 +1,112 @@
+#!/usr/bin/env python3
+"""Measure the built-in viewer: page load to first drawn frame, and the bundle's size.
+
+    .venv/bin/python scripts/bench_viewer.py [--runs N] [--kitti DIR] [--viewport WxH ...]
+
+Starts the server (``python -m xviz_server serve --data-dir`` a folder holding the
+KITTI excerpt, ``--port 0``) and, for each viewport, opens
+``/?log=<kitti>`` ``--runs`` times in headless Chromium (``tests/browser.mjs``, a fresh
+browser and profile each time) and reports the medians of: the page loaded, the
+first WebSocket message, the 3D view first showing a picture (all in ms after the
+browser opened the tab). The reference, measured in the same run, is the same
+browser loading the page without waiting for anything (the catalog page, ``/``):
+the ratio says what the 3D view costs on top of opening a tab. WebGL runs on
+SwiftShader (the CPU), so the numbers depend on the machine and its load: the
+script says how busy the machine was.
+
+Needs ``scripts/build-viewer.sh`` (the bundle, playwright-core) and chromium.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+DRIVER = REPO / "tests" / "browser.mjs"
+STATIC = REPO / "xviz_server" / "viewer_static"
+KITTI = REPO.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
+
+
+def drive(options: dict[str, Any]) -> dict[str, Any]:
+    """One run of the browser driver; its report."""
+    result = subprocess.run(["node", str(DRIVER), json.dumps(options)], capture_output=True, text=True, check=True)
+    report: dict[str, Any] = json.loads(result.stdout)
+    return report
+
+
+def bundle_sizes() -> dict[str, int]:
+    """Bytes of the bundle's assets (JS and CSS), raw, gzip and brotli."""
+    assets = [path for path in STATIC.iterdir() if re.fullmatch(r"(viewer|asset)-[A-Z0-9]+\.\w+", path.name)]
+    return {
+        "raw": sum(path.stat().st_size for path in assets),
+        "gzip": sum(path.with_name(path.name + ".gz").stat().st_size for path in assets),
+        "brotli": sum(path.with_name(path.name + ".br").stat().st_size for path in assets),
+    }
+
+
+def start_server(data_dir: Path) -> tuple[subprocess.Popen[str], int]:
+    """The server in its own process, and the port it listens on."""
+    server = subprocess.Popen(
+        [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(data_dir), "--port", "0"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert server.stderr is not None
+    for line in server.stderr:
+        match = re.search(r"listening on ws://[^:]+:(\d+)/", line)
+        if match:
+            return server, int(match.group(1))
+    raise SystemExit("the server did not start")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--kitti", type=Path, default=KITTI)
+    parser.add_argument("--viewport", nargs="+", default=["1280x800", "800x500"])
+    args = parser.parse_args()
+
+    sizes = bundle_sizes()
+    print(f"bundle (JS + CSS): {sizes['raw'] / 1e6:.2f} MB raw, {sizes['gzip'] / 1e6:.2f} MB gzip, {sizes['brotli'] / 1e6:.2f} MB brotli")
+    with tempfile.TemporaryDirectory() as data_dir:
+        (Path(data_dir) / args.kitti.name).symlink_to(args.kitti.resolve())
+        server, port = start_server(Path(data_dir))
+        try:
+            base = f"http://127.0.0.1:{port}"
+            load_before = os.getloadavg()[0]
+            started = time.monotonic()
+            reference = [drive({"url": f"{base}/", "draw": False, "settle": 0})["loadedMs"] for _ in range(args.runs)]
+            print(f"reference, the catalog page loaded: median {statistics.median(reference):.0f} ms of {args.runs}")
+            for viewport in args.viewport:
+                width, height = (int(n) for n in viewport.split("x"))
+                options = {"url": f"{base}/?log={args.kitti.name}", "viewport": {"width": width, "height": height}, "settle": 0, "timeout": 120_000}
+                reports = [drive(options) for _ in range(args.runs)]
+                if not all(report["drawn"] for report in reports):
+                    print(f"{viewport}: the 3D view was not drawn in every run: {reports}")
+                    continue
+                drawn = statistics.median(report["firstDrawnMs"] for report in reports)
+                print(
+                    f"{viewport}: page loaded {statistics.median(r['loadedMs'] for r in reports):.0f} ms, "
+                    f"first WebSocket message {statistics.median(r['firstFrameMs'] for r in reports):.0f} ms, "
+                    f"first drawn frame {drawn:.0f} ms (median of {args.runs}; "
+                    f"{drawn / statistics.median(reference):.1f} x the reference)"
+                )
+            elapsed = time.monotonic() - started
+            print(f"machine load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after; {elapsed:.0f} s in all; {os.cpu_count()} cores")
+        finally:
+            server.terminate()
+            server.wait()
+
+
+if __name__ == "__main__":
+    main()

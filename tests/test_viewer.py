@@ -1,0 +1,238 @@
+"""The built-in viewer: HTTP serving of the page and, in headless Chromium, the page itself.
+
+The HTTP tests serve a small bundle written here; the browser tests need the real
+bundle (``scripts/build-viewer.sh``), playwright-core (``viewer/node_modules``) and
+Debian's chromium, all of which ``scripts/test.sh`` installs. Each browser test
+keeps its screenshot in ``tests/artifacts/`` (git-ignored).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import gzip
+import json
+import shutil
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from helpers import running_server, write_demo
+from xviz_server.codec import Format
+from xviz_server.server import XVIZServer
+from xviz_server.viewer import STATIC_DIR, ViewerPage, accepted_encodings
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+DRIVER = REPO / "tests" / "browser.mjs"
+ARTIFACTS = REPO / "tests" / "artifacts"
+CHROMIUM = Path("/usr/bin/chromium")
+BROWSER_TIMEOUT_MS = 90_000
+ASSET = "viewer-ABC123.js"
+SCRIPT = b"console.log('the viewer');\n" * 50
+
+
+def get(server: XVIZServer, path: str, **headers: str) -> tuple[int, dict[str, str], bytes]:
+    """A plain HTTP GET to the server: status, headers, body (as sent, not decoded)."""
+    request = urllib.request.Request(f"http://127.0.0.1:{server.port}{path}", headers=headers)
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, dict(response.headers), response.read()
+    except urllib.error.HTTPError as error:
+        return error.code, dict(error.headers), error.read()
+
+
+@pytest.fixture
+def bundle(tmp_path: Path) -> Path:
+    """A bundle in the layout build.mjs writes: index.html, a hashed asset and its compressed copies."""
+    directory = tmp_path / "bundle"
+    directory.mkdir()
+    (directory / "index.html").write_text(f'<!doctype html><script src="{ASSET}"></script>')
+    (directory / ASSET).write_bytes(SCRIPT)
+    (directory / f"{ASSET}.gz").write_bytes(gzip.compress(SCRIPT))
+    (directory / f"{ASSET}.br").write_bytes(b"brotli bytes as build.mjs wrote them")
+    return directory
+
+
+async def test_a_browser_gets_the_page_and_other_clients_the_catalog(tmp_path: Path, bundle: Path):
+    async with running_server(tmp_path) as server:
+        server.viewer = ViewerPage(bundle, server.workers)
+        status, headers, body = await asyncio.to_thread(get, server, "/", Accept="text/html,application/xhtml+xml,*/*;q=0.8")
+        assert status == 200 and body == (bundle / "index.html").read_bytes()
+        assert headers["Content-Type"] == "text/html; charset=utf-8"
+        assert headers["Cache-Control"] == "no-cache" and headers["Vary"] == "Accept"
+        for path, accept in [("/", "application/json"), ("/", "*/*"), ("/api/logs", "text/html"), ("/logs", "")]:
+            status, headers, body = await asyncio.to_thread(get, server, path, Accept=accept)
+            assert status == 200 and headers["Content-Type"] == "application/json", (path, accept)
+            assert set(json.loads(body)) == {"server", "logs", "live"}
+
+
+async def test_assets_are_immutable_and_compressed_as_the_client_accepts(tmp_path: Path, bundle: Path):
+    async with running_server(tmp_path) as server:
+        server.viewer = ViewerPage(bundle, server.workers)
+        status, headers, body = await asyncio.to_thread(get, server, f"/{ASSET}", **{"Accept-Encoding": "gzip, deflate"})
+        assert status == 200 and headers["Content-Encoding"] == "gzip" and gzip.decompress(body) == SCRIPT
+        assert headers["Content-Type"] == "text/javascript; charset=utf-8"
+        assert headers["Cache-Control"] == "public, max-age=31536000, immutable"
+        assert headers["Vary"] == "Accept-Encoding"
+        status, headers, body = await asyncio.to_thread(get, server, f"/{ASSET}", **{"Accept-Encoding": "gzip, br"})
+        assert headers["Content-Encoding"] == "br" and body == (bundle / f"{ASSET}.br").read_bytes()
+        status, headers, body = await asyncio.to_thread(get, server, f"/{ASSET}", **{"Accept-Encoding": "br;q=0, identity"})
+        assert "Content-Encoding" not in headers and body == SCRIPT
+        (bundle / f"{ASSET}.gz").unlink()
+        status, headers, body = await asyncio.to_thread(get, server, f"/{ASSET}", **{"Accept-Encoding": "gzip"})
+        assert status == 200 and "Content-Encoding" not in headers and body == SCRIPT
+        for path in ["/viewer-NOSUCH.js", "/viewer-ABC123.js/../index.html", "/index.html", "/viewer-abc.exe"]:
+            status, _, _ = await asyncio.to_thread(get, server, path)
+            assert status == 404, path
+
+
+async def test_without_a_bundle_a_browser_is_told_how_to_build_it(tmp_path: Path):
+    async with running_server(tmp_path) as server:
+        server.viewer = ViewerPage(tmp_path / "never-built", server.workers)
+        status, headers, body = await asyncio.to_thread(get, server, "/", Accept="text/html")
+        assert status == 404 and body.count(b"\n") == 1 and b"scripts/build-viewer.sh" in body
+        status, headers, body = await asyncio.to_thread(get, server, "/", Accept="application/json")
+        assert status == 200 and "logs" in json.loads(body)
+
+
+def test_accepted_encodings_follow_quality_values():
+    from websockets.datastructures import Headers
+    from websockets.http11 import Request
+
+    def parse(value: str) -> set[str]:
+        return accepted_encodings(Request("/", Headers({"Accept-Encoding": value})))
+
+    assert parse("gzip, deflate, br") == {"gzip", "deflate", "br"}
+    assert parse("br;q=0, GZIP;q=0.5") == {"gzip"}
+    assert parse("gzip;q=nonsense, br") == {"br"}
+    assert parse("") == set()
+
+
+# --- in the browser ----------------------------------------------------------------------
+
+browser = pytest.mark.skipif(
+    not (STATIC_DIR / "index.html").is_file()
+    or not (REPO / "viewer" / "node_modules" / "playwright-core").is_dir()
+    or not CHROMIUM.is_file()
+    or shutil.which("node") is None,
+    reason="needs the viewer bundle, playwright-core and chromium: run scripts/test.sh",
+)
+
+
+async def open_page(server: XVIZServer, path: str, screenshot: str, **options: Any) -> dict[str, Any]:
+    """Open ``path`` of the server in headless Chromium with tests/browser.mjs; its report."""
+    ARTIFACTS.mkdir(exist_ok=True)
+    shot = ARTIFACTS / f"viewer-{screenshot}.png"
+    arguments = {"url": f"http://127.0.0.1:{server.port}{path}", "screenshot": str(shot), "timeout": BROWSER_TIMEOUT_MS}
+    process = await asyncio.create_subprocess_exec(
+        "node", str(DRIVER), json.dumps({**arguments, **options}), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE
+    )
+    stdout, stderr = await process.communicate()
+    assert process.returncode == 0, stderr.decode()
+    report: dict[str, Any] = json.loads(stdout)
+    report["screenshot"] = shot
+    print(f"screenshot: {shot}; first drawn frame after {report['firstDrawnMs']} ms")
+    return report
+
+
+def assert_drawn_cleanly(report: dict[str, Any]) -> None:
+    """Frames came, the 3D view shows a picture, and nothing went wrong on the page."""
+    assert report["pageErrors"] == [] and report["consoleErrors"] == [] and report["alerts"] == []
+    assert report["failedRequests"] == []
+    assert report["frames"] >= 3 and report["drawn"]
+    box = report["canvasBox"]
+    image = np.asarray(Image.open(report["screenshot"]).convert("L"), dtype=np.float32)
+    canvas = image[int(box["y"]) : int(box["y"] + box["height"]), int(box["x"]) : int(box["x"] + box["width"])]
+    assert canvas.size > 0 and canvas.std() > 10, "the 3D view is blank"
+
+
+def assert_stream_list_shows(report: dict[str, Any], streams: list[str]) -> None:
+    """StreamSettingsPanel groups streams by their first segment: ``/a/b/c`` shows as ``/a`` over ``/b/c``."""
+    shown = set(report["streamsText"].split("\n"))
+    for stream in streams:
+        group, _, rest = stream.strip("/").partition("/")
+        assert f"/{group}" in shown and (not rest or f"/{rest}" in shown), stream
+
+
+@browser
+async def test_the_kitti_log_opens_directly(tmp_path: Path, kitti_log: Path):
+    (tmp_path / kitti_log.name).symlink_to(kitti_log)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, f"/?log={kitti_log.name}", "kitti")
+        streams = (await server.catalog.open(kitti_log.name)).streams
+    assert_drawn_cleanly(report)
+    assert_stream_list_shows(report, streams)
+    assert report["frames"] >= 26  # metadata and the 25 frames: the log is shorter than the page's buffer
+
+
+@browser
+async def test_json_logs_and_converted_datasets_open(tmp_path: Path, shared_dir: Path):
+    write_demo(tmp_path / "demo-json", duration=2.0, fmt=Format.JSON)
+    drive = shared_dir / "data" / "kitti-raw-2011_09_26_drive_0001-head" / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    async with running_server(tmp_path, dataset=[f"kitti:{drive}"]) as server:
+        names = {summary["name"]: summary for summary in await server.catalog.describe()}
+        (dataset,) = set(names) - {"demo-json"}
+        assert names["demo-json"]["format"] == "JSON"
+        reports = {name: await open_page(server, f"/?log={name}", name.replace("/", "_")) for name in names}
+    for name, report in reports.items():
+        assert_drawn_cleanly(report)
+        assert_stream_list_shows(report, names[name]["streams"])
+
+
+@browser
+async def test_a_click_in_the_catalog_opens_the_log(tmp_path: Path):
+    write_demo(tmp_path / "demo", duration=3.0)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/", "catalog-click", click="demo")
+        (summary,) = await server.catalog.describe()
+    rows = [line.split("\t") for line in report["catalogText"].split("\n")]
+    assert rows[0] == ["name", "format", "frames", "duration", "streams"]
+    assert rows[1] == ["demo", summary["format"], str(summary["frames"]), f"{summary['end_time'] - summary['start_time']:.1f} s", str(len(summary["streams"]))]
+    assert report["url"].endswith("/?log=demo")
+    assert_drawn_cleanly(report)
+    assert_stream_list_shows(report, summary["streams"])
+
+
+@browser
+async def test_a_live_feed_plays(tmp_path: Path):
+    source = write_demo(tmp_path / "car", duration=2.0)
+    (tmp_path / "empty").mkdir()
+    async with running_server(tmp_path / "empty", live_from=source, loop=True, rate=1.0) as server:
+        report = await open_page(server, "/?log=car", "live", frames=10)
+    assert_drawn_cleanly(report)
+    assert report["frames"] >= 10
+
+
+@browser
+async def test_the_page_passes_the_viewer_token_on(tmp_path: Path):
+    write_demo(tmp_path / "demo", duration=1.0)
+    async with running_server(tmp_path, viewer_token="s3cret") as server:
+        allowed = await open_page(server, "/?log=demo&token=s3cret", "token")
+        refused = await open_page(server, "/?log=demo", "no-token", settle=0)
+    assert_drawn_cleanly(allowed)
+    assert refused["frames"] == 0 and len(refused["alerts"]) == 1
+    assert "401" in refused["alerts"][0] and "viewer token" in refused["alerts"][0]
+
+
+@browser
+async def test_allowed_origins_apply_to_the_page(tmp_path: Path):
+    write_demo(tmp_path / "demo", duration=1.0)
+    async with running_server(tmp_path, allowed_origins=["https://elsewhere.example"]) as server:
+        report = await open_page(server, "/?log=demo", "other-origin", settle=0)
+    assert report["frames"] == 0 and report["pageErrors"] == []
+    assert len(report["alerts"]) == 1 and "--allowed-origins" in report["alerts"][0]
+
+
+@browser
+async def test_an_unknown_log_is_shown_to_the_person(tmp_path: Path):
+    write_demo(tmp_path / "demo", duration=1.0)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=nowhere", "unknown", settle=0)
+    assert report["alerts"] == ['This server has no log or live feed named "nowhere".']
+    assert report["pageErrors"] == []

@@ -1,0 +1,6 @@
+import React from 'react';
+import {render} from 'react-dom';
+import 'mapbox-gl/dist/mapbox-gl.css';
+import App from './app';
+
+render(<App />, document.getElementById('app'));

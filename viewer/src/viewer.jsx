@@ -1,0 +1,154 @@
+import React from 'react';
+import {
+  LogViewer,
+  PlaybackControl,
+  StreamSettingsPanel,
+  XVIZLiveLoader,
+  XVIZPanel,
+  XVIZStreamLoader
+} from 'streetscape.gl';
+import ErrorBanner from './error-banner';
+import {serverUrl} from './page';
+
+const MAP_STYLE = 'mapbox://styles/mapbox/light-v9';
+
+/** A WebSocket class that also reports every close to `onClose(event, opened)`. */
+function watchedSocket(onClose) {
+  return class WatchedSocket extends WebSocket {
+    constructor(url, protocols) {
+      super(url, protocols);
+      let opened = false;
+      this.addEventListener('open', () => {
+        opened = true;
+      });
+      this.addEventListener('close', event => onClose(event, opened));
+    }
+  };
+}
+
+function errorText(error) {
+  if (!error) {
+    return 'unknown error';
+  }
+  if (typeof error === 'string') {
+    return error;
+  }
+  return error.message || (error.data && error.data.message) || JSON.stringify(error);
+}
+
+function formatTimestamp(seconds) {
+  return new Date(seconds * 1000).toISOString().slice(11, 23);
+}
+
+function createLoader({name, live, token, onClose}) {
+  const options = {
+    // The loaders put it in the URL as it is; the server decodes the query.
+    logGuid: encodeURIComponent(name),
+    bufferLength: live ? 10 : 5, // seconds of log the page holds (and asks for at once)
+    serverConfig: {
+      serverUrl: serverUrl(),
+      defaultLogLength: 30,
+      queryParams: token ? {token: encodeURIComponent(token)} : {}
+    },
+    worker: true,
+    maxConcurrency: 4,
+    WebSocketClass: watchedSocket(onClose)
+  };
+  return live ? new XVIZLiveLoader(options) : new XVIZStreamLoader(options);
+}
+
+/** One log or live feed: the 3D view, playback, the stream list and the log's UI panels. */
+export default class Viewer extends React.Component {
+  constructor(props) {
+    super(props);
+    this.state = {error: null, panels: []};
+    this.log = createLoader({...props, onClose: this._onSocketClose});
+  }
+
+  componentDidMount() {
+    this.log
+      .on('ready', () => {
+        const metadata = this.log.getMetadata() || {};
+        this.setState({panels: Object.keys(metadata.ui_config || {}), error: null});
+      })
+      .on('error', (eventType, error) => {
+        // The loader calls back with (event type, payload).
+        console.error('xviz-server viewer:', error); // eslint-disable-line no-console
+        this.setState({error: errorText(error)});
+      });
+    // Refusals are reported by _onSocketClose as they happen; the loader gives up after a few.
+    this.log.connect().catch(() => {});
+  }
+
+  componentWillUnmount() {
+    this.closed = true;
+    this.log.close();
+  }
+
+  _onSocketClose = (event, opened) => {
+    if (this.closed) {
+      return;
+    }
+    if (!opened) {
+      this.setState({
+        error:
+          'The server refused the session or cannot be reached: it is gone, or its ' +
+          '--viewer-token or --allowed-origins do not admit this page.'
+      });
+      return;
+    }
+    const reason = event.reason ? `: ${event.reason}` : '';
+    this.setState({error: `The connection to the server closed (code ${event.code}${reason}).`});
+  };
+
+  render() {
+    const {name, live, mapToken, onClose} = this.props;
+    const {error, panels} = this.state;
+    return (
+      <div style={{display: 'flex', flexDirection: 'column', height: '100%'}}>
+        <header style={{display: 'flex', gap: 16, alignItems: 'center', padding: '8px 16px', background: '#fff'}}>
+          <a
+            href="?"
+            onClick={event => {
+              event.preventDefault();
+              onClose();
+            }}
+          >
+            ← all logs
+          </a>
+          <strong className="log-name">{name}</strong>
+          {live && <span className="live-badge">live</span>}
+        </header>
+        {error && <ErrorBanner message={error} />}
+        <div style={{display: 'flex', flex: 1, minHeight: 0}}>
+          <div style={{flex: 1, position: 'relative'}}>
+            <LogViewer
+              log={this.log}
+              showMap={Boolean(mapToken)}
+              mapboxApiAccessToken={mapToken}
+              mapStyle={MAP_STYLE}
+              showTooltip
+            />
+          </div>
+          <aside className="sidebar" style={{width: 340, overflowY: 'auto', background: '#fff', padding: 12}}>
+            {panels.map(panel => (
+              <section key={panel} className="xviz-panel">
+                <h3>{panel}</h3>
+                <XVIZPanel log={this.log} name={panel} />
+              </section>
+            ))}
+            <section className="streams">
+              <h3>Streams</h3>
+              <StreamSettingsPanel log={this.log} />
+            </section>
+          </aside>
+        </div>
+        {!live && (
+          <div style={{background: '#fff'}}>
+            <PlaybackControl width="100%" log={this.log} formatTimestamp={formatTimestamp} />
+          </div>
+        )}
+      </div>
+    );
+  }
+}

@@ -1,0 +1,124 @@
+"""The built-in viewer: the page at ``/`` and its assets, over HTTP.
+
+``scripts/build-viewer.sh`` bundles the page (``viewer/`` in the repository:
+streetscape.gl in a small React application) into :data:`STATIC_DIR`:
+``index.html`` and content-hashed assets, each with a gzip (``.gz``) and a
+brotli (``.br``) copy. :class:`ViewerPage` answers:
+
+* ``GET /`` from a browser, one whose ``Accept`` header names ``text/html``:
+  ``index.html``, ``Cache-Control: no-cache``; other clients get ``None``
+  and so the JSON catalog, as before the viewer existed. Without a bundle,
+  a browser is told in one line how to build it.
+* ``GET /<hashed asset>``: the asset, ``immutable`` for a year, compressed
+  as the client's ``Accept-Encoding`` allows.
+
+The page connects its WebSocket to the same host and port, like any viewer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from http import HTTPStatus
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from websockets.asyncio.server import ServerConnection
+from websockets.http11 import Request, Response
+
+from .work import Workers
+
+__all__ = ["STATIC_DIR", "ViewerPage", "wants_html"]
+
+#: Where ``scripts/build-viewer.sh`` writes the bundle.
+STATIC_DIR = Path(__file__).with_name("viewer_static")
+
+#: Names of the bundle's assets: the hash in the name changes with the content.
+ASSET = re.compile(r"/((?:viewer|asset)-[A-Z0-9]+\.(css|js|png|svg|woff2?))")
+
+CONTENT_TYPES = {
+    "html": "text/html; charset=utf-8",
+    "css": "text/css; charset=utf-8",
+    "js": "text/javascript; charset=utf-8",
+    "png": "image/png",
+    "svg": "image/svg+xml",
+    "woff": "font/woff",
+    "woff2": "font/woff2",
+}
+
+#: Content codings of the precompressed copies, best first, with their file suffix.
+ENCODINGS = (("br", ".br"), ("gzip", ".gz"))
+
+NOT_BUILT = "the viewer is not built: run scripts/build-viewer.sh (needs node and npm), or open /api/logs for the catalog\n"
+
+
+def wants_html(request: Request) -> bool:
+    """Whether the client asks for a page (a browser) rather than data."""
+    return "text/html" in request.headers.get("Accept", "")
+
+
+def accepted_encodings(request: Request) -> set[str]:
+    """The content codings ``Accept-Encoding`` allows (those not given ``q=0``)."""
+    accepted = set()
+    for item in request.headers.get("Accept-Encoding", "").split(","):
+        coding, *params = (part.strip() for part in item.split(";"))
+        quality = next((param[2:] for param in params if param.startswith("q=")), "1")
+        try:
+            if coding and float(quality) > 0:
+                accepted.add(coding.lower())
+        except ValueError:
+            continue
+    return accepted
+
+
+class ViewerPage:
+    """Answers HTTP requests for the viewer page from the bundle in ``directory``."""
+
+    def __init__(self, directory: Path, workers: Workers) -> None:
+        self.directory = directory
+        self.workers = workers
+
+    async def respond(self, connection: ServerConnection, request: Request) -> Response | None:
+        """The response to ``request`` if it is for the page or one of its assets, else ``None``."""
+        path = urlsplit(request.path).path
+        if path == "/":
+            if not wants_html(request):
+                return None
+            index = await self.workers.io(_read, self.directory / "index.html")
+            if index is None:
+                return _respond(connection, HTTPStatus.NOT_FOUND, NOT_BUILT.encode(), "text/plain; charset=utf-8", {})
+            headers = {"Cache-Control": "no-cache", "Vary": "Accept"}
+            return _respond(connection, HTTPStatus.OK, index, CONTENT_TYPES["html"], headers)
+        match = ASSET.fullmatch(path)
+        if match is None:
+            return None
+        name, extension = match.groups()
+        accepted = accepted_encodings(request)
+        candidates = [(coding, name + suffix) for coding, suffix in ENCODINGS if coding in accepted]
+        for coding, file_name in [*candidates, (None, name)]:
+            body = await self.workers.io(_read, self.directory / file_name)
+            if body is not None:
+                headers = {"Cache-Control": "public, max-age=31536000, immutable", "Vary": "Accept-Encoding"}
+                if coding is not None:
+                    headers["Content-Encoding"] = coding
+                return _respond(connection, HTTPStatus.OK, body, CONTENT_TYPES[extension], headers)
+        return None
+
+
+def _read(path: Path) -> bytes | None:
+    """The bytes of ``path``, or ``None`` if it is not there."""
+    try:
+        return path.read_bytes()
+    except (FileNotFoundError, NotADirectoryError, IsADirectoryError):
+        return None
+
+
+def _respond(
+    connection: ServerConnection, status: HTTPStatus, body: bytes, content_type: str, headers: dict[str, str]
+) -> Response:
+    response = connection.respond(status, "")
+    del response.headers["Content-Type"], response.headers["Content-Length"]
+    response.headers["Content-Type"] = content_type
+    response.headers["Content-Length"] = str(len(body))
+    response.headers.update(headers)
+    return dataclasses.replace(response, body=body)
