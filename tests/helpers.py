@@ -198,6 +198,13 @@ async def client(server: XVIZServer, path: str = "/", **kwargs: Any) -> AsyncIte
         yield Client(websocket)
 
 
+async def paused_viewer(server: XVIZServer, path: str) -> ClientConnection:
+    """A client that connected to ``path`` and then stopped reading its socket."""
+    websocket = await connect(f"ws://127.0.0.1:{server.port}{path}", max_size=None, max_queue=1)
+    websocket.transport.pause_reading()
+    return websocket
+
+
 def timestamps(messages: list[dict[str, Any]]) -> list[float]:
     """Timestamps of the state updates among ``messages``."""
     return [m["data"]["updates"][0]["timestamp"] for m in messages if m["type"] == "xviz/state_update"]

@@ -25,7 +25,7 @@ from websockets.frames import Frame, Opcode
 from websockets.protocol import OPEN
 from websockets.server import ServerProtocol
 
-from helpers import running_server
+from helpers import paused_viewer, running_server
 from xviz_server.codec import Format, decode, encode
 from xviz_server.framing import SEPARATE_PAYLOAD, FramingConnection, FramingProtocol, frame_header
 from xviz_server.session import Variant
@@ -254,8 +254,7 @@ def test_a_live_viewer_that_stops_reading_large_frames_is_closed_by_the_lag_limi
         async with running_server(kitti_root, live_queue=2, live_lag_timeout=0.5) as server:
             feed = server.live.feed("car")
             feed.set_metadata(metadata)
-            slow = await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None, max_queue=1)
-            slow.transport.pause_reading()
+            slow = await paused_viewer(server, "/?log=car&session_type=live")
             for _ in range(20):
                 await feed.publish(kitti_frame)
                 await asyncio.sleep(0.1)

@@ -32,119 +32,42 @@ from xviz_server.exceptions import DatasetError
 # A tracklet_labels.xml in the devkit's format (boost serialisation XML, tabs,
 # class attributes on the first item of each kind only): a car seen in frames
 # 0-1, a pedestrian in frame 1, a truck (no style class of its own) in frame 2.
-TRACKLETS = """<?xml version="1.0" encoding="UTF-8" standalone="yes" ?>
-<!DOCTYPE boost_serialization>
-<boost_serialization signature="serialization::archive" version="9">
-<tracklets class_id="0" tracking_level="0" version="0">
-	<count>3</count>
-	<item_version>1</item_version>
-	<item class_id="1" tracking_level="0" version="1">
-		<objectType>Car</objectType>
-		<h>1.5</h>
-		<w>1.8</w>
-		<l>4.0</l>
-		<first_frame>0</first_frame>
-		<poses class_id="2" tracking_level="0" version="0">
-			<count>2</count>
-			<item_version>2</item_version>
-			<item class_id="3" tracking_level="0" version="2">
-				<tx>10.0</tx>
-				<ty>2.0</ty>
-				<tz>-1.7</tz>
-				<rx>0</rx>
-				<ry>0</ry>
-				<rz>1.5707963267948966</rz>
-				<state>2</state>
-				<occlusion>0</occlusion>
-				<occlusion_kf>1</occlusion_kf>
-				<truncation>0</truncation>
-				<amt_occlusion>0</amt_occlusion>
-				<amt_occlusion_kf>1</amt_occlusion_kf>
-				<amt_border_l>0</amt_border_l>
-				<amt_border_r>0</amt_border_r>
-				<amt_border_kf>-1</amt_border_kf>
-			</item>
-			<item>
-				<tx>11.3125</tx>
-				<ty>2.0</ty>
-				<tz>-1.7</tz>
-				<rx>0</rx>
-				<ry>0</ry>
-				<rz>0</rz>
-				<state>1</state>
-				<occlusion>0</occlusion>
-				<occlusion_kf>0</occlusion_kf>
-				<truncation>0</truncation>
-				<amt_occlusion>-1</amt_occlusion>
-				<amt_occlusion_kf>-1</amt_occlusion_kf>
-				<amt_border_l>-1</amt_border_l>
-				<amt_border_r>-1</amt_border_r>
-				<amt_border_kf>-1</amt_border_kf>
-			</item>
-		</poses>
-		<finished>1</finished>
-	</item>
-	<item>
-		<objectType>Pedestrian</objectType>
-		<h>1.8</h>
-		<w>0.6</w>
-		<l>0.8</l>
-		<first_frame>1</first_frame>
-		<poses>
-			<count>1</count>
-			<item_version>2</item_version>
-			<item>
-				<tx>5.0</tx>
-				<ty>-3.0</ty>
-				<tz>-1.65</tz>
-				<rx>0</rx>
-				<ry>0</ry>
-				<rz>-0.5</rz>
-				<state>2</state>
-				<occlusion>1</occlusion>
-				<occlusion_kf>1</occlusion_kf>
-				<truncation>0</truncation>
-				<amt_occlusion>0</amt_occlusion>
-				<amt_occlusion_kf>1</amt_occlusion_kf>
-				<amt_border_l>0</amt_border_l>
-				<amt_border_r>0</amt_border_r>
-				<amt_border_kf>-1</amt_border_kf>
-			</item>
-		</poses>
-		<finished>1</finished>
-	</item>
-	<item>
-		<objectType>Truck</objectType>
-		<h>3.2</h>
-		<w>2.5</w>
-		<l>9.0</l>
-		<first_frame>2</first_frame>
-		<poses>
-			<count>1</count>
-			<item_version>2</item_version>
-			<item>
-				<tx>30.0</tx>
-				<ty>-4.0</ty>
-				<tz>-1.8</tz>
-				<rx>0</rx>
-				<ry>0</ry>
-				<rz>3.14</rz>
-				<state>2</state>
-				<occlusion>2</occlusion>
-				<occlusion_kf>1</occlusion_kf>
-				<truncation>0</truncation>
-				<amt_occlusion>0</amt_occlusion>
-				<amt_occlusion_kf>1</amt_occlusion_kf>
-				<amt_border_l>0</amt_border_l>
-				<amt_border_r>0</amt_border_r>
-				<amt_border_kf>-1</amt_border_kf>
-			</item>
-		</poses>
-		<finished>1</finished>
-	</item>
-</tracklets>
-</boost_serialization>
-"""
+_POSE_FIELDS = ("tx", "ty", "tz", "rx", "ry", "rz", "state", "occlusion", "occlusion_kf", "truncation",
+                "amt_occlusion", "amt_occlusion_kf", "amt_border_l", "amt_border_r", "amt_border_kf")
+
+
+def _tracklet(kind: str, h: str, w: str, l: str, first_frame: int, poses: list[tuple[str, ...]], first: bool) -> str:
+    """One tracklet of ``tracklet_labels.xml``; the devkit writes class attributes on the first item of each kind only."""
+    item = '<item class_id="1" tracking_level="0" version="1">' if first else "<item>"
+    pose_items = []
+    for number, values in enumerate(poses):
+        tag = '<item class_id="3" tracking_level="0" version="2">' if first and number == 0 else "<item>"
+        fields = "".join(f"\t\t\t\t<{name}>{value}</{name}>\n" for name, value in zip(_POSE_FIELDS, values))
+        pose_items.append(f"\t\t\t{tag}\n{fields}\t\t\t</item>\n")
+    poses_tag = '<poses class_id="2" tracking_level="0" version="0">' if first else "<poses>"
+    return (
+        f"\t{item}\n\t\t<objectType>{kind}</objectType>\n\t\t<h>{h}</h>\n\t\t<w>{w}</w>\n\t\t<l>{l}</l>\n"
+        f"\t\t<first_frame>{first_frame}</first_frame>\n\t\t{poses_tag}\n\t\t\t<count>{len(poses)}</count>\n"
+        f"\t\t\t<item_version>2</item_version>\n{''.join(pose_items)}\t\t</poses>\n\t\t<finished>1</finished>\n\t</item>\n"
+    )
+
+
+TRACKLETS = (
+    '<?xml version="1.0" encoding="UTF-8" standalone="yes" ?>\n<!DOCTYPE boost_serialization>\n'
+    '<boost_serialization signature="serialization::archive" version="9">\n'
+    '<tracklets class_id="0" tracking_level="0" version="0">\n\t<count>3</count>\n\t<item_version>1</item_version>\n'
+    + _tracklet("Car", "1.5", "1.8", "4.0", 0, [
+        ("10.0", "2.0", "-1.7", "0", "0", "1.5707963267948966", "2", "0", "1", "0", "0", "1", "0", "0", "-1"),
+        ("11.3125", "2.0", "-1.7", "0", "0", "0", "1", "0", "0", "0", "-1", "-1", "-1", "-1", "-1"),
+    ], first=True)
+    + _tracklet("Pedestrian", "1.8", "0.6", "0.8", 1, [
+        ("5.0", "-3.0", "-1.65", "0", "0", "-0.5", "2", "1", "1", "0", "0", "1", "0", "0", "-1"),
+    ], first=False)
+    + _tracklet("Truck", "3.2", "2.5", "9.0", 2, [
+        ("30.0", "-4.0", "-1.8", "0", "0", "3.14", "2", "2", "1", "0", "0", "1", "0", "0", "-1"),
+    ], first=False)
+    + "</tracklets>\n</boost_serialization>\n"
+)
 
 
 @pytest.fixture(scope="module")

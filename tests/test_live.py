@@ -12,7 +12,7 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from helpers import Client, client, running_server, ten_hz, update, write_log
+from helpers import client, Client, paused_viewer, running_server, ten_hz, update, write_log
 from xviz_server.codec import Format, decode, encode
 from xviz_server.auth import ingest_refusal as refusal
 from xviz_server.state import downsample_points
@@ -67,8 +67,7 @@ async def test_ten_hz_to_twenty_viewers_one_of_them_stalled(root: Path):
     async with running_server(root, live_queue=8, live_lag_timeout=60) as server:
         feed = server.live.feed("car")
         feed.set_metadata(META)
-        stalled = await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None, max_queue=1)
-        stalled.transport.pause_reading()
+        stalled = await paused_viewer(server, "/?log=car&session_type=live")
         viewers = [await connect(f"ws://127.0.0.1:{server.port}/?logGuid=car", max_size=None) for _ in range(19)]
         for viewer in viewers:
             assert decode(await viewer.recv())["type"] == "xviz/metadata"
@@ -177,8 +176,7 @@ async def test_viewer_hopelessly_behind_is_disconnected_with_a_reason(root: Path
     async with running_server(root, live_queue=2, live_lag_timeout=0.5) as server:
         feed = server.live.feed("car")
         feed.set_metadata(META)
-        slow = await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None, max_queue=1)
-        slow.transport.pause_reading()
+        slow = await paused_viewer(server, "/?log=car&session_type=live")
         for i in range(40):
             await feed.publish(update(float(i), points=50_000))
             await asyncio.sleep(0.05)
