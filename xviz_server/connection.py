@@ -72,7 +72,7 @@ class Connection:
         self._logs: dict[str, Log] = {}
         self._stream: tuple[StreamFrames, asyncio.Event] | None = None
         self._subscription: Subscription | None = None
-        self._held: dict[int, LiveUpdate] = {}  # the live updates the session is deciding about
+        self._held: LiveUpdate | None = None  # the live update the session is deciding about
         self._tasks: set[asyncio.Task[None]] = set()
         self.frames_sent = 0
         self.bytes_sent = 0
@@ -126,7 +126,8 @@ class Connection:
             if isinstance(event, Send):
                 await self._send(event)
             elif isinstance(event, SendLiveUpdate):
-                update = self._held[event.number]
+                update = self._held
+                assert update is not None and update.number == event.number
                 assert self._subscription is not None
                 await self._send_update(await update.encoded(event.variant, self.live.workers), event.variant.fmt)
             elif isinstance(event, SendLiveMetadata):
@@ -150,7 +151,7 @@ class Connection:
             elif isinstance(event, ConfigureLive):
                 await self._configure_live(event)
             elif isinstance(event, Close):
-                await close(self.websocket, event.code, event.reason, self.websocket.close_timeout or 10.0)
+                await close(self.websocket, event.code, event.reason)
 
     def _spawn(self, what: str, coroutine: Coroutine[Any, Any, None], fatal: bool = False) -> None:
         """Run ``coroutine`` beside the session; if it fails, the client is told (and, if ``fatal``, closed)."""
@@ -163,7 +164,7 @@ class Connection:
             except Exception as exc:
                 await self._failed(what, exc)
                 if fatal:
-                    await close(self.websocket, CloseCode.INTERNAL_ERROR, f"{what} failed", self.websocket.close_timeout or 10.0)
+                    await close(self.websocket, CloseCode.INTERNAL_ERROR, f"{what} failed")
 
         task = asyncio.ensure_future(guarded())
         self._tasks.add(task)
@@ -300,7 +301,7 @@ class Connection:
         """Keep ``update`` at hand while the session decides about it; its number."""
         if update is None:
             return None
-        self._held = {update.number: update}
+        self._held = update
         return update.number
 
     async def _configure_live(self, event: ConfigureLive) -> None:

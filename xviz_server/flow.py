@@ -49,10 +49,11 @@ async def watch_progress(
             return
 
 
-async def close(websocket: Connection, code: int, reason: str, timeout: float) -> None:
-    """Close ``websocket`` with ``code`` and ``reason``; abort it if that takes over ``timeout`` seconds."""
+async def close(websocket: Connection, code: int, reason: str, timeout: float | None = None) -> None:
+    """Close ``websocket`` with ``code`` and ``reason``; abort it if that takes over ``timeout`` seconds
+    (by default the connection's own close timeout, else 10 s)."""
     try:
-        await asyncio.wait_for(websocket.close(code, reason), timeout)
+        await asyncio.wait_for(websocket.close(code, reason), timeout or websocket.close_timeout or 10.0)
     except (asyncio.TimeoutError, OSError):
         websocket.transport.abort()
         task = asyncio.current_task()

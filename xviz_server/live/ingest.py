@@ -58,7 +58,7 @@ async def run_ingest(
     except XVIZError as exc:
         if feed.metadata is None and not feed.connected:
             live.drop(feed)
-        await close(websocket, CloseCode.POLICY_VIOLATION, str(exc)[:120], settings.idle_timeout)
+        await close(websocket, CloseCode.POLICY_VIOLATION, str(exc)[:120])
         return
     if dict(parse_qsl(urlsplit(websocket.request.path).query)).get("reconfigure") in ("1", "true"):
         async def forward(config_update: dict[str, Any]) -> None:
