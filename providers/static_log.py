@@ -21,7 +21,7 @@ import orjson
 
 from ..codec import Format, decode, detect_format, is_pbe
 from ..exceptions import DecodeError, FrameError, LogError, MessageError
-from ..frames import is_heavy, render, span
+from ..frames import placement, render, span
 from ..index import TimeIndex
 from ..layout import INDEX_FILE, INDEX_NUMBER, METADATA_NUMBER, Found, file_number, frame_files, frame_name, frame_numbers
 from ..messages import unwrap
@@ -116,8 +116,7 @@ class StaticLog:
         for frame in frames:
             try:
                 data = await self.read(frame)
-                run = self._workers.cpu if is_heavy(len(data), detect_format(data)) else self._workers.io
-                start, end = await run(span, data)
+                start, end = await self._workers.run(placement(len(data), detect_format(data)), span, data)
             except (FrameError, DecodeError) as exc:
                 logger.warning("log %r: frame %d left out of the index: %s", self.name, frame, exc)
                 continue

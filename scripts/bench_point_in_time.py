@@ -10,10 +10,10 @@
    Nearly every answer on the long log is a first read of its frame; the
    short log's are cached after the first few. The goal: p99 on the long
    log at most 5 ms and at most twice the short log's p50.
-2. Where JSON work should leave the event loop's process: the time a frame
-   check holds the GIL against the round trip of the same job through a
-   worker process, by frame size (what ``frames.HEAVY_JSON_BYTES`` is set
-   from).
+2. Where JSON work should run: the time a frame check holds the GIL against
+   the round trip of the same job through a thread and through a worker
+   process, by frame size (what ``frames.INLINE_BYTES`` and
+   ``frames.HEAVY_JSON_BYTES`` are set from).
 
 Percentiles are by nearest rank (benchkit.percentile), over the measured round trips.
 """
@@ -86,8 +86,8 @@ async def latencies(port: int, logs: dict[str, tuple[float, float]], rounds: int
     return {name: np.array(values) * 1e3 for name, values in measured.items()}
 
 
-async def job_costs(points: list[int]) -> list[tuple[int, float, float]]:
-    """For frames of each cloud size: bytes, median ms the check holds the GIL, median ms of its worker-process round trip."""
+async def job_costs(points: list[int]) -> list[tuple[int, float, float, float]]:
+    """For frames of each cloud size: bytes, and median ms the check holds the GIL, of its thread round trip, of its worker-process round trip."""
     workers = Workers(processes=1)
     await workers.warm()
     rows = []
@@ -95,15 +95,18 @@ async def job_costs(points: list[int]) -> list[tuple[int, float, float]]:
         for count in points:
             data = encode({"type": "xviz/state_update", "data": update(100.0, points=count)}, Format.JSON)
             repeats = max(20, min(300, 3_000_000 // len(data)))
-            held, hop = [], []
+            held, thread, hop = [], [], []
             for _ in range(repeats):
                 started = time.perf_counter()
                 frames.check(data)
                 held.append(time.perf_counter() - started)
                 started = time.perf_counter()
+                await workers.io(frames.check, data)
+                thread.append(time.perf_counter() - started)
+                started = time.perf_counter()
                 await workers.cpu(frames.check, data)
                 hop.append(time.perf_counter() - started)
-            rows.append((len(data), float(np.median(held)) * 1e3, float(np.median(hop)) * 1e3))
+            rows.append((len(data), *(float(np.median(values)) * 1e3 for values in (held, thread, hop))))
     finally:
         workers.close()
     return rows
@@ -142,14 +145,15 @@ def main() -> None:
     p50_short = percentile(measured["short"], 50)
     print(f"p99 of the long log / p50 of the short log: {p99_long / p50_short:.2f} (goal <= 2); p99 {p99_long:.2f} ms (goal <= 5)")
 
-    print(f"\n2. frames.check on a JSON frame: GIL held in this process vs a worker-process round trip (median ms);"
-          f" HEAVY_JSON_BYTES = {frames.HEAVY_JSON_BYTES}")
-    print(f"{'frame bytes':>12}{'GIL held':>10}{'process':>10}")
-    rows = asyncio.run(job_costs([10, 300, 1000, 2000, 3000, 4000, 8000, 20000]))
-    for size, held, hop in rows:
-        print(f"{size:12d}{held:10.3f}{hop:10.3f}")
-    crossing = next((size for size, held, hop in rows if held > hop), None)
-    print(f"smallest frame whose check holds the GIL longer than a process round trip: {crossing} bytes")
+    print(f"\n2. frames.check on a JSON frame: GIL held in this process vs a thread and a worker-process round trip"
+          f" (median ms); INLINE_BYTES = {frames.INLINE_BYTES}, HEAVY_JSON_BYTES = {frames.HEAVY_JSON_BYTES}")
+    print(f"{'frame bytes':>12}{'GIL held':>10}{'thread':>10}{'process':>10}")
+    rows = asyncio.run(job_costs([1, 10, 30, 60, 100, 300, 1000, 3000, 8000]))
+    for size, held, thread, hop in rows:
+        print(f"{size:12d}{held:10.3f}{thread:10.3f}{hop:10.3f}")
+    for label, column in (("a thread", 2), ("a process", 3)):
+        crossing = next((row[0] for row in rows if row[1] > row[column]), None)
+        print(f"smallest frame whose check holds the GIL longer than the round trip to {label}: {crossing} bytes")
 
 
 if __name__ == "__main__":

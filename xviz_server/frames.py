@@ -1,8 +1,8 @@
 """Frame jobs: pure functions from encoded frames to encoded frames.
 
 They take and return ``bytes`` so that they can run in a worker process as
-well as in a thread (see :mod:`xviz_server.work`); :func:`is_heavy` tells
-which. A frame's *native* format is the one its source stores it in.
+well as in a thread (see :mod:`xviz_server.work`); :func:`placement` tells
+where. A frame's *native* format is the one its source stores it in.
 """
 
 from __future__ import annotations
@@ -14,24 +14,35 @@ from .exceptions import DecodeError
 from .layout import update_span
 from .state import complete_state, downsample_points, filter_streams
 from .validation import get_validator
+from .work import Place
 
-__all__ = ["HEAVY_JSON_BYTES", "is_heavy", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
+__all__ = ["INLINE_BYTES", "HEAVY_JSON_BYTES", "placement", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
 
 
-#: Size above which a job on JSON runs in a worker process (see :func:`is_heavy`).
+#: Size up to which a job runs in the event loop (see :func:`placement`).
+INLINE_BYTES = 8 * 1024
+
+#: Size above which a job on JSON runs in a worker process (see :func:`placement`).
 HEAVY_JSON_BYTES = 64 * 1024
 
 
-def is_heavy(size: int, *formats: Format) -> bool:
-    """Whether a job on ``size`` bytes of frames, touching these formats, belongs in a worker process.
+def placement(size: int, *formats: Format) -> Place:
+    """Where a job on ``size`` bytes of frames, touching these formats, runs.
 
-    Decoding and encoding GLB is a fraction of a millisecond even for a
-    large frame. Parsing or writing JSON holds the GIL in proportion to its
+    A job on at most :data:`INLINE_BYTES` holds the event loop for less
+    time than the round trip to a thread costs, and for a small part of a
+    millisecond, so it runs there. Decoding
+    and encoding GLB is a fraction of a millisecond even for a large frame:
+    a thread. Parsing or writing JSON holds the GIL in proportion to its
     size: up to :data:`HEAVY_JSON_BYTES` that costs less than the hop to a
-    worker process (``scripts/bench_point_in_time.py`` measures both), so
-    only larger JSON jobs go there.
+    worker process, so only larger JSON jobs go there.
+    ``scripts/bench_point_in_time.py`` measures the three.
     """
-    return size > HEAVY_JSON_BYTES and Format.JSON in formats
+    if size <= INLINE_BYTES:
+        return Place.LOOP
+    if size > HEAVY_JSON_BYTES and Format.JSON in formats:
+        return Place.PROCESS
+    return Place.THREAD
 
 
 def _decode_update(data: bytes) -> dict[str, Any]:

@@ -31,7 +31,7 @@ from .providers import LogSource, Provider
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
 from .datasets import FILE_KINDS, GENERATED, detect
-from .work import Workers
+from .work import Place, Workers
 
 __all__ = ["Catalog", "Log", "check_log_name"]
 
@@ -162,8 +162,9 @@ class Log:
             if fmt is Format.BINARY and len(cut := cut_glb(data)) < len(data):
                 logger.warning("log %r: frame %d has %d bytes after its GLB end; they are not served", self.name, number, len(data) - len(cut))
                 data = cut
-            heavy = self._validate or frames.is_heavy(len(data), fmt)  # schema checks take long at any size
-            update_type, stream_sets = await self._run(heavy, frames.check, data, self._validate)
+            # Schema checks take long at any size.
+            place = Place.THREAD if self._validate else frames.placement(len(data), fmt)
+            update_type, stream_sets = await self._workers.run(place, frames.check, data, self._validate)
         except (DecodeError, SchemaValidationError) as exc:
             raise self._corrupt(number, exc) from None
         self._update_types[number] = update_type
@@ -174,8 +175,8 @@ class Log:
     async def _render(self, number: int, fmt: Format, streams: frozenset[str] | None) -> bytes:
         data = await self._checked(number)
         try:
-            heavy = frames.is_heavy(len(data), detect_format(data), fmt)
-            return await self._run(heavy, frames.render, data, fmt, streams)
+            place = frames.placement(len(data), detect_format(data), fmt)
+            return await self._workers.run(place, frames.render, data, fmt, streams)
         except DecodeError as exc:
             raise self._corrupt(number, exc) from None
 
@@ -209,7 +210,7 @@ class Log:
                 if self._update_types[number] == "COMPLETE_STATE":
                     return data
                 if fmt is Format.BINARY:
-                    return await self._workers.io(frames.relabel_complete, data)
+                    return await self._workers.run(frames.placement(len(data), fmt), frames.relabel_complete, data)
         key = (self._key, "state", position, fmt, streams, lookback)
         return await self._cache.get(key, lambda: self._merge(position, fmt, streams, lookback))
 
@@ -222,12 +223,9 @@ class Log:
             if self._update_types.get(number) in COMPLETE_TYPES:
                 break
         data = [await self._checked(number) for number in numbers]
-        heavy = frames.is_heavy(sum(map(len, data)), fmt, *map(detect_format, data))
-        message, _ = await self._run(heavy, frames.merge, data, fmt, streams)
+        place = frames.placement(sum(map(len, data)), fmt, *map(detect_format, data))
+        message, _ = await self._workers.run(place, frames.merge, data, fmt, streams)
         return message
-
-    async def _run(self, heavy: bool, function: Any, *args: Any) -> Any:
-        return await (self._workers.cpu if heavy else self._workers.io)(function, *args)
 
     def _corrupt(self, number: int, exc: Exception) -> FrameError:
         where = getattr(self._source, "describe_frame", lambda n: f"frame {n}")(number)

@@ -1,7 +1,8 @@
 """Where blocking work runs, so that the event loop only schedules.
 
-File reads and light work (decoding a GLB frame is a fraction of a
-millisecond) run in a thread pool. Work that holds the GIL for long, such as
+Jobs on a few kilobytes run in the event loop itself: they hold it for
+less time than handing them to a thread takes. File reads and light work
+(decoding a GLB frame is a fraction of a millisecond) run in a thread pool. Work that holds the GIL for long, such as
 parsing or writing a JSON point cloud, runs in a process pool, started on
 first use. Starting it takes a few hundred milliseconds (the fork server
 imports numpy and this package once, then forks the workers), so it starts
@@ -18,6 +19,7 @@ replaced, the same way it was first started, and the job is tried once more;
 from __future__ import annotations
 
 import asyncio
+import enum
 import logging
 import multiprocessing
 import os
@@ -29,7 +31,7 @@ from typing import Any, Callable, TypeVar
 
 from .exceptions import WorkerError
 
-__all__ = ["Workers"]
+__all__ = ["Place", "Workers"]
 
 T = TypeVar("T")
 
@@ -38,6 +40,14 @@ logger = logging.getLogger(__name__)
 # What jobs sent to the process pool use: imported once by the fork server
 # (or by each worker, where there is no fork server).
 _JOB_MODULES = ["xviz_server.frames", "xviz_server.admission", "xviz_server.live", "xviz_server.builder", "xviz_server.datasets"]
+
+
+class Place(enum.Enum):
+    """Where a job runs (see :meth:`Workers.run`)."""
+
+    LOOP = "loop"  #: in the calling coroutine, holding the event loop
+    THREAD = "thread"  #: in the thread pool
+    PROCESS = "process"  #: in the process pool
 
 
 class Workers:
@@ -51,6 +61,14 @@ class Workers:
         self._started: Future[None] | None = None  # done when every worker process is up
         self._lock = threading.Lock()
         self._closed = False
+
+    async def run(self, place: Place, function: Callable[..., T], *args: Any) -> T:
+        """Run ``function(*args)`` where ``place`` says."""
+        if place is Place.LOOP:
+            return function(*args)
+        if place is Place.THREAD:
+            return await self.io(function, *args)
+        return await self.cpu(function, *args)
 
     async def io(self, function: Callable[..., T], *args: Any) -> T:
         """Run ``function(*args)`` in the thread pool."""
