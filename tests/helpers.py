@@ -10,8 +10,10 @@ import asyncio
 import contextlib
 import hashlib
 import json
+import os
 import shutil
 import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, AsyncIterator
@@ -156,6 +158,17 @@ def write_demo(directory: Path, duration: float = 0.5, fmt: Format = Format.BINA
 
 def ten_hz(count: int, start: float = 100.0, **kwargs: Any) -> list[dict[str, Any]]:
     return [update(round(start + i / 10, 3), **kwargs) for i in range(count)]
+
+
+def clean_env(**extra: str) -> dict[str, str]:
+    """This process's environment without its ``XVIZ_*`` variables, and ``extra``."""
+    return {**{k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}, **extra}
+
+
+def run_cli(*args: str, **env: str) -> subprocess.CompletedProcess[str]:
+    """``xviz-server ARGS`` run to its end (60 s at most) with the variables ``env`` and no others of ours."""
+    return subprocess.run([sys.executable, "-m", "xviz_server", *args], capture_output=True, text=True,
+                          env=clean_env(**env), timeout=60)
 
 
 @contextlib.asynccontextmanager

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import re
 import socket
 import ssl
@@ -24,7 +23,7 @@ from cryptography.hazmat.primitives import serialization
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
-from helpers import running_server, ten_hz, write_log
+from helpers import clean_env, run_cli, running_server, ten_hz, write_log
 from xviz_server.logfmt import printable, redact_url
 
 TOKEN = "s3cret-Token_42"
@@ -34,15 +33,6 @@ TOKEN = "s3cret-Token_42"
 def root(tmp_path: Path) -> Path:
     write_log(tmp_path / "logs" / "drive", ten_hz(3))
     return tmp_path / "logs"
-
-
-def clean_env(**extra: str) -> dict[str, str]:
-    return {**{k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}, **extra}
-
-
-def run_cli(*args: str, **env: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "xviz_server", *args], capture_output=True, text=True,
-                          env=clean_env(**env), timeout=60)
 
 
 async def start_serving(*args: str, **env: str) -> tuple[asyncio.subprocess.Process, int, list[str]]:

@@ -6,7 +6,6 @@ import asyncio
 import json
 import os
 import ssl
-import subprocess
 import sys
 import urllib.error
 import urllib.request
@@ -18,7 +17,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
-from helpers import client, running_server, ten_hz, write_log
+from helpers import client, run_cli, running_server, ten_hz, write_log
 from xviz_server.codec import decode
 
 
@@ -28,12 +27,6 @@ def root(tmp_path: Path) -> Path:
     return tmp_path / "logs"
 
 
-def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
-    clean = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}
-    return subprocess.run([sys.executable, "-m", "xviz_server", *args], capture_output=True, text=True,
-                          env={**clean, **(env or {})}, timeout=60)
-
-
 def effective(output: str) -> dict[str, str]:
     return dict(line.split(" = ", 1) for line in output.splitlines() if " = " in line)
 
@@ -41,7 +34,7 @@ def effective(output: str) -> dict[str, str]:
 def test_configuration_precedence_flag_env_file_default(tmp_path: Path):
     config = tmp_path / "server.toml"
     config.write_text('port = 4000\ncache_mb = 64\nhost = "0.0.0.0"\nallowed_origins = ["https://a.example"]\n')
-    result = run_cli("config", "--config", str(config), "--host", "10.0.0.1", env={"XVIZ_PORT": "5000"})
+    result = run_cli("config", "--config", str(config), "--host", "10.0.0.1", XVIZ_PORT="5000")
     assert result.returncode == 0, result.stderr
     values = effective(result.stdout)
     assert values["host"] == '"10.0.0.1"'  # flag
@@ -49,7 +42,7 @@ def test_configuration_precedence_flag_env_file_default(tmp_path: Path):
     assert values["cache_mb"] == "64.0"  # file over default
     assert values["max_sessions"] == "256"  # default
     assert values["allowed_origins"] == '["https://a.example"]'
-    by_env = run_cli("config", env={"XVIZ_CONFIG": str(config)})
+    by_env = run_cli("config", XVIZ_CONFIG=str(config))
     assert effective(by_env.stdout)["port"] == "4000"
 
 

@@ -225,6 +225,9 @@ def _convert(args: argparse.Namespace) -> int:
     except (ValueError, XVIZError) as exc:
         print(f"xviz-server convert: {exc}", file=sys.stderr)
         return 1 if isinstance(exc, XVIZError) else 2
+    except OSError as exc:  # a source that cannot be read, an output that cannot be written (a read-only store)
+        print(f"xviz-server convert: {exc.filename or args.output}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("\nxviz-server convert: interrupted; run the same command again to resume", file=sys.stderr)
         return 130

@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import urllib.parse
 import logging
+import os
 import signal
 from http import HTTPStatus
 from pathlib import Path
@@ -40,7 +42,7 @@ from .cache import FrameCache
 from .layout import LOG
 from .connection import Connection
 from .datasets import GENERATED, KINDS, dataset_options
-from .exceptions import LogError
+from .exceptions import ConfigError, LogError
 from .framing import FramingConnection
 from .gate import GatedConnection
 from .live import LiveRegistry
@@ -111,29 +113,45 @@ class XVIZServer:
         return self._server.sockets[0].getsockname()[1]
 
     async def start(self) -> None:
-        """Find the logs and start listening; raises :class:`~xviz_server.exceptions.ConfigError` for bad TLS files."""
+        """Find the logs and start listening.
+
+        Raises :class:`~xviz_server.exceptions.ConfigError`, with the setting
+        to change, for TLS files that cannot serve, a ``--record`` folder
+        that cannot be written and an address that cannot be listened on.
+        """
         tls = server_context(self.settings.certfile, self.settings.keyfile) if self.settings.certfile else None
+        if self._recorder is not None:
+            await self.workers.io(self._recorder.check)
         names = await self.catalog.scan()
         logger.info("serving %d logs from %s", len(names), self.settings.data_dir or "datasets given on the command line")
+        if self.settings.data_dir is not None and not names:
+            logger.warning(
+                "no logs under %s yet: put logs in the reference layout or datasets there "
+                "(mounted, in a container); one added later is served on the first request that names it",
+                self.settings.data_dir,
+            )
         if self.catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
         if self.settings.live_from is not None:
             await self._start_replay(self.settings.live_from)
-        self._server = await serve(
-            self._handle,
-            self.settings.host,
-            self.settings.port,
-            ssl=tls,
-            origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
-            process_request=self._process_request,
-            compression="deflate" if self.settings.compression else None,
-            max_size=self.settings.max_message_kb * 1024,
-            ping_interval=min(20.0, self.settings.idle_timeout),
-            ping_timeout=self.settings.idle_timeout,
-            close_timeout=min(10.0, self.settings.idle_timeout),
-            server_header=f"xviz-server/{__version__}",
-            create_connection=_Connection,
-        )
+        try:
+            self._server = await serve(
+                self._handle,
+                self.settings.host,
+                self.settings.port,
+                ssl=tls,
+                origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
+                process_request=self._process_request,
+                compression="deflate" if self.settings.compression else None,
+                max_size=self.settings.max_message_kb * 1024,
+                ping_interval=min(20.0, self.settings.idle_timeout),
+                ping_timeout=self.settings.idle_timeout,
+                close_timeout=min(10.0, self.settings.idle_timeout),
+                server_header=f"xviz-server/{__version__}",
+                create_connection=_Connection,
+            )
+        except OSError as exc:
+            raise ConfigError(_cannot_listen(self.settings.host, self.settings.port, exc)) from None
         scheme = "wss" if self.settings.certfile else "ws"
         logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)
         if self.settings.ingest_token is None:
@@ -178,7 +196,11 @@ class XVIZServer:
         self.workers.close()
 
     async def __aenter__(self) -> XVIZServer:
-        await self.start()
+        try:
+            await self.start()
+        except BaseException:
+            await self.close()
+            raise
         return self
 
     async def __aexit__(self, *exc_info: Any) -> None:
@@ -272,6 +294,21 @@ def _response(connection: ServerConnection, status: HTTPStatus, body: bytes, con
     response.headers["Content-Type"] = content_type
     response.headers["Content-Length"] = str(len(body))
     return dataclasses.replace(response, body=body)
+
+
+_LISTEN_HINTS = {
+    errno.EADDRINUSE: "another process listens there: choose a free port with --port (XVIZ_PORT)",
+    errno.EACCES: "ports below 1024 need privileges this process lacks: listen on a higher --port (XVIZ_PORT) "
+    "and map the port you want to it",
+    errno.EADDRNOTAVAIL: "no interface of this machine has that address: set --host (XVIZ_HOST), 0.0.0.0 for all",
+}
+
+
+def _cannot_listen(host: str, port: int, exc: OSError) -> str:
+    """One sentence for an address the server cannot listen on, saying what to set."""
+    reason = os.strerror(exc.errno).lower() if exc.errno else str(exc)
+    hint = _LISTEN_HINTS.get(exc.errno or 0, "check --host and --port (XVIZ_HOST, XVIZ_PORT)")
+    return f"cannot listen on {host}:{port}: {reason}; {hint}"
 
 
 async def run(settings: Settings) -> None:
