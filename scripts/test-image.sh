@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
 # Build the Docker image and check it as an operator meets it: health (plain,
-# TLS, port by flag and by TOML file), the user it runs as, the demo with
-# nothing mounted, the `convert` service writing into the store of a running
-# server, a store mounted at start, no token in the logs, what the image
-# holds, and a SIGTERM stop with a session open.
+# TLS, port by flag and by TOML file), the user it runs as, the demo and the
+# built-in viewer with nothing mounted, the `convert` service writing into the
+# store of a running server, a store mounted at start, the operator's mistakes
+# (a read-only store, an unreadable certificate, a bad port) each told in one
+# line, no token in the logs, what the image holds, and a SIGTERM stop with a
+# session open.
 # Prints the image size, build time, time to healthy and stop time.
 #
 # Engine: docker when an engine answers; else podman, installed from Debian
 # packages when missing (as root), with runc, the container's ulimits set in
-# a containers.conf given by CONTAINERS_CONF, and a base image made by
-# mmdebstrap from the Debian release the Dockerfile names (no registry needed).
+# a containers.conf given by CONTAINERS_CONF, and base images (Python for the
+# image, Node for the viewer's build stage) made by mmdebstrap from the Debian
+# release the Dockerfile names (no registry needed).
 # Where no engine can run containers, it says so and exits 0.
 # Every engine command has a time limit: the script cannot hang CI.
 set -euo pipefail
@@ -75,24 +78,29 @@ cgroup_manager = "cgroupfs"
 events_logger = "file"
 EOF
     export CONTAINERS_CONF=$work/containers.conf
-    # No registry: a base made of the Debian release the Dockerfile's BASE_IMAGE names.
+    # No registry: bases made of the Debian release the Dockerfile's BASE_IMAGE names.
     release=$(sed -n 's/^ARG BASE_IMAGE=.*-\([a-z]*\)$/\1/p' docker/Dockerfile)
-    base=localhost/xviz-base:$release
-    if ! e image exists "$base"; then
-        say "making the base image $base with mmdebstrap"
+    make_base() {  # make_base IMAGE PACKAGES: mmdebstrap a minimal $release with PACKAGES, unless IMAGE exists
+        e image exists "$1" && return 0
+        say "making the base image $1 with mmdebstrap"
+        local started
         started=$(seconds)
-        limit=900 timeout 900 mmdebstrap --quiet --variant=minbase \
-            --include=python3,python3-venv,python3-pip,ca-certificates,passwd "$release" "$work/base.tar" \
+        limit=900 timeout 900 mmdebstrap --quiet --variant=minbase --include="$2" "$release" "$work/base.tar" \
             || skip "mmdebstrap could not make a $release base"
-        limit=300 e import --quiet "$work/base.tar" "$base" >/dev/null
+        limit=300 e import --quiet "$work/base.tar" "$1" >/dev/null
         rm -f "$work/base.tar"
-        say "base image made in $(elapsed "$started") s"
-    fi
-    base_arg=(--build-arg "BASE_IMAGE=$base")
+        say "base image $1 made in $(elapsed "$started") s"
+    }
+    base=localhost/xviz-base:$release
+    node_base=localhost/xviz-node:$release
+    make_base "$base" python3,python3-venv,python3-pip,ca-certificates,passwd
+    make_base "$node_base" nodejs,npm,ca-certificates
+    base_arg=(--build-arg "BASE_IMAGE=$base" --build-arg "NODE_IMAGE=$node_base")
     # RUN steps reach the package index through the host's proxy, whose CA is
     # in the host's bundle: mounted for RUN steps only, never in a layer.
     bundle=/etc/ssl/certs/ca-certificates.crt
-    [ -f "$bundle" ] && build_extra=(-v "$bundle:$bundle:ro")
+    # npm trusts only its own CAs unless told (a build argument of the viewer's stage).
+    [ -f "$bundle" ] && build_extra=(-v "$bundle:$bundle:ro" --build-arg "NODE_EXTRA_CA_CERTS=$bundle")
     build_extra+=(--format docker)  # else podman drops HEALTHCHECK
     e run --rm "$base" true >/dev/null 2>&1 || skip "podman cannot start a container on this machine"
 fi
@@ -145,6 +153,14 @@ check "healthy with nothing mounted" wait_healthy plain
 time_to_healthy=$(elapsed "$started")
 check "runs as uid 10001" test "$(in_image id -u)" = 10001
 check "serves the demo with nothing mounted" catalog_has "http://127.0.0.1:$port/?token=s3cret-ci-token" demo
+check "nothing mounted: one line says where to mount the store" grep -q "nothing is mounted at /data.*-v /path/to/logs:/data" <<<"$(logs plain)"
+viewer_page() {  # the page at / for a browser, and its script
+    local page script
+    page=$(curl -sf --max-time 10 -H 'Accept: text/html' "http://127.0.0.1:$port/") || return 1
+    script=$(sed -n 's/.*<script src="\(viewer-[^"]*\.js\)".*/\1/p' <<<"$page")
+    [ -n "$script" ] && curl -sf --max-time 10 -H 'Accept-Encoding: gzip' -o /dev/null "http://127.0.0.1:$port/$script"
+}
+check "the built-in viewer: the page and its script are served" viewer_page
 check "the demo reaches a client (probe, GLB and JSON)" \
     in_image sh -c 'xviz-server probe --timeout 60 "ws://127.0.0.1:3000/?log=demo&token=s3cret-ci-token" >/dev/null &&
                     xviz-server probe --timeout 60 --format json "ws://127.0.0.1:3000/?log=demo&token=s3cret-ci-token" >/dev/null'
@@ -211,12 +227,29 @@ key_alone() {  # exits non-zero at once, saying what to give
     grep -q 'without --certfile' <<<"$out"
 }
 check "a key without a certificate: exits non-zero at once, naming the fix" key_alone
+cp "$tls/key.pem" "$tls/private.pem"
+chmod 600 "$tls/private.pem"
+chown 0 "$tls/private.pem" 2>/dev/null || true
+unreadable() {  # a key the server's user cannot read: exits non-zero at once, naming the file
+    local out
+    if out=$(limit=60 e run --rm -e XVIZ_CERTFILE=/tls/cert.pem -e XVIZ_KEYFILE=/tls/private.pem -v "$tls:/tls:ro" "$image" 2>&1); then return 1; fi
+    grep -q -- '--keyfile /tls/private.pem: Permission denied' <<<"$out" && ! grep -q Traceback <<<"$out"
+}
+if [ "$(id -u)" -eq 0 ]; then
+    check "an unreadable key: exits non-zero at once, naming it" unreadable
+fi
 
 # -- port by flag ----------------------------------------------------------------
 port=$(free_port)
 start flag -p "127.0.0.1:$port:8080" "$image" serve --port 8080
 check "serve --port 8080: healthy" wait_healthy flag
 check "serve --port 8080: answers there" test "$(curl -sf --max-time 10 "http://127.0.0.1:$port/healthz")" = ok
+bad_port() {  # a port that cannot be: exits non-zero at once, naming the setting
+    local out
+    if out=$(limit=60 e run --rm -e XVIZ_PORT=70000 "$image" 2>&1); then return 1; fi
+    grep -q -- '--port: Input should be less than or equal to 65535' <<<"$out" && ! grep -q Traceback <<<"$out"
+}
+check "XVIZ_PORT=70000: exits non-zero at once, naming the setting" bad_port
 
 # -- the convert service writes into the store a running server serves (as compose runs them)
 raw=$repo/../shared/data/kitti-raw-2011_09_26_drive_0001-head/2011_09_26
@@ -224,8 +257,9 @@ if [ -d "$raw" ]; then
     mkdir -p "$work/store"
     chown 10001 "$work/store" 2>/dev/null || chmod 777 "$work/store"
     port=$(free_port)
-    start compose -p "127.0.0.1:$port:3000" -v "$work/store:/data:ro" -e XVIZ_DATA_DIR=/data "$image"
+    start compose -p "127.0.0.1:$port:3000" -v "$work/store:/data:ro" "$image"
     check "an empty store: healthy" wait_healthy compose
+    check "an empty store: served, and one line says it has no logs yet" grep -q "no logs under /data yet" <<<"$(logs compose)"
     convert() {  # as docker/compose.yaml runs it: the date folder at /raw, the store at /data
         limit=300 e run --rm -v "$raw:/raw:ro" -v "$work/store:/data" "$image" \
             convert kitti /raw /data/kitti --frames 0:10 >"$work/convert.log" 2>&1 || { cat "$work/convert.log"; return 1; }
@@ -241,6 +275,16 @@ if [ -d "$raw" ]; then
     check "a mounted store: its logs are served, not the demo" \
         sh -c "curl -sf --max-time 10 http://127.0.0.1:$port/ | grep -q '\"name\": \"kitti\"' && ! curl -sf --max-time 10 http://127.0.0.1:$port/ | grep -q '\"name\": \"demo\"'"
     check "a mounted store: a client reads the converted log" probe_store store
+    refused() {  # refused PATTERN ARGS...: the container exits non-zero at once with one line matching PATTERN, no traceback
+        local pattern=$1 out
+        shift
+        if out=$(limit=120 e run --rm "$@" 2>&1); then return 1; fi
+        grep -q "$pattern" <<<"$out" && ! grep -q Traceback <<<"$out"
+    }
+    check "a read-only store with --record: refused at once, saying so" \
+        refused "record /data/recorded: cannot write there (Read-only file system)" -v "$work/store:/data:ro" -e XVIZ_RECORD=/data/recorded "$image"
+    check "convert into a read-only store: one line, no traceback" \
+        refused "Read-only file system" -v "$raw:/raw:ro" -v "$work/store:/data:ro" "$image" convert kitti /raw /data/again --frames 0:2
 else
     say "SKIPPED the convert service and mounted store: no KITTI excerpt at $raw"
 fi
