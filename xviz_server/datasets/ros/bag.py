@@ -15,24 +15,31 @@ ROS 1 and MCAP messages are then read at the offset their index gives,
 through a small cache of decompressed chunks; sqlite3 messages through
 rosbags' query by time.
 
-A ROS 1 bag whose recording was cut short has no index (``index_pos`` 0):
-it is refused with an error that says to run ``rosbag reindex`` on it.
+A ROS 1 bag whose recording was cut short has no readable index: it is
+indexed in memory at open, by one read of the whole file (see
+:mod:`.reindex`), and a warning says so.
 """
 
 from __future__ import annotations
 
+import logging
 import struct
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ...exceptions import DatasetError
 
+if TYPE_CHECKING:
+    from rosbags.rosbag1 import Reader
+
 __all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY"]
+
+logger = logging.getLogger(__name__)
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -97,12 +104,23 @@ class Bag:
         from rosbags.typesys import Stores, get_typestore
 
         self._lock = threading.Lock()
+        from .reindex import MemoryIndexedReader
+
         try:
             reader = rosbags.highlevel.AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+            if not reader.is2:
+                reader.readers = [MemoryIndexedReader(self.path)]
             reader.open()
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
             raise DatasetError(f"{self.path}: cannot open the bag: {_reason(exc)}", path=self.path) from None
         self._reader = reader
+        for ros1 in reader.readers:
+            if getattr(ros1, "reindexed", False):
+                cut = f"; the last {ros1.lost} bytes, a record cut short, are left out" if ros1.lost else ""
+                logger.warning(
+                    "%s has no readable index (its recording was cut short): indexed in memory by reading "
+                    "the whole bag once, as rosbag reindex would (the file is not changed)%s", self.path, cut,
+                )
         by_topic: dict[str, list[Any]] = {}
         for connection in reader.connections:
             by_topic.setdefault(connection.topic, []).append(connection)
@@ -142,7 +160,7 @@ class Bag:
         """Record times of a connection's messages and, for MCAP, where each is: (file, chunk, offset)."""
         owner = connection.owner
         kind = type(owner).__name__
-        if kind == "Reader":  # rosbags.rosbag1.Reader: its index, read at open
+        if isinstance(owner, _ros1_reader()):  # its index, read at open or made in memory
             entries = np.array(owner.indexes[connection.id], dtype=np.int64).reshape(-1, 3)  # time, chunk_pos, offset
             place = entries.copy()
             place[:, 0] = self._number(owner)
@@ -206,7 +224,7 @@ class Bag:
             while len(self._chunks) >= _CHUNK_CACHE:
                 self._chunks.pop(next(iter(self._chunks)))
         self._chunks[(storage, chunk)] = data
-        found = (_ros1_record if type(owner).__name__ == "Reader" else _mcap_record)(data, offset)
+        found = (_ros1_record if isinstance(owner, _ros1_reader()) else _mcap_record)(data, offset)
         if found is None:
             raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path)
         return found
@@ -260,7 +278,7 @@ class Bag:
 def _read_chunk(owner: Any, key: int) -> bytes:
     """The decompressed records of a chunk: MCAP chunk number ``key``, or the ROS 1 chunk at byte ``key``."""
     with owner.path.open("rb") as file:
-        if type(owner).__name__ == "Reader":
+        if isinstance(owner, _ros1_reader()):
             chunk = owner.chunks[key]
             file.seek(chunk.datapos)
             return bytes(chunk.decompressor(file.read(chunk.datasize)))
@@ -271,6 +289,12 @@ def _read_chunk(owner: Any, key: int) -> bytes:
         (crc,) = struct.unpack("<I", file.read(4))
         file.seek(info.chunk_start_offset + 9 + 40 + len(info.compression))
         return bytes(decompress(file.read(info.compressed_size), info.compression, info.uncompressed_size, crc))
+
+
+def _ros1_reader() -> type[Reader]:
+    from rosbags.rosbag1 import Reader
+
+    return Reader
 
 
 def _mcap_record(data: bytes, offset: int) -> memoryview | None:

@@ -1,0 +1,125 @@
+"""ROS 1 bags whose recording was cut short, indexed in memory.
+
+``rosbag record`` writes a bag's index (its connection and chunk-info
+records) at the end of the file when it stops, and the header's
+``index_pos`` says where. A recording killed before that leaves
+``index_pos`` 0; one whose file was cut afterwards leaves it pointing past
+the end. rosbags refuses both. :class:`MemoryIndexedReader` reads them: at
+open it walks the bag's records once, decompressing every chunk to find its
+connection and message records, and builds in memory the index that
+``rosbag reindex`` would write into the file (the file is not changed).
+A chunk cut off by the end of the file is left out, and :attr:`lost` says
+how many bytes that was.
+
+Opening such a bag reads all of it, where an indexed bag needs only its
+index: :attr:`~MemoryIndexedReader.reindexed` tells which happened.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections import defaultdict
+
+from rosbags.interfaces import Connection
+from rosbags.rosbag1 import Reader, ReaderError
+from rosbags.rosbag1.reader import Chunk, ChunkInfo, Header, IndexData, RecordType, decompressors, read_uint32
+
+__all__ = ["MemoryIndexedReader"]
+
+
+class MemoryIndexedReader(Reader):
+    """rosbags' ROS 1 reader, which also opens a bag without a readable index by indexing it in memory."""
+
+    #: Whether the bag had no readable index and was indexed in memory at open.
+    reindexed = False
+    #: Bytes at the end of the file not read: a record cut short.
+    lost = 0
+
+    def open(self) -> None:
+        size = self.path.stat().st_size
+        with self.path.open("rb") as file:
+            file.readline()  # the magic line, checked by Reader.open
+            try:
+                index_pos = Header.read(file, RecordType.BAGHEADER).get_uint64("index_pos")
+            except ReaderError:
+                index_pos = None  # Reader.open says what is wrong with the header
+        if index_pos is None or 0 < index_pos < size:
+            super().open()
+            return
+        self.bio = self.path.open("rb")
+        try:
+            self._index_in_memory(size)
+        except BaseException:
+            self.close()
+            raise
+        self.reindexed = True
+
+    def _index_in_memory(self, size: int) -> None:
+        """Read every record after the bag header; index the messages of every whole chunk."""
+        bio = self.bio
+        assert bio is not None
+        bio.readline()
+        Header.read(bio, RecordType.BAGHEADER)
+        bio.seek(read_uint32(bio), os.SEEK_CUR)  # the header record's padding
+        connections: dict[int, Connection] = {}
+        indexes: dict[int, list[IndexData]] = defaultdict(list)
+        while (position := bio.tell()) < size:
+            try:
+                header = Header.read(bio)
+                length = read_uint32(bio)
+            except ReaderError:
+                self.lost = size - position
+                break
+            if bio.tell() + length > size:
+                self.lost = size - position
+                break
+            if header.get_uint8("op") != RecordType.CHUNK:  # index data, or records of an index cut short
+                bio.seek(length, os.SEEK_CUR)
+                continue
+            compression = header.get_string("compression")
+            if compression not in decompressors:
+                raise ReaderError(f"Compression {compression!r} is not supported.")
+            chunk = Chunk(length, bio.tell(), decompressors[compression])
+            records = chunk.decompressor(bio.read(length))
+            counts, first, last = self._index_chunk(records, position, connections, indexes)
+            self.chunks[position] = chunk
+            if counts:
+                self.chunk_infos.append(ChunkInfo(position, first, last + 1, counts))
+        for entries in indexes.values():
+            entries.sort()
+        self.indexes = {id: indexes[id] for id in connections}
+        self.connections = [
+            Connection(*connection[0:5], len(self.indexes[connection.id]), *connection[6:])
+            for connection in connections.values()
+        ]
+
+    def _index_chunk(
+        self, records: bytes, position: int, connections: dict[int, Connection], indexes: dict[int, list[IndexData]]
+    ) -> tuple[dict[int, int], int, int]:
+        """Index the message records of the chunk at ``position`` and keep its connection records.
+
+        Returns the count of messages per connection, and the first and last record time.
+        """
+        chunk = io.BytesIO(records)
+        counts: dict[int, int] = defaultdict(int)
+        first, last = 2**63 - 1, 0
+        outer, self.bio = self.bio, chunk  # read_connection reads from self.bio
+        try:
+            while (offset := chunk.tell()) < len(records):
+                header = Header.read(chunk)
+                op = header.get_uint8("op")
+                if op == RecordType.CONNECTION:
+                    chunk.seek(offset)
+                    connection = self.read_connection()
+                    connections.setdefault(connection.id, connection)
+                    continue
+                if op == RecordType.MSGDATA:
+                    conn, time = header.get_uint32("conn"), header.get_time("time")
+                    indexes[conn].append(IndexData(time, position, offset))
+                    counts[conn] += 1
+                    first, last = min(first, time), max(last, time)
+                chunk.seek(read_uint32(chunk), os.SEEK_CUR)
+        finally:
+            self.bio = outer
+        return dict(counts), first, last
