@@ -242,8 +242,8 @@ async def test_an_update_published_as_a_viewer_joins_comes_once(root: Path):
 
         def subscribe_then_publish(*args, **kwargs):
             subscription = subscribe(*args, **kwargs)
-            publishing = feed.publish(update(1.1))
-            with pytest.raises(StopIteration):  # an update given as data is published without waiting
+            publishing = feed.publish(encode({"type": "xviz/state_update", "data": update(1.1)}, Format.BINARY))
+            with pytest.raises(StopIteration):  # an update given as GLB bytes is published without waiting
                 publishing.send(None)
             return subscription
 
@@ -334,3 +334,51 @@ async def test_a_recording_cut_short_is_still_a_readable_log(root: Path, tmp_pat
         await c.send("transform_log", {"id": "x"})
         frames = [m for m in await c.until("transform_log_done", "x") if m["type"] == "xviz/state_update"]
         assert [f["data"]["updates"][0]["timestamp"] for f in frames] == [0.0, 1.0, 2.0, 3.0, 4.0]
+
+
+async def test_one_publish_writes_to_every_viewer_that_keeps_up_and_queues_for_one_that_does_not(root: Path):
+    """Viewers waiting for the next update are sent it within the publish call, with no task switch per
+    viewer; a viewer whose socket is full gets its updates through its queue, with the usual limits."""
+    async with running_server(root, live_queue=4) as server:
+        feed = server.live.feed("car")
+        feed.set_metadata(META)
+        await feed.publish(update(0.0))
+        fast = [await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None) for _ in range(3)]
+        slow = await paused_viewer(server, "/?log=car&session_type=live")
+        try:
+            for websocket in fast:
+                await websocket.recv(), await websocket.recv()  # metadata, state
+            await asyncio.sleep(0.2)  # every session waits for the next update now
+            ports = {websocket.local_address[1] for websocket in fast}
+            sessions = {session.websocket.remote_address[1] in ports: session for session in server.sessions}
+            slow_session = sessions[False]
+            fast_sessions = [s for s in server.sessions if s is not slow_session]
+            published = 8
+            for t in range(1, 30):  # large updates until the paused viewer's socket is full
+                published += 1
+                before = {s: s.frames_sent for s in server.sessions}
+                await feed.publish(encode({"type": "xviz/state_update", "data": update(float(t), points=50_000)}, Format.BINARY))
+                assert all(s.frames_sent == before[s] + 1 for s in fast_sessions)  # sent before publish returned
+                for websocket in fast:
+                    assert decode(await websocket.recv())["data"]["updates"][0]["timestamp"] == float(t)
+                if slow_session.frames_sent == before[slow_session]:
+                    break
+            else:
+                pytest.fail("the paused viewer's socket never filled")
+            for t in range(100, 108):  # the paused viewer's queue (4) overflows; the others keep up
+                await feed.publish(encode({"type": "xviz/state_update", "data": update(float(t), points=50_000)}, Format.BINARY))
+                for websocket in fast:
+                    assert decode(await websocket.recv())["data"]["updates"][0]["timestamp"] == float(t)
+            slow.transport.resume_reading()
+            stamps, notices = [], []
+            while not stamps or stamps[-1] != 107.0:
+                message = decode(await asyncio.wait_for(slow.recv(), 10))
+                if message["type"] == "xviz/state_update":
+                    stamps.append(message["data"]["updates"][0]["timestamp"])
+                elif message["type"] == "xviz/error":
+                    notices.append(message["data"]["message"])
+            assert stamps == sorted(stamps) and len(stamps) < published  # in order, some dropped
+            assert any("this viewer is behind" in notice for notice in notices)
+        finally:
+            for websocket in [*fast, slow]:
+                await websocket.close()

@@ -27,6 +27,7 @@ from urllib.parse import parse_qsl, unquote, urlsplit
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
+from websockets.protocol import State
 
 from .codec import Format
 from .exceptions import XVIZError
@@ -73,6 +74,7 @@ class Connection:
         self._stream: tuple[StreamFrames, asyncio.Event] | None = None
         self._subscription: Subscription | None = None
         self._held: LiveUpdate | None = None  # the live update the session is deciding about
+        self._live_idle = False  # the live task waits for the next update: the feed may hand it over at once
         self._tasks: set[asyncio.Task[None]] = set()
         self.frames_sent = 0
         self.bytes_sent = 0
@@ -185,6 +187,9 @@ class Connection:
     async def _send_update(self, data: bytes, fmt: Format) -> None:
         """Send a state update and count it."""
         await self._write(data, fmt is Format.JSON)
+        self._count_update(data, fmt)
+
+    def _count_update(self, data: bytes, fmt: Format) -> None:
         self.frames_sent += 1
         self.bytes_sent += len(data)
         self.metrics.frames_sent.labels(fmt.value).inc()
@@ -266,11 +271,16 @@ class Connection:
         if feed is None:
             return
         self._subscription = subscription = feed.subscribe(self.settings.live_queue, self.session.decimate)
+        subscription.deliver = self._deliver
         self._spawn("a slow live viewer", self._watch_lag(subscription))
         state = self._hold(feed.state())
         await self._execute(self.session.live_joined(feed.name, state, feed.metadata is not None))
         while True:
-            item = await subscription.next()
+            self._live_idle = True
+            try:
+                item = await subscription.next()
+            finally:
+                self._live_idle = False
             if isinstance(item, FeedEvent):
                 if item.kind == "metadata":
                     await self._execute(self.session.live_started(self._hold(feed.state())))
@@ -281,6 +291,41 @@ class Connection:
             assert number is not None
             behind = subscription.lagging_since is not None
             await self._execute(self.session.live_update(number, subscription.take_drops(), behind))
+
+    def _deliver(self, update: LiveUpdate) -> bool:
+        """Send ``update`` now, from the feed's publish, if nothing stands in the way; whether it was sent.
+
+        Nothing does when the live task waits for the next update (so that
+        every message before this one has been written), the connection is
+        open with its write buffer at most at its high-water mark, and the
+        update's bytes for this viewer are made. The session decides as for
+        a queued update. Otherwise the update is queued and the live task
+        sends it, waiting for the buffer to drain like any other send.
+        """
+        websocket = self.websocket
+        if not self._live_idle or websocket.protocol.state is not State.OPEN or websocket.send_in_progress is not None:
+            return False
+        transport = websocket.transport
+        if transport.get_write_buffer_size() > transport.get_write_buffer_limits()[1]:
+            return False
+        variant = self.session.variant
+        data = update.ready(variant)
+        if data is None:
+            return False
+        for event in self.session.live_update(update.number, 0, False):
+            assert isinstance(event, SendLiveUpdate), event  # nothing else with no update dropped
+            try:
+                if variant.fmt is Format.JSON:
+                    websocket.protocol.send_text(data)
+                else:
+                    websocket.protocol.send_binary(data)
+                websocket.send_data()
+            except Exception as exc:  # the connection broke: its reader ends the session
+                logger.debug("live update to %s not sent: %s", _remote(websocket), exc)
+                return True
+            self.messages_sent += 1
+            self._count_update(data, variant.fmt)
+        return True
 
     async def _find_feed(self, event: SubscribeLive) -> LiveFeed | None:
         """The feed to follow (waiting for it if it has not started), or ``None`` after telling the client why not."""

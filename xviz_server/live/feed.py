@@ -5,7 +5,10 @@ same process, a vehicle over the ingest WebSocket, a log replayed in real
 time) calls :meth:`LiveFeed.set_metadata` and :meth:`LiveFeed.publish`.
 Each viewer holds a :class:`Subscription`: a bounded queue that drops its
 oldest updates when the viewer falls behind, so that neither the source nor
-the other viewers ever wait for it.
+the other viewers ever wait for it. A viewer that keeps up takes each update
+as it is published instead, without a queue (:attr:`Subscription.deliver`):
+one publish then writes the update to every such viewer's connection in one
+pass, as ``websockets.broadcast`` does.
 
 An update is decoded once and encoded once per :class:`Variant` (format,
 stream filter, point budget) that some viewer asked for; the bytes are
@@ -52,6 +55,11 @@ class LiveUpdate:
             future.set_result(original)
             self._encodings[Variant(detect_format(original))] = future
 
+    def ready(self, variant: Variant) -> bytes | None:
+        """The bytes of this update for ``variant`` if they are made already, else ``None``."""
+        future = self._encodings.get(variant)
+        return future.result() if future is not None and future.done() and not future.exception() else None
+
     async def encoded(self, variant: Variant, workers: Workers) -> bytes:
         """The bytes of this update for ``variant``; the first viewer to ask encodes them."""
         future = self._encodings.get(variant)
@@ -83,6 +91,10 @@ class Subscription:
     until the viewer is told (:meth:`take_drops`). :attr:`lagging_since` is
     when the current run of drops began, for disconnecting a viewer that
     stays hopelessly behind.
+
+    :attr:`deliver`, when set, is offered each update while the queue is
+    empty and nothing was dropped; it returns whether it took the update
+    (sent it at once), else the update is queued as usual.
     """
 
     def __init__(self, feed: LiveFeed, size: int, decimate: int = 1) -> None:
@@ -94,12 +106,15 @@ class Subscription:
         self._seen = 0
         self.dropped = 0
         self.lagging_since: float | None = None
+        self.deliver: Callable[[LiveUpdate], bool] | None = None
 
     def offer(self, item: LiveUpdate | FeedEvent) -> None:
         """Queue an update (every ``decimate``-th) or a feed event; never waits."""
         if isinstance(item, LiveUpdate):
             self._seen += 1
             if (self._seen - 1) % self.decimate:
+                return
+            if not self._queue and not self.dropped and self.deliver is not None and self.deliver(item):
                 return
             updates = sum(isinstance(i, LiveUpdate) for i in self._queue)
             if updates >= self._size:
@@ -193,6 +208,8 @@ class LiveFeed:
         data.setdefault("update_type", "INCREMENTAL")
         message = envelope("state_update", data)
         update = LiveUpdate(next(self._numbers), message, original)
+        if original is None and self._subscribers:  # GLB, the live default, made once before the viewers ask
+            await update.encoded(Variant(Format.BINARY), self.registry.workers)
         self._remember(update)
         for subscriber in self._subscribers:
             subscriber.offer(update)
