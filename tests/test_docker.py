@@ -65,8 +65,10 @@ def test_dockerfile_uses_the_scripts_and_the_conventions():
     assert 'CMD ["xviz-server", "healthcheck", "--pid", "1"]' in dockerfile
     assert re.search(r"^USER xviz$", dockerfile, re.M)
     assert re.search(r"^ARG BASE_IMAGE=python:3\.\d+-slim-bookworm$", dockerfile, re.M)  # a pinned release
+    assert re.search(r"^ARG NODE_IMAGE=node:\d+-bookworm-slim$", dockerfile, re.M)
     stages = re.split(r"^FROM ", dockerfile, flags=re.M)[1:]
-    assert [stage.split()[0] for stage in stages] == ["${BASE_IMAGE}", "${BASE_IMAGE}"]
+    assert [stage.split()[0] for stage in stages] == ["${NODE_IMAGE}", "${BASE_IMAGE}", "${BASE_IMAGE}"]
+    assert "RUN /src/scripts/build-viewer.sh /viewer" in dockerfile  # the viewer built one way, by its script
     assert "apt-get" not in dockerfile and "XVIZ_DATA_DIR" not in dockerfile  # no compiler; the demo when nothing is mounted
 
 
