@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import running_server, write_demo
+from helpers import metadata, running_server, ten_hz, write_demo, write_log
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
 from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, ViewerPage, accepted_encodings
@@ -189,11 +189,16 @@ def assert_stream_list_shows(report: dict[str, Any], streams: list[str]) -> None
         assert f"/{group}" in shown and (not rest or f"/{rest}" in shown), stream
 
 
-def point_in_time_requests(server: XVIZServer) -> int:
-    """How many ``xviz/transform_point_in_time`` requests the server answered, from its metrics."""
+def counted(server: XVIZServer, sample: str) -> int:
+    """The value of one sample of the server's metrics (0 when it has none yet)."""
     _, _, body = get(server, "/metrics")
-    match = re.search(rb'^xviz_request_seconds_count\{type="transform_point_in_time"\} (\S+)$', body, re.MULTILINE)
+    match = re.search(rb"^" + re.escape(sample.encode()) + rb" (\S+)$", body, re.MULTILINE)
     return int(float(match.group(1))) if match else 0
+
+
+def point_in_time_requests(server: XVIZServer) -> int:
+    """How many ``xviz/transform_point_in_time`` requests the server answered."""
+    return counted(server, 'xviz_request_seconds_count{type="transform_point_in_time"}')
 
 
 @browser
@@ -225,6 +230,18 @@ async def test_a_seek_beyond_the_buffer_asks_for_that_point_in_time(tmp_path: Pa
     shown = [datetime.strptime(re.findall(r"\d\d:\d\d:\d\d\.\d{3}", text)[-1], "%H:%M:%S.%f") for text in (seek["shownBefore"], seek["shownAfter"])]
     assert 15 < (shown[1] - shown[0]).total_seconds() < summary["end_time"] - summary["start_time"]
     assert seek["pictureChange"] >= 2
+
+
+@browser
+async def test_a_point_in_time_with_no_state_is_no_error_to_the_person(tmp_path: Path):
+    # The log says it starts at 100 s; its first frame is at 101 s: the page's first query
+    # (at its start time) has no answer but an xviz/error, and the frames must still come.
+    write_log(tmp_path / "late", ten_hz(60, start=101.0), meta=metadata(start_time=100.0, end_time=107.0))
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=late", "late-start", draw=False, settle=3000)
+        refused = await asyncio.to_thread(counted, server, 'xviz_errors_total{kind="query"}')
+    assert report["alerts"] == [] and report["pageErrors"] == [] and report["consoleErrors"] == []
+    assert refused == 1 and report["frames"] >= 1 + 1 + 40  # metadata, the error, then 101 s to 105 s
 
 
 @browser
