@@ -211,7 +211,8 @@ async def test_the_kitti_log_opens_directly(tmp_path: Path, kitti_log: Path):
     assert_drawn_cleanly(report)
     assert_stream_list_shows(report, streams)
     # The first frame is asked for on its own (point in time), then the buffer: the 25 frames.
-    assert queries == 1 and report["frames"] >= 27
+    # (A seek before the buffer reaches the current time may ask once more: one at a time.)
+    assert queries in (1, 2) and report["frames"] >= 1 + queries + 25
     marks = report["marks"]
     assert marks["bundle"] <= marks["script"] <= marks["catalog"] and marks["metadata"] <= marks["first-frame"] <= report["firstDrawnMs"]
 
