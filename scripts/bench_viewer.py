@@ -1,18 +1,25 @@
 #!/usr/bin/env python3
-"""Measure the built-in viewer: page load to first drawn frame, and the bundle's size.
+"""Measure the built-in viewer: page load to first drawn frame, where the time goes, and the bundle's size.
 
     .venv/bin/python scripts/bench_viewer.py [--runs N] [--kitti DIR] [--viewport WxH ...]
 
 Starts the server (``python -m xviz_server serve --data-dir`` a folder holding the
 KITTI excerpt, ``--port 0``) and, for each viewport, opens
 ``/?log=<kitti>`` ``--runs`` times in headless Chromium (``tests/browser.mjs``, a fresh
-browser and profile each time) and reports the medians of: the page loaded, the
-first WebSocket message, the 3D view first showing a picture (all in ms after the
-browser opened the tab). The reference, measured in the same run, is the same
-browser loading the page without waiting for anything (the catalog page, ``/``):
-the ratio says what the 3D view costs on top of opening a tab. WebGL runs on
-SwiftShader (the CPU), so the numbers depend on the machine and its load: the
-script says how busy the machine was.
+browser and profile each time) and reports the medians, in ms after the browser
+opened the tab, of the way to the first drawn frame, as the page's own timings
+(resource timing and the User Timing marks of ``viewer/src/timing.js``) tell it:
+the script bundle received, the bundle run (``script``), the catalog fetched, the
+WebSocket open, the metadata, the first frame the 3D view can draw, and that frame
+shown (a screenshot of the 3D view that is not blank: the time after the first
+frame is the GPU's, compiling shaders and drawing). The reference, measured in the
+same run, is the same browser loading the page without waiting for anything (the
+catalog page, ``/``): the ratio says what the 3D view costs on top of opening a
+tab. WebGL runs on SwiftShader (the CPU), so the numbers depend on the machine and
+its load: the script says how busy the machine was.
+
+The bundle's size is that of its files (raw, gzip, brotli) and of those the page
+loaded for the KITTI log (the base map's chunk is loaded only with a map token).
 
 Needs ``scripts/build-viewer.sh`` (the bundle, playwright-core) and chromium.
 """
@@ -44,14 +51,23 @@ def drive(options: dict[str, Any]) -> dict[str, Any]:
     return report
 
 
-def bundle_sizes() -> dict[str, int]:
-    """Bytes of the bundle's assets (JS and CSS), raw, gzip and brotli."""
+#: The stages of the way to the first drawn frame, as browser.mjs reports them.
+STAGES = ("bundle", "script", "catalog", "socket-open", "metadata", "first-frame")
+
+
+def bundle_sizes(names: list[str] | None = None) -> dict[str, int]:
+    """Bytes of the bundle's assets (JS and CSS; those named, or all), raw, gzip and brotli."""
     assets = [path for path in STATIC.iterdir() if re.fullmatch(r"(viewer|asset)-[A-Z0-9]+\.\w+", path.name)]
+    assets = [path for path in assets if names is None or path.name in names]
     return {
         "raw": sum(path.stat().st_size for path in assets),
         "gzip": sum(path.with_name(path.name + ".gz").stat().st_size for path in assets),
         "brotli": sum(path.with_name(path.name + ".br").stat().st_size for path in assets),
     }
+
+
+def megabytes(sizes: dict[str, int]) -> str:
+    return f"{sizes['raw'] / 1e6:.2f} MB raw, {sizes['gzip'] / 1e6:.2f} MB gzip, {sizes['brotli'] / 1e6:.2f} MB brotli"
 
 
 def start_server(data_dir: Path) -> tuple[subprocess.Popen[str], int]:
@@ -76,8 +92,7 @@ def main() -> None:
     parser.add_argument("--viewport", nargs="+", default=["1280x800", "800x500"])
     args = parser.parse_args()
 
-    sizes = bundle_sizes()
-    print(f"bundle (JS + CSS): {sizes['raw'] / 1e6:.2f} MB raw, {sizes['gzip'] / 1e6:.2f} MB gzip, {sizes['brotli'] / 1e6:.2f} MB brotli")
+    print(f"bundle (JS + CSS), all files: {megabytes(bundle_sizes())}")
     with tempfile.TemporaryDirectory() as data_dir:
         (Path(data_dir) / args.kitti.name).symlink_to(args.kitti.resolve())
         server, port = start_server(Path(data_dir))
@@ -95,12 +110,13 @@ def main() -> None:
                     print(f"{viewport}: the 3D view was not drawn in every run: {reports}")
                     continue
                 drawn = statistics.median(report["firstDrawnMs"] for report in reports)
+                stages = ", ".join(f"{stage} {statistics.median(r['marks'][stage] for r in reports):.0f}" for stage in STAGES)
                 print(
-                    f"{viewport}: page loaded {statistics.median(r['loadedMs'] for r in reports):.0f} ms, "
-                    f"first WebSocket message {statistics.median(r['firstFrameMs'] for r in reports):.0f} ms, "
-                    f"first drawn frame {drawn:.0f} ms (median of {args.runs}; "
+                    f"{viewport}: {stages}, shown {drawn:.0f} ms (median of {args.runs}; "
                     f"{drawn / statistics.median(reference):.1f} x the reference)"
                 )
+                loaded = [asset["name"] for asset in reports[0]["assets"]]
+                print(f"  the page loaded {len(loaded)} of the bundle's files: {megabytes(bundle_sizes(loaded))}")
             elapsed = time.monotonic() - started
             print(f"machine load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after; {elapsed:.0f} s in all; {os.cpu_count()} cores")
         finally:

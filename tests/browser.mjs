@@ -5,11 +5,22 @@
 // Options: url; screenshot (PNG path); click (a log name to click in the catalog
 // first); frames (WebSocket frames to wait for, default 3); timeout (ms, default
 // 30000); settle (ms to wait before the report, default 1000); viewport ({width,
-// height}, default 1280x800); draw (false: only load the page, wait for nothing). Prints one JSON object: frames received over the page's WebSockets,
-// whether and when (ms after navigation) the 3D canvas first showed a picture, the
-// canvas box in the screenshot, the stream list's text, the error banners, the page
-// errors and console errors, and the catalog's text when one was shown.
+// height}, default 1280x800); draw (false: only load the page, wait for nothing);
+// seek (once drawn, click the timeline at this fraction of its width, then wait for
+// the next message and for the 3D view to show a changed picture).
+// Prints one JSON object: frames received over the page's WebSockets, whether and
+// when (ms after navigation) the 3D canvas first showed a picture, the page's own
+// timings (ms after navigation: the script bundle received, and the User Timing
+// marks of viewer/src/timing.js), the bundle's files it loaded (bytes sent, as the
+// server compressed them, and their size), the canvas box in the screenshot, the stream list's
+// text, the error banners, the page errors and console errors, the catalog's text
+// when one was shown, the requests to hosts other than this machine (each refused:
+// the tests use no network), and after a seek what the playback control shows.
 // Each run launches a browser with a fresh profile of its own (playwright's).
+//
+// The canvas is screenshotted (which makes the browser composite a frame, and on a
+// software renderer costs time) only once the page has a frame to draw: the mark
+// "xviz:first-frame"; what the screenshot shows is what a person would see then.
 import {createRequire} from 'node:module';
 
 const require = createRequire(new URL('../viewer/package.json', import.meta.url));
@@ -19,6 +30,8 @@ const options = {frames: 3, timeout: 30000, draw: true, viewport: {width: 1280, 
 const CANVAS = '#deckgl-overlay';
 // A blank canvas is one flat colour; a drawn one (car, points, grid) varies.
 const DRAWN_STDDEV = 4;
+// A changed picture differs from the one before by this mean grey level, or more.
+const CHANGED = 2;
 
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
@@ -34,7 +47,15 @@ const browser = await chromium.launch({
     '--disable-quic'
   ]
 });
-const report = {failedRequests: [], drawn: false, firstDrawnMs: null, pageErrors: [], consoleErrors: [], alerts: []};
+const report = {
+  failedRequests: [],
+  externalRequests: [],
+  drawn: false,
+  firstDrawnMs: null,
+  pageErrors: [],
+  consoleErrors: [],
+  alerts: []
+};
 try {
   const page = await browser.newPage({viewport: options.viewport});
   const start = Date.now();
@@ -49,6 +70,13 @@ try {
       report.failedRequests.push(`${response.status()} ${response.url()}`);
     }
   });
+  await page.route(
+    url => !['127.0.0.1', 'localhost', '[::1]'].includes(url.hostname) && url.protocol !== 'data:',
+    route => {
+      report.externalRequests.push(route.request().url());
+      return route.abort('blockedbyclient');
+    }
+  );
   // Count the messages the page's WebSockets receive from inside the page: playwright's
   // own WebSocket events would copy every frame's payload to this process.
   await page.addInitScript(() => {
@@ -65,6 +93,11 @@ try {
     };
   });
   const messages = () => page.evaluate(() => window.__xvizMessages);
+  const hasFrame = () => page.evaluate(() => performance.getEntriesByName('xviz:first-frame').length > 0);
+  const canvasStddev = async () => {
+    const png = await page.locator(CANVAS).screenshot();
+    return (await page.evaluate(pixelStats, [png.toString('base64')])).stddev;
+  };
   await page.goto(options.url);
   report.loadedMs = Date.now() - start;
   if (options.click) {
@@ -75,10 +108,8 @@ try {
   }
   const deadline = options.draw ? start + options.timeout : start;
   while (Date.now() < deadline) {
-    if ((await page.locator(CANVAS).count()) > 0 && (await messages()).count >= options.frames) {
-      const png = await page.locator(CANVAS).screenshot();
-      const stddev = await page.evaluate(pixelStddev, png.toString('base64'));
-      if (stddev > DRAWN_STDDEV) {
+    if ((await page.locator(CANVAS).count()) > 0 && (await messages()).count >= options.frames && (await hasFrame())) {
+      if ((await canvasStddev()) > DRAWN_STDDEV) {
         report.drawn = true;
         report.firstDrawnMs = Date.now() - start;
         break;
@@ -88,6 +119,26 @@ try {
       break;
     }
     await page.waitForTimeout(50);
+  }
+  report.marks = await page.evaluate(() => {
+    const marks = {};
+    const bundle = performance.getEntriesByType('resource').find(entry => /\/viewer-\w+\.js$/.test(entry.name));
+    if (bundle) {
+      marks.bundle = Math.round(bundle.responseEnd);
+    }
+    for (const mark of performance.getEntriesByType('mark').filter(entry => entry.name.startsWith('xviz:'))) {
+      marks[mark.name.slice(5)] = Math.round(mark.startTime);
+    }
+    return marks;
+  });
+  report.assets = await page.evaluate(() =>
+    performance
+      .getEntriesByType('resource')
+      .filter(entry => /\/viewer-\w+\.(js|css)$/.test(entry.name))
+      .map(entry => ({name: entry.name.split('/').pop(), sent: entry.encodedBodySize, size: entry.decodedBodySize}))
+  );
+  if (options.seek !== undefined && report.drawn) {
+    report.seek = await seek(page, options.seek);
   }
   // Let the stream list and a few more frames arrive before the picture is kept.
   await page.waitForTimeout(options.settle ?? 1000);
@@ -107,22 +158,51 @@ try {
 }
 console.log(JSON.stringify(report));
 
-/** In the page: the standard deviation of the grey levels of a base64 PNG. */
-async function pixelStddev(base64) {
-  const bytes = Uint8Array.from(atob(base64), c => c.charCodeAt(0));
-  const bitmap = await createImageBitmap(new Blob([bytes], {type: 'image/png'}));
-  const canvas = new OffscreenCanvas(bitmap.width, bitmap.height);
-  const context = canvas.getContext('2d');
-  context.drawImage(bitmap, 0, 0);
-  const {data} = context.getImageData(0, 0, bitmap.width, bitmap.height);
+/** Click the timeline at `fraction`; what the playback control shows before and after, and the pictures' difference. */
+async function seek(page, fraction) {
+  const before = await page.locator(CANVAS).screenshot();
+  const shownBefore = await page.locator('.playback').innerText();
+  const count = (await page.evaluate(() => window.__xvizMessages)).count;
+  const slider = page.locator('.playback [tabindex="0"]').first();
+  const box = await slider.boundingBox();
+  await page.mouse.click(box.x + box.width * fraction, box.y + box.height / 2);
+  await page.waitForFunction(n => window.__xvizMessages.count > n, count, {timeout: options.timeout});
+  let changed = 0;
+  for (const start = Date.now(); Date.now() - start < options.timeout && changed < CHANGED; ) {
+    const after = await page.locator(CANVAS).screenshot();
+    changed = (await page.evaluate(pixelStats, [before.toString('base64'), after.toString('base64')])).difference;
+  }
+  return {shownBefore, shownAfter: await page.locator('.playback').innerText(), pictureChange: changed};
+}
+
+/**
+ * In the page, for base64 PNGs of one size: the standard deviation of the first's grey
+ * levels, and the mean absolute difference of the second's from the first's.
+ */
+async function pixelStats(images) {
+  const greys = [];
+  for (const base64 of images) {
+    const bytes = Uint8Array.from(atob(base64), c => c.charCodeAt(0));
+    const bitmap = await createImageBitmap(new Blob([bytes], {type: 'image/png'}));
+    const canvas = new OffscreenCanvas(bitmap.width, bitmap.height);
+    const context = canvas.getContext('2d');
+    context.drawImage(bitmap, 0, 0);
+    const {data} = context.getImageData(0, 0, bitmap.width, bitmap.height);
+    const grey = new Float32Array(data.length / 4);
+    for (let i = 0; i < grey.length; i++) {
+      grey[i] = (data[4 * i] + data[4 * i + 1] + data[4 * i + 2]) / 3;
+    }
+    greys.push(grey);
+  }
+  const [first, second] = greys;
   let sum = 0;
   let sumSquares = 0;
-  const count = data.length / 4;
-  for (let i = 0; i < data.length; i += 4) {
-    const grey = (data[i] + data[i + 1] + data[i + 2]) / 3;
-    sum += grey;
-    sumSquares += grey * grey;
+  let difference = 0;
+  for (let i = 0; i < first.length; i++) {
+    sum += first[i];
+    sumSquares += first[i] * first[i];
+    difference += second ? Math.abs(second[i] - first[i]) : 0;
   }
-  const mean = sum / count;
-  return Math.sqrt(Math.max(0, sumSquares / count - mean * mean));
+  const mean = sum / first.length;
+  return {stddev: Math.sqrt(Math.max(0, sumSquares / first.length - mean * mean)), difference: difference / first.length};
 }

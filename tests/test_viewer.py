@@ -11,9 +11,14 @@ from __future__ import annotations
 import asyncio
 import gzip
 import json
+import os
+import re
 import shutil
+import subprocess
+import sys
 import urllib.error
 import urllib.request
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -21,10 +26,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import running_server, write_demo
+from helpers import metadata, running_server, ten_hz, write_demo, write_log
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
-from xviz_server.viewer import STATIC_DIR, ViewerPage, accepted_encodings
+from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, ViewerPage, accepted_encodings
 
 pytestmark = pytest.mark.slow
 
@@ -52,7 +57,7 @@ def bundle(tmp_path: Path) -> Path:
     """A bundle in the layout build.mjs writes: index.html, a hashed asset and its compressed copies."""
     directory = tmp_path / "bundle"
     directory.mkdir()
-    (directory / "index.html").write_text(f'<!doctype html><script src="{ASSET}"></script>')
+    (directory / "index.html").write_text(f'<!doctype html>{SETTINGS_SLOT.decode()}<script src="{ASSET}"></script>')
     (directory / ASSET).write_bytes(SCRIPT)
     (directory / f"{ASSET}.gz").write_bytes(gzip.compress(SCRIPT))
     (directory / f"{ASSET}.br").write_bytes(b"brotli bytes as build.mjs wrote them")
@@ -63,13 +68,37 @@ async def test_a_browser_gets_the_page_and_other_clients_the_catalog(tmp_path: P
     async with running_server(tmp_path) as server:
         server.viewer = ViewerPage(bundle, server.workers)
         status, headers, body = await asyncio.to_thread(get, server, "/", Accept="text/html,application/xhtml+xml,*/*;q=0.8")
-        assert status == 200 and body == (bundle / "index.html").read_bytes()
+        assert status == 200 and body == (bundle / "index.html").read_bytes().replace(SETTINGS_SLOT, SETTINGS_ELEMENT % b"{}")
         assert headers["Content-Type"] == "text/html; charset=utf-8"
         assert headers["Cache-Control"] == "no-cache" and headers["Vary"] == "Accept"
         for path, accept in [("/", "application/json"), ("/", "*/*"), ("/api/logs", "text/html"), ("/logs", "")]:
             status, headers, body = await asyncio.to_thread(get, server, path, Accept=accept)
             assert status == 200 and headers["Content-Type"] == "application/json", (path, accept)
             assert set(json.loads(body)) == {"server", "logs", "live"}
+
+
+SETTINGS_ELEMENT = b'<script id="xviz-settings" type="application/json">%s</script>'
+
+
+async def test_the_page_is_given_the_map_token_when_it_may_have_it(tmp_path: Path, bundle: Path):
+    token = "pk.</script><b>&"
+    async with running_server(tmp_path, map_token=token) as server:
+        server.viewer = ViewerPage(bundle, server.workers, server.settings.map_token)
+        _, _, body = await asyncio.to_thread(get, server, "/", Accept="text/html")
+    (settings,) = re.findall(rb'<script id="xviz-settings" type="application/json">(.*?)</script>', body)
+    assert json.loads(settings) == {"mapToken": token} and b"</script><b>" not in body
+    async with running_server(tmp_path, map_token=token, viewer_token="s3cret") as server:
+        server.viewer = ViewerPage(bundle, server.workers, server.settings.map_token, server.settings.viewer_token)
+        pages = [await asyncio.to_thread(get, server, path, Accept="text/html") for path in ["/", "/?token=wrong", "/?token=s3cret"]]
+    assert [page[2].count(b"pk.") for page in pages] == [0, 0, 1]
+
+
+def test_config_does_not_show_the_map_token():
+    environment = {**os.environ, "XVIZ_MAP_TOKEN": "pk.from-the-environment"}
+    for arguments, env in [(["--map-token", "pk.from-a-flag"], None), ([], environment)]:
+        result = subprocess.run([sys.executable, "-m", "xviz_server", "config", *arguments], capture_output=True, text=True, env=env)
+        assert result.returncode == 0, result.stderr
+        assert "# map_token is set (not shown)" in result.stdout and "pk." not in result.stdout
 
 
 async def test_assets_are_immutable_and_compressed_as_the_client_accepts(tmp_path: Path, bundle: Path):
@@ -144,7 +173,7 @@ async def open_page(server: XVIZServer, path: str, screenshot: str, **options: A
 def assert_drawn_cleanly(report: dict[str, Any]) -> None:
     """Frames came, the 3D view shows a picture, and nothing went wrong on the page."""
     assert report["pageErrors"] == [] and report["consoleErrors"] == [] and report["alerts"] == []
-    assert report["failedRequests"] == []
+    assert report["failedRequests"] == [] and report["externalRequests"] == []
     assert report["frames"] >= 3 and report["drawn"]
     box = report["canvasBox"]
     image = np.asarray(Image.open(report["screenshot"]).convert("L"), dtype=np.float32)
@@ -160,15 +189,71 @@ def assert_stream_list_shows(report: dict[str, Any], streams: list[str]) -> None
         assert f"/{group}" in shown and (not rest or f"/{rest}" in shown), stream
 
 
+def counted(server: XVIZServer, sample: str) -> int:
+    """The value of one sample of the server's metrics (0 when it has none yet)."""
+    _, _, body = get(server, "/metrics")
+    match = re.search(rb"^" + re.escape(sample.encode()) + rb" (\S+)$", body, re.MULTILINE)
+    return int(float(match.group(1))) if match else 0
+
+
+def point_in_time_requests(server: XVIZServer) -> int:
+    """How many ``xviz/transform_point_in_time`` requests the server answered."""
+    return counted(server, 'xviz_request_seconds_count{type="transform_point_in_time"}')
+
+
 @browser
 async def test_the_kitti_log_opens_directly(tmp_path: Path, kitti_log: Path):
     (tmp_path / kitti_log.name).symlink_to(kitti_log)
     async with running_server(tmp_path) as server:
         report = await open_page(server, f"/?log={kitti_log.name}", "kitti")
         streams = (await server.catalog.open(kitti_log.name)).streams
+        queries = await asyncio.to_thread(point_in_time_requests, server)
     assert_drawn_cleanly(report)
     assert_stream_list_shows(report, streams)
-    assert report["frames"] >= 26  # metadata and the 25 frames: the log is shorter than the page's buffer
+    # The first frame is asked for on its own (point in time), then the buffer: the 25 frames.
+    # (A seek before the buffer reaches the current time may ask once more: one at a time.)
+    assert queries in (1, 2) and report["frames"] >= 1 + queries + 25
+    marks = report["marks"]
+    assert marks["bundle"] <= marks["script"] <= marks["catalog"] and marks["metadata"] <= marks["first-frame"] <= report["firstDrawnMs"]
+
+
+@browser
+async def test_a_seek_beyond_the_buffer_asks_for_that_point_in_time(tmp_path: Path):
+    write_demo(tmp_path / "demo", duration=20.0)  # the page asks for 5 s at a time
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=demo", "seek", seek=0.9)
+        queries = await asyncio.to_thread(point_in_time_requests, server)
+        (summary,) = await server.catalog.describe()
+    assert_drawn_cleanly(report)
+    # One for the first frame, one (or, while the frames around it arrive, a few) for the seek.
+    assert queries >= 2
+    seek = report["seek"]
+    shown = [datetime.strptime(re.findall(r"\d\d:\d\d:\d\d\.\d{3}", text)[-1], "%H:%M:%S.%f") for text in (seek["shownBefore"], seek["shownAfter"])]
+    assert 15 < (shown[1] - shown[0]).total_seconds() < summary["end_time"] - summary["start_time"]
+    assert seek["pictureChange"] >= 2
+
+
+@browser
+async def test_a_point_in_time_with_no_state_is_no_error_to_the_person(tmp_path: Path):
+    # The log says it starts at 100 s; its first frame is at 101 s: the page's first query
+    # (at its start time) has no answer but an xviz/error, and the frames must still come.
+    write_log(tmp_path / "late", ten_hz(60, start=101.0), meta=metadata(start_time=100.0, end_time=107.0))
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=late", "late-start", draw=False, settle=3000)
+        refused = await asyncio.to_thread(counted, server, 'xviz_errors_total{kind="query"}')
+    assert report["alerts"] == [] and report["pageErrors"] == [] and report["consoleErrors"] == []
+    assert refused == 1 and report["frames"] >= 1 + 1 + 40  # metadata, the error, then 101 s to 105 s
+
+
+@browser
+async def test_with_a_map_token_the_page_asks_for_the_base_map(tmp_path: Path, kitti_log: Path):
+    (tmp_path / kitti_log.name).symlink_to(kitti_log)
+    async with running_server(tmp_path, map_token="pk.test-token") as server:
+        report = await open_page(server, f"/?log={kitti_log.name}", "map", settle=3000)
+    # The tests use no network: browser.mjs refuses requests beyond loopback, and says which were made.
+    assert report["externalRequests"] and all("api.mapbox.com" in url for url in report["externalRequests"])
+    assert any("access_token=pk.test-token" in url for url in report["externalRequests"])
+    assert report["pageErrors"] == [] and report["drawn"]
 
 
 @browser

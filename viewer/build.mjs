@@ -1,6 +1,7 @@
 // Bundle the viewer page into ../xviz_server/viewer_static/ (or the folder given as
-// the first argument): index.html, content-hashed JS and CSS, and a gzip and brotli
-// copy of each asset for the server to send to clients that accept them.
+// the first argument): index.html, content-hashed JS modules (the page, and chunks it
+// loads when it needs them) and CSS, and a gzip and brotli copy of each asset for the
+// server to send to clients that accept them.
 import {build} from 'esbuild';
 import {mkdir, readFile, rm, writeFile} from 'node:fs/promises';
 import {basename, dirname, join, resolve} from 'node:path';
@@ -10,6 +11,15 @@ import {brotliCompressSync, constants, gzipSync} from 'node:zlib';
 const here = dirname(fileURLToPath(import.meta.url));
 const outdir = resolve(process.argv[2] || join(here, '..', 'xviz_server', 'viewer_static'));
 
+/** `react-map-gl`, imported by streetscape.gl, resolves to src/map.jsx, which loads its map lazily. */
+const lazyMap = {
+  name: 'lazy-map',
+  setup(build) {
+    const shim = join(here, 'src', 'map.jsx');
+    build.onResolve({filter: /^react-map-gl$/}, args => (args.importer === shim ? undefined : {path: shim}));
+  }
+};
+
 await rm(outdir, {recursive: true, force: true});
 await mkdir(outdir, {recursive: true});
 const result = await build({
@@ -17,26 +27,30 @@ const result = await build({
   bundle: true,
   minify: true,
   sourcemap: false,
-  format: 'iife',
-  target: ['es2019'],
+  format: 'esm',
+  splitting: true,
+  target: ['es2020'],
   outdir,
   entryNames: 'viewer-[hash]',
+  chunkNames: 'viewer-[hash]',
   assetNames: 'asset-[hash]',
   metafile: true,
   logLevel: 'warning',
   alias: {assert: join(here, 'src', 'assert.js')},
+  plugins: [lazyMap],
   inject: [join(here, 'src', 'node-globals.js')],
   define: {'process.env.NODE_ENV': '"production"', global: 'globalThis'},
   loader: {'.png': 'file', '.svg': 'file', '.woff': 'file', '.woff2': 'file'},
 });
 
 const outputs = Object.keys(result.metafile.outputs).map(path => basename(path));
-const script = outputs.find(name => name.endsWith('.js'));
-const style = outputs.find(name => name.endsWith('.css'));
+const entry = Object.entries(result.metafile.outputs).find(([, output]) => output.entryPoint);
+const script = basename(entry[0]);
+const style = entry[1].cssBundle && basename(entry[1].cssBundle);
 const template = await readFile(join(here, 'src', 'index.html'), 'utf8');
 const html = template
   .replace('<!--style-->', style ? `<link rel="stylesheet" href="${style}">` : '')
-  .replace('<!--script-->', `<script src="${script}" defer></script>`);
+  .replace('<!--script-->', `<script type="module" src="${script}"></script>`);
 await writeFile(join(outdir, 'index.html'), html);
 
 for (const name of outputs) {

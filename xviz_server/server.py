@@ -104,7 +104,7 @@ class XVIZServer:
         #: The sessions running now.
         self.sessions: set[Connection] = set()
         #: The built-in viewer's page and assets.
-        self.viewer = ViewerPage(STATIC_DIR, self.workers)
+        self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token)
 
     @property
     def port(self) -> int:

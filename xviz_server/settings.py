@@ -18,7 +18,7 @@ from .exceptions import ConfigError
 __all__ = ["SECRETS", "Settings", "load_settings"]
 
 #: The settings that are secrets: never printed or logged.
-SECRETS = ("ingest_token", "viewer_token")
+SECRETS = ("ingest_token", "viewer_token", "map_token")
 
 
 class Settings(BaseSettings):
@@ -105,6 +105,11 @@ class Settings(BaseSettings):
     )
     protect_metrics: bool = Field(
         default=False, description="require the viewer token on GET /metrics too (/healthz always answers)"
+    )
+    map_token: str | None = Field(
+        default=None,
+        description="Mapbox access token for the built-in viewer's base map (without one it draws no map); "
+        "handed to the pages of viewers that give the viewer token, if one is set",
     )
     allowed_origins: list[str] = Field(
         default_factory=list,

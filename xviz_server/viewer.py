@@ -6,9 +6,10 @@ streetscape.gl in a small React application) into :data:`STATIC_DIR`:
 brotli (``.br``) copy. :class:`ViewerPage` answers:
 
 * ``GET /`` from a browser, one whose ``Accept`` header names ``text/html``:
-  ``index.html``, ``Cache-Control: no-cache``; other clients get ``None``
-  and so the JSON catalog, as before the viewer existed. Without a bundle,
-  a browser is told in one line how to build it.
+  ``index.html``, ``Cache-Control: no-cache``, with the page's settings in
+  it (:meth:`ViewerPage.page_settings`); other clients get ``None`` and so
+  the JSON catalog, as before the viewer existed. Without a bundle, a
+  browser is told in one line how to build it.
 * ``GET /<hashed asset>``: the asset, ``immutable`` for a year, compressed
   as the client's ``Accept-Encoding`` allows.
 
@@ -23,9 +24,11 @@ from http import HTTPStatus
 from pathlib import Path
 from urllib.parse import urlsplit
 
+import orjson
 from websockets.asyncio.server import ServerConnection
 from websockets.http11 import Request, Response
 
+from .auth import token_matches
 from .work import Workers
 
 __all__ = ["STATIC_DIR", "ViewerPage", "wants_html"]
@@ -48,6 +51,9 @@ CONTENT_TYPES = {
 
 #: Content codings of the precompressed copies, best first, with their file suffix.
 ENCODINGS = (("br", ".br"), ("gzip", ".gz"))
+
+#: Where ``index.html`` takes the page's settings: a JSON script element the page reads.
+SETTINGS_SLOT = b"<!--settings-->"
 
 NOT_BUILT = "the viewer is not built: run scripts/build-viewer.sh (needs node and npm), or open /api/logs for the catalog\n"
 
@@ -72,11 +78,25 @@ def accepted_encodings(request: Request) -> set[str]:
 
 
 class ViewerPage:
-    """Answers HTTP requests for the viewer page from the bundle in ``directory``."""
+    """Answers HTTP requests for the viewer page from the bundle in ``directory``.
 
-    def __init__(self, directory: Path, workers: Workers) -> None:
+    ``map_token`` (a Mapbox access token) is handed to the page, which then
+    draws a base map; with a ``viewer_token``, only to requests that give it.
+    """
+
+    def __init__(
+        self, directory: Path, workers: Workers, map_token: str | None = None, viewer_token: str | None = None
+    ) -> None:
         self.directory = directory
         self.workers = workers
+        self.map_token = map_token
+        self.viewer_token = viewer_token
+
+    def page_settings(self, request: Request) -> dict[str, str]:
+        """What the page is told: ``mapToken`` when there is one and the request may have it."""
+        if self.map_token is None or (self.viewer_token and not token_matches(request, self.viewer_token)):
+            return {}
+        return {"mapToken": self.map_token}
 
     async def respond(self, connection: ServerConnection, request: Request) -> Response | None:
         """The response to ``request`` if it is for the page or one of its assets, else ``None``."""
@@ -87,8 +107,9 @@ class ViewerPage:
             index = await self.workers.io(_read, self.directory / "index.html")
             if index is None:
                 return _respond(connection, HTTPStatus.NOT_FOUND, NOT_BUILT.encode(), "text/plain; charset=utf-8", {})
+            page = index.replace(SETTINGS_SLOT, _settings_element(self.page_settings(request)))
             headers = {"Cache-Control": "no-cache", "Vary": "Accept"}
-            return _respond(connection, HTTPStatus.OK, index, CONTENT_TYPES["html"], headers)
+            return _respond(connection, HTTPStatus.OK, page, CONTENT_TYPES["html"], headers)
         match = ASSET.fullmatch(path)
         if match is None:
             return None
@@ -103,6 +124,12 @@ class ViewerPage:
                     headers["Content-Encoding"] = coding
                 return _respond(connection, HTTPStatus.OK, body, CONTENT_TYPES[extension], headers)
         return None
+
+
+def _settings_element(settings: dict[str, str]) -> bytes:
+    """``settings`` as a JSON script element; ``<``, ``>`` and ``&`` escaped so that no value can end it."""
+    text = orjson.dumps(settings).replace(b"<", b"\\u003c").replace(b">", b"\\u003e").replace(b"&", b"\\u0026")
+    return b'<script id="xviz-settings" type="application/json">' + text + b"</script>"
 
 
 def _read(path: Path) -> bytes | None:

@@ -3,6 +3,7 @@ import Catalog from './catalog';
 import ErrorBanner from './error-banner';
 import Viewer from './viewer';
 import {fetchCatalog, pageParams, pageUrl} from './page';
+import {markOnce} from './timing';
 
 /** The catalog, or the log the page's URL names. */
 export default class App extends React.Component {
@@ -14,7 +15,10 @@ export default class App extends React.Component {
   componentDidMount() {
     window.addEventListener('popstate', this._onPopState);
     fetchCatalog(this.state.token).then(
-      catalog => this.setState({catalog}),
+      catalog => {
+        markOnce('catalog');
+        this.setState({catalog});
+      },
       error => this.setState({error: error.message})
     );
   }

@@ -2,5 +2,8 @@ import React from 'react';
 import {render} from 'react-dom';
 import 'mapbox-gl/dist/mapbox-gl.css';
 import App from './app';
+import {markOnce} from './timing';
+
+markOnce('script');
 
 render(<App />, document.getElementById('app'));

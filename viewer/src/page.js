@@ -1,22 +1,18 @@
-// What the page's own URL says: which log to open, the viewer token, the map token.
+// What the page's own URL says (which log to open, the viewer token) and what the
+// server put in the page (its settings: the map token).
 
-const MAP_TOKEN_KEY = 'xviz-server.mapToken';
+/** The settings the server wrote into the page (see xviz_server/viewer.py). */
+function serverSettings() {
+  const element = document.getElementById('xviz-settings');
+  return element ? JSON.parse(element.textContent) : {};
+}
 
 export function pageParams() {
   const query = new URLSearchParams(window.location.search);
-  const mapToken = query.get('map_token');
-  if (mapToken !== null) {
-    // Given once, remembered: links between logs need not carry it.
-    if (mapToken) {
-      window.localStorage.setItem(MAP_TOKEN_KEY, mapToken);
-    } else {
-      window.localStorage.removeItem(MAP_TOKEN_KEY);
-    }
-  }
   return {
     log: query.get('log'),
     token: query.get('token'),
-    mapToken: window.localStorage.getItem(MAP_TOKEN_KEY) || ''
+    mapToken: serverSettings().mapToken || ''
   };
 }
 

@@ -4,13 +4,16 @@ import {
   PlaybackControl,
   StreamSettingsPanel,
   XVIZLiveLoader,
-  XVIZPanel,
-  XVIZStreamLoader
+  XVIZPanel
 } from 'streetscape.gl';
 import ErrorBanner from './error-banner';
+import {POINT_STREAMS} from './point-layer';
+import ServerLoader from './server-loader';
 import {serverUrl} from './page';
+import {markOnce} from './timing';
 
 const MAP_STYLE = 'mapbox://styles/mapbox/light-v9';
+const CUSTOM_XVIZ_LAYERS = [POINT_STREAMS];
 
 /** A WebSocket class that also reports every close to `onClose(event, opened)`. */
 function watchedSocket(onClose) {
@@ -20,6 +23,7 @@ function watchedSocket(onClose) {
       let opened = false;
       this.addEventListener('open', () => {
         opened = true;
+        markOnce('socket-open');
       });
       this.addEventListener('close', event => onClose(event, opened));
     }
@@ -50,11 +54,12 @@ function createLoader({name, live, token, onClose}) {
       defaultLogLength: 30,
       queryParams: token ? {token: encodeURIComponent(token)} : {}
     },
-    worker: true,
-    maxConcurrency: 4,
+    // Messages are parsed on the page's thread: a worker would first have to start and load
+    // its own copy of the parser, which costs more than the first frames' parse.
+    worker: false,
     WebSocketClass: watchedSocket(onClose)
   };
-  return live ? new XVIZLiveLoader(options) : new XVIZStreamLoader(options);
+  return live ? new XVIZLiveLoader(options) : new ServerLoader(options);
 }
 
 /** One log or live feed: the 3D view, playback, the stream list and the log's UI panels. */
@@ -63,21 +68,25 @@ export default class Viewer extends React.Component {
     super(props);
     this.state = {error: null, panels: []};
     this.log = createLoader({...props, onClose: this._onSocketClose});
+    // The socket opens while React mounts the 3D view; nothing it receives is handled
+    // before componentDidMount, which runs in this same task. Refusals are reported by
+    // _onSocketClose as they happen; the loader gives up after a few.
+    this.log.connect().catch(() => {});
   }
 
   componentDidMount() {
     this.log
       .on('ready', () => {
+        markOnce('metadata');
         const metadata = this.log.getMetadata() || {};
         this.setState({panels: Object.keys(metadata.ui_config || {}), error: null});
       })
+      .on('update', () => this.log.getCurrentFrame() && markOnce('first-frame')) // one the 3D view can draw
       .on('error', (eventType, error) => {
         // The loader calls back with (event type, payload).
         console.error('xviz-server viewer:', error); // eslint-disable-line no-console
         this.setState({error: errorText(error)});
       });
-    // Refusals are reported by _onSocketClose as they happen; the loader gives up after a few.
-    this.log.connect().catch(() => {});
   }
 
   componentWillUnmount() {
@@ -128,6 +137,7 @@ export default class Viewer extends React.Component {
               mapboxApiAccessToken={mapToken}
               mapStyle={MAP_STYLE}
               showTooltip
+              customXVIZLayers={CUSTOM_XVIZ_LAYERS}
             />
           </div>
           <aside className="sidebar" style={{width: 340, overflowY: 'auto', background: '#fff', padding: 12}}>
@@ -144,7 +154,7 @@ export default class Viewer extends React.Component {
           </aside>
         </div>
         {!live && (
-          <div style={{background: '#fff'}}>
+          <div className="playback" style={{background: '#fff'}}>
             <PlaybackControl width="100%" log={this.log} formatTimestamp={formatTimestamp} />
           </div>
         )}
