@@ -157,7 +157,7 @@ check "nothing mounted: one line says where to mount the store" grep -q "nothing
 viewer_page() {  # the page at / for a browser, and its script
     local page script
     page=$(curl -sf --max-time 10 -H 'Accept: text/html' "http://127.0.0.1:$port/") || return 1
-    script=$(sed -n 's/.*<script src="\(viewer-[^"]*\.js\)".*/\1/p' <<<"$page")
+    script=$(sed -n 's/.*<script[^>]* src="\(viewer-[^"]*\.js\)".*/\1/p' <<<"$page")
     [ -n "$script" ] && curl -sf --max-time 10 -H 'Accept-Encoding: gzip' -o /dev/null "http://127.0.0.1:$port/$script"
 }
 check "the built-in viewer: the page and its script are served" viewer_page
