@@ -50,6 +50,7 @@ from .live.replay import replay
 from .logs import Catalog
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
+from .store import data_roots
 from .tls import server_context
 from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
@@ -82,7 +83,7 @@ class XVIZServer:
         self.workers = Workers()
         self.cache = FrameCache(int(settings.cache_mb * MB), self.metrics)
         self.catalog = Catalog(
-            [settings.data_dir] if settings.data_dir is not None else [],
+            data_roots(settings),
             self.cache,
             self.workers,
             datasets=[parse_dataset(text) for text in settings.dataset],
@@ -114,7 +115,7 @@ class XVIZServer:
         """Find the logs and start listening; raises :class:`~xviz_server.exceptions.ConfigError` for bad TLS files."""
         tls = server_context(self.settings.certfile, self.settings.keyfile) if self.settings.certfile else None
         names = await self.catalog.scan()
-        logger.info("serving %d logs from %s", len(names), self.settings.data_dir or "datasets given on the command line")
+        logger.info("serving %d logs from %s", len(names), ", ".join(self.settings.data_dir) or "datasets given on the command line")
         if self.catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
         if self.settings.live_from is not None:
