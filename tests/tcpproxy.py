@@ -19,7 +19,7 @@ from dataclasses import dataclass
 __all__ = ["Fault", "Proxy", "running_proxy"]
 
 _LENGTH = re.compile(rb"\r\ncontent-length:\s*(\d+)", re.IGNORECASE)
-_CHUNK = 1 << 16
+_CHUNK = 1 << 20
 
 
 @dataclass
