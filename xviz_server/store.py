@@ -21,7 +21,10 @@ body, after ``timeout`` seconds (``--store-timeout``). A GET that fails with
 a 5xx, a timeout or a lost connection is tried again ``retries`` times
 (``--store-retries``), after an exponential backoff with jitter from
 :data:`BACKOFF_START` to :data:`BACKOFF_MAX` (obstore retries, a body cut
-short included). A missing object, a 401 or a 403 is not retried. What still fails is a
+short included). A missing object, a 401 or a 403 is not retried. However
+the store behaves, a request with its retries ends within
+``(retries + 1) * (timeout + CONNECT_TIMEOUT) + retries * BACKOFF_MAX + 1``
+seconds. What still fails is a
 :class:`~xviz_server.exceptions.StoreError` naming the object's URL and the
 cause, never a credential.
 """
@@ -181,8 +184,11 @@ class ObjectStore:
 
     async def get(self, key: str) -> bytes:
         """The whole object ``key``; raises :class:`~xviz_server.exceptions.StoreError` after the retries."""
-        response = await self._guard(obstore.get_async(self._store, key), key)
-        return bytes(await self._guard(response.bytes_async(), key))
+        return await self._guard(self._fetch(key), key)
+
+    async def _fetch(self, key: str) -> bytes:
+        response = await obstore.get_async(self._store, key)
+        return bytes(await response.bytes_async())
 
     async def _guard(self, request: Any, key: str) -> Any:
         """Await an obstore request within the deadline; its failure as a :class:`StoreError`."""
