@@ -259,3 +259,11 @@ def test_a_bucket_url_with_a_credential_in_it_is_refused_without_showing_it():
     result = run_cli("serve", "--data-dir", f"s3://AKIA:{SECRET_KEY}@bucket/logs", "--port", "0")
     assert result.returncode == 2 and "not an S3 bucket name" in result.stderr
     assert SECRET_KEY not in result.stderr
+
+
+def test_data_dirs_come_from_flags_or_one_or_a_json_list_in_the_environment(tmp_path: Path):
+    assert 'data_dir = ["/srv/a"]' in run_cli("config", XVIZ_DATA_DIR="/srv/a").stdout
+    listed = run_cli("config", XVIZ_DATA_DIR=f'["/srv/a", "{ROOT}"]').stdout
+    assert f'data_dir = ["/srv/a", "{ROOT}"]' in listed
+    missing = run_cli("serve", "--data-dir", ROOT, "--data-dir", str(tmp_path / "nothing"), "--port", "0")
+    assert missing.returncode == 2 and f"--data-dir {tmp_path / 'nothing'} is not a directory" in missing.stderr

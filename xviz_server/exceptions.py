@@ -155,13 +155,10 @@ class DependencyError(XVIZError, ImportError):
 class StoreError(XVIZError, OSError):
     """A request to an object store failed after its retries; ``key`` is the object's ``s3://`` URL.
 
-    ``transient`` tells a failure that may pass (a 5xx, a timeout, a lost
-    connection) from one that will not (a missing object, a 403). It is an
-    :class:`OSError` too, like a file that cannot be read, since a log's
-    bytes come from either.
+    It is an :class:`OSError` too, like a file that cannot be read, since a
+    log's bytes come from either.
     """
 
-    def __init__(self, message: str, *, key: str, transient: bool = False) -> None:
+    def __init__(self, message: str, *, key: str) -> None:
         super().__init__(message)
         self.key = key
-        self.transient = transient

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import obstore
+from obstore.exceptions import BaseError, NotFoundError, PermissionDeniedError, UnauthenticatedError
 from obstore.store import S3Store
 
 from .exceptions import ConfigError, StoreError
@@ -196,8 +197,8 @@ class ObjectStore:
         try:
             return await asyncio.wait_for(request, self._deadline)
         except asyncio.TimeoutError:
-            raise _failure(self.key_url(key), f"no answer in {self._deadline:g} s", retry=True) from None
-        except Exception as exc:  # obstore raises builtins and its own classes
+            raise _failure(self.key_url(key), f"no answer in {self._deadline:g} s") from None
+        except (BaseError, OSError) as exc:  # obstore's own classes, and builtins (FileNotFoundError) for some
             timed_out = time.monotonic() - started >= self._timeout
             raise _explain(self.key_url(key), exc, self._timeout if timed_out else None) from None
 
@@ -287,18 +288,18 @@ def _explain(url: str, exc: Exception, timeout: float | None) -> StoreError:
     """
     text = str(exc)
     status = _STATUS.search(text)
-    if isinstance(exc, FileNotFoundError) or (status and status.group(1) == "404"):
-        return _failure(url, "no such object (404)", retry=False)
-    if isinstance(exc, PermissionError) or (status and status.group(1) in ("401", "403")):
-        return _failure(url, f"access denied ({status.group(1) if status else 403}): check the credentials and the bucket policy", retry=False)
+    if isinstance(exc, (FileNotFoundError, NotFoundError)) or (status and status.group(1) == "404"):
+        return _failure(url, "no such object (404)")
+    if isinstance(exc, (PermissionError, PermissionDeniedError, UnauthenticatedError)) or (status and status.group(1) in ("401", "403")):
+        return _failure(url, f"access denied ({status.group(1) if status else 403}): check the credentials and the bucket policy")
     retried = re.search(r"after (\d+) retries", text)
     after = f" after {retried.group(1)} retries" if retried else ""
     if status:
-        return _failure(url, f"the store answered {status.group(1)}{after}", retry=status.group(1).startswith("5"))
+        return _failure(url, f"the store answered {status.group(1)}{after}")
     if timeout is not None:
-        return _failure(url, f"timed out (no whole answer within {timeout:g} s){after}", retry=True)
-    return _failure(url, f"the connection failed{after} ({type(exc).__name__})", retry=True)
+        return _failure(url, f"timed out (no whole answer within {timeout:g} s){after}")
+    return _failure(url, f"the connection failed or was cut short{after}")
 
 
-def _failure(url: str, cause: str, *, retry: bool) -> StoreError:
-    return StoreError(f"{url}: {cause}", key=url, transient=retry)
+def _failure(url: str, cause: str) -> StoreError:
+    return StoreError(f"{url}: {cause}", key=url)
