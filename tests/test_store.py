@@ -106,15 +106,15 @@ async def test_the_published_client_reads_a_log_in_the_store(proxy: Proxy, kitti
 
 
 async def test_a_log_uploaded_while_serving_is_found_on_first_request(proxy: Proxy, s3: MotoS3, tmp_path: Path):
-    async with running_server([ROOT]) as server:  # type: ignore[arg-type]
-        assert "late/drive" not in server.catalog.names()
-        s3.upload(write_log(tmp_path / "late", ten_hz(4)), BUCKET, "fleet/late/drive")
+    async with running_server([ROOT, f"s3://{BUCKET}/late"]) as server:  # type: ignore[arg-type]
+        assert "new/drive" not in server.catalog.names()
+        s3.upload(write_log(tmp_path / "late", ten_hz(4)), BUCKET, "late/new/drive")
         listings = len(proxy.requests)
-        assert len(updates(await stream(server, "late/drive"))) == 4
-        assert any("prefix=fleet%2Flate%2Fdrive%2F" in r for r in proxy.requests[listings:])
-        async with client(server, "/?log=late/nothing") as viewer:
+        assert len(updates(await stream(server, "new/drive"))) == 4
+        assert any("prefix=late%2Fnew%2Fdrive%2F" in r for r in proxy.requests[listings:])
+        async with client(server, "/?log=new/nothing") as viewer:
             error = await viewer.recv()
-        assert error["type"] == "xviz/error" and "late/nothing" in error["data"]["message"]
+        assert error["type"] == "xviz/error" and "new/nothing" in error["data"]["message"]
 
 
 async def test_two_sessions_cause_one_get_per_frame_and_the_index_is_read_once(proxy: Proxy):
@@ -198,13 +198,13 @@ async def test_a_failure_that_passes_is_retried(proxy: Proxy, what: dict[str, An
 
 
 async def test_an_object_deleted_from_the_store_is_an_error_and_the_rest_is_served(proxy: Proxy, s3: MotoS3, tmp_path: Path):
-    s3.upload(write_log(tmp_path / "gone", ten_hz(4), fmt=json_format()), BUCKET, "fleet/gone/drive")
-    async with running_server([ROOT]) as server:  # type: ignore[arg-type]
-        await server.catalog.open("gone/drive")
-        s3.delete(BUCKET, "fleet/gone/drive/3-frame.json")
-        messages = await stream(server, "gone/drive")
+    s3.upload(write_log(tmp_path / "gone", ten_hz(4), fmt=json_format()), BUCKET, "gone/drive")
+    async with running_server([f"s3://{BUCKET}/gone"]) as server:  # type: ignore[arg-type]
+        await server.catalog.open("drive")
+        s3.delete(BUCKET, "gone/drive/3-frame.json")
+        messages = await stream(server, "drive")
     errors = [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
-    assert len(errors) == 1 and f"s3://{BUCKET}/fleet/gone/drive/3-frame.json: no such object (404)" in errors[0]
+    assert len(errors) == 1 and f"s3://{BUCKET}/gone/drive/3-frame.json: no such object (404)" in errors[0]
     assert len(updates(messages)) == 3
 
 
@@ -267,3 +267,23 @@ def test_data_dirs_come_from_flags_or_one_or_a_json_list_in_the_environment(tmp_
     assert f'data_dir = ["/srv/a", "{ROOT}"]' in listed
     missing = run_cli("serve", "--data-dir", ROOT, "--data-dir", str(tmp_path / "nothing"), "--port", "0")
     assert missing.returncode == 2 and f"--data-dir {tmp_path / 'nothing'} is not a directory" in missing.stderr
+
+
+async def test_the_catalog_lists_logs_in_the_store_and_forgets_removed_ones(proxy: Proxy, s3: MotoS3, tmp_path: Path):
+    import urllib.request
+
+    keys = s3.upload(write_log(tmp_path / "brief", ten_hz(2)), BUCKET, "brief/drive")
+
+    def catalog(server: Any) -> dict[str, Any]:
+        with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/") as response:
+            return {log["name"]: log for log in json.loads(response.read())["logs"]}
+
+    async with running_server([ROOT, f"s3://{BUCKET}/brief"]) as server:  # type: ignore[arg-type]
+        listed = await asyncio.to_thread(catalog, server)
+        assert listed["drive"]["frames"] == 2 and listed[KITTI]["frames"] == 25
+        assert listed[KITTI]["start_time"] == START and "/lidar/points" in listed[KITTI]["streams"]
+        for key in keys:
+            s3.delete(BUCKET, key)
+        assert "drive" not in await asyncio.to_thread(catalog, server)
+        async with client(server, "/?log=drive") as viewer:
+            assert (await viewer.recv())["type"] == "xviz/error"
