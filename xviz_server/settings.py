@@ -65,7 +65,7 @@ class Settings(BaseSettings):
     )
     read_ahead: int = Field(default=4, ge=1, description="frames a streaming session loads ahead of the socket")
     store_read_ahead: int = Field(default=8, ge=1, description="GETs a streaming session keeps in flight to an object store")
-    store_read_ahead_mb: float = Field(default=64, gt=0, description="most MB of frames a streaming session has in flight from an object store")
+    store_read_ahead_mb: float = Field(default=32, gt=0, description="most MB of frames a streaming session has in flight from an object store")
     store_timeout: float = Field(default=30, gt=0, description="seconds an object store request may take, connecting to last byte")
     store_retries: int = Field(default=3, ge=0, description="times a failed object store GET (5xx, timeout, lost connection) is tried again")
     lookback: int = Field(
