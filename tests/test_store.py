@@ -163,19 +163,19 @@ async def test_a_stream_keeps_its_gets_within_its_bytes(s3: MotoS3, monkeypatch:
     assert slow.most_in_flight == 1
 
 
-FAULTS = {
-    "403": ({"status": 403}, "access denied (403)", 1),
-    "404": ({"status": 404}, "no such object (404)", 1),
-    "503 each time": ({"status": 503}, "the store answered 503 after 2 retries", 3),
-    "body cut each time": ({"cut_after": 1000}, "the connection failed", 3),
-    "stalled": ({"stall": True}, "timed out (no whole answer within 1 s) after 2 retries", 3),
+FAULTS = {  # what the proxy does to every GET of one frame, what the error says, GETs of it, the server's time limit
+    "403": ({"status": 403}, "access denied (403)", 1, 10),
+    "404": ({"status": 404}, "no such object (404)", 1, 10),
+    "503 each time": ({"status": 503}, "the store answered 503 after 2 retries", 3, 10),
+    "body cut each time": ({"cut_after": 1000}, "the connection failed or was cut short", 3, 10),
+    "stalled": ({"stall": True}, "timed out (no whole answer within 2 s) after 2 retries", 3, 2),
 }
 
 
 @pytest.mark.parametrize("fault", FAULTS.values(), ids=FAULTS.keys())
-async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(proxy: Proxy, fault: tuple[dict[str, Any], str, int]):
-    what, cause, tries = fault
-    async with running_server([ROOT], store_retries=2, store_timeout=1) as server:  # type: ignore[arg-type]
+async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(proxy: Proxy, fault: tuple[dict[str, Any], str, int, float]):
+    what, cause, tries, timeout = fault
+    async with running_server([ROOT], store_retries=2, store_timeout=timeout) as server:  # type: ignore[arg-type]
         await server.catalog.open(KITTI)
         injected = proxy.fault(f"{KITTI}/5-frame.glb", **what)
         messages = await stream(server, KITTI)
@@ -232,7 +232,7 @@ async def test_credentials_and_endpoint_come_from_the_shared_aws_files(proxy: Pr
 
 
 async def test_secrets_never_show_in_logs_errors_or_config(proxy: Proxy):
-    env = {**store_env(proxy.url), "XVIZ_STORE_RETRIES": "1", "XVIZ_STORE_TIMEOUT": "1"}
+    env = {**store_env(proxy.url), "XVIZ_STORE_RETRIES": "1", "XVIZ_STORE_TIMEOUT": "2"}
     shown = run_cli("config", "--data-dir", ROOT, "--data-dir", "/srv/logs", **env)
     assert shown.returncode == 0 and f'data_dir = ["{ROOT}", "/srv/logs"]' in shown.stdout
     proxy.fault("/3-frame.glb", status=403)

@@ -293,7 +293,7 @@ def _explain(url: str, exc: Exception, timeout: float | None) -> StoreError:
     if isinstance(exc, (PermissionError, PermissionDeniedError, UnauthenticatedError)) or (status and status.group(1) in ("401", "403")):
         return _failure(url, f"access denied ({status.group(1) if status else 403}): check the credentials and the bucket policy")
     retried = re.search(r"after (\d+) retries", text)
-    after = f" after {retried.group(1)} retries" if retried else ""
+    after = f" after {retried.group(1)} {'retry' if retried.group(1) == '1' else 'retries'}" if retried else ""
     if status:
         return _failure(url, f"the store answered {status.group(1)}{after}")
     if timeout is not None:
