@@ -14,6 +14,7 @@ import shutil
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, AsyncIterator
 
 import numpy as np
@@ -159,8 +160,8 @@ def ten_hz(count: int, start: float = 100.0, **kwargs: Any) -> list[dict[str, An
 
 
 @contextlib.asynccontextmanager
-async def running_server(data_dir: Path | None, **settings: Any) -> AsyncIterator[XVIZServer]:
-    """An XVIZ server on a free loopback port."""
+async def running_server(data_dir: Path | Sequence[Path | str] | None, **settings: Any) -> AsyncIterator[XVIZServer]:
+    """An XVIZ server on a free loopback port, serving one data directory or several (directories, ``s3://`` URLs)."""
     async with XVIZServer(Settings(host="127.0.0.1", port=0, data_dir=data_dir, **settings)) as server:
         yield server
 

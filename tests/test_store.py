@@ -19,6 +19,7 @@ from helpers import Client, client, run_xviz_session_async, running_server, ten_
 from s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, store_env
 from tcpproxy import Proxy, running_proxy
 from test_exposure import run_cli, start_serving, stop_serving
+from xviz_server.codec import Format
 
 BUCKET = "xviz-logs"
 ROOT = f"s3://{BUCKET}/fleet"
@@ -33,17 +34,11 @@ def s3(kitti_log: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Mo
     with moto_process() as store:
         store.bucket(BUCKET)
         store.upload(kitti_log, BUCKET, f"fleet/{KITTI}")
-        short = write_log(tmp_path_factory.mktemp("short"), ten_hz(5), fmt=json_format())
+        short = write_log(tmp_path_factory.mktemp("short"), ten_hz(5), fmt=Format.JSON)
         store.upload(short, BUCKET, "fleet/json/short")
         store.put(BUCKET, "fleet/.hidden/1-frame.json", b"{}")
         store.put(BUCKET, "fleet/notes/readme.txt", b"not a log")
         yield store
-
-
-def json_format() -> Any:
-    from xviz_server.codec import Format
-
-    return Format.JSON
 
 
 @pytest.fixture
@@ -73,12 +68,19 @@ def frame_gets(proxy: Proxy) -> list[str]:
 
 async def test_logs_under_the_prefix_are_listed_by_their_path_beside_local_ones(proxy: Proxy, tmp_path: Path):
     write_log(tmp_path / "local" / "drive", ten_hz(3))
-    async with running_server([tmp_path / "local", ROOT]) as server:  # type: ignore[arg-type]
+    async with running_server([tmp_path / "local", ROOT]) as server:
         assert server.catalog.names() == ["drive", "json/short", KITTI]  # not .hidden, not notes
         short = await stream(server, "json/short")
         local = await stream(server, "drive")
     assert [u["data"]["updates"][0]["timestamp"] for u in updates(short)] == [100.0, 100.1, 100.2, 100.3, 100.4]
     assert len(updates(local)) == 3
+
+
+async def test_a_name_in_a_directory_wins_over_the_same_name_in_a_store(proxy: Proxy, tmp_path: Path):
+    write_log(tmp_path / "local" / "json" / "short", ten_hz(3))
+    async with running_server([ROOT, tmp_path / "local"]) as server:
+        assert len(updates(await stream(server, "json/short"))) == 3
+    assert not proxy.gets("json/short")
 
 
 async def test_the_published_client_reads_a_log_in_the_store(proxy: Proxy, kitti_log: Path):
@@ -93,7 +95,7 @@ async def test_the_published_client_reads_a_log_in_the_store(proxy: Proxy, kitti
         {"wait": "state_updates", "count": 26},
         {"close": True},
     ]
-    async with running_server([ROOT]) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT]) as server:
         url = f"ws://127.0.0.1:{server.port}/?log={KITTI}&worker=true&profile=default&message_format=BINARY"
         result = await run_xviz_session_async(url, script, timeout=180)
     assert result.ok, result.stderr
@@ -106,7 +108,7 @@ async def test_the_published_client_reads_a_log_in_the_store(proxy: Proxy, kitti
 
 
 async def test_a_log_uploaded_while_serving_is_found_on_first_request(proxy: Proxy, s3: MotoS3, tmp_path: Path):
-    async with running_server([ROOT, f"s3://{BUCKET}/late"]) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT, f"s3://{BUCKET}/late"]) as server:
         assert "new/drive" not in server.catalog.names()
         s3.upload(write_log(tmp_path / "late", ten_hz(4)), BUCKET, "late/new/drive")
         listings = len(proxy.requests)
@@ -118,7 +120,7 @@ async def test_a_log_uploaded_while_serving_is_found_on_first_request(proxy: Pro
 
 
 async def test_two_sessions_cause_one_get_per_frame_and_the_index_is_read_once(proxy: Proxy):
-    async with running_server([ROOT]) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT]) as server:
         first, second = await asyncio.gather(stream(server, KITTI), stream(server, KITTI))
         again = await stream(server, KITTI)
     assert len(updates(first)) == len(updates(second)) == len(updates(again)) == 25
@@ -129,7 +131,7 @@ async def test_two_sessions_cause_one_get_per_frame_and_the_index_is_read_once(p
 
 
 async def test_a_point_in_time_query_is_one_get(proxy: Proxy):
-    async with running_server([ROOT]) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT]) as server:
         async with client(server, f"/?log={KITTI}") as viewer:
             await viewer.recv()
             before = len(frame_gets(proxy))
@@ -143,7 +145,7 @@ async def test_a_stream_keeps_several_gets_in_flight_within_its_count(s3: MotoS3
     async with running_proxy(s3.port, delay=0.05) as slow:
         for name, value in store_env(slow.url).items():
             monkeypatch.setenv(name, value)
-        async with running_server([ROOT], store_read_ahead=6) as server:  # type: ignore[arg-type]
+        async with running_server([ROOT], store_read_ahead=6) as server:
             await server.catalog.open(KITTI)
             slow.most_in_flight = 0
             assert len(updates(await stream(server, KITTI))) == 25
@@ -156,7 +158,7 @@ async def test_a_stream_keeps_its_gets_within_its_bytes(s3: MotoS3, monkeypatch:
     async with running_proxy(s3.port, delay=0.05) as slow:
         for name, value in store_env(slow.url).items():
             monkeypatch.setenv(name, value)
-        async with running_server([ROOT], store_read_ahead=6, store_read_ahead_mb=smallest / 2 / (1 << 20)) as server:  # type: ignore[arg-type]
+        async with running_server([ROOT], store_read_ahead=6, store_read_ahead_mb=smallest / 2 / (1 << 20)) as server:
             await server.catalog.open(KITTI)
             slow.most_in_flight = 0
             assert len(updates(await stream(server, KITTI))) == 25
@@ -175,7 +177,7 @@ FAULTS = {  # what the proxy does to every GET of one frame, what the error says
 @pytest.mark.parametrize("fault", FAULTS.values(), ids=FAULTS.keys())
 async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(proxy: Proxy, fault: tuple[dict[str, Any], str, int, float]):
     what, cause, tries, timeout = fault
-    async with running_server([ROOT], store_retries=2, store_timeout=timeout) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT], store_retries=2, store_timeout=timeout) as server:
         await server.catalog.open(KITTI)
         injected = proxy.fault(f"{KITTI}/5-frame.glb", **what)
         messages = await stream(server, KITTI)
@@ -189,7 +191,7 @@ async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(prox
 
 @pytest.mark.parametrize("what", [{"status": 503}, {"status": 500}, {"cut_after": 1000}], ids=["503", "500", "body cut"])
 async def test_a_failure_that_passes_is_retried(proxy: Proxy, what: dict[str, Any]):
-    async with running_server([ROOT], store_retries=2) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT], store_retries=2) as server:
         await server.catalog.open(KITTI)
         injected = proxy.fault(f"{KITTI}/5-frame.glb", times=2, **what)
         messages = await stream(server, KITTI)
@@ -198,8 +200,8 @@ async def test_a_failure_that_passes_is_retried(proxy: Proxy, what: dict[str, An
 
 
 async def test_an_object_deleted_from_the_store_is_an_error_and_the_rest_is_served(proxy: Proxy, s3: MotoS3, tmp_path: Path):
-    s3.upload(write_log(tmp_path / "gone", ten_hz(4), fmt=json_format()), BUCKET, "gone/drive")
-    async with running_server([f"s3://{BUCKET}/gone"]) as server:  # type: ignore[arg-type]
+    s3.upload(write_log(tmp_path / "gone", ten_hz(4), fmt=Format.JSON), BUCKET, "gone/drive")
+    async with running_server([f"s3://{BUCKET}/gone"]) as server:
         await server.catalog.open("drive")
         s3.delete(BUCKET, "gone/drive/3-frame.json")
         messages = await stream(server, "drive")
@@ -210,7 +212,7 @@ async def test_an_object_deleted_from_the_store_is_an_error_and_the_rest_is_serv
 
 async def test_a_store_that_refuses_the_listing_serves_nothing_and_says_so(proxy: Proxy, caplog: pytest.LogCaptureFixture):
     proxy.fault("list-type", status=403)
-    async with running_server([ROOT]) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT]) as server:
         assert server.catalog.names() == []
         async with client(server, f"/?log={KITTI}") as viewer:
             error = await viewer.recv()
@@ -226,7 +228,7 @@ async def test_credentials_and_endpoint_come_from_the_shared_aws_files(proxy: Pr
     monkeypatch.setenv("AWS_SHARED_CREDENTIALS_FILE", str(tmp_path / "credentials"))
     monkeypatch.setenv("AWS_CONFIG_FILE", str(tmp_path / "config"))
     monkeypatch.setenv("AWS_PROFILE", "fleet")
-    async with running_server([ROOT]) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT]) as server:
         assert KITTI in server.catalog.names()
     assert b"Credential=AKIAFROMTHEFILE00001/" in proxy.heads[0] and b"/eu-west-1/s3/" in proxy.heads[0]
 
@@ -278,7 +280,7 @@ async def test_the_catalog_lists_logs_in_the_store_and_forgets_removed_ones(prox
         with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/") as response:
             return {log["name"]: log for log in json.loads(response.read())["logs"]}
 
-    async with running_server([ROOT, f"s3://{BUCKET}/brief"]) as server:  # type: ignore[arg-type]
+    async with running_server([ROOT, f"s3://{BUCKET}/brief"]) as server:
         listed = await asyncio.to_thread(catalog, server)
         assert listed["drive"]["frames"] == 2 and listed[KITTI]["frames"] == 25
         assert listed[KITTI]["start_time"] == START and "/lidar/points" in listed[KITTI]["streams"]
