@@ -1,10 +1,10 @@
-"""Static logs: directories of pre-encoded frames in the reference layout.
+"""Static logs: folders of pre-encoded frames in the reference layout.
 
 A log folder (see :mod:`xviz_server.layout`) holds the index, the
 metadata message and one file per state update, as JSON, GLB or protobuf
-(PBE). The folder is a directory or a prefix in an object store (see
-:mod:`xviz_server.folders`). PBE frames are served as GLB: each is transcoded when read, and the
-frame cache keeps the GLB.
+(PBE); it is a directory or a prefix in an object store (see
+:mod:`xviz_server.folders`). PBE frames are served as GLB: each is
+transcoded when read, and the frame cache keeps the GLB.
 
 An index that is missing, unreadable, disagrees with the frame files or
 whose times go back from a frame to the next is rebuilt by reading every
