@@ -289,3 +289,16 @@ async def test_the_catalog_lists_logs_in_the_store_and_forgets_removed_ones(prox
         assert "drive" not in await asyncio.to_thread(catalog, server)
         async with client(server, "/?log=drive") as viewer:
             assert (await viewer.recv())["type"] == "xviz/error"
+
+
+async def test_a_store_that_went_away_ends_the_stream_with_errors_and_the_server_serves_on(proxy: Proxy, tmp_path: Path):
+    write_log(tmp_path / "local" / "drive", ten_hz(3))
+    async with running_server([ROOT, tmp_path / "local"], store_retries=1) as server:
+        await server.catalog.open(KITTI)
+        await proxy.close()  # nothing listens there any more
+        messages = await stream(server, KITTI)
+        local = await stream(server, "drive")
+    errors = [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
+    assert len(errors) == 25 and not updates(messages)
+    assert all("the connection failed or was cut short after 1 retry" in error for error in errors), errors[0]
+    assert len(updates(local)) == 3
