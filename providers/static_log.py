@@ -1,9 +1,10 @@
-"""Static logs: directories of pre-encoded frames in the reference layout.
+"""Static logs: folders of pre-encoded frames in the reference layout.
 
-A log directory (see :mod:`xviz_server.layout`) holds the index, the
+A log folder (see :mod:`xviz_server.layout`) holds the index, the
 metadata message and one file per state update, as JSON, GLB or protobuf
-(PBE). PBE frames are served as GLB: each is transcoded when read, and the
-frame cache keeps the GLB.
+(PBE); it is a directory or a prefix in an object store (see
+:mod:`xviz_server.folders`). PBE frames are served as GLB: each is
+transcoded when read, and the frame cache keeps the GLB.
 
 An index that is missing, unreadable, disagrees with the frame files or
 whose times go back from a frame to the next is rebuilt by reading every
@@ -13,18 +14,18 @@ frame once; the rebuilt index is kept while the log is open.
 from __future__ import annotations
 
 import logging
-import os
-from pathlib import Path
 from typing import Any
 
 import orjson
 
 from ..codec import Format, decode, detect_format, is_pbe
 from ..exceptions import DecodeError, FrameError, LogError, MessageError
+from ..folders import Folder, LocalFolder
 from ..frames import placement, render, span
 from ..index import TimeIndex
-from ..layout import INDEX_FILE, INDEX_NUMBER, METADATA_NUMBER, Found, file_number, frame_files, frame_name, frame_numbers
+from ..layout import INDEX_FILE, INDEX_NUMBER, METADATA_NUMBER, Found, file_number, frame_name, frame_numbers
 from ..messages import unwrap
+from ..readahead import ReadAhead
 from ..work import Workers
 
 __all__ = ["StaticLogProvider", "StaticLog"]
@@ -35,47 +36,60 @@ _FORMATS = {"json": Format.JSON, "glb": Format.BINARY, "pbe": Format.BINARY}
 
 
 class StaticLogProvider:
-    """Opens log directories."""
+    """Opens log folders."""
 
     def __init__(self, workers: Workers) -> None:
         self._workers = workers
 
     async def open(self, found: Found) -> StaticLog:
+        return await self.open_folder(found.name, LocalFolder(found.path, self._workers))
+
+    async def open_folder(self, name: str, folder: Folder) -> StaticLog:
+        """Open the log ``name`` held by ``folder`` (on disk or in an object store)."""
         try:
-            files = await self._workers.io(frame_files, found.path)
+            files = await folder.files()
         except OSError as exc:
-            raise LogError(f"log {found.name!r}: cannot list its directory: {exc.strerror or exc}", log=found.name) from None
-        return StaticLog(found.name, found.path, files, self._workers)
+            raise LogError(f"log {name!r}: cannot list {folder.location}: {exc.strerror or exc}", log=name) from None
+        return StaticLog(name, folder, files, self._workers)
 
 
 class StaticLog:
-    """One log directory."""
+    """One log folder."""
 
-    def __init__(self, name: str, directory: Path, files: dict[int, str], workers: Workers) -> None:
+    def __init__(self, name: str, folder: Folder, files: dict[int, str], workers: Workers) -> None:
         self.name = name
-        self.directory = directory
+        self.folder = folder
         self._files = files
         self._workers = workers
         metadata_file = files.get(METADATA_NUMBER)
         if metadata_file is None:
             raise LogError(
-                f"log {name!r} has no metadata file (1-frame.glb, 1-frame.json or 1-frame.pbe) in {directory}",
+                f"log {name!r} has no metadata file (1-frame.glb, 1-frame.json or 1-frame.pbe) in {folder.location}",
                 log=name,
             )
         self.format = _FORMATS[metadata_file.rpartition(".")[2]]
 
-    def _read(self, number: int) -> bytes:
+    @property
+    def read_ahead(self) -> ReadAhead | None:
+        """How far a stream reads ahead of this log (its folder's say), if not the server's default."""
+        return self.folder.read_ahead
+
+    def stored_size(self, frame: int) -> int | None:
+        """The size of frame ``frame``'s file as listed, if known before reading it."""
+        file = self._files.get(file_number(frame))
+        return None if file is None else self.folder.size(file)
+
+    async def _read(self, number: int) -> bytes:
         file = self._files.get(number)
         if file is None:
             raise FileNotFoundError(f"{number}-frame file missing")
-        with open(os.path.join(self.directory, file), "rb") as stream:
-            return stream.read()
+        return await self.folder.read(file)
 
     async def metadata(self) -> dict[str, Any]:
         file = self._files[METADATA_NUMBER]
         try:
-            data = await self._workers.io(self._read, METADATA_NUMBER)
-            kind, content = unwrap(decode(data))
+            data = await self._read(METADATA_NUMBER)
+            kind, content = await self._workers.io(lambda: unwrap(decode(data)))
         except OSError as exc:
             raise LogError(f"log {self.name!r}: cannot read {file}: {exc.strerror or exc}", log=self.name) from None
         except (DecodeError, MessageError) as exc:
@@ -85,17 +99,18 @@ class StaticLog:
         return content
 
     async def index(self) -> TimeIndex:
-        index = await self._workers.io(self._stored_index)
+        index = await self._stored_index()
         if index is not None:
             return index
         return await self._build_index(frame_numbers(self._files))
 
-    def _stored_index(self) -> TimeIndex | None:
+    async def _stored_index(self) -> TimeIndex | None:
         """The log's ``0-frame.json``, when it is readable and names the frame files there are."""
         if self._files.get(INDEX_NUMBER) != INDEX_FILE:
             return None
         try:
-            index = TimeIndex.from_reference(orjson.loads(self._read(INDEX_NUMBER)))
+            data = await self._read(INDEX_NUMBER)
+            index = await self._workers.io(lambda: TimeIndex.from_reference(orjson.loads(data)))
         except (OSError, orjson.JSONDecodeError, DecodeError) as exc:
             logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
             return None
@@ -126,7 +141,7 @@ class StaticLog:
     async def read(self, frame: int) -> bytes:
         name = self.describe_frame(frame)
         try:
-            data = await self._workers.io(self._read, file_number(frame))
+            data = await self._read(file_number(frame))
         except OSError as exc:
             raise FrameError(
                 f"cannot read frame {frame} ({name}) of log {self.name!r}: {exc.strerror or exc}",

@@ -16,6 +16,7 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, AsyncIterator
 
 import numpy as np
@@ -172,8 +173,8 @@ def run_cli(*args: str, **env: str) -> subprocess.CompletedProcess[str]:
 
 
 @contextlib.asynccontextmanager
-async def running_server(data_dir: Path | None, **settings: Any) -> AsyncIterator[XVIZServer]:
-    """An XVIZ server on a free loopback port."""
+async def running_server(data_dir: Path | Sequence[Path | str] | None, **settings: Any) -> AsyncIterator[XVIZServer]:
+    """An XVIZ server on a free loopback port, serving one data directory or several (directories, ``s3://`` URLs)."""
     async with XVIZServer(Settings(host="127.0.0.1", port=0, data_dir=data_dir, **settings)) as server:
         yield server
 

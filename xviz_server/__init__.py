@@ -37,7 +37,7 @@ __all__ = [
     "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
     "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
-    "ConfigError", "DependencyError",
+    "ConfigError", "DependencyError", "StoreError",
     "__version__",
 ]
 
@@ -56,6 +56,7 @@ if TYPE_CHECKING:
         LogWriteError,
         MessageError,
         SchemaValidationError,
+        StoreError,
         UnknownSchemaError,
         WorkerError,
         XVIZError,

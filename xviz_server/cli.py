@@ -145,17 +145,19 @@ def _toml(value: Any) -> str:
 
 def _serve(args: argparse.Namespace) -> int:
     from .server import run
+    from .store import is_store_url
 
     settings = _settings_or_report(args, "serve")
     if settings is None:
         return 2
     configure_logging(settings.log_format)
-    if settings.data_dir is None and not settings.dataset:
+    if not settings.data_dir and not settings.dataset:
         settings = settings.model_copy(update={"dataset": ["demo"]})
         logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo log as 'demo'")
-    elif settings.data_dir is not None and not settings.data_dir.is_dir():
-        print(f"xviz-server serve: --data-dir {settings.data_dir} is not a directory", file=sys.stderr)
-        return 2
+    for directory in settings.data_dir:
+        if not is_store_url(directory) and not Path(directory).is_dir():
+            print(f"xviz-server serve: --data-dir {directory} is not a directory", file=sys.stderr)
+            return 2
     try:
         _run_async(run(settings))
     except ValueError as exc:  # a --dataset that is not KIND:PATH, a TLS file that cannot serve (ConfigError)

@@ -7,7 +7,8 @@ following a live feed. It makes no protocol decision of its own; it reports
 back to the session what happened (a stream ended, a frame failed, a live
 update came) and carries out the answer.
 
-A stream reads ``read_ahead`` frames ahead of the socket and sends them as
+A stream reads ``read_ahead`` frames ahead of the socket (or as far as the
+log's store says, see :mod:`xviz_server.readahead`) and sends them as
 fast as the client reads (``send`` waits while the socket's write buffer is
 full), or at the log's rate times ``speed``. Memory per connection is
 bounded: the frames read ahead (usually shared with the cache), a live
@@ -19,7 +20,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections import deque
 from collections.abc import Callable, Coroutine
 from typing import Any
 from urllib.parse import parse_qsl, unquote, urlsplit
@@ -36,6 +36,7 @@ from .live import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription
 from .logfmt import log_event, redact_url
 from .logs import Catalog, Log, check_log_name
 from .metrics import Metrics
+from .readahead import ReadAhead, Window
 from .session import Close, ConfigureLive, Event, OpenLog, QueryInstant, Send, Session, SubscribeLive
 from .session import CancelStream, SendLiveMetadata, SendLiveUpdate, StreamFrames
 from .settings import Settings
@@ -219,14 +220,11 @@ class Connection:
         loop = asyncio.get_running_loop()
         clock_start = loop.time()
         numbers = request.frames.tolist()
-        ahead: deque[asyncio.Future[bytes]] = deque()
-        following = 0
+        limits = log.read_ahead or ReadAhead(self.settings.read_ahead)
+        ahead = Window(numbers, lambda number: log.frame(number, request.fmt, request.streams), limits, log.stored_size)
         try:
             for position in range(len(numbers)):
-                while len(ahead) < self.settings.read_ahead and following < len(numbers):
-                    ahead.append(asyncio.ensure_future(log.frame(numbers[following], request.fmt, request.streams)))
-                    following += 1
-                loading = ahead.popleft()
+                loading = ahead.next()
                 if request.speed is not None:
                     due = clock_start + (request.times[position] - request.times[0]) / request.speed
                     await _wait(stop, due - loop.time())
@@ -247,8 +245,7 @@ class Connection:
         except Exception as exc:  # still ends with its done, and the next request starts
             await self._failed(f"transform_log {request.request_id!r}", exc)
         finally:
-            for loading in ahead:
-                loading.cancel()
+            ahead.cancel()
         self._stream = None
         await self._step("the end of a stream", self.session.stream_ended, request.request_id)
 

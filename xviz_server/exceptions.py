@@ -23,6 +23,7 @@ __all__ = [
     "DatasetError",
     "ConfigError",
     "DependencyError",
+    "StoreError",
 ]
 
 
@@ -149,3 +150,15 @@ class ConfigError(XVIZError, ValueError):
 
 class DependencyError(XVIZError, ImportError):
     """An installed library is a version that xviz-server was not tested with."""
+
+
+class StoreError(XVIZError, OSError):
+    """A request to an object store failed after its retries; ``key`` is the object's ``s3://`` URL.
+
+    It is an :class:`OSError` too, like a file that cannot be read, since a
+    log's bytes come from either.
+    """
+
+    def __init__(self, message: str, *, key: str) -> None:
+        super().__init__(message)
+        self.key = key

@@ -27,10 +27,12 @@ from .index import TimeIndex
 from .messages import XVIZ_VERSION, envelope, is_number
 from .state import COMPLETE_TYPES
 from .layout import INDEX_FILE, LOG, Found, discover, is_log_directory
-from .providers import LogSource, Provider
+from .providers import LogSource
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
 from .datasets import FILE_KINDS, GENERATED, detect
+from .readahead import ReadAhead
+from .store import ObjectStore, StoredLog
 from .work import Place, Workers
 
 __all__ = ["Catalog", "Log", "check_log_name"]
@@ -94,6 +96,8 @@ class Log:
         self._cache = cache
         self._workers = workers
         self._validate = validate
+        #: How far a stream reads ahead of this log, when its source says (a log in an object store).
+        self.read_ahead: ReadAhead | None = getattr(source, "read_ahead", None)
         self._metadata_messages = {
             fmt: encode(envelope("metadata", self.metadata), fmt) for fmt in Format
         }
@@ -123,6 +127,11 @@ class Log:
     def streams(self) -> list[str]:
         """Names of the streams the metadata declares."""
         return sorted(self.metadata.get("streams") or ())
+
+    def stored_size(self, number: int) -> int | None:
+        """The size of frame ``number`` as its source stores it, when known before reading it."""
+        size = getattr(self._source, "stored_size", None)
+        return None if size is None else size(number)
 
     def metadata_message(self, fmt: Format) -> bytes:
         """The ``xviz/metadata`` message, encoded in ``fmt``."""
@@ -270,13 +279,15 @@ def _complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, 
 class Catalog:
     """Every log under the data roots and every dataset named, by name; each is opened once and shared.
 
-    ``datasets`` are ``(kind, path, options)`` (``--dataset``); ``options``
-    go to every dataset (``image_max_width``).
+    ``roots`` are directories and object stores; a name found in a
+    directory or among the datasets is served from there rather than from a
+    store. ``datasets`` are ``(kind, path, options)`` (``--dataset``);
+    ``options`` go to every dataset (``image_max_width``).
     """
 
     def __init__(
         self,
-        roots: Sequence[Path],
+        roots: Sequence[Path | ObjectStore],
         cache: FrameCache,
         workers: Workers,
         *,
@@ -284,14 +295,15 @@ class Catalog:
         options: dict[str, Any] | None = None,
         validate: bool = False,
     ) -> None:
-        self._roots = [Path(root) for root in roots]
+        self._roots = [Path(root) for root in roots if not isinstance(root, ObjectStore)]
+        self._stores = [root for root in roots if isinstance(root, ObjectStore)]
         self._datasets = [(kind, Path(path), options) for kind, path, options in datasets]
         self._logs = StaticLogProvider(workers)
         self._converted = DatasetProvider(workers, options)
         self._cache = cache
         self._workers = workers
         self._validate = validate
-        self._found: dict[str, Found] = {}
+        self._found: dict[str, Found | StoredLog] = {}
         self._open: dict[str, asyncio.Task[Log]] = {}
         self._stamps: dict[str, tuple[int, ...]] = {}  # what _stamp() said when each was opened
 
@@ -305,7 +317,11 @@ class Catalog:
 
     async def scan(self) -> list[str]:
         """Look for logs again (a log added to a data directory appears, a removed one goes)."""
-        self._found = await self._workers.io(self._discover)
+        found: dict[str, Found | StoredLog] = {**await self._workers.io(self._discover)}
+        for store in self._stores:
+            for stored in await store.discover():
+                found.setdefault(stored.name, stored)
+        self._found = found
         for gone in self._open.keys() - self._found.keys():
             del self._open[gone]
             self._stamps.pop(gone, None)
@@ -349,18 +365,22 @@ class Catalog:
         found = self._found.get(name)
         if found is None:
             found = await self._workers.io(self._lookup, name)
+            for store in self._stores:
+                found = found or await store.lookup(name)
             if found is not None:
                 self._found[name] = found
         if found is None:
             available = self.names()
             shown = ", ".join(repr(n) for n in available[:20]) or "none"
             raise LogNotFound(f"no log named {name!r}; available: {shown}", name=name, available=available)
-        stamp = () if found.kind in GENERATED else await self._workers.io(_stamp, found.path)
+        # A log in a store is read once; a scan finds the logs added or removed since.
+        where = None if isinstance(found, StoredLog) or found.kind in GENERATED else found.path
+        stamp = () if where is None else await self._workers.io(_stamp, where)
         if stamp is None:
             self._found.pop(name, None)
             self._open.pop(name, None)
             self._stamps.pop(name, None)
-            raise LogNotFound(f"log {name!r} is gone: {found.path} was removed", name=name, available=self.names())
+            raise LogNotFound(f"log {name!r} is gone: {where} was removed", name=name, available=self.names())
         task = self._open.get(name)
         if task is not None and self._stamps.get(name) != stamp:
             logger.info("log %r changed on disk; reading it again", name)
@@ -371,10 +391,13 @@ class Catalog:
             self._stamps[name] = stamp
         return await asyncio.shield(task)
 
-    async def _open_log(self, found: Found) -> Log:
+    async def _open_log(self, found: Found | StoredLog) -> Log:
         started = time.perf_counter()
-        provider: Provider = self._logs if found.kind == LOG else self._converted
-        source = await provider.open(found)
+        source: LogSource
+        if isinstance(found, StoredLog):
+            source = await self._logs.open_folder(found.name, found.folder)
+        else:
+            source = await (self._logs if found.kind == LOG else self._converted).open(found)
         log = await Log.open(source, self._cache, self._workers, self._validate)
         logger.info("opened log %r: %d frames, %s, in %.3f s", found.name, len(log.index), log.format.value, time.perf_counter() - started)
         return log

@@ -52,6 +52,7 @@ from .live.replay import replay
 from .logs import Catalog
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
+from .store import data_roots
 from .tls import server_context
 from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
@@ -84,7 +85,7 @@ class XVIZServer:
         self.workers = Workers()
         self.cache = FrameCache(int(settings.cache_mb * MB), self.metrics)
         self.catalog = Catalog(
-            [settings.data_dir] if settings.data_dir is not None else [],
+            data_roots(settings),
             self.cache,
             self.workers,
             datasets=[parse_dataset(text) for text in settings.dataset],
@@ -123,12 +124,13 @@ class XVIZServer:
         if self._recorder is not None:
             await self.workers.io(self._recorder.check)
         names = await self.catalog.scan()
-        logger.info("serving %d logs from %s", len(names), self.settings.data_dir or "datasets given on the command line")
-        if self.settings.data_dir is not None and not names:
+        roots = ", ".join(self.settings.data_dir)
+        logger.info("serving %d logs from %s", len(names), roots or "datasets given on the command line")
+        if self.settings.data_dir and not names:
             logger.warning(
                 "no logs under %s yet: put logs in the reference layout or datasets there "
                 "(mounted, in a container); one added later is served on the first request that names it",
-                self.settings.data_dir,
+                roots,
             )
         if self.catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first

@@ -6,12 +6,14 @@ The configuration file is TOML with the settings' names as keys
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, model_validator
+import orjson
+from pydantic import Field, field_validator, model_validator
 from .datasets import DEFAULT_IMAGE_WIDTH
-from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
+from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
 from .exceptions import ConfigError
 
@@ -38,10 +40,11 @@ class Settings(BaseSettings):
         # Flags (given as arguments) over the environment over the file.
         return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)
 
-    data_dir: Path | None = Field(
-        default=None,
-        description="directory of logs to serve (each log a folder in the reference layout); "
-        "default: a built-in demo log",
+    data_dir: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="directory of logs to serve (each log a folder in the reference layout), or an object store "
+        "prefix s3://BUCKET/PREFIX (configured by the AWS variables and files); repeat for more (env: one, or a "
+        "JSON list); default: a built-in demo log",
     )
     dataset: list[str] = Field(
         default_factory=list,
@@ -61,6 +64,10 @@ class Settings(BaseSettings):
         default=False, description="offer permessage-deflate (costly for point clouds; for JSON over slow links)"
     )
     read_ahead: int = Field(default=4, ge=1, description="frames a streaming session loads ahead of the socket")
+    store_read_ahead: int = Field(default=8, ge=1, description="GETs a streaming session keeps in flight to an object store")
+    store_read_ahead_mb: float = Field(default=32, gt=0, description="most MB of frames a streaming session has in flight from an object store")
+    store_timeout: float = Field(default=30, gt=0, description="seconds an object store request may take, connecting to last byte")
+    store_retries: int = Field(default=3, ge=0, description="times a failed object store GET (5xx, timeout, lost connection) is tried again")
     lookback: int = Field(
         default=100, ge=1, description="most frames a point-in-time query merges to find a complete state"
     )
@@ -117,6 +124,18 @@ class Settings(BaseSettings):
         "(default: any; clients that send no Origin, like scripts, are always allowed)",
     )
 
+
+    @field_validator("data_dir", mode="before")
+    @classmethod
+    def _data_dirs(cls, value: Any) -> Any:
+        """One directory or URL, or several: a list, or a JSON list in the environment."""
+        if value is None:
+            return []
+        if isinstance(value, str) and value.startswith("["):
+            return orjson.loads(value)
+        if isinstance(value, (str, os.PathLike)):
+            return [os.fspath(value)]
+        return [os.fspath(item) for item in value] if isinstance(value, (list, tuple)) else value
 
     @model_validator(mode="before")
     @classmethod
