@@ -23,6 +23,7 @@ __all__ = [
     "DatasetError",
     "ConfigError",
     "DependencyError",
+    "BrokerError",
 ]
 
 
@@ -149,3 +150,7 @@ class ConfigError(XVIZError, ValueError):
 
 class DependencyError(XVIZError, ImportError):
     """An installed library is a version that xviz-server was not tested with."""
+
+
+class BrokerError(XVIZError):
+    """An entry read from the broker (Redis) between replicas is not one that xviz-server writes."""

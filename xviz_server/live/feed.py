@@ -149,6 +149,8 @@ class LiveFeed:
         self.connected = False
         #: Who feeds it (a source's address), kept for :data:`GRACE` seconds after the source leaves.
         self.owner: str | None = None
+        #: The replica whose source feeds it, when this feed mirrors one held elsewhere (see :mod:`.broker`).
+        self.origin: str | None = None
         self._left_at = -math.inf
         self._metadata_messages: dict[Format, bytes] = {}
         self._state: dict[str, Any] | None = None
@@ -170,6 +172,7 @@ class LiveFeed:
         self._state = None
         for subscriber in self._subscribers:
             subscriber.offer(FeedEvent("metadata"))
+        self.registry.feed_event(self, FeedEvent("metadata"))
 
     async def publish(self, frame: Mapping[str, Any] | bytes) -> LiveUpdate:
         """Send a state update to every viewer.
@@ -210,6 +213,7 @@ class LiveFeed:
         self._left_at = time.monotonic()
         for subscriber in self._subscribers:
             subscriber.offer(FeedEvent("gone"))
+        self.registry.feed_event(self, FeedEvent("gone"))
         asyncio.get_running_loop().call_later(GRACE, self._forget, self._left_at)
         if self.metadata is None:  # it never started: nothing to keep
             self.registry.drop(self)
@@ -221,6 +225,8 @@ class LiveFeed:
         source's for :data:`GRACE` seconds after that one left. A different
         source taking over starts afresh: its viewers get its metadata as new.
         """
+        if self.origin is not None:
+            raise XVIZError(f"live feed {self.name!r} already has a source, on replica {self.origin}")
         if self.connected:
             raise XVIZError(f"live feed {self.name!r} already has a source")
         if self.owner not in (None, source):
@@ -232,6 +238,12 @@ class LiveFeed:
             logger.warning("live feed %r taken over by %s (its source was %s)", self.name, source, self.owner)
             self.metadata, self._state = None, None
         self.owner = source
+
+    def skipped(self, count: int) -> None:
+        """``count`` updates of the source never reached this feed (lost between replicas): each viewer is told
+        of them as of updates dropped because it fell behind."""
+        for subscriber in self._subscribers:
+            subscriber.dropped += count
 
     def _forget(self, left_at: float) -> None:
         if not self.connected and self._left_at == left_at:
@@ -302,6 +314,10 @@ class LiveRegistry:
         self.on_drop = on_drop
         #: Called with every feed and update published, synchronously (for recording).
         self.listeners: list[Callable[[LiveFeed, LiveUpdate], None]] = []
+        #: Called with every feed whose metadata changed or whose source left, synchronously (for the broker).
+        self.watchers: list[Callable[[LiveFeed, FeedEvent], None]] = []
+        #: Awaited with every feed a source claims here; each may refuse it (the broker: another replica holds it).
+        self.claims: list[Callable[[LiveFeed], Awaitable[None]]] = []
         self._waited: dict[str, _Waited] = {}
 
     def __iter__(self) -> Iterator[LiveFeed]:
@@ -320,6 +336,21 @@ class LiveRegistry:
             if waited is not None:
                 waited.future.set_result(source)
         return source
+
+    def feed_event(self, feed: LiveFeed, event: FeedEvent) -> None:
+        for watcher in self.watchers:
+            watcher(feed, event)
+
+    async def claim(self, feed: LiveFeed, source: str) -> None:
+        """Let ``source`` feed ``feed``, as :meth:`LiveFeed.claim`, if every one of :attr:`claims` agrees."""
+        previous = feed.owner
+        feed.claim(source)
+        try:
+            for check in self.claims:
+                await check(feed)
+        except XVIZError:
+            feed.owner = previous
+            raise
 
     def drop(self, feed: LiveFeed) -> None:
         """Forget ``feed`` (one that never started and has no source)."""
