@@ -28,8 +28,10 @@ from websockets.exceptions import ConnectionClosed
 
 from helpers import run_xviz_session_async
 from xviz_server.codec import decode
+from xviz_server.viewer import STATIC_DIR
 
 KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
+BROWSER = Path(__file__).with_name("browser.mjs")
 PASSWORD = "pa55-for-the-broker"
 TTL = 2.0  # --broker-ttl of the replicas here
 
@@ -407,6 +409,30 @@ async def test_a_full_broker_costs_the_owner_its_broker_writes_only(tmp_path: Pa
             assert await client.xlen("xviz:updates:car") >= 1
             await client.aclose()
             await viewer.close()
+
+
+@pytest.mark.skipif(
+    not (STATIC_DIR / "index.html").is_file() or shutil.which("chromium") is None or shutil.which("node") is None,
+    reason="needs the viewer bundle and chromium: run scripts/test.sh",
+)
+async def test_the_built_in_viewer_on_another_replica_lists_and_plays_the_feed(tmp_path: Path, broker: Broker):
+    """streetscape.gl's XVIZLiveLoader, in the built-in viewer in headless Chromium, on B; the source on A."""
+    async with replicas(tmp_path, broker, 2) as (a, b):
+        async with source(a) as car:
+            await until(lambda: _listed(b, "car"), what="B to list A's feed")
+            pushing = asyncio.ensure_future(push(car, frames() * 4))
+            options = {"url": f"http://127.0.0.1:{b.port}/", "click": "car", "frames": 10, "timeout": 90_000,
+                       "screenshot": str(tmp_path / "viewer-on-b.png")}
+            process = await asyncio.create_subprocess_exec(
+                "node", str(BROWSER), json.dumps(options), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+            stdout, stderr = await process.communicate()
+            pushing.cancel()
+    assert process.returncode == 0, stderr.decode()
+    report = json.loads(stdout)
+    assert "car" in report["catalogText"] and "source connected" in report["catalogText"]
+    assert report["pageErrors"] == [] and report["alerts"] == [] and report["failedRequests"] == []
+    assert report["frames"] >= 10 and report["drawn"], report
+    print(f"the viewer on B drew A's feed {report['firstDrawnMs']} ms after opening the page")
 
 
 def test_the_broker_url_is_shown_without_its_password():

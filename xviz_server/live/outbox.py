@@ -25,7 +25,7 @@ from ..session import Variant
 from ..state import COMPLETE_TYPES
 from ..work import Workers
 from .feed import FeedEvent, LiveFeed, LiveUpdate
-from .link import BLOCK_MS, FAILURES, Link
+from .link import BLOCK_MS, COMMAND_TIMEOUT, FAILURES, Link
 from .streams import CLAIM, FEEDS, Entry, control, registration, updates
 
 __all__ = ["Outbox"]
@@ -42,6 +42,11 @@ SET_IF_OWNER = """
 if redis.call('HGET', KEYS[1], 'owner') ~= ARGV[1] then return 0 end
 redis.call('HSET', KEYS[1], unpack(ARGV, 2))
 return 1
+"""
+#: Deletes a registration if this replica holds it. KEYS: registration; ARGV: replica.
+RELEASE = """
+if redis.call('HGET', KEYS[1], 'owner') ~= ARGV[1] then return 0 end
+return redis.call('DEL', KEYS[1])
 """
 
 
@@ -70,6 +75,7 @@ class Outbox:
         self._full = False  # the broker refused the last write for want of memory
         self._claim = link.redis.register_script(CLAIM)
         self._set = link.redis.register_script(SET_IF_OWNER)
+        self._release = link.redis.register_script(RELEASE)
         self._tasks = [asyncio.ensure_future(self._write()), asyncio.ensure_future(self._take_reconfigures())]
 
     # -- what the feed does ---------------------------------------------------
@@ -213,6 +219,16 @@ class Outbox:
                 await self.feed.reconfigure(config_update)
 
     async def close(self) -> None:
+        """Stop writing; if this replica holds the feed, tell the others its source left and unregister it."""
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self.claimed and self.link.up:
+            try:
+                await asyncio.wait_for(self._unregister(), COMMAND_TIMEOUT)
+            except (*FAILURES, asyncio.TimeoutError) as exc:
+                logger.warning("live feed %r: cannot unregister it from the broker: %s", self.feed.name, exc)
+
+    async def _unregister(self) -> None:
+        if await self._release(keys=[registration(self.feed.name)], args=[self.link.id]):
+            await self._append(Entry(b"gone", self.link.id), MIN_ENTRIES)
