@@ -302,8 +302,20 @@ async def test_a_feed_on_one_replica_reaches_viewers_on_the_others_as_on_its_own
             await until(lambda: _unlisted(c, "car"), what="C to drop it too")
             await until(lambda: _told(viewers[1], "went away"), what="B's viewer to be told")
             assert b.log(r"live feed 'car': replica \S+ stopped renewing it")
-            for viewer in viewers[1:]:
-                await viewer.close()
+
+        # The feed comes back on a new replica: the viewers who stayed on B and C resume.
+        again = await Replica.start(tmp_path / "logs-again", broker)
+        try:
+            async with source(again) as car:
+                await until(lambda: _listed(b, "car"), what="B to list the feed again")
+                await push(car, updates[:3])
+                for viewer in viewers[1:]:
+                    await viewer.count(len(updates) + 3)
+                    assert viewer.updates[-3:] == updates[:3] and viewer.metadata == 1
+        finally:
+            await again.stop()
+        for viewer in viewers[1:]:
+            await viewer.close()
 
 
 async def test_reconfigure_passes_through_the_broker_and_a_second_source_is_refused(tmp_path: Path, broker: Broker):

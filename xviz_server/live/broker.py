@@ -46,6 +46,8 @@ logger = logging.getLogger("xviz_server.broker")
 MAX_BACKOFF = 5.0
 #: Entries a feed's control stream keeps (viewers' reconfigures).
 CONTROL_ENTRIES = 64
+#: Feeds of replicas that went away kept for their viewers, who resume if the feed comes back.
+DEPARTED = 256
 
 
 class Broker:
@@ -65,6 +67,7 @@ class Broker:
         self._max_bytes = max_bytes
         self._outboxes: dict[str, Outbox] = {}
         self._mirrors: dict[str, Mirror] = {}
+        self._departed: dict[str, LiveFeed] = {}  # oldest first
         self._conflicts: set[str] = set()  # feeds with a source here and on another replica, logged once
         self._run_id: str | None = None
         self._hold_until = 0.0  # keep mirrors whose registration is missing until then (the broker restarted)
@@ -212,7 +215,9 @@ class Broker:
                 return
             if (outbox := self._outboxes.pop(name, None)) is not None:
                 asyncio.ensure_future(outbox.close())
-        feed = feed or self.registry.feed(name)
+        if feed is None:
+            departed = self._departed.pop(name, None)
+            feed = self.registry.feed(name) if departed is None else self.registry.add(departed)
         feed.origin = owner
 
         async def forward(config_update: dict[str, Any]) -> None:
@@ -231,3 +236,6 @@ class Broker:
             feed.disconnect()
         self.registry.drop(feed)
         self._conflicts.discard(name)
+        self._departed[name] = feed
+        if len(self._departed) > DEPARTED:
+            del self._departed[next(iter(self._departed))]

@@ -329,13 +329,16 @@ class LiveRegistry:
     def feed(self, name: str) -> LiveFeed:
         """The feed called ``name``, created if new (for sources)."""
         source = self._feeds.get(name)
-        if source is None:
-            source = self._feeds[name] = LiveFeed(name, self)
-            logger.info("live feed %r created", name)
-            waited = self._waited.pop(name, None)
-            if waited is not None:
-                waited.future.set_result(source)
-        return source
+        return source if source is not None else self.add(LiveFeed(name, self))
+
+    def add(self, feed: LiveFeed) -> LiveFeed:
+        """Serve ``feed`` under its name: a new feed, or one that :meth:`drop` forgot and whose viewers stayed."""
+        self._feeds[feed.name] = feed
+        logger.info("live feed %r created", feed.name)
+        waited = self._waited.pop(feed.name, None)
+        if waited is not None:
+            waited.future.set_result(feed)
+        return feed
 
     def feed_event(self, feed: LiveFeed, event: FeedEvent) -> None:
         for watcher in self.watchers:

@@ -66,7 +66,7 @@ class Mirror:
     async def _start(self) -> bytes:
         """Take the registered metadata; the stream id to read from (that of the newest complete state)."""
         meta, connected, key = await self.link.fields(registration(self.feed.name), "meta", "connected", "key")
-        if meta is not None and self.feed.metadata is None:
+        if meta is not None:
             try:
                 self.feed.set_metadata(Entry(b"meta", b"?", data=meta).json())
             except BrokerError as exc:

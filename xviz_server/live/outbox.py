@@ -98,7 +98,7 @@ class Outbox:
     async def claim(self) -> str | None:
         """Register the feed as this replica's, or renew it; the replica that holds it instead, if any."""
         name = self.feed.name
-        answer = await self._claim(keys=[registration(name), FEEDS], args=[self.link.id, self._ttl_ms, name])
+        answer = await self._claim(keys=[registration(name), FEEDS, updates(name)], args=[self.link.id, self._ttl_ms, name])
         if isinstance(answer, bytes):
             holder = answer.decode(errors="replace")
             if self.refused_by != holder:

@@ -31,12 +31,14 @@ FEEDS = "xviz:feeds"
 VERSION = b"1"
 KINDS = frozenset({b"meta", b"update", b"key", b"gone", b"reconfigure"})
 
-#: Claims (or renews) a feed's registration, atomically. KEYS: registration, FEEDS;
-#: ARGV: replica id, time to live in ms, feed name. Returns the other owner's id when
-#: another replica holds the feed, 1 when the registration is new, 0 when renewed.
+#: Claims (or renews) a feed's registration, atomically. KEYS: registration, FEEDS, the
+#: feed's stream; ARGV: replica id, time to live in ms, feed name. Returns the other
+#: owner's id when another replica holds the feed, 1 when the registration is new (the
+#: stream, a previous owner's, starts afresh), 0 when renewed.
 CLAIM = """
 local owner = redis.call('HGET', KEYS[1], 'owner')
 if owner and owner ~= ARGV[1] then return owner end
+if not owner then redis.call('DEL', KEYS[3]) end
 redis.call('HSET', KEYS[1], 'owner', ARGV[1])
 redis.call('PEXPIRE', KEYS[1], ARGV[2])
 redis.call('SADD', KEYS[2], ARGV[3])
