@@ -480,3 +480,25 @@ async def _told(viewer: Viewer, text: str) -> bool:
 
 async def _logged(replica: Replica, text: str) -> bool:
     return bool(replica.log(re.escape(text)))
+
+
+def test_entries_round_trip_and_anything_else_is_refused_by_name():
+    from xviz_server.exceptions import BrokerError
+    from xviz_server.live.streams import Entry, before
+
+    entry = Entry(b"update", b"host:1:abc", 41, b"glTF...", complete=True)
+    assert Entry.parse(entry.fields()) == entry
+    assert Entry.parse(Entry(b"gone", b"host:1:abc").fields()).kind == b"gone"
+    for fields, problem in [
+        ({b"hello": b"world"}, "not an entry of layout version 1"),
+        ({b"v": b"1", b"t": b"update", b"o": b"x", b"n": b"seven", b"d": b"glTF"}, "number b'seven'"),
+        ({b"v": b"1", b"t": b"delete-all", b"o": b"x", b"n": b"1", b"d": b"x"}, "kind b'delete-all'"),
+        ({b"v": b"1", b"t": b"update", b"o": b"x", b"n": b"1"}, "update entry without data"),
+    ]:
+        with pytest.raises(BrokerError, match=re.escape(problem)):
+            Entry.parse(fields)
+    with pytest.raises(BrokerError, match="meta entry holding a JSON list"):
+        Entry(b"meta", b"x", data=b"[1, 2]").json()
+    assert before(b"1700000000123-3") == b"1700000000123-2"
+    assert before(b"1700000000123-0") == b"1700000000122-18446744073709551615"
+    assert before(b"0-0") == b"0-0"

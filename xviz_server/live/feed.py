@@ -341,6 +341,7 @@ class LiveRegistry:
         return feed
 
     def feed_event(self, feed: LiveFeed, event: FeedEvent) -> None:
+        """Tell the :attr:`watchers` what happened to ``feed``."""
         for watcher in self.watchers:
             watcher(feed, event)
 
@@ -356,7 +357,7 @@ class LiveRegistry:
             raise
 
     def drop(self, feed: LiveFeed) -> None:
-        """Forget ``feed`` (one that never started and has no source)."""
+        """Forget ``feed``: one that never started and has no source, or the mirror of a replica that went away."""
         if self._feeds.get(feed.name) is feed:
             del self._feeds[feed.name]
 

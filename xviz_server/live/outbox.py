@@ -84,6 +84,8 @@ class Outbox:
         """Queue an update or a feed event for the broker; never waits."""
         if isinstance(item, FeedEvent):
             self.left_at = asyncio.get_running_loop().time() if item.kind == "gone" else None
+            if self._items and self._items[-1] == item:
+                return  # queued already (events are written from the feed as it is then)
         elif not self.link.up or self.refused_by is not None:
             self.link.metrics.drops.labels("down" if not self.link.up else "error").inc()
             return
