@@ -200,10 +200,7 @@ async def source(replica: Replica, name: str = "car", query: str = "") -> AsyncI
     async with connect(replica.url(f"/ingest/{name}{query}"), max_size=None) as websocket:
         await websocket.send(METADATA)
 
-        async def started() -> bool:
-            return (await replica.live()).get(name, False)
-
-        await until(started, what=f"the feed {name!r} to start")
+        await until(lambda: _started(replica, name), what=f"the feed {name!r} to start")
         yield websocket
 
 
@@ -307,11 +304,13 @@ async def test_a_feed_on_one_replica_reaches_viewers_on_the_others_as_on_its_own
         again = await Replica.start(tmp_path / "logs-again", broker)
         try:
             async with source(again) as car:
-                await until(lambda: _listed(b, "car"), what="B to list the feed again")
+                await until(lambda: _started(b, "car"), what="B to list the feed again")
                 await push(car, updates[:3])
                 for viewer in viewers[1:]:
-                    await viewer.count(len(updates) + 3)
-                    assert viewer.updates[-3:] == updates[:3] and viewer.metadata == 1
+                    # From the newest complete state when B started reading again (each KITTI frame is one).
+                    await until(lambda: _got(viewer, updates[2]), what="the viewers who stayed to resume")
+                    resumed = viewer.updates[len(updates):]
+                    assert resumed == updates[3 - len(resumed):3] and viewer.metadata == 1
         finally:
             await again.stop()
         for viewer in viewers[1:]:
@@ -365,20 +364,24 @@ async def test_the_broker_down_at_start_then_restarted_mid_feed(tmp_path: Path):
             assert status == 200 and "down" in health and "retrying" in health
             assert len(replica.log("unreachable")) == 1
         try:
-            await broker.start()
-            await until(lambda: _up(a) , what="A to reach the broker")
-            await until(lambda: _up(b), what="B to reach the broker")
-            async with source(a) as car:
-                await until(lambda: _listed(b, "car"), what="B to list A's feed")
-                here, there = await Viewer.join(a), await Viewer.join(b)
+            async with source(a) as car:  # while the broker is down: A serves it to its own viewers
+                here = await Viewer.join(a)
+                await until(lambda: _sessions(a, 1), what="the viewer on A")
+                await push(car, updates[:3])
+                await broker.start()
+                await until(lambda: _up(a), what="A to reach the broker")
+                await until(lambda: _up(b), what="B to reach the broker")
+                await push(car, updates[3:5])
+                await until(lambda: _started(b, "car"), what="B to list A's feed, started")
+                there = await Viewer.join(b)  # a late joiner: the complete state first
                 await until(lambda: _sessions(b, 1), what="the viewer on B")
-                await push(car, updates[:5])
-                await there.count(5)
+                await push(car, updates[5:10])
+                await there.count(6)
                 broker.kill()
-                await push(car, updates[5:35])  # 3 s without the broker
+                await push(car, updates[10:40])  # 3 s without the broker
                 await broker.start()
                 await until(lambda: _up(a), what="A to reach the broker again")
-                await push(car, updates[35:])
+                await push(car, updates[40:])
                 await here.count(len(updates))
 
                 async def resumed() -> bool:
@@ -387,8 +390,8 @@ async def test_the_broker_down_at_start_then_restarted_mid_feed(tmp_path: Path):
                 await until(resumed, what="B's viewer to get the last update")
                 # A's own viewer never noticed; B's missed what the broker lost, was told how many, and resumed.
                 assert here.updates == updates and not here.notices
-                assert there.updates[:5] == updates[:5] and there.updates[-1] == updates[-1]
-                missed = len(updates) - len(there.updates)
+                assert timestamp(there.updates[0]) == timestamp(updates[4]) and there.updates[1:6] == updates[5:10]
+                missed = 1 + len(updates[5:]) - len(there.updates)
                 assert missed > 0
                 told = [int(m) for notice in there.notices for m in re.findall(r"(\d+) updates were dropped", notice)]
                 assert sum(told) == missed, (told, missed)
@@ -428,8 +431,11 @@ async def test_a_full_broker_costs_the_owner_its_broker_writes_only(tmp_path: Pa
     reason="needs the viewer bundle and chromium: run scripts/test.sh",
 )
 async def test_the_built_in_viewer_on_another_replica_lists_and_plays_the_feed(tmp_path: Path, broker: Broker):
-    """streetscape.gl's XVIZLiveLoader, in the built-in viewer in headless Chromium, on B; the source on A."""
-    async with replicas(tmp_path, broker, 2) as (a, b):
+    """streetscape.gl's XVIZLiveLoader, in the built-in viewer in headless Chromium, on B; the source on A.
+
+    A software-rendered page on a busy machine may fall behind: a queue that holds the whole run keeps it
+    from being told so (which the page would show as an alert)."""
+    async with replicas(tmp_path, broker, 2, "--live-queue", "128") as (a, b):
         async with source(a) as car:
             await until(lambda: _listed(b, "car"), what="B to list A's feed")
             pushing = asyncio.ensure_future(push(car, frames() * 4))
@@ -460,6 +466,14 @@ def test_the_broker_url_is_shown_without_its_password():
 
 async def _listed(replica: Replica, name: str) -> bool:
     return name in await replica.live()
+
+
+async def _got(viewer: Viewer, update: bytes) -> bool:
+    return viewer.updates[-1:] == [update]
+
+
+async def _started(replica: Replica, name: str) -> bool:
+    return (await replica.live()).get(name, False)
 
 
 async def _unlisted(replica: Replica, name: str) -> bool:

@@ -33,7 +33,7 @@ from ..logs import check_log_name
 from ..metrics import Metrics
 from ..work import Workers
 from .feed import GRACE, FeedEvent, LiveFeed, LiveRegistry, LiveUpdate
-from .link import COMMAND_TIMEOUT, FAILURES, Link
+from .link import COMMAND_TIMEOUT, FAILURES, Link, cancel
 from .mirror import Mirror
 from .outbox import Outbox
 from .streams import FEEDS, Entry, control, registration
@@ -72,6 +72,7 @@ class Broker:
         self._run_id: str | None = None
         self._hold_until = 0.0  # keep mirrors whose registration is missing until then (the broker restarted)
         self._task: asyncio.Task[None] | None = None
+        self._closed = False
         registry.listeners.append(self._published)
         registry.watchers.append(self._changed)
         registry.claims.append(self._claim)
@@ -81,9 +82,8 @@ class Broker:
         self._task = asyncio.ensure_future(self._run())
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            await asyncio.gather(self._task, return_exceptions=True)
+        self._closed = True
+        await cancel([] if self._task is None else [self._task])
         for outbox in self._outboxes.values():
             await outbox.close()
         for mirror in self._mirrors.values():
@@ -121,7 +121,8 @@ class Broker:
             self.link.failed(exc)
             return
         if holder is not None:
-            await self._outboxes.pop(feed.name).close()
+            if (refused := self._outboxes.pop(feed.name, None)) is not None:
+                await refused.close()
             raise XVIZError(f"live feed {feed.name!r} already has a source, on replica {holder}")
 
     async def _forward(self, name: str, config_update: dict[str, Any]) -> None:
@@ -136,10 +137,12 @@ class Broker:
 
     async def _run(self) -> None:
         delay = self.interval
-        while True:
+        while not self._closed:
             try:
                 await self._poll()
             except FAILURES as exc:
+                if self._closed:
+                    return
                 self.link.failed(exc)
                 delay = min(2 * delay, self.backoff)
             else:
@@ -207,14 +210,11 @@ class Broker:
                 self._conflicts.add(name)
             return
         feed = self.registry.find(name, exact=True)
-        if feed is not None and feed.origin is None:
-            if feed.connected:
-                if name not in self._conflicts:
-                    logger.error("live feed %r has a source here and on replica %s: each replica serves its own", name, owner)
-                    self._conflicts.add(name)
-                return
-            if (outbox := self._outboxes.pop(name, None)) is not None:
-                asyncio.ensure_future(outbox.close())
+        if feed is not None and feed.origin is None and (feed.connected or name in self._outboxes):
+            if name not in self._conflicts:  # this replica's source (or one within its grace period), or one claiming it
+                logger.error("live feed %r has a source here and on replica %s: each replica serves its own", name, owner)
+                self._conflicts.add(name)
+            return
         if feed is None:
             departed = self._departed.pop(name, None)
             feed = self.registry.feed(name) if departed is None else self.registry.add(departed)

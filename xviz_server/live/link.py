@@ -8,6 +8,7 @@ broker's URL is only ever shown without its password.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 import secrets
@@ -24,7 +25,7 @@ from redis.exceptions import RedisError
 from ..logfmt import redact_password
 from ..metrics import Metrics
 
-__all__ = ["Link", "FAILURES", "BLOCK_MS", "COMMAND_TIMEOUT"]
+__all__ = ["Link", "FAILURES", "BLOCK_MS", "COMMAND_TIMEOUT", "cancel"]
 
 logger = logging.getLogger("xviz_server.broker")
 
@@ -119,6 +120,19 @@ class Link:
     async def close(self) -> None:
         await self.redis.aclose()
         await self.blocking.aclose()
+
+
+async def cancel(tasks: list[asyncio.Task[None]]) -> None:
+    """Cancel ``tasks`` and wait for them, at most :data:`COMMAND_TIMEOUT` seconds.
+
+    The client may turn a cancellation that meets its own timeout into a
+    timeout error, which a loop takes for a broker that is down: each loop
+    also stops at its next turn once its owner is closed.
+    """
+    for task in tasks:
+        task.cancel()
+    if tasks:
+        await asyncio.wait(tasks, timeout=COMMAND_TIMEOUT)
 
 
 def _client(url: str, timeout: float) -> Redis:

@@ -21,7 +21,7 @@ import time
 
 from ..exceptions import BrokerError, XVIZError
 from .feed import LiveFeed
-from .link import FAILURES, Link
+from .link import FAILURES, Link, cancel
 from .streams import Entry, before, registration, updates
 
 __all__ = ["Mirror"]
@@ -43,17 +43,20 @@ class Mirror:
         self._owner = b""
         self._number: int | None = None  # of the owner's newest update read
         self._garbage = False  # a skipped entry was logged, and no good entry followed yet
+        self._closed = False
         self._task = asyncio.ensure_future(self._read())
 
     async def _read(self) -> None:
         last: bytes | None = None
         delay = RETRY
-        while True:
+        while not self._closed:
             try:
                 if last is None:
                     last = await self._start()
                 entries = await self.link.read(updates(self.feed.name), last, READ_COUNT)
             except FAILURES as exc:
+                if self._closed:
+                    return
                 self.link.failed(exc)
                 await asyncio.sleep(delay)
                 delay = min(2 * delay, MAX_RETRY)
@@ -112,5 +115,5 @@ class Mirror:
             self._garbage = True
 
     async def close(self) -> None:
-        self._task.cancel()
-        await asyncio.gather(self._task, return_exceptions=True)
+        self._closed = True
+        await cancel([self._task])

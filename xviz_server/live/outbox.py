@@ -25,7 +25,7 @@ from ..session import Variant
 from ..state import COMPLETE_TYPES
 from ..work import Workers
 from .feed import FeedEvent, LiveFeed, LiveUpdate
-from .link import BLOCK_MS, COMMAND_TIMEOUT, FAILURES, Link
+from .link import BLOCK_MS, COMMAND_TIMEOUT, FAILURES, Link, cancel
 from .streams import CLAIM, FEEDS, Entry, control, registration, updates
 
 __all__ = ["Outbox"]
@@ -76,6 +76,7 @@ class Outbox:
         self._claim = link.redis.register_script(CLAIM)
         self._set = link.redis.register_script(SET_IF_OWNER)
         self._release = link.redis.register_script(RELEASE)
+        self._closed = False
         self._tasks = [asyncio.ensure_future(self._write()), asyncio.ensure_future(self._take_reconfigures())]
 
     # -- what the feed does ---------------------------------------------------
@@ -111,6 +112,8 @@ class Outbox:
             logger.info("live feed %r: registered again after the broker lost it", name)
             self._resend()
         self.claimed, self.refused_by = True, None
+        if self._items:  # what could not be written while the broker was away
+            self._ready.set()
         return None
 
     def _resend(self) -> None:
@@ -124,7 +127,7 @@ class Outbox:
     # -- writing --------------------------------------------------------------
 
     async def _write(self) -> None:
-        while True:
+        while not self._closed:
             await self._ready.wait()
             self._ready.clear()
             while self._items:
@@ -145,6 +148,8 @@ class Outbox:
                 except ResponseError as exc:
                     self.refused(exc, item)
                 except FAILURES as exc:
+                    if self._closed:
+                        return
                     self.link.failed(exc)
                     if isinstance(item, LiveUpdate):
                         self.link.metrics.drops.labels("down").inc()
@@ -205,10 +210,12 @@ class Outbox:
     async def _take_reconfigures(self) -> None:
         """Pass each ``config_update`` that viewers on other replicas send to the feed's source."""
         stream, last = control(self.feed.name), b"$"
-        while True:
+        while not self._closed:
             try:
                 entries = await self.link.read(stream, last, 16)
             except FAILURES:
+                if self._closed:
+                    return
                 await asyncio.sleep(BLOCK_MS / 1000)
                 continue
             for entry_id, fields in entries:
@@ -222,9 +229,8 @@ class Outbox:
 
     async def close(self) -> None:
         """Stop writing; if this replica holds the feed, tell the others its source left and unregister it."""
-        for task in self._tasks:
-            task.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._closed = True
+        await cancel(self._tasks)
         if self.claimed and self.link.up:
             try:
                 await asyncio.wait_for(self._unregister(), COMMAND_TIMEOUT)
