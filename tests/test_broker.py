@@ -26,7 +26,7 @@ import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
-from helpers import run_xviz_session_async
+from helpers import client, metadata, run_xviz_session_async, running_server, update
 from xviz_server.codec import decode
 from xviz_server.viewer import STATIC_DIR
 
@@ -288,6 +288,7 @@ async def test_a_feed_on_one_replica_reaches_viewers_on_the_others_as_on_its_own
 
             assert await a.metric("xviz_broker_writes_total") >= len(updates) + 1
             assert await b.metric("xviz_broker_reads_total") == len(updates)
+            assert await b.metric("xviz_broker_lag_seconds_count") == len(updates)
             assert await a.metric('xviz_broker_dropped_updates_total') == 0
             status, health = await b.get("/healthz")
             assert status == 200 and re.search(r"broker redis://:REDACTED@127\.0\.0\.1:\d+/0: up", health)
@@ -451,6 +452,43 @@ async def test_the_built_in_viewer_on_another_replica_lists_and_plays_the_feed(t
     assert report["pageErrors"] == [] and report["alerts"] == [] and report["failedRequests"] == []
     assert report["frames"] >= 10 and report["drawn"], report
     print(f"the viewer on B drew A's feed {report['firstDrawnMs']} ms after opening the page")
+
+
+async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_started_later(tmp_path: Path, broker: Broker):
+    """``server.live.feed(...)`` is shared too; a replica that starts reading begins at a keyframe, which the
+    owner writes for a source of incremental updates (every few updates when the stream is short)."""
+    settings = {"broker": broker.url, "broker_ttl": TTL, "broker_max_mb": 0.002}  # ~5 entries of the updates here
+
+    def written(server: Any) -> float:
+        return sum(float(line.rsplit(" ", 1)[1]) for line in server.metrics.exposition().decode().splitlines()
+                   if line.startswith("xviz_broker_writes_total"))
+
+    async with running_server(tmp_path, **settings) as a:
+        feed = a.live.feed("sim")
+        feed.set_metadata(metadata())
+        await feed.publish(update(1.0, points=50))
+        for i in range(1, 13):
+            await asyncio.sleep(0.05)  # the owner's queue to the broker holds 4 updates
+            await feed.publish(update(1 + i / 10, update_type="INCREMENTAL", streams=("/vehicle_pose",)))
+
+        async def all_written() -> bool:
+            return written(a) >= 1 + 13 + 2  # the metadata, the updates and two keyframes
+
+        await until(all_written, what="A to write the feed")
+        async with running_server(tmp_path, **settings) as c:
+            async def mirrored() -> bool:
+                found = c.live.find("sim", exact=True)
+                return found is not None and found.state() is not None
+
+            await until(mirrored, what="C to read the feed")
+            async with client(c, "/?log=sim&session_type=live") as viewer:
+                assert (await viewer.recv())["type"] == "xviz/metadata"
+                state = await viewer.recv()
+            assert state["data"]["update_type"] == "COMPLETE_STATE"
+            merged = state["data"]["updates"][0]
+            assert merged["poses"]["/vehicle_pose"]["position"][0] == 2.2  # the newest pose
+            assert merged["primitives"]["/points"]["points"][0]["points"].shape == (50, 3)  # from the snapshot
+            assert c.live.find("sim", exact=True).origin == a.broker.link.id.decode()
 
 
 def test_the_broker_url_is_shown_without_its_password():

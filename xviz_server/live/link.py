@@ -81,6 +81,11 @@ class Link:
         self._since = time.monotonic()
         self._problem: str | None = None  # why it is down; None while up or before the first answer
 
+    @property
+    def down(self) -> bool:
+        """Whether the broker failed to answer since it last did (not while connecting at first)."""
+        return not self.up and self._problem is not None
+
     def succeeded(self) -> None:
         """The broker answered."""
         if not self.up:

@@ -87,8 +87,8 @@ class Outbox:
             self.left_at = asyncio.get_running_loop().time() if item.kind == "gone" else None
             if self._items and self._items[-1] == item:
                 return  # queued already (events are written from the feed as it is then)
-        elif not self.link.up or self.refused_by is not None:
-            self.link.metrics.drops.labels("down" if not self.link.up else "error").inc()
+        elif self.link.down or self.refused_by is not None:
+            self.link.metrics.drops.labels("down" if self.link.down else "error").inc()
             return
         elif sum(isinstance(i, LiveUpdate) for i in self._items) >= QUEUE:
             self._items.remove(next(i for i in self._items if isinstance(i, LiveUpdate)))
