@@ -98,7 +98,9 @@ class Broker:
 
     def _outbox(self, feed: LiveFeed) -> Outbox:
         outbox = self._outboxes.get(feed.name)
-        if outbox is None or outbox.feed is not feed:
+        if outbox is None or outbox.feed is not feed:  # new, or a feed of that name that was dropped
+            if outbox is not None:
+                asyncio.ensure_future(outbox.close())
             outbox = self._outboxes[feed.name] = Outbox(self.link, feed, self.workers, max_bytes=self._max_bytes, ttl=self.ttl)
         return outbox
 
@@ -117,6 +119,9 @@ class Broker:
         outbox = self._outbox(feed)
         try:
             holder = await asyncio.wait_for(outbox.claim(), COMMAND_TIMEOUT)
+        except ResponseError as exc:  # full: the source is served here, and the claim tried again later
+            outbox.refused(exc)
+            return
         except FAILURES as exc:
             self.link.failed(exc)
             return

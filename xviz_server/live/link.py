@@ -34,8 +34,8 @@ CONNECT_TIMEOUT = 1.0
 COMMAND_TIMEOUT = 2.0
 #: Milliseconds a reader's XREAD waits for new entries.
 BLOCK_MS = 1000
-#: What a failed command raises: the client's errors, and the socket's.
-FAILURES = (RedisError, OSError)
+#: What a failed command raises: the client's errors, the socket's, and a wait that timed out.
+FAILURES = (RedisError, OSError, asyncio.TimeoutError)
 
 
 class BrokerMetrics:

@@ -234,7 +234,7 @@ class Outbox:
         if self.claimed and self.link.up:
             try:
                 await asyncio.wait_for(self._unregister(), COMMAND_TIMEOUT)
-            except (*FAILURES, asyncio.TimeoutError) as exc:
+            except FAILURES as exc:
                 logger.warning("live feed %r: cannot unregister it from the broker: %s", self.feed.name, exc)
 
     async def _unregister(self) -> None:
