@@ -188,8 +188,10 @@ async def replicas(tmp_path: Path, broker: Broker, count: int, *flags: str) -> A
     try:
         yield list(started)
     finally:
-        for replica in started:
-            await replica.stop()
+        stopped = await asyncio.gather(*(replica.stop() for replica in started), return_exceptions=True)
+        for problem in stopped:
+            if problem is not None:
+                raise problem
         for replica in started:  # the broker's password never reaches a log line
             assert not [line for line in replica.lines if PASSWORD in line]
 
