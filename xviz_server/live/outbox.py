@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections import deque
+from typing import Any, cast
 
 import orjson
 from redis.asyncio.client import Pipeline
@@ -209,9 +210,12 @@ class Outbox:
 
     async def _take_reconfigures(self) -> None:
         """Pass each ``config_update`` that viewers on other replicas send to the feed's source."""
-        stream, last = control(self.feed.name), b"$"
+        stream, last = control(self.feed.name), None
         while not self._closed:
             try:
+                if last is None:  # after the newest entry, whichever is newest between two reads
+                    newest = cast(list[tuple[bytes, Any]], await self.link.redis.xrevrange(stream, count=1))
+                    last = newest[0][0] if newest else b"0-0"
                 entries = await self.link.read(stream, last, 16)
             except FAILURES:
                 if self._closed:
