@@ -13,7 +13,8 @@ sources=$(mktemp -d)
 trap 'rm -rf "$sources"' EXIT
 (cd "$repo" && tar -cf - --exclude=__pycache__ pyproject.toml README.md xviz_server providers schema) | tar -xf - -C "$sources"
 python3 -m venv "$prefix"
-"$prefix/bin/pip" install --quiet --no-cache-dir --disable-pip-version-check "$sources"
+# With the broker extra (redis, hiredis): replicas share live feeds with --broker.
+"$prefix/bin/pip" install --quiet --no-cache-dir --disable-pip-version-check "$sources[broker]"
 # Serving needs neither the installer nor numpy's own test suite.
 "$prefix/bin/pip" uninstall --quiet --yes pip setuptools
 find "$prefix/lib" -depth -type d -name tests -path "*/numpy/*" -exec rm -rf {} +

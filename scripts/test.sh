@@ -5,12 +5,16 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/venv.sh
-python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros]"
+python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros,broker]"
 npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
 # The viewer's browser tests: the bundle, playwright-core (in viewer/) and Debian's chromium.
 scripts/build-viewer.sh
 if ! command -v chromium >/dev/null 2>&1; then
     apt-get update -q && apt-get install -y -q chromium
+fi
+# The broker tests (live feeds across replicas) run Debian's redis-server.
+if ! command -v redis-server >/dev/null 2>&1; then
+    apt-get update -q && apt-get install -y -q redis-server
 fi
 scripts/typecheck.sh
 exec python -m pytest "$@"

@@ -37,13 +37,14 @@ __all__ = [
     "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
     "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
-    "ConfigError", "DependencyError", "StoreError",
+    "ConfigError", "DependencyError", "StoreError", "BrokerError",
     "__version__",
 ]
 
 if TYPE_CHECKING:
     from .builder import FrameBuilder, MetadataBuilder
     from .exceptions import (
+        BrokerError,
         BuilderError,
         ConfigError,
         DependencyError,

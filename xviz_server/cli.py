@@ -18,7 +18,7 @@ import pydantic
 
 from . import __version__
 from .exceptions import ConfigError
-from .logfmt import configure_logging
+from .logfmt import configure_logging, redact_password
 from .settings import SECRETS, Settings, load_settings
 
 __all__ = ["main"]
@@ -98,6 +98,8 @@ def _config(args: argparse.Namespace) -> int:
             print(f"# {name} is not set")
         elif name in SECRETS:
             print(f"# {name} is set (not shown)")
+        elif name == "broker":
+            print(f"{name} = {_toml(redact_password(value))}")
         else:
             print(f"{name} = {_toml(value)}")
     return 0

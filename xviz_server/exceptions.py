@@ -24,6 +24,7 @@ __all__ = [
     "ConfigError",
     "DependencyError",
     "StoreError",
+    "BrokerError",
 ]
 
 
@@ -162,3 +163,7 @@ class StoreError(XVIZError, OSError):
     def __init__(self, message: str, *, key: str) -> None:
         super().__init__(message)
         self.key = key
+
+
+class BrokerError(XVIZError):
+    """An entry read from the broker (Redis) between replicas is not one that xviz-server writes."""

@@ -18,11 +18,11 @@ import logging
 import re
 import sys
 from typing import Any
-from urllib.parse import unquote_plus
+from urllib.parse import unquote_plus, urlsplit, urlunsplit
 
 import orjson
 
-__all__ = ["configure_logging", "log_event", "printable", "redact_url", "JsonFormatter", "TextFormatter"]
+__all__ = ["configure_logging", "log_event", "printable", "redact_url", "redact_password", "JsonFormatter", "TextFormatter"]
 
 _FIELDS = "xviz_fields"
 
@@ -46,6 +46,16 @@ def redact_url(path: str) -> str:
         name, equals, _ = part.partition("=")
         parts.append(f"{name}={REDACTED}" if equals and _CREDENTIAL.search(unquote_plus(name)) else part)
     return f"{route}?{'&'.join(parts)}"
+
+
+def redact_password(url: str) -> str:
+    """``url`` (a service's, like ``redis://:s3cret@host:6379/0``) with the password of its user info replaced."""
+    parts = urlsplit(url)
+    if parts.password is None:
+        return url
+    user = f"{parts.username}:" if parts.username else ":"
+    host = parts.netloc.rpartition("@")[2]
+    return urlunsplit(parts._replace(netloc=f"{user}{REDACTED}@{host}"))
 
 
 def printable(text: str) -> str:

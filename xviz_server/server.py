@@ -7,8 +7,9 @@ WebSocket handshakes get:
 * ``GET /api/logs`` (or ``/logs``, or ``/`` from any other client): the
   catalog, JSON: every log with its format, frame count, time range and
   stream names, and the live feeds;
-* ``GET /healthz``: ``ok``, or HTTP 503 saying what is broken (a worker
-  process pool that lost a process and is not yet replaced);
+* ``GET /healthz``: ``ok`` (then, with ``--broker``, a line on the broker's
+  state), or HTTP 503 saying what is broken (a worker process pool that lost
+  a process and is not yet replaced);
 * ``GET /metrics``: the metrics in Prometheus text format.
 
 A WebSocket connection on ``/ingest/<name>`` is a live source feeding the
@@ -28,7 +29,7 @@ import os
 import signal
 from http import HTTPStatus
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
 import orjson
@@ -56,6 +57,9 @@ from .store import data_roots
 from .tls import server_context
 from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
+
+if TYPE_CHECKING:
+    from .live.broker import Broker
 
 __all__ = ["XVIZServer", "run"]
 
@@ -102,6 +106,10 @@ class XVIZServer:
                 settings.record, self.live, self.workers, self.metrics, rotate_mb=settings.record_rotate_mb,
                 max_mb=settings.record_max_mb, min_free_mb=settings.record_min_free_mb,
             )
+        #: Shares the live feeds with the other replicas, with ``--broker``.
+        self.broker: Broker | None = None
+        if settings.broker is not None:
+            self.broker = _broker(settings, self.live, self.metrics, self.workers)
         #: The sessions running now.
         self.sessions: set[Connection] = set()
         #: The built-in viewer's page and assets.
@@ -134,6 +142,8 @@ class XVIZServer:
             )
         if self.catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
+        if self.broker is not None:
+            self.broker.start()
         if self.settings.live_from is not None:
             await self._start_replay(self.settings.live_from)
         try:
@@ -193,6 +203,8 @@ class XVIZServer:
                     connection.transport.abort()
                 await server.wait_closed()
             self._server = None
+        if self.broker is not None:
+            await self.broker.close()
         if self._recorder is not None:
             await self._recorder.close()
         self.workers.close()
@@ -241,7 +253,8 @@ class XVIZServer:
             problems = self.workers.health()
             if problems:
                 return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "".join(f"{problem}\n" for problem in problems))
-            return connection.respond(HTTPStatus.OK, "ok\n")
+            # The broker's state is shown, not judged: without it the replica still serves.
+            return connection.respond(HTTPStatus.OK, "ok\n" + ("" if self.broker is None else f"{self.broker.health()}\n"))
         if path == "/metrics":
             if self.settings.protect_metrics and (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
@@ -265,6 +278,16 @@ class XVIZServer:
             return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
         return None
 
+
+
+def _broker(settings: Settings, live: LiveRegistry, metrics: Metrics, workers: Workers) -> Broker:
+    """The broker of ``--broker``; raises :class:`~xviz_server.exceptions.ConfigError` without the ``broker`` extra."""
+    assert settings.broker is not None
+    try:
+        from .live.broker import Broker
+    except ImportError as exc:
+        raise ConfigError(f"--broker needs the redis package ({exc}): pip install 'xviz-server[broker]'") from None
+    return Broker(settings.broker, live, metrics, workers, ttl=settings.broker_ttl, max_bytes=int(settings.broker_max_mb * MB))
 
 
 def parse_dataset(text: str) -> tuple[str, Path, dict[str, str]]:

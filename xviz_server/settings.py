@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from urllib.parse import urlsplit
 from typing import Annotated, Any, Literal
 
 import orjson
@@ -16,6 +17,7 @@ from .datasets import DEFAULT_IMAGE_WIDTH
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
 from .exceptions import ConfigError
+from .logfmt import redact_password
 
 __all__ = ["SECRETS", "Settings", "load_settings"]
 
@@ -118,6 +120,15 @@ class Settings(BaseSettings):
         description="Mapbox access token for the built-in viewer's base map (without one it draws no map); "
         "handed to the pages of viewers that give the viewer token, if one is set",
     )
+    broker: str | None = Field(
+        default=None,
+        description="share live feeds between replicas through this Redis, redis://[:PASSWORD@]HOST:PORT/DB "
+        "(rediss:// for TLS); its password is never shown. Needs the extra: pip install 'xviz-server[broker]'",
+    )
+    broker_ttl: float = Field(
+        default=10, gt=0, description="a feed whose replica stops renewing it for this long leaves other replicas, s"
+    )
+    broker_max_mb: float = Field(default=256, gt=0, description="most bytes of updates kept in the broker per feed, MB")
     allowed_origins: list[str] = Field(
         default_factory=list,
         description="browser origins allowed to connect, e.g. https://viewer.example.com; repeat for more "
@@ -156,6 +167,8 @@ class Settings(BaseSettings):
     def _check_combinations(self) -> Settings:
         if self.keyfile is not None and self.certfile is None:
             raise ConfigError(f"--keyfile {self.keyfile} without --certfile: give the certificate too (or neither)")
+        if self.broker is not None and urlsplit(self.broker).scheme not in ("redis", "rediss", "unix"):
+            raise ConfigError(f"--broker {redact_password(self.broker)}: give a redis://, rediss:// or unix:// URL")
         if self.protect_metrics and self.viewer_token is None:
             raise ConfigError("--protect-metrics needs a viewer token (--viewer-token or --viewer-token-file)")
         return self

@@ -164,6 +164,8 @@ class LiveFeed:
         self.connected = False
         #: Who feeds it (a source's address), kept for :data:`GRACE` seconds after the source leaves.
         self.owner: str | None = None
+        #: The replica whose source feeds it, when this feed mirrors one held elsewhere (see :mod:`.broker`).
+        self.origin: str | None = None
         self._left_at = -math.inf
         self._metadata_messages: dict[Format, bytes] = {}
         self._state: dict[str, Any] | None = None
@@ -185,6 +187,7 @@ class LiveFeed:
         self._state = None
         for subscriber in self._subscribers:
             subscriber.offer(FeedEvent("metadata"))
+        self.registry.feed_event(self, FeedEvent("metadata"))
 
     async def publish(self, frame: Mapping[str, Any] | bytes) -> LiveUpdate:
         """Send a state update to every viewer.
@@ -227,6 +230,7 @@ class LiveFeed:
         self._left_at = time.monotonic()
         for subscriber in self._subscribers:
             subscriber.offer(FeedEvent("gone"))
+        self.registry.feed_event(self, FeedEvent("gone"))
         asyncio.get_running_loop().call_later(GRACE, self._forget, self._left_at)
         if self.metadata is None:  # it never started: nothing to keep
             self.registry.drop(self)
@@ -238,6 +242,8 @@ class LiveFeed:
         source's for :data:`GRACE` seconds after that one left. A different
         source taking over starts afresh: its viewers get its metadata as new.
         """
+        if self.origin is not None:
+            raise XVIZError(f"live feed {self.name!r} already has a source, on replica {self.origin}")
         if self.connected:
             raise XVIZError(f"live feed {self.name!r} already has a source")
         if self.owner not in (None, source):
@@ -249,6 +255,12 @@ class LiveFeed:
             logger.warning("live feed %r taken over by %s (its source was %s)", self.name, source, self.owner)
             self.metadata, self._state = None, None
         self.owner = source
+
+    def skipped(self, count: int) -> None:
+        """``count`` updates of the source never reached this feed (lost between replicas): each viewer is told
+        of them as of updates dropped because it fell behind."""
+        for subscriber in self._subscribers:
+            subscriber.dropped += count
 
     def _forget(self, left_at: float) -> None:
         if not self.connected and self._left_at == left_at:
@@ -319,6 +331,10 @@ class LiveRegistry:
         self.on_drop = on_drop
         #: Called with every feed and update published, synchronously (for recording).
         self.listeners: list[Callable[[LiveFeed, LiveUpdate], None]] = []
+        #: Called with every feed whose metadata changed or whose source left, synchronously (for the broker).
+        self.watchers: list[Callable[[LiveFeed, FeedEvent], None]] = []
+        #: Awaited with every feed a source claims here; each may refuse it (the broker: another replica holds it).
+        self.claims: list[Callable[[LiveFeed], Awaitable[None]]] = []
         self._waited: dict[str, _Waited] = {}
 
     def __iter__(self) -> Iterator[LiveFeed]:
@@ -330,16 +346,35 @@ class LiveRegistry:
     def feed(self, name: str) -> LiveFeed:
         """The feed called ``name``, created if new (for sources)."""
         source = self._feeds.get(name)
-        if source is None:
-            source = self._feeds[name] = LiveFeed(name, self)
-            logger.info("live feed %r created", name)
-            waited = self._waited.pop(name, None)
-            if waited is not None:
-                waited.future.set_result(source)
-        return source
+        return source if source is not None else self.add(LiveFeed(name, self))
+
+    def add(self, feed: LiveFeed) -> LiveFeed:
+        """Serve ``feed`` under its name: a new feed, or one that :meth:`drop` forgot and whose viewers stayed."""
+        self._feeds[feed.name] = feed
+        logger.info("live feed %r created", feed.name)
+        waited = self._waited.pop(feed.name, None)
+        if waited is not None:
+            waited.future.set_result(feed)
+        return feed
+
+    def feed_event(self, feed: LiveFeed, event: FeedEvent) -> None:
+        """Tell the :attr:`watchers` what happened to ``feed``."""
+        for watcher in self.watchers:
+            watcher(feed, event)
+
+    async def claim(self, feed: LiveFeed, source: str) -> None:
+        """Let ``source`` feed ``feed``, as :meth:`LiveFeed.claim`, if every one of :attr:`claims` agrees."""
+        previous = feed.owner
+        feed.claim(source)
+        try:
+            for check in self.claims:
+                await check(feed)
+        except XVIZError:
+            feed.owner = previous
+            raise
 
     def drop(self, feed: LiveFeed) -> None:
-        """Forget ``feed`` (one that never started and has no source)."""
+        """Forget ``feed``: one that never started and has no source, or the mirror of a replica that went away."""
         if self._feeds.get(feed.name) is feed:
             del self._feeds[feed.name]
 

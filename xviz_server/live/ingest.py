@@ -54,7 +54,7 @@ async def run_ingest(
     source = str(address[0]) if address else "?"
     feed = live.feed(name)
     try:
-        feed.claim(source)
+        await live.claim(feed, source)
     except XVIZError as exc:
         if feed.metadata is None and not feed.connected:
             live.drop(feed)

@@ -168,6 +168,8 @@ class Recorder:
 
     def _record(self, feed: LiveFeed, update: LiveUpdate) -> None:
         """Queue ``update`` of ``feed``; never raises, never waits (it runs inside the feed's publish)."""
+        if feed.origin is not None:
+            return  # a mirror: its own replica records it
         try:
             recording = self._recordings.get(feed.name)
             if recording is not None and recording.ended is not None and recording.metadata is feed.metadata:

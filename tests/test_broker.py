@@ -1,0 +1,558 @@
+"""Live feeds across replicas through a real redis-server: server processes with --broker, a source on one
+(network ingest of the real KITTI frames), viewers on the others, and the broker's faults.
+
+Each test starts Debian's redis-server (``scripts/test.sh`` installs it) on a free loopback port, with a
+password that must never reach a log line, and ``xviz-server serve`` processes on free ports.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+from typing import Any, AsyncIterator
+
+import pytest
+from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed
+
+from helpers import client, metadata, run_xviz_session_async, running_server, update
+from xviz_server.codec import decode
+from xviz_server.viewer import STATIC_DIR
+
+KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
+BROWSER = Path(__file__).with_name("browser.mjs")
+PASSWORD = "pa55-for-the-broker"
+TTL = 2.0  # --broker-ttl of the replicas here
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(shutil.which("redis-server") is None, reason="needs redis-server: run scripts/test.sh"),
+    pytest.mark.skipif(not KITTI.is_dir(), reason=f"needs the KITTI frames in {KITTI}"),
+]
+redis = pytest.importorskip("redis.asyncio", reason="needs the broker extra: pip install -e '.[broker]'")
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def frames() -> list[bytes]:
+    """The KITTI state updates, 2.1 MB GLB each, in order."""
+    return [(KITTI / f"{number}-frame.glb").read_bytes() for number in range(2, 27)]
+
+
+METADATA = (KITTI / "1-frame.glb").read_bytes() if KITTI.is_dir() else b""
+
+
+class Broker:
+    """A redis-server of our own, on a free port, no persistence; killed and started again at will."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.port = free_port()
+        self.process: subprocess.Popen[bytes] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"redis://:{PASSWORD}@127.0.0.1:{self.port}/0"
+
+    def client(self) -> Any:
+        return redis.Redis(host="127.0.0.1", port=self.port, password=PASSWORD)
+
+    async def start(self) -> None:
+        self.process = subprocess.Popen(
+            ["redis-server", "--port", str(self.port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
+             "--requirepass", PASSWORD, "--dir", str(self.directory)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        client = self.client()
+        for _ in range(100):
+            try:
+                await client.ping()
+                break
+            except (redis.ConnectionError, OSError):
+                await asyncio.sleep(0.05)
+        await client.aclose()
+
+    def kill(self) -> None:
+        """SIGKILL, by the server's own PID."""
+        assert self.process is not None
+        os.kill(self.process.pid, signal.SIGKILL)
+        self.process.wait()
+
+
+class Replica:
+    """``xviz-server serve --broker ...`` in a process of its own; its log lines are kept."""
+
+    def __init__(self, process: asyncio.subprocess.Process) -> None:
+        self.process = process
+        self.lines: list[str] = []
+        self.port = 0
+
+    @classmethod
+    async def start(cls, directory: Path, broker: Broker, *flags: str) -> Replica:
+        directory.mkdir(exist_ok=True)
+        env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_") and "proxy" not in k.lower()}
+        process = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(directory), "--port", "0",
+            "--broker", broker.url, "--broker-ttl", str(TTL), *flags,
+            stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE, env=env,
+        )
+        replica = cls(process)
+        assert process.stderr is not None
+        while not replica.port:
+            line = (await asyncio.wait_for(process.stderr.readline(), 60)).decode()
+            assert line, "the replica exited:\n" + "".join(replica.lines)
+            replica.lines.append(line)
+            if match := re.search(r"listening on ws://127\.0\.0\.1:(\d+)/", line):
+                replica.port = int(match.group(1))
+        replica._drain = asyncio.ensure_future(replica._read(process.stderr))
+        return replica
+
+    async def _read(self, stream: asyncio.StreamReader) -> None:
+        async for line in stream:
+            self.lines.append(line.decode())
+
+    def log(self, pattern: str) -> list[str]:
+        return [line for line in self.lines if re.search(pattern, line)]
+
+    def url(self, path: str) -> str:
+        return f"ws://127.0.0.1:{self.port}{path}"
+
+    async def get(self, path: str) -> tuple[int, str]:
+        def fetch() -> tuple[int, str]:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{self.port}{path}", timeout=10) as response:
+                    return response.status, response.read().decode()
+            except urllib.error.HTTPError as error:
+                return error.code, error.read().decode()
+        return await asyncio.to_thread(fetch)
+
+    async def live(self) -> dict[str, bool]:
+        """The live feeds of its catalog (GET /api/logs): name and whether their source is connected."""
+        _, body = await self.get("/api/logs")
+        return {feed["name"]: feed["connected"] for feed in json.loads(body)["live"]}
+
+    async def metric(self, name: str) -> float:
+        _, body = await self.get("/metrics")
+        values = [float(line.rsplit(" ", 1)[1]) for line in body.splitlines() if line.startswith(name)]
+        return sum(values)
+
+    async def stop(self) -> None:
+        """SIGTERM; raises AssertionError if the replica does not exit in time (it is killed then)."""
+        if self.process.returncode is None:
+            self.process.terminate()
+            try:
+                await asyncio.wait_for(self.process.wait(), 20)
+            except asyncio.TimeoutError:
+                self.process.kill()
+                raise AssertionError("the replica did not stop on SIGTERM:\n" + "".join(self.lines[-20:])) from None
+            finally:
+                await self._drain
+
+
+async def until(condition: Any, timeout: float = 20, what: str = "") -> float:
+    """Wait for the async ``condition()`` to hold; the seconds it took."""
+    started = time.monotonic()
+    while not await condition():
+        assert time.monotonic() - started < timeout, f"timed out waiting for {what}"
+        await asyncio.sleep(0.05)
+    return time.monotonic() - started
+
+
+@pytest.fixture
+async def broker(tmp_path: Path) -> AsyncIterator[Broker]:
+    server = Broker(tmp_path)
+    await server.start()
+    yield server
+    if server.process is not None and server.process.poll() is None:
+        server.kill()
+
+
+@contextlib.asynccontextmanager
+async def replicas(tmp_path: Path, broker: Broker, count: int, *flags: str) -> AsyncIterator[list[Replica]]:
+    started = await asyncio.gather(*(Replica.start(tmp_path / f"logs-{i}", broker, *flags) for i in range(count)))
+    try:
+        yield list(started)
+    finally:
+        stopped = await asyncio.gather(*(replica.stop() for replica in started), return_exceptions=True)
+        for problem in stopped:
+            if problem is not None:
+                raise problem
+        for replica in started:  # the broker's password never reaches a log line
+            assert not [line for line in replica.lines if PASSWORD in line]
+
+
+@contextlib.asynccontextmanager
+async def source(replica: Replica, name: str = "car", query: str = "") -> AsyncIterator[ClientConnection]:
+    """A live source on ``replica`` that sent the KITTI metadata."""
+    async with connect(replica.url(f"/ingest/{name}{query}"), max_size=None) as websocket:
+        await websocket.send(METADATA)
+
+        await until(lambda: _started(replica, name), what=f"the feed {name!r} to start")
+        yield websocket
+
+
+async def push(websocket: ClientConnection, updates: list[bytes], rate: float = 10.0) -> None:
+    for data in updates:
+        await websocket.send(data)
+        await asyncio.sleep(1 / rate)
+
+
+class Viewer:
+    """A live viewer over a raw WebSocket: the bytes of every state update, and every notice's text."""
+
+    def __init__(self, websocket: ClientConnection) -> None:
+        self.websocket = websocket
+        self.updates: list[bytes] = []
+        self.notices: list[str] = []
+        self.metadata = 0
+
+    @classmethod
+    async def join(cls, replica: Replica, name: str = "car") -> Viewer:
+        viewer = cls(await connect(replica.url(f"/?log={name}&session_type=live"), max_size=None))
+        viewer._task = asyncio.ensure_future(viewer._read())
+        return viewer
+
+    async def _read(self) -> None:
+        with contextlib.suppress(ConnectionClosed):
+            async for data in self.websocket:
+                message = decode(data)
+                if message["type"] == "xviz/state_update":
+                    assert isinstance(data, bytes)
+                    self.updates.append(data)
+                elif message["type"] == "xviz/metadata":
+                    self.metadata += 1
+                elif message["type"] == "xviz/error":
+                    self.notices.append(message["data"]["message"])
+
+    async def count(self, updates: int, timeout: float = 30) -> None:
+        async def enough() -> bool:
+            return len(self.updates) >= updates
+        await until(enough, timeout, f"{updates} updates (got {len(self.updates)})")
+
+    async def close(self) -> None:
+        await self.websocket.close()
+        await self._task
+
+
+def timestamp(data: bytes) -> float:
+    return float(decode(data)["data"]["updates"][0]["timestamp"])
+
+
+async def test_a_feed_on_one_replica_reaches_viewers_on_the_others_as_on_its_own(tmp_path: Path, broker: Broker):
+    updates = frames()[:20]
+    async with replicas(tmp_path, broker, 3) as (a, b, c):
+        async with source(a) as car:
+            for replica in (b, c):
+                await until(lambda: _listed(replica, "car"), what="B and C to list A's feed")
+            viewers = [await Viewer.join(replica) for replica in (a, b, c, b)]
+            published = asyncio.ensure_future(run_xviz_session_async(
+                b.url("/?logGuid=car&worker=true&profile=default"),  # the URL of streetscape.gl's XVIZLiveLoader
+                [{"wait": "metadata"}, {"wait": "state_updates", "count": len(updates)}], brief=True,
+            ))
+            await until(lambda: _sessions(b, 3), what="the viewers on B")
+            await push(car, updates)
+            for viewer in viewers:
+                await viewer.count(len(updates))
+            # Every update once, in order, the very bytes A's own viewer got.
+            assert [timestamp(data) for data in viewers[0].updates] == [timestamp(data) for data in updates]
+            for viewer in viewers[1:]:
+                assert viewer.updates == viewers[0].updates and viewer.metadata == 1 and not viewer.notices
+            result = await published
+            assert result.ok, result.stderr
+            assert [m["timestamp"] for m in result.of_type("xviz/state_update")] == [timestamp(d) for d in updates]
+            metadata = result.of_type("xviz/metadata")[0]["parsed"]
+            assert "/lidar/points" in metadata["streams"]
+
+            # A late joiner on B draws at once: metadata and the complete state, without waiting for an update.
+            started = time.perf_counter()
+            async with connect(b.url("/?log=car&session_type=live"), max_size=None) as late:
+                assert decode(await late.recv())["type"] == "xviz/metadata"
+                state = decode(await late.recv())
+                waited = time.perf_counter() - started
+            assert state["data"]["update_type"] == "COMPLETE_STATE"
+            assert state["data"]["updates"][0]["timestamp"] == timestamp(updates[-1])
+            print(f"late joiner on B: metadata and complete state after {waited * 1000:.1f} ms")
+
+            assert await a.metric("xviz_broker_writes_total") >= len(updates) + 1
+            assert await b.metric("xviz_broker_reads_total") == len(updates)
+            assert await b.metric("xviz_broker_lag_seconds_count") == len(updates)
+            assert await a.metric('xviz_broker_dropped_updates_total') == 0
+            status, health = await b.get("/healthz")
+            assert status == 200 and re.search(r"broker redis://:REDACTED@127\.0\.0\.1:\d+/0: up", health)
+
+            # A killed -9: its feed leaves B's catalog within the TTL (and a poll), and B's viewers are told.
+            a.process.kill()
+            gone = await until(lambda: _unlisted(b, "car"), what="B to drop the feed of the killed replica")
+            print(f"feed of the killed replica gone from B's catalog after {gone:.2f} s (TTL {TTL:g} s)")
+            await until(lambda: _unlisted(c, "car"), what="C to drop it too")
+            await until(lambda: _told(viewers[1], "went away"), what="B's viewer to be told")
+            assert b.log(r"live feed 'car': replica \S+ stopped renewing it")
+
+        # The feed comes back on a new replica: the viewers who stayed on B and C resume.
+        again = await Replica.start(tmp_path / "logs-again", broker)
+        try:
+            async with source(again) as car:
+                await until(lambda: _started(b, "car"), what="B to list the feed again")
+                await push(car, updates[:3])
+                for viewer in viewers[1:]:
+                    # From the newest complete state when B started reading again (each KITTI frame is one).
+                    await until(lambda: _got(viewer, updates[2]), what="the viewers who stayed to resume")
+                    resumed = viewer.updates[len(updates):]
+                    assert resumed == updates[3 - len(resumed):3] and viewer.metadata == 1
+        finally:
+            await again.stop()
+        for viewer in viewers[1:]:
+            await viewer.close()
+
+
+async def test_reconfigure_passes_through_the_broker_and_a_second_source_is_refused(tmp_path: Path, broker: Broker):
+    updates = frames()[:6]
+    async with replicas(tmp_path, broker, 2) as (a, b):
+        async with source(a, query="?reconfigure=1") as car:
+            await until(lambda: _listed(b, "car"), what="B to list A's feed")
+            async with connect(b.url("/?log=car&session_type=live"), max_size=None) as viewer:
+                assert decode(await viewer.recv())["type"] == "xviz/metadata"
+                change = {"desired_streams": ["/vehicle_pose", "/lidar/points"], "message_format": "JSON"}
+                await viewer.send(json.dumps({"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}}))
+                reconfigure = json.loads(await asyncio.wait_for(car.recv(), 10))
+                assert reconfigure == {"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}}
+                await push(car, updates[:1])
+                message = await asyncio.wait_for(viewer.recv(), 10)
+                assert isinstance(message, str)  # JSON, as this viewer asked, made on B
+                update = decode(message)["data"]["updates"][0]
+                assert set(update.get("primitives", {})) | set(update.get("poses", {})) == {"/vehicle_pose", "/lidar/points"}
+
+            # A second source for the same name, on the other replica: refused as on one replica.
+            async with connect(b.url("/ingest/car"), max_size=None) as second:
+                with pytest.raises(ConnectionClosed):
+                    await asyncio.wait_for(second.recv(), 10)
+            assert second.close_code == 1008 and "already has a source, on replica" in (second.close_reason or "")
+
+            # Garbage and foreign entries in the feed's stream: skipped with one log line, the feed goes on.
+            viewer_b = await Viewer.join(b)
+            await until(lambda: _sessions(b, 1), what="the viewer on B")
+            client = broker.client()
+            await client.xadd("xviz:updates:car", {"hello": "world"})
+            await client.xadd("xviz:updates:car", {"v": "1", "t": "update", "o": "intruder", "n": "7", "d": b"glTF not really"})
+            await client.aclose()
+            await push(car, updates[1:])
+            await viewer_b.count(len(updates))  # the complete state it joined with, then the updates
+            assert [timestamp(d) for d in viewer_b.updates] == [timestamp(d) for d in updates]
+            assert len(b.log("skipped entry")) == 1
+            assert await b.metric('xviz_broker_dropped_updates_total{reason="garbage"}') == 2
+            await viewer_b.close()
+
+
+async def test_the_broker_down_at_start_then_restarted_mid_feed(tmp_path: Path):
+    broker = Broker(tmp_path)  # not started: the replicas start without it
+    updates = (frames() * 2)[:50]
+    async with replicas(tmp_path, broker, 2) as (a, b):
+        for replica in (a, b):
+            status, health = await replica.get("/healthz")
+            assert status == 200 and "down" in health and "retrying" in health
+            assert len(replica.log("unreachable")) == 1
+        try:
+            async with source(a) as car:  # while the broker is down: A serves it to its own viewers
+                here = await Viewer.join(a)
+                await until(lambda: _sessions(a, 1), what="the viewer on A")
+                await push(car, updates[:3])
+                await broker.start()
+                await until(lambda: _up(a), what="A to reach the broker")
+                await until(lambda: _up(b), what="B to reach the broker")
+                await push(car, updates[3:5])
+                await until(lambda: _started(b, "car"), what="B to list A's feed, started")
+                there = await Viewer.join(b)  # a late joiner: the complete state first
+                await until(lambda: _sessions(b, 1), what="the viewer on B")
+                await push(car, updates[5:10])
+                await there.count(6)
+                broker.kill()
+                await push(car, updates[10:40])  # 3 s without the broker
+                await broker.start()
+                await until(lambda: _up(a), what="A to reach the broker again")
+                await push(car, updates[40:])
+                await here.count(len(updates))
+
+                async def resumed() -> bool:
+                    return there.updates[-1] == updates[-1]
+
+                await until(resumed, what="B's viewer to get the last update")
+                # A's own viewer never noticed; B's missed what the broker lost, was told how many, and resumed.
+                assert here.updates == updates and not here.notices
+                assert timestamp(there.updates[0]) == timestamp(updates[4]) and there.updates[1:6] == updates[5:10]
+                missed = 1 + len(updates[5:]) - len(there.updates)
+                assert missed > 0
+                told = [int(m) for notice in there.notices for m in re.findall(r"(\d+) updates were dropped", notice)]
+                assert sum(told) == missed, (told, missed)
+                assert len(a.log("unreachable")) == 2 and a.log("connected again")
+                await here.close()
+                await there.close()
+        finally:
+            if broker.process is not None and broker.process.poll() is None:
+                broker.kill()
+
+
+async def test_a_full_broker_costs_the_owner_its_broker_writes_only(tmp_path: Path, broker: Broker):
+    updates = frames()[:12]
+    async with replicas(tmp_path, broker, 1) as (a,):
+        async with source(a) as car:
+            viewer = await Viewer.join(a)
+            await until(lambda: _sessions(a, 1), what="the viewer")
+            client = broker.client()
+            used = (await client.info("memory"))["used_memory"]
+            await client.config_set("maxmemory", used + 3 * 2**20)  # one frame and a bit
+            await push(car, updates[:8])
+            await viewer.count(8)
+            assert len(a.log("refuses writes of live feed 'car'")) == 1
+            assert await a.metric('xviz_broker_dropped_updates_total{reason="full"}') >= 5
+            await client.config_set("maxmemory", 0)
+            await push(car, updates[8:])
+            await viewer.count(len(updates))
+            assert viewer.updates == updates and not viewer.notices
+            await until(lambda: _logged(a, "writing live feed 'car' again"), what="A to write again")
+            assert await client.xlen("xviz:updates:car") >= 1
+            await client.aclose()
+            await viewer.close()
+
+
+@pytest.mark.skipif(
+    not (STATIC_DIR / "index.html").is_file() or shutil.which("chromium") is None or shutil.which("node") is None,
+    reason="needs the viewer bundle and chromium: run scripts/test.sh",
+)
+async def test_the_built_in_viewer_on_another_replica_lists_and_plays_the_feed(tmp_path: Path, broker: Broker):
+    """streetscape.gl's XVIZLiveLoader, in the built-in viewer in headless Chromium, on B; the source on A.
+
+    A software-rendered page on a busy machine may fall behind: a queue that holds the whole run keeps it
+    from being told so (which the page would show as an alert)."""
+    async with replicas(tmp_path, broker, 2, "--live-queue", "128") as (a, b):
+        async with source(a) as car:
+            await until(lambda: _listed(b, "car"), what="B to list A's feed")
+            pushing = asyncio.ensure_future(push(car, frames() * 4))
+            options = {"url": f"http://127.0.0.1:{b.port}/", "click": "car", "frames": 10, "timeout": 90_000,
+                       "screenshot": str(tmp_path / "viewer-on-b.png")}
+            process = await asyncio.create_subprocess_exec(
+                "node", str(BROWSER), json.dumps(options), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+            stdout, stderr = await process.communicate()
+            pushing.cancel()
+    assert process.returncode == 0, stderr.decode()
+    report = json.loads(stdout)
+    assert "car" in report["catalogText"] and "source connected" in report["catalogText"]
+    assert report["pageErrors"] == [] and report["alerts"] == [] and report["failedRequests"] == []
+    assert report["frames"] >= 10 and report["drawn"], report
+    print(f"the viewer on B drew A's feed {report['firstDrawnMs']} ms after opening the page")
+
+
+async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_started_later(tmp_path: Path, broker: Broker):
+    """``server.live.feed(...)`` is shared too; a replica that starts reading begins at a keyframe, which the
+    owner writes for a source of incremental updates (every few updates when the stream is short)."""
+    settings = {"broker": broker.url, "broker_ttl": TTL, "broker_max_mb": 0.002}  # ~5 entries of the updates here
+
+    def written(server: Any) -> float:
+        return sum(float(line.rsplit(" ", 1)[1]) for line in server.metrics.exposition().decode().splitlines()
+                   if line.startswith("xviz_broker_writes_total"))
+
+    async with running_server(tmp_path, **settings) as a:
+        feed = a.live.feed("sim")
+        feed.set_metadata(metadata())
+        await feed.publish(update(1.0, points=50))
+        for i in range(1, 13):
+            await asyncio.sleep(0.05)  # the owner's queue to the broker holds 4 updates
+            await feed.publish(update(1 + i / 10, update_type="INCREMENTAL", streams=("/vehicle_pose",)))
+
+        async def all_written() -> bool:
+            return written(a) >= 1 + 13 + 2  # the metadata, the updates and two keyframes
+
+        await until(all_written, what="A to write the feed")
+        async with running_server(tmp_path, **settings) as c:
+            async def mirrored() -> bool:
+                found = c.live.find("sim", exact=True)
+                return found is not None and found.state() is not None
+
+            await until(mirrored, what="C to read the feed")
+            async with client(c, "/?log=sim&session_type=live") as viewer:
+                assert (await viewer.recv())["type"] == "xviz/metadata"
+                state = await viewer.recv()
+            assert state["data"]["update_type"] == "COMPLETE_STATE"
+            merged = state["data"]["updates"][0]
+            assert merged["poses"]["/vehicle_pose"]["position"][0] == 2.2  # the newest pose
+            assert merged["primitives"]["/points"]["points"][0]["points"].shape == (50, 3)  # from the snapshot
+            assert c.live.find("sim", exact=True).origin == a.broker.link.id.decode()
+
+
+def test_the_broker_url_is_shown_without_its_password():
+    env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}
+    shown = subprocess.run([sys.executable, "-m", "xviz_server", "config", "--broker", "rediss://app:s3cr3t@cache.example:6380/2"],
+                           capture_output=True, text=True, env=env, timeout=60)
+    assert shown.returncode == 0 and "s3cr3t" not in shown.stdout + shown.stderr
+    assert 'broker = "rediss://app:REDACTED@cache.example:6380/2"' in shown.stdout
+    wrong = subprocess.run([sys.executable, "-m", "xviz_server", "config", "--broker", "http://:s3cr3t@cache.example"],
+                           capture_output=True, text=True, env=env, timeout=60)
+    assert wrong.returncode == 2 and "s3cr3t" not in wrong.stderr and "redis://, rediss:// or unix://" in wrong.stderr
+
+
+async def _listed(replica: Replica, name: str) -> bool:
+    return name in await replica.live()
+
+
+async def _got(viewer: Viewer, update: bytes) -> bool:
+    return viewer.updates[-1:] == [update]
+
+
+async def _started(replica: Replica, name: str) -> bool:
+    return (await replica.live()).get(name, False)
+
+
+async def _unlisted(replica: Replica, name: str) -> bool:
+    return name not in await replica.live()
+
+
+async def _sessions(replica: Replica, count: int) -> bool:
+    return await replica.metric("xviz_sessions_open") >= count
+
+
+async def _up(replica: Replica) -> bool:
+    return "up for" in (await replica.get("/healthz"))[1]
+
+
+async def _told(viewer: Viewer, text: str) -> bool:
+    return any(text in notice for notice in viewer.notices)
+
+
+async def _logged(replica: Replica, text: str) -> bool:
+    return bool(replica.log(re.escape(text)))
+
+
+def test_entries_round_trip_and_anything_else_is_refused_by_name():
+    from xviz_server.exceptions import BrokerError
+    from xviz_server.live.streams import Entry, before
+
+    entry = Entry(b"update", b"host:1:abc", 41, b"glTF...", complete=True)
+    assert Entry.parse(entry.fields()) == entry
+    assert Entry.parse(Entry(b"gone", b"host:1:abc").fields()).kind == b"gone"
+    for fields, problem in [
+        ({b"hello": b"world"}, "not an entry of layout version 1"),
+        ({b"v": b"1", b"t": b"update", b"o": b"x", b"n": b"seven", b"d": b"glTF"}, "number b'seven'"),
+        ({b"v": b"1", b"t": b"delete-all", b"o": b"x", b"n": b"1", b"d": b"x"}, "kind b'delete-all'"),
+        ({b"v": b"1", b"t": b"update", b"o": b"x", b"n": b"1"}, "update entry without data"),
+    ]:
+        with pytest.raises(BrokerError, match=re.escape(problem)):
+            Entry.parse(fields)
+    with pytest.raises(BrokerError, match="meta entry holding a JSON list"):
+        Entry(b"meta", b"x", data=b"[1, 2]").json()
+    assert before(b"1700000000123-3") == b"1700000000123-2"
+    assert before(b"1700000000123-0") == b"1700000000122-18446744073709551615"
+    assert before(b"0-0") == b"0-0"
