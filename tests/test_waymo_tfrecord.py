@@ -8,6 +8,7 @@ import math
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from xviz_server.codec import Format, encode
 from xviz_server.datasets import detect, open_dataset
 from xviz_server.datasets.tfrecord import RecordFile, masked_crc, write_records
 from xviz_server.datasets.waymo import WaymoSegment
+from xviz_server.datasets.images import scale_jpegs
 from xviz_server.datasets.waymo_tfrecord import WaymoRecordSegment
 from xviz_server.exceptions import DatasetError
 from xviz_server.messages import envelope
@@ -393,3 +395,25 @@ async def test_segments_are_found_under_the_data_dir_and_in_a_folder_given(tmp_p
         assert server.catalog.names() == ["segment-a", "segment-b"]
         async with client(server, "/?log=segment-b") as c:
             assert (await c.recv())["data"]["log_info"]["start_time"] == pytest.approx(T0 / 1e6, abs=1e-6)
+
+
+def _scale_in_child(data: bytes, queue: Any) -> None:
+    queue.put(scale_jpegs({"FRONT": data}, 400)["FRONT"].result(timeout=30)[:2])
+
+
+def test_images_are_scaled_in_a_process_forked_after_the_parent_scaled_some():
+    """The threads scaling a frame's images are the process's own: a forked child makes new ones."""
+    import multiprocessing
+
+    data = jpeg_image(1920, 1280, (90, 120, 150))
+    assert scale_jpegs({"FRONT": data}, 400)["FRONT"].result(timeout=30)[:2] == b"\xff\xd8"  # the parent's threads start
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_scale_in_child, args=(data, queue))
+    child.start()
+    try:
+        assert queue.get(timeout=60) == b"\xff\xd8"
+    finally:
+        child.join(10)
+        if child.is_alive():
+            child.kill()

@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import io
+from collections.abc import Mapping
+from concurrent.futures import Future
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..codec.image import sniff_image
 from ..exceptions import DatasetError
+from . import threads
 
 if TYPE_CHECKING:
     from PIL.Image import Image as Picture
 
-__all__ = ["jpeg", "scaled_jpeg", "fit_width", "encode_like"]
+__all__ = ["jpeg", "scaled_jpeg", "scale_jpegs", "fit_width", "encode_like"]
 
 
 def _height(width: int, height: int, max_width: int) -> int:
@@ -59,6 +62,11 @@ def scaled_jpeg(data: bytes, max_width: int, quality: int = 85) -> bytes:
             return _encode(picture.convert("RGB").resize(size, Image.Resampling.BILINEAR), quality)
     except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
         raise DatasetError(f"not a decodable JPEG image: {exc}") from None
+
+
+def scale_jpegs(images: Mapping[str, bytes], max_width: int) -> dict[str, Future[bytes]]:
+    """Start :func:`scaled_jpeg` on each image, side by side (see :mod:`.threads`); the futures of the results."""
+    return {name: threads.submit(scaled_jpeg, data, max_width) for name, data in images.items()}
 
 
 def fit_width(picture: Picture, max_width: int, reducing_gap: float = 2.0) -> Picture:

@@ -32,6 +32,7 @@ Decompressing a matrix is bounded: a range image larger than
 from __future__ import annotations
 
 import logging
+from concurrent.futures import Future
 from functools import cached_property
 from pathlib import Path
 
@@ -42,7 +43,8 @@ from zlib_ng import zlib_ng
 from ..exceptions import DatasetError
 from . import DEFAULT_IMAGE_WIDTH
 from . import waymo_frame_pb2 as pb
-from .images import scaled_jpeg
+from . import threads
+from .images import scale_jpegs
 from .range_images import column_azimuths, ray_directions, row_inclinations, to_frame_vehicle
 from .tfrecord import RecordFile, is_tfrecord
 from .waymo import LIDARS, SUFFIX, WaymoFrame, WaymoLog
@@ -158,6 +160,9 @@ class WaymoRecordSegment(WaymoLog):
         if len(frame.pose.transform) != 16:
             raise DatasetError(f"{where}: Frame.pose has {len(frame.pose.transform)} values, not 16", path=self.path)
         pose = np.array(frame.pose.transform, dtype=np.float64).reshape(4, 4)
+        scaling = scale_jpegs(
+            {pb.CameraName.Name.Name(image.name): image.image for image in frame.images if image.name}, self.image_max_width
+        )  # beside the lidar work
         points, intensity, in_zone = self._lidar(frame, pose, where)
         boxes = np.array(
             [[b.center_x, b.center_y, b.center_z, b.length, b.width, b.height, b.heading] for b in (label.box for label in frame.laser_labels)],
@@ -165,16 +170,13 @@ class WaymoRecordSegment(WaymoLog):
         ).reshape(-1, 7)
         types = np.array([label.type for label in frame.laser_labels], dtype=int)
         ids = [label.id for label in frame.laser_labels]
-        return WaymoFrame(frame.timestamp_micros / 1e6, pose, points, intensity, in_zone, self._images(frame, where), boxes, types, ids)
+        return WaymoFrame(frame.timestamp_micros / 1e6, pose, points, intensity, in_zone, self._images(scaling, where), boxes, types, ids)
 
-    def _images(self, frame: pb.Frame, where: str) -> dict[str, bytes]:
+    def _images(self, scaling: dict[str, Future[bytes]], where: str) -> dict[str, bytes]:
         images = {}
-        for image in frame.images:
-            if not image.name:
-                continue
-            camera = pb.CameraName.Name.Name(image.name)
+        for camera, future in scaling.items():
             try:
-                images[camera] = scaled_jpeg(image.image, self.image_max_width)
+                images[camera] = future.result()
             except DatasetError as exc:
                 raise DatasetError(f"{where}: camera {camera}: {exc}", path=self.path) from None
         return images
@@ -182,24 +184,25 @@ class WaymoRecordSegment(WaymoLog):
     def _lidar(self, frame: pb.Frame, pose: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         calibrations = {c.name: c for c in frame.context.laser_calibrations}
         points, intensity, zones = [], [], []
+        matrices = self._inflate_all(frame, where)
         for laser in sorted(frame.lasers, key=lambda laser: laser.name):
             if not laser.ri_return1.range_image_compressed:
                 continue
             lidar = pb.LaserName.Name.Name(laser.name)
-            first = self._matrix(laser.ri_return1.range_image_compressed, 4, f"laser {lidar} return 1", where)
+            first = matrices[laser.name, "return 1"].result()
             height, width = first.shape[:2]
             if laser.name not in calibrations:
                 raise DatasetError(f"{where}: laser {lidar} has range images but no calibration in the context", path=self.path)
             directions, translation = self._rays(calibrations[laser.name], height, width, f"laser {lidar}", where)
             returns = [first]
             if laser.ri_return2.range_image_compressed:
-                second = self._matrix(laser.ri_return2.range_image_compressed, 4, f"laser {lidar} return 2", where)
+                second = matrices[laser.name, "return 2"].result()
                 if second.shape[:2] != (height, width):
                     raise DatasetError(f"{where}: laser {lidar}: return 2 is {second.shape[:2]}, return 1 {height, width}", path=self.path)
                 returns.append(second)
             pixel_pose = None
             if laser.ri_return1.range_image_pose_compressed:
-                pixel_pose = self._matrix(laser.ri_return1.range_image_pose_compressed, 6, f"laser {lidar} pixel pose", where)
+                pixel_pose = matrices[laser.name, "pixel pose"].result()
                 if pixel_pose.shape[:2] != (height, width):
                     raise DatasetError(f"{where}: laser {lidar}: pixel pose is {pixel_pose.shape[:2]}, range image {height, width}", path=self.path)
                 pixel_pose = pixel_pose.reshape(-1, pixel_pose.shape[2])
@@ -217,6 +220,20 @@ class WaymoRecordSegment(WaymoLog):
         if not points:
             return np.zeros((0, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, dtype=bool)
         return np.concatenate(points), np.concatenate(intensity), np.concatenate(zones)
+
+    def _inflate_all(self, frame: pb.Frame, where: str) -> dict[tuple[int, str], Future[np.ndarray]]:
+        """Start decoding every range image and pixel pose of ``frame``, side by side (see :mod:`.threads`)."""
+        matrices = {}
+        for laser in frame.lasers:
+            lidar = pb.LaserName.Name.Name(laser.name)
+            for part, compressed, channels in (
+                ("return 1", laser.ri_return1.range_image_compressed, 4),
+                ("return 2", laser.ri_return2.range_image_compressed, 4),
+                ("pixel pose", laser.ri_return1.range_image_pose_compressed, 6),
+            ):
+                if compressed:
+                    matrices[laser.name, part] = threads.submit(self._matrix, compressed, channels, f"laser {lidar} {part}", where)
+        return matrices
 
     def _rays(self, calibration: pb.LaserCalibration, height: int, width: int, what: str, where: str) -> tuple[np.ndarray, np.ndarray]:
         """(H * W, 3) pixel directions in the vehicle frame and the lidar's position; kept per calibration."""
