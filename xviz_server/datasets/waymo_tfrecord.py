@@ -223,7 +223,7 @@ class WaymoRecordSegment(WaymoLog):
 
     def _inflate_all(self, frame: pb.Frame, where: str) -> dict[tuple[int, str], Future[np.ndarray]]:
         """Start decoding every range image and pixel pose of ``frame``, side by side (see :mod:`.threads`)."""
-        matrices = {}
+        matrices: dict[tuple[int, str], Future[np.ndarray]] = {}
         for laser in frame.lasers:
             lidar = pb.LaserName.Name.Name(laser.name)
             for part, compressed, channels in (
