@@ -72,6 +72,7 @@ async def test_a_killed_worker_process_is_replaced_and_healthz_says_so_meanwhile
         assert await get(server.port, "/healthz") == (200, b"ok\n")
 
         # Killed again, with no job to notice: /healthz does, and the pool is replaced.
+        await server.workers.warm()  # the replacement is up (until then jobs run in a stand-in thread)
         victim = await server.workers.cpu(os.getpid)
         assert victim != os.getpid()
         os.kill(victim, signal.SIGKILL)
