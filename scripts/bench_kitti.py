@@ -20,10 +20,7 @@ import argparse
 import asyncio
 import json
 import os
-import re
 import statistics
-import subprocess
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -35,23 +32,15 @@ from xviz_server.datasets import convert_frame
 from xviz_server.datasets.kitti import KittiDrive, reflectance_colors
 from xviz_server.messages import envelope
 
+from benchproc import start_server
+
 RAW = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
 
 
-def start_server(dataset: str) -> tuple[subprocess.Popen[str], int]:
-    """``xviz-server serve --dataset DATASET`` in its own process, and the port it listens on."""
-    server = subprocess.Popen([sys.executable, "-m", "xviz_server", "serve", "--dataset", dataset, "--port", "0"],
-                              stderr=subprocess.PIPE, text=True)
-    assert server.stderr is not None
-    port = next(int(m.group(1)) for line in server.stderr if (m := re.search(r"ws://127\.0\.0\.1:(\d+)/", line)))
-    return server, port
-
-
 async def served(raw: Path, settle: float) -> tuple[float, float, int]:
-    server, port = start_server(f"kitti:{raw}")
-    try:
+    with start_server(None, "--dataset", f"kitti:{raw}") as server:
         await asyncio.sleep(settle)
-        async with websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None) as websocket:
+        async with websockets.connect(server.url(), max_size=None) as websocket:
             await websocket.recv()
             started = time.perf_counter()
             await websocket.send(json.dumps({"type": "xviz/transform_log", "data": {"id": "1"}}))
@@ -63,9 +52,6 @@ async def served(raw: Path, settle: float) -> tuple[float, float, int]:
                 frames += 1
                 first = first or time.perf_counter() - started
             return first, time.perf_counter() - started, frames
-    finally:
-        server.terminate()
-        server.wait(10)
 
 
 def read_frame(drive: KittiDrive, frame: int) -> dict[str, float]:

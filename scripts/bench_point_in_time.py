@@ -23,11 +23,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import re
-import subprocess
-import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -36,25 +32,11 @@ from websockets.asyncio.client import ClientConnection, connect
 
 REPO = Path(__file__).resolve().parents[1]
 from benchkit import percentile, update, write_log  # noqa: E402
+from benchproc import start_server  # noqa: E402
 
 from xviz_server import frames  # noqa: E402
 from xviz_server.codec import Format, encode  # noqa: E402
 from xviz_server.work import Workers  # noqa: E402
-
-
-def start_server(root: Path, *options: str) -> tuple[subprocess.Popen[str], int]:
-    """``xviz-server serve`` on a free loopback port, and the port; its standard error is drained in a thread."""
-    server = subprocess.Popen(
-        [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root), "--host", "127.0.0.1", "--port", "0", *options],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO,
-    )
-    assert server.stderr is not None
-    for text in server.stderr:
-        match = re.search(r"listening on ws://127\.0\.0\.1:(\d+)/", text)
-        if match:
-            threading.Thread(target=server.stderr.read, daemon=True).start()
-            return server, int(match.group(1))
-    raise RuntimeError("the server exited before listening")
 
 
 async def ask(websocket: ClientConnection, request_id: str, instant: float) -> float:
@@ -129,12 +111,8 @@ def main() -> None:
             spans[name] = (100.0, round(100.0 + (count - 1) / 10, 3) + 0.1)
         frame_bytes = (root / "long" / "2-frame.json").stat().st_size
         print(f"generated {args.frames} + 11 JSON frames of {frame_bytes} bytes in {time.perf_counter() - started:.1f} s")
-        server, port = start_server(root)
-        try:
-            measured = asyncio.run(latencies(port, spans, args.rounds, args.seed))
-        finally:
-            server.terminate()
-            server.wait(30)
+        with start_server(root) as server:
+            measured = asyncio.run(latencies(server.port, spans, args.rounds, args.seed))
 
     print(f"\n1. transform_point_in_time, {args.rounds} random instants a log, answers awaited one by one (ms)")
     print(f"{'log':<22}{'p50':>8}{'p90':>8}{'p99':>8}{'max':>8}")

@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 import websockets
 
-from bench_kitti import RAW, served, start_server
+from bench_kitti import RAW, served
+from benchproc import start_server
 from xviz_server.codec import Format, decode, encode
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.ros import RosBag
@@ -109,10 +110,9 @@ def per_frame(dataset: RosBag | KittiDrive, repeat: int) -> float:
 
 
 async def streamed(bag: Path, seconds: float, settle: float) -> tuple[float, int]:
-    server, port = start_server(f"rosbag:{bag}")
-    try:
+    with start_server(None, "--dataset", f"rosbag:{bag}") as server:
         await asyncio.sleep(settle)
-        async with websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None) as websocket:
+        async with websockets.connect(server.url(), max_size=None) as websocket:
             metadata = decode(await websocket.recv())["data"]
             start = metadata["log_info"]["start_time"]
             request = {"id": "1", "start_timestamp": start, "end_timestamp": start + seconds}
@@ -125,9 +125,6 @@ async def streamed(bag: Path, seconds: float, settle: float) -> tuple[float, int
                     break
                 frames += 1
             return time.perf_counter() - started, frames
-    finally:
-        server.terminate()
-        server.wait(10)
 
 
 def main() -> None:

@@ -60,11 +60,6 @@ def line(text: str = "") -> None:
     print(text, flush=True)
 
 
-def start_store_server(*extra: str) -> Process:
-    args = [sys.executable, "-m", "xviz_server", "serve", "--data-dir", ROOT, "--host", "127.0.0.1", "--port", "0", *extra]
-    return Process(args, r"listening on ws://127\.0\.0\.1:(\d+)/", "xviz-server")
-
-
 def sequential_gets(endpoint: str, keys: list[str], trials: int) -> dict[str, float]:
     """The store's own rate: every object GET after GET with obstore, the median of ``trials`` after a warm-up."""
 
@@ -108,7 +103,7 @@ def cold_stream(endpoint: str, trials: int, extra: tuple[str, ...] = ()) -> dict
     os.environ.update(store_env(endpoint))
     runs = []
     for _ in range(trials):
-        with start_store_server(*extra) as server:
+        with start_server(ROOT, *extra) as server:
             runs.append(run_clients({"task": "stream", "url": server.url("?log=kitti"), "clients": 1, "repeats": 1}, 1, server.pid))
     assert all(run["frames"] == 25 and run["errors"] == 0 for run in runs), runs
     middle = sorted(runs, key=lambda run: run["seconds"])[len(runs) // 2]
@@ -168,7 +163,7 @@ def main() -> None:
                  f"other processes {results['delayed']['other_cpu']:.2f} cores")
 
         os.environ.update(store_env(s3.endpoint))
-        with start_store_server(*extra) as store_server, start_server(args.kitti.parent) as local_server, \
+        with start_server(ROOT, *extra) as store_server, start_server(args.kitti.parent) as local_server, \
                 start_reference({"kitti": args.kitti}) as reference:
             other_before, wall_before = other_cpu(), time.perf_counter()
             bare = warm_stream(reference, "kitti", args.repeats)

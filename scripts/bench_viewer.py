@@ -32,16 +32,16 @@ import os
 import re
 import statistics
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
+from benchproc import KITTI, start_server
+
 REPO = Path(__file__).resolve().parents[1]
 DRIVER = REPO / "tests" / "browser.mjs"
 STATIC = REPO / "xviz_server" / "viewer_static"
-KITTI = REPO.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
 
 
 def drive(options: dict[str, Any]) -> dict[str, Any]:
@@ -70,21 +70,6 @@ def megabytes(sizes: dict[str, int]) -> str:
     return f"{sizes['raw'] / 1e6:.2f} MB raw, {sizes['gzip'] / 1e6:.2f} MB gzip, {sizes['brotli'] / 1e6:.2f} MB brotli"
 
 
-def start_server(data_dir: Path) -> tuple[subprocess.Popen[str], int]:
-    """The server in its own process, and the port it listens on."""
-    server = subprocess.Popen(
-        [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(data_dir), "--port", "0"],
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    assert server.stderr is not None
-    for line in server.stderr:
-        match = re.search(r"listening on ws://[^:]+:(\d+)/", line)
-        if match:
-            return server, int(match.group(1))
-    raise SystemExit("the server did not start")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=3)
@@ -95,9 +80,8 @@ def main() -> None:
     print(f"bundle (JS + CSS), all files: {megabytes(bundle_sizes())}")
     with tempfile.TemporaryDirectory() as data_dir:
         (Path(data_dir) / args.kitti.name).symlink_to(args.kitti.resolve())
-        server, port = start_server(Path(data_dir))
-        try:
-            base = f"http://127.0.0.1:{port}"
+        with start_server(data_dir) as server:
+            base = f"http://127.0.0.1:{server.port}"
             load_before = os.getloadavg()[0]
             started = time.monotonic()
             reference = [drive({"url": f"{base}/", "draw": False, "settle": 0})["loadedMs"] for _ in range(args.runs)]
@@ -119,9 +103,6 @@ def main() -> None:
                 print(f"  the page loaded {len(loaded)} of the bundle's files: {megabytes(bundle_sizes(loaded))}")
             elapsed = time.monotonic() - started
             print(f"machine load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after; {elapsed:.0f} s in all; {os.cpu_count()} cores")
-        finally:
-            server.terminate()
-            server.wait()
 
 
 if __name__ == "__main__":

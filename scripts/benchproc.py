@@ -89,9 +89,10 @@ class Process:
         self.stop()
 
 
-def start_server(root: Path, *extra: str) -> Process:
-    args = [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root),
-            "--host", "127.0.0.1", "--port", "0", *extra]
+def start_server(root: Path | str | None, *extra: str) -> Process:
+    """``xviz-server serve`` on a free loopback port, serving ``root`` (a folder or an ``s3://`` URL) if given."""
+    data_dir = [] if root is None else ["--data-dir", str(root)]
+    args = [sys.executable, "-m", "xviz_server", "serve", *data_dir, "--host", "127.0.0.1", "--port", "0", *extra]
     return Process(args, r"listening on ws://127\.0\.0\.1:(\d+)/", "xviz-server")
 
 
