@@ -27,6 +27,7 @@ from xviz_server.convert import convert
 from xviz_server.datasets import detect, open_dataset
 from xviz_server.datasets.kitti import EARTH_RADIUS, KittiDrive
 from xviz_server.datasets.ros import RosBag, is_rosbag
+from xviz_server.datasets.ros.bag import ROS1_MAGIC
 from xviz_server.datasets.ros.sensors import cloud_points, compressed_image_bytes, image_bytes
 from xviz_server.exceptions import DatasetError
 from xviz_server.server import parse_dataset
@@ -399,6 +400,24 @@ def test_unindexed_ros1_bag_is_indexed_in_memory(bags: dict[str, Path], tmp_path
     assert bag.times.tolist() == indexed.times.tolist() and len(bag) == FRAMES
     assert {name: len(topic) for name, topic in bag.bag.topics.items()} == {name: len(topic) for name, topic in indexed.bag.topics.items()}
     assert frame_digests(bag, FRAMES) == frame_digests(indexed, FRAMES)
+
+
+def test_unindexed_ros1_bag_with_a_garbled_chunk_is_an_error_naming_the_file(bags: dict[str, Path], tmp_path: Path):
+    """Indexing in memory reads every chunk's records: a record header that lies about its length is refused."""
+    data = bytearray(cut_recording(bags["ros1"], tmp_path / "plain.bag").read_bytes())
+    position = len(ROS1_MAGIC)
+    (header,) = struct.unpack_from("<I", data, position)  # the bag header record: header, then its padding
+    position += 4 + header
+    (padding,) = struct.unpack_from("<I", data, position)
+    position += 4 + padding
+    (header,) = struct.unpack_from("<I", data, position)  # the first chunk record
+    assert b"op=\x05" in data[position + 4 : position + 4 + header]
+    first_record = position + 4 + header + 4  # after the chunk's header and its data length (no compression)
+    data[first_record : first_record + 4] = struct.pack("<I", 0xFFFFFFF0)
+    garbled = tmp_path / "garbled.bag"
+    garbled.write_bytes(bytes(data))
+    with pytest.raises(DatasetError, match=f"{garbled}: cannot open the bag: "):
+        RosBag(garbled)
 
 
 def test_ros1_bag_cut_inside_a_chunk_serves_the_whole_chunks(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
