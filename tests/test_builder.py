@@ -274,6 +274,8 @@ FRAME_MISUSE = [
     (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, style={"hieght": 2}), "/objects: style: no style property 'hieght' (did you mean 'height'?)"),
     (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, classes="Car"), "/objects: classes must be a list of class names without spaces, not 'Car'"),
     (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, id=None, style={"height": "tall"}), "/objects: style.height: 'tall' is not of type 'number'"),
+    (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, style={"height": True}), "/objects: style.height: True is not of type 'number'"),
+    (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, style={"stroke_width": -0.5}), "/objects: style.stroke_width: -0.5 is less than the minimum of 0"),
     (lambda f: f.text("/labels", (0, 0, 0), "x", style={"text_anchor": "LEFT"}), "/labels: style.text_anchor: 'LEFT' is not one of"),
     (lambda f: f.circle("/centers", (0, 0, 0), -1), "/centers: radius must be >= 0, not -1"),
     (lambda f: f.circle("/centers", (0, 0), 1), "/centers: center must be three finite numbers (x, y, z), not (0, 0)"),

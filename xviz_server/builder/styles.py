@@ -112,7 +112,7 @@ def check_style(where: str, style: Mapping[str, Any], primitive_type: str | None
     """
     if not isinstance(style, Mapping):
         raise BuilderError(f"{where}: a style is a mapping of property names to values, not {type(style).__name__}")
-    object_properties, stream_properties = _schema_properties()
+    object_properties, stream_properties, numbers = _schema_properties()
     allowed = object_properties if per_object else stream_properties
     if primitive_type is not None:
         allowed = allowed & PRIMITIVE_STYLES[primitive_type]
@@ -126,6 +126,8 @@ def check_style(where: str, style: Mapping[str, Any], primitive_type: str | None
             value = check_color(f"{where}.{name}", value)
         elif isinstance(value, float) and not math.isfinite(value):
             raise BuilderError(f"{where}.{name}: {value!r} is not a finite number")
+        elif name in numbers and _within(value, numbers[name]):
+            pass  # all the schema asks of it
         elif problems := get_validator().errors("style/stream_value", {name: value}):
             raise BuilderError(f"{where}.{problems[0].removeprefix('$.')}")
         checked[name] = value
@@ -152,11 +154,26 @@ def _unknown_property(
     return f"{where}: no style property {name!r}{hint}"
 
 
+def _within(value: Any, bounds: tuple[float, float]) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and bounds[0] <= value <= bounds[1]
+
+
 @cache
-def _schema_properties() -> tuple[frozenset[str], frozenset[str]]:
-    """The property names of an object style and of a stream style, read from the schema."""
+def _schema_properties() -> tuple[frozenset[str], frozenset[str], dict[str, tuple[float, float]]]:
+    """The property names of an object style and of a stream style, and the bounds of the plain numbers.
+
+    Read from the schema. A plain number is a property whose schema asks
+    only for a number, at most within a minimum and a maximum; a finite
+    value within them needs no further check.
+    """
     folder = resources.files("xviz_server.schema") / "style"
     object_schema = json.loads((folder / "object_value.json").read_text("utf-8"))
     stream_schema = json.loads((folder / "stream_value.json").read_text("utf-8"))
+    schemas = {**object_schema["$defs"]["per_object"]["properties"], **stream_schema["properties"]}
+    numbers = {
+        name: (schema.get("minimum", -math.inf), schema.get("maximum", math.inf))
+        for name, schema in schemas.items()
+        if schema.get("type") == "number" and set(schema) <= {"type", "minimum", "maximum", "description"}
+    }
     per_object = frozenset(object_schema["$defs"]["per_object"]["properties"])
-    return per_object, per_object | frozenset(stream_schema["properties"])
+    return per_object, per_object | frozenset(stream_schema["properties"]), numbers

@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["row_inclinations", "column_azimuths", "ray_directions", "to_frame_vehicle"]
+__all__ = ["row_inclinations", "column_azimuths", "ray_directions", "frame_rays"]
 
 
 def row_inclinations(beams: Sequence[float], low: float, high: float, height: int) -> np.ndarray:
@@ -53,26 +53,42 @@ def ray_directions(inclinations: np.ndarray, azimuths: np.ndarray, rotation: np.
     return (rays @ rotation.T).astype(np.float32)
 
 
-def to_frame_vehicle(points: np.ndarray, pixel_poses: np.ndarray, frame_pose: np.ndarray) -> np.ndarray:
-    """Points in the vehicle frame of their pixels' poses, (N, 3), to that of ``frame_pose``.
+def frame_rays(
+    directions: np.ndarray, origin: np.ndarray, pixel_poses: np.ndarray, frame_pose: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The rays of a lidar that moved during its sweep, in the vehicle frame of ``frame_pose``.
 
-    ``pixel_poses`` is (N, 6): roll, pitch, yaw, x, y, z of each point's
-    vehicle-to-world pose, whose rotation is Rz(yaw) Ry(pitch) Rx(roll);
-    ``frame_pose`` the frame's (4, 4) vehicle-to-world transform. The world
+    ``directions`` (H * W, 3) and ``origin`` (3,) are the pixels' directions
+    and the lidar's position in the vehicle frame of each pixel's own pose;
+    ``pixel_poses`` (H, W, 6) are those poses, as roll, pitch, yaw, x, y, z
+    of the vehicle-to-world transform, whose rotation is Rz(yaw) Ry(pitch)
+    Rx(roll); ``frame_pose`` is the frame's (4, 4) vehicle-to-world
+    transform. Returns the pixels' directions (H * W, 3), their origins
+    (K, 3) and the period K: pixel ``n`` starts at ``origins[n % K]``.
+
+    When every row of a column has the same pose, as the columns of a
+    spinning lidar do, the origins are per column (K = W) and the pose
+    arithmetic is done once per column; else per pixel (K = H * W). World
     positions are only ever subtracted from each other, in float64, so the
-    rest is computed in float32 without losing precision far from the
-    world's origin.
+    results are float32 without losing precision far from the world's
+    origin.
     """
-    x, y, z = points.T
-    roll, pitch, yaw = (pixel_poses[:, i] for i in range(3))
-    cos, sin = np.cos(roll), np.sin(roll)
-    y, z = cos * y - sin * z, sin * y + cos * z
-    cos, sin = np.cos(pitch), np.sin(pitch)
-    x, z = cos * x + sin * z, cos * z - sin * x
-    cos, sin = np.cos(yaw), np.sin(yaw)
-    x, y = cos * x - sin * y, sin * x + cos * y
-    shift = (pixel_poses[:, 3:6] - frame_pose[:3, 3]).astype(np.float32)
-    x, y, z = x + shift[:, 0], y + shift[:, 1], z + shift[:, 2]
-    # The inverse rotation, R^T, spelled out: numpy's (N, 3) @ (3, 3) is many times slower.
-    rotation = frame_pose[:3, :3].astype(np.float32)
-    return np.stack([x * rotation[0, j] + y * rotation[1, j] + z * rotation[2, j] for j in range(3)], axis=1)
+    height, width = pixel_poses.shape[:2]
+    per_column = bool((pixel_poses == pixel_poses[:1]).all())
+    poses = (pixel_poses[0] if per_column else pixel_poses.reshape(-1, 6)).astype(np.float64)
+    roll, pitch, yaw = poses[:, 0], poses[:, 1], poses[:, 2]
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    pixel_rotations = np.stack([
+        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
+        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
+        np.stack([-sp, cp * sr, cp * cr], axis=-1),
+    ], axis=-2)  # (K, 3, 3)
+    to_frame = frame_pose[:3, :3].T
+    rotations = (to_frame @ pixel_rotations).astype(np.float32)  # pixel's vehicle frame -> frame's
+    shifts = (poses[:, 3:6] - frame_pose[:3, 3]) @ to_frame.T
+    origins = (rotations @ origin + shifts).astype(np.float32)
+    if per_column:
+        turned = np.einsum("cij,hcj->hci", rotations, directions.reshape(height, width, 3)).reshape(-1, 3)
+    else:
+        turned = np.einsum("nij,nj->ni", rotations, directions)
+    return turned, origins, len(origins)

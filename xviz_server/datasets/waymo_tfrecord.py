@@ -45,7 +45,7 @@ from . import DEFAULT_IMAGE_WIDTH
 from . import waymo_frame_pb2 as pb
 from . import threads
 from .images import scale_jpegs
-from .range_images import column_azimuths, ray_directions, row_inclinations, to_frame_vehicle
+from .range_images import column_azimuths, frame_rays, ray_directions, row_inclinations
 from .tfrecord import RecordFile, is_tfrecord
 from .waymo import LIDARS, SUFFIX, WaymoFrame, WaymoLog
 
@@ -160,10 +160,11 @@ class WaymoRecordSegment(WaymoLog):
         if len(frame.pose.transform) != 16:
             raise DatasetError(f"{where}: Frame.pose has {len(frame.pose.transform)} values, not 16", path=self.path)
         pose = np.array(frame.pose.transform, dtype=np.float64).reshape(4, 4)
+        matrices = self._inflate_all(frame, where)  # first: the lidar work below waits for them
         scaling = scale_jpegs(
             {pb.CameraName.Name.Name(image.name): image.image for image in frame.images if image.name}, self.image_max_width
         )  # beside the lidar work
-        points, intensity, in_zone = self._lidar(frame, pose, where)
+        points, intensity, in_zone = self._lidar(frame, pose, matrices, where)
         boxes = np.array(
             [[b.center_x, b.center_y, b.center_z, b.length, b.width, b.height, b.heading] for b in (label.box for label in frame.laser_labels)],
             dtype=np.float64,
@@ -181,10 +182,11 @@ class WaymoRecordSegment(WaymoLog):
                 raise DatasetError(f"{where}: camera {camera}: {exc}", path=self.path) from None
         return images
 
-    def _lidar(self, frame: pb.Frame, pose: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _lidar(
+        self, frame: pb.Frame, pose: np.ndarray, matrices: dict[tuple[int, str], Future[np.ndarray]], where: str
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         calibrations = {c.name: c for c in frame.context.laser_calibrations}
         points, intensity, zones = [], [], []
-        matrices = self._inflate_all(frame, where)
         for laser in sorted(frame.lasers, key=lambda laser: laser.name):
             if not laser.ri_return1.range_image_compressed:
                 continue
@@ -200,20 +202,18 @@ class WaymoRecordSegment(WaymoLog):
                 if second.shape[:2] != (height, width):
                     raise DatasetError(f"{where}: laser {lidar}: return 2 is {second.shape[:2]}, return 1 {height, width}", path=self.path)
                 returns.append(second)
-            pixel_pose = None
+            origins, period = translation[None], 1
             if laser.ri_return1.range_image_pose_compressed:
                 pixel_pose = matrices[laser.name, "pixel pose"].result()
                 if pixel_pose.shape[:2] != (height, width):
                     raise DatasetError(f"{where}: laser {lidar}: pixel pose is {pixel_pose.shape[:2]}, range image {height, width}", path=self.path)
-                pixel_pose = pixel_pose.reshape(-1, pixel_pose.shape[2])
+                directions, origins, period = frame_rays(directions, translation, pixel_pose[..., :6], pose)
             for image in returns:
                 channels = image.reshape(-1, image.shape[2])
                 valid = np.flatnonzero(channels[:, 0] > 0)
                 xyz = directions.take(valid, axis=0)  # take: a few times faster than fancy indexing
                 xyz *= channels[:, 0].take(valid)[:, None]
-                xyz += translation
-                if pixel_pose is not None:
-                    xyz = to_frame_vehicle(xyz, pixel_pose.take(valid, axis=0), pose)
+                xyz += origins[0] if period == 1 else origins.take(valid % period, axis=0)
                 points.append(xyz)
                 intensity.append(channels[:, 1].take(valid))
                 zones.append(channels[:, 3].take(valid) > 0)
