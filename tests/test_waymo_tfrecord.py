@@ -62,8 +62,12 @@ def pixel_angles(height: int, width: int, extrinsic: np.ndarray, beams: list[flo
     return rows, columns
 
 
-def scene_frame(index: int, rng: np.random.Generator) -> tuple:
-    """A frame seeing the room, and the points every laser must give, in the frame's vehicle frame."""
+def scene_frame(index: int, rng: np.random.Generator, rows_move: bool = False) -> tuple:
+    """A frame seeing the room, and the points every laser must give, in the frame's vehicle frame.
+
+    The TOP lidar's pose changes from column to column, as in Waymo's files, and also from row to row with
+    ``rows_move``.
+    """
     frame_pose = pose_matrix(0.2 + 0.05 * index, (X0 + index, Y0 + 2.0, 0.3))
     lasers, expected = {}, {}
     for name, extrinsic, (height, width), beams, low, high, moving in (
@@ -81,6 +85,8 @@ def scene_frame(index: int, rng: np.random.Generator) -> tuple:
                 if moving:  # the car turns and moves on during the sweep
                     roll, pitch, yaw = 0.001 * c, -0.002 * c, 0.2 + 0.05 * index + 0.004 * c
                     x, y, z = X0 + index + 0.05 * c, Y0 + 2.0 + 0.01 * c, 0.3
+                    if rows_move:
+                        pitch, yaw, x = pitch + 0.003 * r, yaw - 0.002 * r, x + 0.02 * r
                     pixel_pose[r, c] = (roll, pitch, yaw, x, y, z)
                     roll, pitch, yaw, x, y, z = pixel_pose[r, c].astype(float)  # as the file has them: float32
                     pose = pose_matrix(yaw, (x, y, z), roll, pitch)
@@ -114,7 +120,7 @@ def scene_calibrations():
 LABELS = [((10.0, 5.0, 1.0, 4.0, 2.0, 1.6, math.radians(30)), 1, "car-a"), ((3.0, -2.0, 0.9, 0.8, 0.6, 1.8, 0.0), 2, "ped-b")]
 
 
-def write_scene(directory: Path, frames: int = 3) -> tuple[Path, Path, list]:
+def write_scene(directory: Path, frames: int = 3, rows_move: bool = False) -> tuple[Path, Path, list]:
     """The same frames as a .tfrecord segment and as a folder of .npz dictionaries; and the expected points."""
     rng = np.random.default_rng(15)
     directory.mkdir(parents=True, exist_ok=True)
@@ -123,7 +129,7 @@ def write_scene(directory: Path, frames: int = 3) -> tuple[Path, Path, list]:
     npz.mkdir()
     camera = jpeg_image(64, 48, (200, 30, 30))
     for i in range(frames):
-        pose, lasers, expected = scene_frame(i, rng)
+        pose, lasers, expected = scene_frame(i, rng, rows_move)
         records.append(frame(T0 + i * 100_000, pose, scene_calibrations(), lasers, {"FRONT": camera}, LABELS))
         expectations.append(expected)
         from PIL import Image
@@ -202,8 +208,9 @@ def test_hand_computed_pixels(tmp_path: Path):
     ], np.float32), abs=1e-5)
 
 
-def test_range_images_give_the_known_points(scene):
-    tfrecord, _, expectations = scene
+@pytest.mark.parametrize("rows_move", [False, True], ids=["pose-per-column", "pose-per-pixel"])
+def test_range_images_give_the_known_points(tmp_path: Path, rows_move: bool):
+    tfrecord, _, expectations = write_scene(tmp_path / "scene", rows_move=rows_move)
     segment = open_dataset("waymo", tfrecord)
     assert isinstance(segment, WaymoRecordSegment) and detect(tfrecord) == "waymo"
     assert segment.name == "segment-15" and segment.times.tolist() == [1557000000.0, 1557000000.1, 1557000000.2]

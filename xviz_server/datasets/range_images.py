@@ -88,7 +88,7 @@ def frame_rays(
     shifts = (poses[:, 3:6] - frame_pose[:3, 3]) @ to_frame.T
     origins = (rotations @ origin + shifts).astype(np.float32)
     if per_column:
-        turned = np.einsum("cij,hcj->hci", rotations, directions.reshape(height, width, 3)).reshape(-1, 3)
+        turned = np.einsum("cij,hcj->hci", rotations, directions.reshape(height, width, 3), optimize=True).reshape(-1, 3)
     else:
-        turned = np.einsum("nij,nj->ni", rotations, directions)
+        turned = np.einsum("nij,nj->ni", rotations, directions, optimize=True)
     return turned, origins, len(origins)
