@@ -9,10 +9,12 @@ has; :class:`LocalFolder` is a directory, and
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 from typing import Protocol
 
+from .frames import INLINE_BYTES
 from .layout import frame_files
 from .readahead import ReadAhead
 from .work import Workers
@@ -45,22 +47,64 @@ class Folder(Protocol):
 
 
 class LocalFolder:
-    """A log directory on disk; files are read in the I/O threads."""
+    """A log directory on disk.
+
+    A file of at most :data:`~xviz_server.frames.INLINE_BYTES` that is
+    wholly in the page cache is read in the event loop, with a read that
+    fails rather than wait for the disk (``RWF_NOWAIT``); any other file is
+    read in the I/O threads. Opening the file stays in the loop: on a local
+    file system it reads no data, but a cold directory may make it wait
+    for one metadata read. A file system that cannot read without waiting
+    (NFS, FUSE) is read in the threads from its first file on.
+    """
 
     def __init__(self, directory: Path, workers: Workers) -> None:
         self.directory = directory
         self.read_ahead: ReadAhead | None = None
         self.location = str(directory)
         self._workers = workers
+        self._read_cached = _NOWAIT is not None
 
     async def files(self) -> dict[int, str]:
         return await self._workers.io(frame_files, self.directory)
 
     async def read(self, name: str) -> bytes:
-        return await self._workers.io(_read_file, os.path.join(self.directory, name))
+        path = os.path.join(self.directory, name)
+        if self._read_cached:
+            try:
+                data = _read_if_cached(path)
+            except OSError as exc:
+                if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
+                    raise
+                self._read_cached = False
+            else:
+                if data is not None:
+                    return data
+        return await self._workers.io(_read_file, path)
 
     def size(self, name: str) -> int | None:
         return None
+
+
+_NOWAIT: int | None = getattr(os, "RWF_NOWAIT", None) if hasattr(os, "preadv") else None
+
+
+def _read_if_cached(path: str) -> bytes | None:
+    """The file at ``path`` if it is small and in the page cache, else ``None``; raises :class:`OSError`."""
+    assert _NOWAIT is not None
+    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        size = os.fstat(fd).st_size
+        if size > INLINE_BYTES:
+            return None
+        buffer = bytearray(size + 1)  # a byte more: a file that grew since fstat is read in a thread
+        try:
+            count = os.preadv(fd, [buffer], 0, _NOWAIT)
+        except BlockingIOError:
+            return None
+        return bytes(buffer[:count]) if count == size else None
+    finally:
+        os.close(fd)
 
 
 def _read_file(path: str) -> bytes:
