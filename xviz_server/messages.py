@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import enum
 import math
-from typing import Any, ClassVar, Literal, Mapping, Sequence, Union
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar, Literal, Union
 
 import pydantic
 from pydantic import AliasChoices, ConfigDict, Field, field_validator, model_validator

@@ -49,7 +49,8 @@ import base64
 import binascii
 import re
 import struct
-from typing import Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 import orjson
