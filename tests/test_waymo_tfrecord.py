@@ -316,6 +316,20 @@ def test_a_corrupt_header_ends_the_index(scene, caplog):
     assert "record 1 at offset 20: no timestamp_micros" in caplog.text
 
 
+def test_a_camera_image_that_is_not_a_jpeg_is_named(tmp_path: Path):
+    image = np.full((2, 4, 4), 5.0, np.float32)
+    lasers = {"FRONT": (image, None, None)}
+    calibrations = [calibration("FRONT", np.eye(4), (), -0.2, 0.2)]
+    cameras = {"FRONT": jpeg_image(900, 600, (10, 20, 30)), "SIDE_LEFT": jpeg_image(64, 48, (1, 2, 3))}
+    good = frame(T0, np.eye(4), calibrations, lasers, cameras, LABELS)
+    bad = frame(T0 + 100_000, np.eye(4), calibrations, lasers, {"FRONT": jpeg_image(64, 48, (1, 2, 3)), "SIDE_LEFT": b"\xff\xd8 not a JPEG"}, LABELS)
+    segment = WaymoRecordSegment(write_segment(tmp_path / "cams.tfrecord", [good, bad]))
+    metadata = segment.metadata()
+    assert segment.convert(0, metadata)["updates"][0]["primitives"]["/camera/front"]["images"][0]["width_px"] == 400
+    with pytest.raises(DatasetError, match=r"cams.tfrecord: record 1 at offset \d+: camera SIDE_LEFT: not a JPEG image"):
+        segment.convert(1, metadata)
+
+
 def test_a_bad_frame_or_range_image_is_named(tmp_path: Path, monkeypatch):
     image = np.full((2, 4, 4), 5.0, np.float32)
     good = frame(T0, np.eye(4), [calibration("FRONT", np.eye(4), (), -0.2, 0.2)], {"FRONT": (image, None, None)})

@@ -43,10 +43,11 @@ from __future__ import annotations
 import abc
 import math
 import zipfile
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -126,8 +127,9 @@ class WaymoFrame:
     points: np.ndarray
     intensity: np.ndarray
     in_zone: np.ndarray
-    #: JPEG image of each camera there is, by name (``FRONT``, ...).
-    images: dict[str, bytes]
+    #: JPEG image of each camera there is, by name (``FRONT``, ...); an image may still be
+    #: in the making, and getting it waits for it.
+    images: Mapping[str, bytes]
     #: (N, 7) boxes: center x, y, z, length, width, height, heading; (N,) types; N ids.
     boxes: np.ndarray
     types: np.ndarray
@@ -195,11 +197,11 @@ class WaymoLog(abc.ABC):
             points, intensity = points[~frame.in_zone], intensity[~frame.in_zone]
         if len(points):
             builder.points("/lidar/points", points, intensity_colors(intensity))
-        for stream in metadata["streams"]:
+        self._labels(builder, frame)
+        for stream in metadata["streams"]:  # last: the images may still be in the making
             camera = stream.removeprefix("/camera/").upper()
             if stream.startswith("/camera/") and camera in frame.images:
                 builder.image(stream, frame.images[camera])
-        self._labels(builder, frame)
         return builder.build(frame.time)
 
     @staticmethod

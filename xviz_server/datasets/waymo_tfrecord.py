@@ -32,6 +32,7 @@ Decompressing a matrix is bounded: a range image larger than
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator, Mapping
 from concurrent.futures import Future
 from functools import cached_property
 from pathlib import Path
@@ -171,16 +172,8 @@ class WaymoRecordSegment(WaymoLog):
         ).reshape(-1, 7)
         types = np.array([label.type for label in frame.laser_labels], dtype=int)
         ids = [label.id for label in frame.laser_labels]
-        return WaymoFrame(frame.timestamp_micros / 1e6, pose, points, intensity, in_zone, self._images(scaling, where), boxes, types, ids)
-
-    def _images(self, scaling: dict[str, Future[bytes]], where: str) -> dict[str, bytes]:
-        images = {}
-        for camera, future in scaling.items():
-            try:
-                images[camera] = future.result()
-            except DatasetError as exc:
-                raise DatasetError(f"{where}: camera {camera}: {exc}", path=self.path) from None
-        return images
+        images = _ScaledImages(scaling, where, self.path)
+        return WaymoFrame(frame.timestamp_micros / 1e6, pose, points, intensity, in_zone, images, boxes, types, ids)
 
     def _lidar(
         self, frame: pb.Frame, pose: np.ndarray, matrices: dict[tuple[int, str], Future[np.ndarray]], where: str
@@ -275,3 +268,27 @@ class WaymoRecordSegment(WaymoLog):
         if data.size != dims[0] * dims[1] * dims[2]:
             raise DatasetError(f"{where}: {what}: {data.size} values for shape {list(dims)}", path=self.path)
         return data.reshape(dims)
+
+
+class _ScaledImages(Mapping[str, bytes]):
+    """A frame's camera images while they are scaled: the cameras at once, an image when it is done.
+
+    Getting an image whose scaling failed raises
+    :class:`~xviz_server.exceptions.DatasetError` naming the record and the
+    camera.
+    """
+
+    def __init__(self, scaling: dict[str, Future[bytes]], where: str, path: Path) -> None:
+        self._scaling, self._where, self._path = scaling, where, path
+
+    def __getitem__(self, camera: str) -> bytes:
+        try:
+            return self._scaling[camera].result()
+        except DatasetError as exc:
+            raise DatasetError(f"{self._where}: camera {camera}: {exc}", path=self._path) from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._scaling)
+
+    def __len__(self) -> int:
+        return len(self._scaling)
