@@ -40,11 +40,11 @@ async def test_small_and_large_frames_are_served_from_the_page_cache_or_not(tmp_
     assert (log / "5-frame.json").stat().st_size > INLINE_BYTES > (log / "2-frame.json").stat().st_size
 
     evict(log)
-    assert _read_if_cached(str(log / "2-frame.json")) is None  # not in the cache: never waits for the disk
+    assert _read_if_cached(str(log / "2-frame.json")) == (None, True)  # not in the cache: never waits for the disk
     async with running_server(tmp_path / "logs") as server:
         cold = await streamed(server, "mixed")
     async with running_server(tmp_path / "logs") as server:
-        assert _read_if_cached(str(log / "2-frame.json")) == (log / "2-frame.json").read_bytes()
+        assert _read_if_cached(str(log / "2-frame.json")) == ((log / "2-frame.json").read_bytes(), True)
         warm = await streamed(server, "mixed")
     assert len(cold) == 6 and warm == cold
     assert [u["updates"][0]["timestamp"] for u in cold] == [u["updates"][0]["timestamp"] for u in updates]
@@ -62,3 +62,22 @@ async def test_a_log_on_a_file_system_that_cannot_read_without_waiting_is_served
         assert [u["updates"][0]["timestamp"] for u in first] == [100.0, 100.1, 100.2, 100.3] and again == first
     finally:
         shutil.rmtree(scratch)
+
+
+async def test_a_fifo_in_place_of_a_frame_is_an_error_and_holds_nothing(tmp_path: Path):
+    log = write_log(tmp_path / "logs" / "piped", ten_hz(4), fmt=Format.JSON)
+    async with running_server(tmp_path / "logs") as server:
+        async with client(server, "/piped") as viewer:
+            await viewer.recv()  # metadata: the log is listed, no frame read yet
+        listed = log.stat()
+        for name in ("3-frame.json", "4-frame.json"):
+            (log / name).unlink()
+            os.mkfifo(log / name)
+        os.utime(log, ns=(listed.st_atime_ns, listed.st_mtime_ns))  # the directory looks unchanged: no new listing
+        async with client(server, "/piped") as viewer:
+            await viewer.recv()  # metadata
+            await viewer.send("transform_log", {"id": "all"})
+            got = await viewer.until("transform_log_done", "all", timeout=10)
+    errors = [m["data"]["message"] for m in got if m["type"] == "xviz/error"]
+    assert [m["data"]["updates"][0]["timestamp"] for m in got if m["type"] == "xviz/state_update"] == [100.0, 100.3]
+    assert len(errors) == 2 and all("not a regular file" in e for e in errors)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 from pathlib import Path
 from typing import Protocol
 
@@ -71,15 +72,9 @@ class LocalFolder:
     async def read(self, name: str) -> bytes:
         path = os.path.join(self.directory, name)
         if self._read_cached:
-            try:
-                data = _read_if_cached(path)
-            except OSError as exc:
-                if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
-                    raise
-                self._read_cached = False
-            else:
-                if data is not None:
-                    return data
+            data, self._read_cached = _read_if_cached(path)
+            if data is not None:
+                return data
         return await self._workers.io(_read_file, path)
 
     def size(self, name: str) -> int | None:
@@ -89,24 +84,47 @@ class LocalFolder:
 _NOWAIT: int | None = getattr(os, "RWF_NOWAIT", None) if hasattr(os, "preadv") else None
 
 
-def _read_if_cached(path: str) -> bytes | None:
-    """The file at ``path`` if it is small and in the page cache, else ``None``; raises :class:`OSError`."""
+def _read_if_cached(path: str) -> tuple[bytes | None, bool]:
+    """The file at ``path`` if it is small and in the page cache, else ``None``; and whether its file system can say.
+
+    Raises :class:`OSError`.
+    """
     assert _NOWAIT is not None
-    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    fd, size = _open_file(path)
     try:
-        size = os.fstat(fd).st_size
         if size > INLINE_BYTES:
-            return None
-        buffer = bytearray(size + 1)  # a byte more: a file that grew since fstat is read in a thread
+            return None, True
+        buffer = bytearray(size + 1)  # a byte more: a file that grew since it was opened is read in a thread
         try:
             count = os.preadv(fd, [buffer], 0, _NOWAIT)
         except BlockingIOError:
-            return None
-        return bytes(buffer[:count]) if count == size else None
+            return None, True
+        except OSError as exc:
+            if exc.errno in (errno.EOPNOTSUPP, errno.EINVAL):
+                return None, False
+            raise
+        return (bytes(buffer[:count]) if count == size else None), True
     finally:
         os.close(fd)
 
 
 def _read_file(path: str) -> bytes:
-    with open(path, "rb") as stream:
+    fd, _ = _open_file(path)
+    with open(fd, "rb") as stream:
         return stream.read()
+
+
+def _open_file(path: str) -> tuple[int, int]:
+    """A descriptor of the regular file at ``path``, and its size; raises :class:`OSError` for anything else.
+
+    Opened without waiting, so that a FIFO put in a frame's place holds no thread.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)
+    try:
+        status = os.fstat(fd)
+        if not stat.S_ISREG(status.st_mode):
+            raise OSError(errno.EINVAL, "not a regular file", path)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd, status.st_size
