@@ -18,9 +18,10 @@ import numpy as np
 from ..codec import Format, encode
 from ..exceptions import DatasetError
 from ..messages import envelope
+from ..storepath import StorePath, data_path
 
 __all__ = [
-    "Dataset", "KINDS", "FILE_KINDS", "GENERATED", "DEFAULT_IMAGE_WIDTH", "open_dataset", "detect", "dataset_options",
+    "Dataset", "KINDS", "FILE_KINDS", "STORE_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH", "open_dataset", "detect", "dataset_options",
     "convert_frame",
 ]
 
@@ -31,7 +32,7 @@ class Dataset(Protocol):
     #: The log name it is served under by default.
     name: str
     #: Where it is.
-    path: Path
+    path: Path | StorePath
     #: UNIX time of every frame, in frame order.
     times: np.ndarray
 
@@ -63,6 +64,12 @@ DEFAULT_IMAGE_WIDTH = 400
 
 #: Kinds whose datasets are single files, by file suffix: other files are never datasets.
 FILE_KINDS: dict[str, str] = {".tfrecord": "waymo", ".bag": "rosbag", ".mcap": "rosbag"}
+#: Kinds read from an object store (their files, in :data:`FILE_KINDS`, read with ranged GETs).
+STORE_KINDS = frozenset({"waymo", "rosbag"})
+#: Files of datasets that are not read from an object store, by suffix: why.
+STORE_REFUSED: dict[str, str] = {
+    ".db3": "a ROS 2 bag's SQLite file is read from a local file only: serve the bag from a directory, or convert it to MCAP",
+}
 
 
 def _member(kind: str, position: int) -> Callable[..., Any]:
@@ -70,13 +77,20 @@ def _member(kind: str, position: int) -> Callable[..., Any]:
     return getattr(module, KINDS[kind][position])
 
 
-def open_dataset(kind: str, path: Path, **options: Any) -> Dataset:
-    """Open the dataset of ``kind`` at ``path``; raises :class:`~xviz_server.exceptions.DatasetError`."""
+def open_dataset(kind: str, path: Path | StorePath, **options: Any) -> Dataset:
+    """Open the dataset of ``kind`` at ``path``; raises :class:`~xviz_server.exceptions.DatasetError`.
+
+    ``path`` is a file or folder, or an object in a store for the kinds of
+    :data:`STORE_KINDS`.
+    """
     if kind not in KINDS:
         raise DatasetError(f"unknown dataset kind {kind!r}; known: {', '.join(sorted(KINDS))}", path=path)
-    if kind not in GENERATED and not Path(path).exists():
+    path = data_path(path)
+    if isinstance(path, StorePath) and kind not in STORE_KINDS:
+        raise DatasetError(f"{path}: a {kind} dataset is not read from an object store", path=path)
+    if kind not in GENERATED and not path.exists():
         raise DatasetError(f"{path}: no such file or directory", path=path)
-    return _member(kind, 1)(Path(path), **options)
+    return _member(kind, 1)(path, **options)
 
 
 def dataset_options(kind: str) -> frozenset[str]:
@@ -96,14 +110,15 @@ _opened: dict[tuple[str, str, tuple[tuple[str, Any], ...]], Dataset] = {}
 
 
 def convert_frame(
-    kind: str, path: str, options: dict[str, Any], frame: int, metadata: dict[str, Any], fmt: Format = Format.BINARY
+    kind: str, path: str | StorePath, options: dict[str, Any], frame: int, metadata: dict[str, Any], fmt: Format = Format.BINARY
 ) -> bytes:
     """Frame ``frame`` of a dataset as an encoded message; for worker processes.
 
-    Each process opens a dataset once and keeps it, with what it caches.
+    Each process opens a dataset once and keeps it, with what it caches
+    (and its own client of a store).
     """
-    key = (kind, path, tuple(sorted(options.items())))
+    key = (kind, str(path), tuple(sorted(options.items())))
     dataset = _opened.get(key)
     if dataset is None:
-        dataset = _opened[key] = open_dataset(kind, Path(path), **options)
+        dataset = _opened[key] = open_dataset(kind, data_path(path), **options)
     return encode(envelope("state_update", dataset.convert(frame, metadata)), fmt)
