@@ -29,7 +29,7 @@ import configparser
 import os
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -56,42 +56,40 @@ _STATUS = re.compile(r"status code: (\d{3})")
 
 @dataclass(frozen=True)
 class StoreConfig:
-    """How to reach a bucket, without a credential: what a worker process is given to make its own client.
+    """How to reach a bucket, as :func:`store_config` resolved it: what a worker process makes its own client from.
 
-    ``timeout`` and ``retries`` bound each request; ``endpoint``, ``region``
-    and ``allow_http`` are as the environment and the AWS files said where
-    the configuration was made (:func:`store_config`).
+    ``timeout`` and ``retries`` bound each request. ``settings`` are what
+    obstore is given (endpoint, region, credentials): ``repr`` never shows
+    them, and neither does any message.
     """
 
     bucket: str
     timeout: float
     retries: int
-    endpoint: str | None
-    region: str | None
-    allow_http: bool
+    settings: tuple[tuple[str, str], ...] = field(repr=False)
+    allow_http: bool = False
 
 
 def store_config(bucket: str, timeout: float, retries: int) -> StoreConfig:
-    """The configuration of ``bucket`` from the environment and the AWS files, without its credentials."""
+    """The configuration of ``bucket`` from the environment and the AWS files."""
     config, client = _aws_settings()
-    return StoreConfig(bucket, timeout, retries, config.get("endpoint"), config.get("region"), bool(client.get("allow_http")))
+    settings = tuple(sorted((key, str(value)) for key, value in config.items()))
+    return StoreConfig(bucket, timeout, retries, settings, bool(client.get("allow_http")))
 
 
 def s3_client(store: StoreConfig) -> S3Store:
-    """An obstore client of ``store`` with the time limits and retries of the module's docstring.
-
-    The credentials are this process's (the environment and the AWS files).
-    """
-    config, client = _aws_settings()
-    config.update({key: value for key, value in (("endpoint", store.endpoint), ("region", store.region)) if value})  # type: ignore[typeddict-item]
-    client["allow_http"] = store.allow_http
-    client["connect_timeout"] = timedelta(seconds=CONNECT_TIMEOUT)
-    client["timeout"] = timedelta(seconds=store.timeout)
+    """An obstore client of ``store`` with the time limits and retries of the module's docstring."""
+    client: ClientConfig = {
+        "allow_http": store.allow_http,
+        "connect_timeout": timedelta(seconds=CONNECT_TIMEOUT),
+        "timeout": timedelta(seconds=store.timeout),
+    }
     retry: RetryConfig = {
         "max_retries": store.retries,
         "retry_timeout": timedelta(seconds=(store.retries + 1) * store.timeout),
         "backoff": {"init_backoff": timedelta(seconds=BACKOFF_START), "max_backoff": timedelta(seconds=BACKOFF_MAX), "base": 2},
     }
+    config: S3Config = dict(store.settings)  # type: ignore[assignment]  # the keys _aws_settings gives
     return S3Store(store.bucket, config=config, client_options=client, retry_config=retry)
 
 

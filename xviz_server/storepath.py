@@ -9,11 +9,10 @@ rosbags' readers do with a path: ``name``, ``stem``, ``suffix``,
 an object deleted or replaced since is found out when read.
 
 A path pickles as its key, its size and its store's
-:class:`~xviz_server.storeclient.StoreConfig` (bucket, endpoint, region, time
-limits), and a process that unpickles one opens its own client of the
-store, with the credentials of its environment and AWS files: a credential
-never travels to worker processes, and ``repr`` and ``str`` show the
-``s3://`` URL only.
+:class:`~xviz_server.storeclient.StoreConfig` (bucket, time limits, and the
+endpoint, region and credentials the server resolved at start), and a
+worker process that unpickles one makes its own client of the store from
+it, once. ``repr`` and ``str`` show the ``s3://`` URL only.
 
 ``open("rb")`` gives a :class:`RangedFile`, a seekable read-only binary file.
 A read it does not hold fetches the bytes asked for with one ranged GET,
@@ -40,7 +39,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
+from typing import TYPE_CHECKING, Any, BinaryIO, NamedTuple, TypeVar, cast
 
 import obstore
 from obstore.exceptions import BaseError
@@ -114,11 +113,15 @@ class StorePath:
     def stat(self, *, follow_symlinks: bool = True) -> _Stat:
         return _Stat(self.size)
 
-    def open(self, mode: str = "rb", buffering: int = -1) -> RangedFile:
-        """The object as a seekable binary file; only reading (``rb``) is possible."""
+    def __truediv__(self, name: object) -> StorePath:
+        """Nothing is below an object: raises :class:`NotADirectoryError` (rosbags asks it of folders only)."""
+        raise NotADirectoryError(f"{self}: an object, not a folder")
+
+    def open(self, mode: str = "rb", buffering: int = -1) -> BinaryIO:
+        """The object as a seekable binary file (a :class:`RangedFile`); only reading (``rb``) is possible."""
         if mode != "rb":
             raise ValueError(f"{self}: an object in a store opens for reading only ('rb'), not {mode!r}")
-        return RangedFile(self)
+        return cast(BinaryIO, RangedFile(self))  # typed as open() types a file, for the readers that take one
 
     def read_bytes(self) -> bytes:
         """The whole object: one GET."""
@@ -132,9 +135,11 @@ class StorePath:
         return self._request(lambda store: bytes(obstore.get_range(store, self.key, start=start, end=end)))
 
     def read_ranges(self, ranges: Sequence[tuple[int, int]]) -> list[bytes]:
-        """Bytes ``[start, end)`` of each range, which must lie within the object: GETs in parallel."""
+        """Bytes ``[start, end)`` of each range, which must lie within the object: GETs in parallel, one for
+        ranges less than :data:`MIN_FETCH` apart."""
         starts, ends = [start for start, _ in ranges], [end for _, end in ranges]
-        return self._request(lambda store: [bytes(part) for part in obstore.get_ranges(store, self.key, starts=starts, ends=ends)])
+        parts = self._request(lambda store: obstore.get_ranges(store, self.key, starts=starts, ends=ends, coalesce=MIN_FETCH))
+        return [bytes(part) for part in parts]
 
     def _request(self, call: Callable[[S3Store], _T]) -> _T:
         started = time.monotonic()

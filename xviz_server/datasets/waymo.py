@@ -222,6 +222,8 @@ class WaymoSegment(WaymoLog):
     Camera images are scaled down to ``image_max_width`` and encoded as JPEG.
     """
 
+    path: Path
+
     def __init__(self, path: Path, image_max_width: int = DEFAULT_IMAGE_WIDTH) -> None:
         self.path = Path(path)
         self.image_max_width = image_max_width

@@ -66,9 +66,13 @@ def is_rosbag(path: Path | StorePath) -> bool:
     store cannot be read.
     """
     magic = {".bag": ROS1_MAGIC, ".mcap": MCAP_MAGIC}.get(path.suffix)
-    if magic is None and isinstance(path, StorePath):
+    target: Path | StorePath
+    if magic is not None:
+        start, target = len(magic), path
+    elif isinstance(path, StorePath):  # a ROS 2 bag folder is read from disk only
         return False
-    start, target = (len(magic), path) if magic is not None else (256, Path(path) / "metadata.yaml")
+    else:
+        start, target = 256, path / "metadata.yaml"
     try:
         with target.open("rb") as file:
             head = file.read(start)
@@ -309,7 +313,8 @@ def _read_chunk(owner: Any, key: int) -> bytes:
         if len(record) < start + info.compressed_size:
             raise DatasetError(f"{owner.path}: chunk {key} is cut short", path=owner.path)
         (crc,) = struct.unpack_from("<I", record, 9 + 24)
-        return bytes(decompress(memoryview(record)[start:], info.compression, info.uncompressed_size, crc))
+        data = memoryview(record)[start:]  # not copied: rosbags' decompressors take any buffer
+        return bytes(decompress(data, info.compression, info.uncompressed_size, crc))  # type: ignore[arg-type]
 
 
 def _ros1_reader() -> type[Reader]:
