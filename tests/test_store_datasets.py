@@ -22,8 +22,8 @@ import pytest
 
 from helpers import client, run_xviz_session_async, running_server
 from rosbag_kitti import CLOUD_TOPIC, RAW, write_bag
-from s3 import SECRET_KEY, MotoS3, moto_process, store_env
-from tcpproxy import Proxy, running_proxy
+from s3 import SECRET_KEY, MotoS3, moto_process, proxied
+from tcpproxy import Proxy
 from test_waymo_tfrecord import write_scene
 from xviz_server.codec import Format
 from xviz_server.datasets.kitti import KittiDrive
@@ -69,9 +69,7 @@ def s3(files: Path) -> Iterator[MotoS3]:
 
 @pytest.fixture
 async def proxy(s3: MotoS3, monkeypatch: pytest.MonkeyPatch) -> Any:
-    async with running_proxy(s3.port) as running:
-        for name, value in store_env(running.url).items():
-            monkeypatch.setenv(name, value)
+    async with proxied(s3, monkeypatch) as running:
         yield running
 
 

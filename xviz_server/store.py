@@ -75,7 +75,11 @@ class StoredLog:
 
 @dataclass(frozen=True)
 class StoredDataset:
-    """A one-file dataset found in a store: its name, its object and its kind (as :class:`~xviz_server.layout.Found`)."""
+    """A one-file dataset found in a store: its name, its object and its kind.
+
+    The counterpart of :class:`~xviz_server.layout.Found`, whose path is a
+    file: providers open either.
+    """
 
     name: str
     path: StorePath
