@@ -25,7 +25,7 @@ from ..exceptions import DatasetError, FrameError, LogError, StoreError
 from ..index import TimeIndex
 from ..layout import Found, discover
 from ..store import StoredDataset
-from ..storepath import StorePath
+from ..storepath import StorePath, StoreTree
 from ..work import Workers
 
 __all__ = ["DatasetProvider", "DatasetLog", "explicit_datasets"]
@@ -97,7 +97,7 @@ class DatasetLog:
         metadata = await self.metadata()
         try:
             path = self._dataset.path  # an object in a store goes as it is: picklable, without a credential
-            where = path if isinstance(path, StorePath) else str(path)
+            where = path if isinstance(path, (StorePath, StoreTree)) else str(path)
             return await self._workers.cpu(convert_frame, self._kind, where, self._options, frame, metadata)
         except (DatasetError, StoreError) as exc:
             raise FrameError(f"frame {frame} of log {self.name!r}: {exc}", log=self.name, frame=frame) from None

@@ -1,10 +1,10 @@
-"""Datasets in an object store (issue 14): bags and Waymo segments served from moto's real S3 API with ranged GETs.
+"""Datasets in an object store (issue 14): bags, Waymo segments and KITTI drives served from moto's real S3 API.
 
-The KITTI excerpt written as a ROS 1 bag and as an MCAP file, and a generated
-Waymo segment, are uploaded to the store and also kept on disk: the frames
-served from the store must be the bytes served from the files. A proxy
-(tests/tcpproxy.py) between the server and the store counts the GETs and
-cuts connections.
+The KITTI excerpt as a raw drive, written as a ROS 1 bag and as an MCAP
+file, and a generated Waymo segment, are uploaded to the store and also kept
+on disk: the frames served from the store must be the bytes served from the
+files. A proxy (tests/tcpproxy.py) between the server and the store counts
+the GETs, answers 404 and cuts connections.
 """
 
 from __future__ import annotations
@@ -35,11 +35,13 @@ BUCKET = "xviz-data"
 ROOT = f"s3://{BUCKET}/fleet"
 BAG_FRAMES = 8
 WAYMO_FRAMES = 3
-#: Each dataset: its key below the prefix, its log name, its frame count.
+KITTI_DRIVE = "kitti-raw/2011_09_26/2011_09_26_drive_0001_sync"
+#: Each dataset: its key below the prefix (a folder's for KITTI), its log name, its frame count.
 DATASETS = {
     "ros1": ("bags/ros1/drive.bag", "bags/ros1/drive", BAG_FRAMES),
     "mcap": ("bags/mcap/drive.mcap", "bags/mcap/drive", BAG_FRAMES),
     "waymo": ("waymo/segment-15.tfrecord", "waymo/segment-15", WAYMO_FRAMES),
+    "kitti": (KITTI_DRIVE, KITTI_DRIVE, 25),
 }
 
 
@@ -60,11 +62,24 @@ def files(shared_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def s3(files: Path) -> Iterator[MotoS3]:
+def s3(files: Path, shared_dir: Path) -> Iterator[MotoS3]:
     with moto_process() as store:
         store.bucket(BUCKET)
         store.upload(files, BUCKET, "fleet")
+        store.upload(shared_dir / "data" / RAW / "2011_09_26", BUCKET, "fleet/kitti-raw/2011_09_26")
         yield store
+
+
+def on_disk(container: str, files: Path, shared_dir: Path, root: Path) -> Path:
+    """A data directory holding the dataset of ``container`` under the name it has in the store."""
+    key = DATASETS[container][0]
+    if container == "kitti":
+        root.mkdir()
+        (root / "kitti-raw").symlink_to(shared_dir / "data" / RAW)
+    else:
+        (root / key).parent.mkdir(parents=True)
+        shutil.copy(files / key, root / key)
+    return root
 
 
 @pytest.fixture
@@ -99,19 +114,20 @@ async def test_datasets_in_the_store_are_listed_beside_logs_and_a_sqlite3_bag_is
 
 
 @pytest.mark.parametrize("container", DATASETS)
-async def test_frames_from_the_store_are_the_bytes_from_the_same_file_on_disk(container: str, proxy: Proxy, files: Path, tmp_path: Path):
+async def test_frames_from_the_store_are_the_bytes_from_the_same_files_on_disk(
+    container: str, proxy: Proxy, files: Path, shared_dir: Path, tmp_path: Path
+):
     key, name, count = DATASETS[container]
-    local = tmp_path / "local"
-    (local / key).parent.mkdir(parents=True)
-    shutil.copy(files / key, local / key)
+    local = on_disk(container, files, shared_dir, tmp_path / "local")
     async with running_server([ROOT]) as from_store, running_server([local]) as from_disk:
         stored, read = await frames(from_store, name), await frames(from_disk, name)
         messages = await stream(from_store, name)
         assert (await from_store.catalog.open(name)).metadata == (await from_disk.catalog.open(name)).metadata
     assert len(stored) == count and stored == read
     assert len(updates(messages)) == count and not [m for m in messages if m["type"] == "xviz/error"]
-    heads = [h.lower() for h in proxy.heads if h.startswith(b"GET ") and key.encode() in h.split(b"\r\n")[0]]
-    assert heads and all(b"\r\nrange: bytes=" in h for h in heads)  # never the whole object
+    if container != "kitti":  # a KITTI drive's files are objects of their own, read whole
+        heads = [h.lower() for h in proxy.heads if h.startswith(b"GET ") and key.encode() in h.split(b"\r\n")[0]]
+        assert heads and all(b"\r\nrange: bytes=" in h for h in heads)  # never the whole object
 
 
 async def test_the_published_client_reads_a_bag_from_the_store(proxy: Proxy, shared_dir: Path):
@@ -134,9 +150,11 @@ async def test_the_published_client_reads_a_bag_from_the_store(proxy: Proxy, sha
     assert [u["streams"][CLOUD_TOPIC]["pointCloud"]["numInstances"] for u in received] == [len(s) for s in sweeps]
 
 
-@pytest.mark.parametrize("container", ["ros1", "waymo"])
+@pytest.mark.parametrize("container", ["ros1", "waymo", "kitti"])
 async def test_a_404_mid_stream_is_an_error_naming_log_frame_and_key_and_the_rest_is_served(container: str, proxy: Proxy):
     key, name, count = DATASETS[container]
+    if container == "kitti":
+        key += "/velodyne_points/data/0000000003.bin"
     async with running_server([ROOT]) as server:
         await server.catalog.open(name)
         injected = proxy.fault(key, status=404, times=1)  # not retried: exactly one GET fails

@@ -30,7 +30,7 @@ from .layout import INDEX_FILE, LOG, Found, discover, is_log_directory
 from .providers import LogSource
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
-from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect
+from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store
 from .readahead import ReadAhead
 from .store import ObjectStore, StoredDataset, StoredLog
 from .work import Place, Workers
@@ -319,7 +319,7 @@ class Catalog:
         """Look for logs again (a log added to a data directory appears, a removed one goes)."""
         found: dict[str, Found | StoredLog | StoredDataset] = {**await self._workers.io(self._discover)}
         for store in self._stores:
-            for stored in await store.discover(FILE_KINDS, STORE_REFUSED):
+            for stored in await store.discover(FILE_KINDS, STORE_REFUSED, detect_in_store):
                 found.setdefault(stored.name, stored)
         self._found = found
         for gone in self._open.keys() - self._found.keys():

@@ -8,8 +8,9 @@ provider reads it as it reads a directory, one GET per file.
 
 A one-file dataset under the prefix (a Waymo ``.tfrecord`` segment, a ROS 1
 ``.bag``, an ``.mcap`` file) is served too, named by its key path below the
-prefix without its suffix, and read with ranged GETs (see
-:mod:`xviz_server.storepath`).
+prefix without its suffix, and so is a dataset that is a folder of files (a
+KITTI raw drive), named by its folder's key path; both are read with ranged
+GETs (see :mod:`xviz_server.storepath`).
 
 The client, its time limits and retries, and the errors of a failed
 request are those of :mod:`xviz_server.storeclient`.
@@ -21,7 +22,7 @@ import asyncio
 import logging
 import re
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any
@@ -33,7 +34,7 @@ from .exceptions import ConfigError, StoreError
 from .layout import FRAME_FILE, LOG
 from .readahead import ReadAhead
 from .storeclient import BACKOFF_MAX, CONNECT_TIMEOUT, SCHEME, failure, s3_client, store_config
-from .storepath import StorePath
+from .storepath import StorePath, StoreTree
 
 if TYPE_CHECKING:
     from obstore import ObjectMeta
@@ -75,14 +76,14 @@ class StoredLog:
 
 @dataclass(frozen=True)
 class StoredDataset:
-    """A one-file dataset found in a store: its name, its object and its kind.
+    """A dataset found in a store: its name, its object (or folder) and its kind.
 
     The counterpart of :class:`~xviz_server.layout.Found`, whose path is a
     file: providers open either.
     """
 
     name: str
-    path: StorePath
+    path: StorePath | StoreTree
     kind: str
     options: tuple[tuple[str, str], ...] = ()
 
@@ -115,8 +116,10 @@ class ObjectStore:
         """The key of ``name`` below the prefix."""
         return f"{self.prefix}/{name}" if self.prefix else name
 
-    async def discover(self, kinds: Mapping[str, str], refused: Mapping[str, str]) -> list[StoredLog | StoredDataset]:
-        """Every log and one-file dataset under the prefix, in name order: one listing of the whole prefix.
+    async def discover(
+        self, kinds: Mapping[str, str], refused: Mapping[str, str], detect: Callable[[StoreTree], str | None]
+    ) -> list[StoredLog | StoredDataset]:
+        """Every log and dataset under the prefix, in name order: one listing of the whole prefix.
 
         A folder holding message files is a log; folders below a log are
         searched too, and hidden ones (a component starting with ``.``) are
@@ -126,7 +129,9 @@ class ObjectStore:
         log's folder is a dataset, named by its key path below the prefix
         without the suffix. ``refused`` maps the suffixes of datasets that are
         not read from a store to why: each such file is left out with a
-        warning, once.
+        warning, once. ``detect`` names the kind of dataset that a folder
+        (a :class:`~xviz_server.storepath.StoreTree` of the listing) is, if
+        any; a dataset's folders are not searched further.
         """
         base = self._key("")
         try:
@@ -136,10 +141,12 @@ class ObjectStore:
             return []
         folders: set[str] = set()
         files: list[tuple[str, int]] = []
+        sizes: dict[str, int] = {}
         for meta in objects:
             relative = meta["path"][len(base):]
             if any(part.startswith(".") for part in relative.split("/")):
                 continue
+            sizes[meta["path"]] = meta["size"]
             folder, _, file = relative.rpartition("/")
             suffix = PurePosixPath(file).suffix
             if FRAME_FILE.fullmatch(file):
@@ -151,7 +158,28 @@ class ObjectStore:
                 logger.warning("%s is not served: %s", self.key_url(meta["path"]), refused[suffix])
         found: list[StoredLog | StoredDataset] = [self._log(folder) for folder in folders]
         found += [self._dataset(relative, size, kinds) for relative, size in files if relative.rpartition("/")[0] not in folders]
+        found += self._folder_datasets(sizes, folders, detect)
         return sorted(found, key=lambda entry: entry.name)
+
+    def _folder_datasets(self, sizes: dict[str, int], logs: set[str], detect: Callable[[StoreTree], str | None]) -> list[StoredDataset]:
+        """The folders of the listing (objects by key: ``sizes``) that ``detect`` finds to be datasets, outside logs.
+
+        Each is handed the objects below it and those beside it (a KITTI
+        drive's calibration is in the folder above), not the whole listing.
+        """
+        tree = StoreTree(self.config, self.prefix, sizes)
+        below = len(self._key(""))
+        candidates = {key[below:].rsplit("/", depth)[0] for key in sizes for depth in range(1, key[below:].count("/") + 1)}
+        found: list[StoredDataset] = []
+        for folder in sorted(candidates):  # a folder before the folders below it
+            if folder in logs or any(folder.startswith(f"{taken.name}/") for taken in found):
+                continue
+            kind = detect(tree / folder)
+            if kind is not None:
+                key, parent = self._key(folder), self._key(folder).rpartition("/")[0]
+                files = {k: size for k, size in sizes.items() if k.startswith(f"{key}/") or k.rpartition("/")[0] == parent}
+                found.append(StoredDataset(folder, StoreTree(self.config, key, files), kind))
+        return found
 
     async def lookup(self, name: str, kinds: Mapping[str, str]) -> StoredLog | StoredDataset | None:
         """The log ``name`` if its folder holds message files (one listing of that folder), else the dataset

@@ -1,5 +1,8 @@
 """Objects in an object store opened like files, for dataset readers: reads are ranged GETs.
 
+(:class:`StoreTree` does the same for a dataset that is a folder of files,
+a KITTI drive: a key in a listing, which goes down by ``/`` as a path does.)
+
 A :class:`StorePath` names one object, ``s3://BUCKET/KEY``, and does the
 few things of :class:`pathlib.Path` that the dataset readers of one-file
 datasets (Waymo ``.tfrecord`` segments, ROS 1 bags, MCAP files) and
@@ -32,13 +35,14 @@ object's URL and the cause.
 
 from __future__ import annotations
 
+import errno
 import io
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any, BinaryIO, NamedTuple, TypeVar, cast
 
 import obstore
@@ -50,7 +54,7 @@ from .storeclient import SCHEME, StoreConfig, failure, s3_client
 if TYPE_CHECKING:
     from obstore.store import S3Store
 
-__all__ = ["StorePath", "RangedFile", "data_path", "MIN_FETCH", "CACHE_BYTES"]
+__all__ = ["StorePath", "StoreTree", "RangedFile", "data_path", "MIN_FETCH", "CACHE_BYTES"]
 
 #: Fewest bytes a read that misses the cache fetches.
 MIN_FETCH = 64 << 10
@@ -152,6 +156,69 @@ class StorePath:
 def data_path(path: Any) -> Path | StorePath:
     """``path`` as a :class:`StorePath` if it is one, else as a :class:`~pathlib.Path`."""
     return path if isinstance(path, StorePath) else Path(path)
+
+
+@dataclass(frozen=True)
+class StoreTree:
+    """A key in a listing of a store: an object if the listing has it, a folder if objects lie below it.
+
+    For datasets that are folders of files (a KITTI drive): ``files`` is
+    the size of every object listed, by key, and a tree goes down by ``/``
+    and up by ``parent`` as a :class:`~pathlib.Path` does, answers
+    ``is_file``, ``is_dir`` and ``glob`` from the listing, and reads an
+    object with ranged GETs as :class:`StorePath` does. An object added
+    after the listing is not seen; one deleted since is a 404 when read.
+    """
+
+    config: StoreConfig
+    key: str
+    files: Mapping[str, int] = field(repr=False, compare=False)
+
+    def __str__(self) -> str:
+        return f"{SCHEME}{self.config.bucket}/{self.key}"
+
+    def __repr__(self) -> str:
+        return f"StoreTree({str(self)!r})"
+
+    def __truediv__(self, name: str) -> StoreTree:
+        return StoreTree(self.config, f"{self.key}/{name}" if self.key else name, self.files)
+
+    @property
+    def parent(self) -> StoreTree:
+        return StoreTree(self.config, self.key.rpartition("/")[0], self.files)
+
+    @property
+    def name(self) -> str:
+        return self.key.rpartition("/")[2]
+
+    def exists(self) -> bool:
+        return self.is_file() or self.is_dir()
+
+    def is_file(self) -> bool:
+        return self.key in self.files
+
+    def is_dir(self) -> bool:
+        below = f"{self.key}/" if self.key else ""
+        return any(key.startswith(below) for key in self.files)
+
+    def glob(self, pattern: str) -> list[StoreTree]:
+        """The files and folders below whose path relative to this one matches ``pattern`` (``*``, ``*/*``)."""
+        depth, below = pattern.count("/") + 1, f"{self.key}/" if self.key else ""
+        found = {
+            "/".join(key[len(below):].split("/")[:depth]) for key in self.files if key.startswith(below) and key[len(below):].count("/") + 1 >= depth
+        }
+        return [self / relative for relative in sorted(found) if PurePosixPath(relative).match(pattern)]
+
+    def open(self, mode: str = "rb") -> BinaryIO:
+        return self._object().open(mode)
+
+    def read_bytes(self) -> bytes:
+        return self._object().read_bytes()
+
+    def _object(self) -> StorePath:
+        if not self.is_file():
+            raise FileNotFoundError(errno.ENOENT, "no such object in the store's listing", str(self))
+        return StorePath(self.config, self.key, self.files[self.key])
 
 
 class RangedFile(io.RawIOBase):
