@@ -22,10 +22,12 @@ holding the KITTI excerpt (25 frames, 2.5 s of drive at 10 Hz) as
    server of scripts/benchpeers.py (target: the same ratio);
 4. datasets: a ROS 1 bag and an MCAP file of ``--bag-frames`` generated
    frames (scripts/bench_rosbag.py: a 120 000-point cloud and a 1242x375
-   image each) served on demand from the store, against the same file served
-   from a directory: the open (connect to metadata) and the whole-log stream,
-   each server just started, as ratios; and the same through the delaying
-   proxy, with the GETs it saw.
+   image each), and the KITTI excerpt's raw drive (25 frames), served on
+   demand from the store, against the same files served from a directory:
+   the open (connect to metadata) and the whole-log stream, each server just
+   started, as ratios; and the same through the delaying proxy, with the
+   GETs it saw. moto's ranged GET takes longer the larger the object (it
+   copies it), unlike S3: each row says how long a 64 KiB one takes there.
 
 Each cold or delayed row is the median of ``--trials`` fresh servers. Speed
 is reported as ratios against references measured in the same run; the
@@ -55,6 +57,7 @@ import obstore  # noqa: E402
 import websockets  # noqa: E402
 from obstore.store import S3Store  # noqa: E402
 
+from bench_kitti import RAW  # noqa: E402
 from bench_rosbag import generate  # noqa: E402
 from benchproc import KITTI, MB, Process, other_cores, other_cpu, run_clients, start_reference, start_server  # noqa: E402
 from s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, store_env  # noqa: E402
@@ -174,20 +177,36 @@ def datasets(s3: MotoS3, frames: int, delay: float, extra: tuple[str, ...]) -> d
             else:
                 generate(path, container, frames)
             s3.put(BUCKET, f"datasets/{container}/{file}", path.read_bytes())
-            row: dict[str, Any] = {"megabytes": path.stat().st_size / MB, "ranged_get_ms": ranged_get_ms(s3, f"datasets/{container}/{file}")}
-            os.environ.update(store_env(s3.endpoint))
-            with start_server(local, *extra) as server:
-                row["local"] = asyncio.run(timed_stream(server.url("?log=drive")))
-            with start_server(f"s3://{BUCKET}/datasets/{container}", *extra) as server:
-                row["store"] = asyncio.run(timed_stream(server.url("?log=drive")))
-            with proxy_thread(s3.port, delay) as proxy:
-                os.environ.update(store_env(proxy.url))
-                with start_server(f"s3://{BUCKET}/datasets/{container}", *extra) as server:
-                    row["delayed"] = {**asyncio.run(timed_stream(server.url("?log=drive"))), "gets": len(proxy.gets(file))}
+            row = compare(s3, local, f"datasets/{container}", "drive", delay, extra, f"datasets/{container}/{file}")
+            row["megabytes"] = path.stat().st_size / MB
             path.unlink()
             assert row["local"]["frames"] == row["store"]["frames"] == row["delayed"]["frames"] == frames, row
             results[container] = row
+    s3.upload(RAW / "2011_09_26", BUCKET, "datasets/kitti/2011_09_26")
+    drive = "2011_09_26/2011_09_26_drive_0001_sync"
+    velodyne = f"datasets/kitti/{drive}/velodyne_points/data/0000000000.bin"
+    row = compare(s3, RAW, "datasets/kitti", drive, delay, extra, velodyne, gets="datasets/kitti/")
+    row["megabytes"] = sum(p.stat().st_size for p in RAW.rglob("*") if p.is_file()) / MB
+    assert row["local"]["frames"] == row["store"]["frames"] == row["delayed"]["frames"] == 25, row
+    results["kitti"] = row
     return results
+
+
+def compare(
+    s3: MotoS3, local: Path, prefix: str, name: str, delay: float, extra: tuple[str, ...], probe: str, gets: str | None = None
+) -> dict[str, Any]:
+    """The log ``name`` from the directory ``local``, from ``s3://BUCKET/prefix``, and from there through the proxy."""
+    row: dict[str, Any] = {"ranged_get_ms": ranged_get_ms(s3, probe)}
+    os.environ.update(store_env(s3.endpoint))
+    with start_server(local, *extra) as server:
+        row["local"] = asyncio.run(timed_stream(server.url(f"?log={name}")))
+    with start_server(f"s3://{BUCKET}/{prefix}", *extra) as server:
+        row["store"] = asyncio.run(timed_stream(server.url(f"?log={name}")))
+    with proxy_thread(s3.port, delay) as proxy:
+        os.environ.update(store_env(proxy.url))
+        with start_server(f"s3://{BUCKET}/{prefix}", *extra) as server:
+            row["delayed"] = {**asyncio.run(timed_stream(server.url(f"?log={name}"))), "gets": len(proxy.gets(gets or probe))}
+    return row
 
 
 def main() -> None:
@@ -259,15 +278,17 @@ def main() -> None:
         other_before, wall_before = other_cpu(), time.perf_counter()
         results["datasets"] = datasets(s3, args.bag_frames, args.delay, extra)
         results["datasets"]["other_cpu"] = other_cores(other_before, wall_before)
-        for container in ("ros1", "mcap"):
+        for container in ("ros1", "mcap", "kitti"):
             row = results["datasets"][container]
             local, store, delayed = row["local"], row["store"], row["delayed"]
-            line(f"4. {container} bag, {args.bag_frames} frames, {row['megabytes']:.0f} MB, on demand: open "
+            what = "KITTI raw drive, 25 frames" if container == "kitti" else f"{container} bag, {args.bag_frames} frames"
+            line(f"4. {what}, {row['megabytes']:.0f} MB, on demand: open "
                  f"{store['open_s']:.2f} s from the store, {local['open_s']:.2f} s from a directory "
                  f"({store['open_s'] / local['open_s']:.2f}x); whole-log stream {store['stream_s']:.2f} s against "
                  f"{local['stream_s']:.2f} s ({store['stream_s'] / local['stream_s']:.2f}x); with {args.delay * 1000:.0f} ms "
                  f"before each request: open {delayed['open_s']:.2f} s, stream {delayed['stream_s']:.2f} s, {delayed['gets']} GETs "
-                 f"(every process of the server); moto takes {row['ranged_get_ms']:.0f} ms for a 64 KiB ranged GET of this object")
+                 f"(every process of the server); moto takes {row['ranged_get_ms']:.0f} ms for a 64 KiB ranged GET of "
+                 + ("a sweep" if container == "kitti" else "this object"))
         line(f"   other processes {results['datasets']['other_cpu']:.2f} cores")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2, default=str))
