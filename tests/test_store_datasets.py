@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import pickle
+import random
 import re
 import shutil
 from collections.abc import Iterator
@@ -227,3 +228,20 @@ async def test_a_store_path_pickles_shows_no_credential_and_reads_ranges_through
     proxy.fault(key, status=403)
     with pytest.raises(StoreError, match=f"s3://{BUCKET}/fleet/{key}: access denied \\(403\\)"):
         await asyncio.to_thread(lambda: copy.open().read(10))
+
+
+async def test_random_reads_return_the_objects_bytes_and_near_ones_share_a_get(proxy: Proxy, s3: MotoS3):
+    rng = random.Random(14)
+    data = rng.randbytes(3 << 20)
+    s3.put(BUCKET, "random/blob", data)
+    path = StorePath(store_config(BUCKET, timeout=10, retries=0), "random/blob", len(data))
+    reads = [(rng.randrange(len(data)), rng.choice([1, 12, 300, 5000, 70_000, 1 << 20])) for _ in range(300)]
+    reads += [(start + 7, 100) for start, _ in reads[:100]]  # each within what a read before it fetched
+
+    def read_all() -> list[bytes]:
+        with path.open() as file:
+            return [file.read(size) for start, size in reads if file.seek(start) == start]
+
+    got = await asyncio.to_thread(read_all)
+    assert got == [data[start : start + size] for start, size in reads]
+    assert len(proxy.gets("random/blob")) <= 300

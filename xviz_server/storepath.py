@@ -35,6 +35,7 @@ object's URL and the cause.
 
 from __future__ import annotations
 
+import bisect
 import errno
 import io
 import threading
@@ -229,6 +230,7 @@ class RangedFile(io.RawIOBase):
         self.path = path
         self._position = 0
         self._cache: OrderedDict[int, bytes] = OrderedDict()  # fetched ranges by start, least recently used first
+        self._starts: list[int] = []  # the same starts, sorted: a read looks at the range starting last before it
         self._cached = 0
 
     def readable(self) -> bool:
@@ -279,11 +281,16 @@ class RangedFile(io.RawIOBase):
                 self._keep(start, data)
 
     def _held(self, start: int, end: int) -> bytes | None:
-        for first, data in self._cache.items():
-            if first <= start and end <= first + len(data):
-                self._cache.move_to_end(first)
-                return data if (first, end - start) == (start, len(data)) else data[start - first : end - first]
-        return None
+        """``[start, end)`` if the range that starts last at or before ``start`` holds it (ranges seldom overlap)."""
+        index = bisect.bisect_right(self._starts, start) - 1
+        if index < 0:
+            return None
+        first = self._starts[index]
+        data = self._cache[first]
+        if end > first + len(data):
+            return None
+        self._cache.move_to_end(first)
+        return data if (first, end - start) == (start, len(data)) else data[start - first : end - first]
 
     def _bytes(self, start: int, end: int) -> bytes:
         held = self._held(start, end)
@@ -302,13 +309,20 @@ class RangedFile(io.RawIOBase):
     def _keep(self, start: int, data: bytes) -> None:
         if len(data) > CACHE_BYTES // 2:
             return
-        while self._cache and self._cached + len(data) > CACHE_BYTES:
-            self._cached -= len(self._cache.popitem(last=False)[1])
         old = self._cache.pop(start, None)
-        self._cached += len(data) - (len(old) if old is not None else 0)
+        if old is not None:
+            self._cached -= len(old)
+        else:
+            bisect.insort(self._starts, start)
+        while self._cache and self._cached + len(data) > CACHE_BYTES:
+            first, dropped = self._cache.popitem(last=False)
+            self._starts.pop(bisect.bisect_left(self._starts, first))
+            self._cached -= len(dropped)
         self._cache[start] = data
+        self._cached += len(data)
 
     def close(self) -> None:
         self._cache.clear()
+        self._starts.clear()
         self._cached = 0
         super().close()
