@@ -21,9 +21,11 @@ from typing import Any
 
 from ..codec import Format
 from ..datasets import Dataset, convert_frame, detect, open_dataset
-from ..exceptions import DatasetError, FrameError, LogError
+from ..exceptions import DatasetError, FrameError, LogError, StoreError
 from ..index import TimeIndex
 from ..layout import Found, discover
+from ..store import StoredDataset
+from ..storepath import StorePath, StoreTree
 from ..work import Workers
 
 __all__ = ["DatasetProvider", "DatasetLog", "explicit_datasets"]
@@ -54,7 +56,7 @@ class DatasetProvider:
         self._workers = workers
         self._options = options or {}
 
-    async def open(self, found: Found) -> DatasetLog:
+    async def open(self, found: Found | StoredDataset) -> DatasetLog:
         options = {**self._options, **dict(found.options)}
         try:
             dataset = await self._workers.io(lambda: open_dataset(found.kind, found.path, **options))
@@ -94,6 +96,8 @@ class DatasetLog:
     async def read(self, frame: int) -> bytes:
         metadata = await self.metadata()
         try:
-            return await self._workers.cpu(convert_frame, self._kind, str(self._dataset.path), self._options, frame, metadata)
-        except DatasetError as exc:
+            path = self._dataset.path  # an object in a store goes as it is: picklable, without a credential
+            where = path if isinstance(path, (StorePath, StoreTree)) else str(path)
+            return await self._workers.cpu(convert_frame, self._kind, where, self._options, frame, metadata)
+        except (DatasetError, StoreError) as exc:
             raise FrameError(f"frame {frame} of log {self.name!r}: {exc}", log=self.name, frame=frame) from None

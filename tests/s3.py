@@ -13,12 +13,15 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 
 import boto3
+import pytest
 
-__all__ = ["ACCESS_KEY", "SECRET_KEY", "MotoS3", "moto_process", "store_env"]
+from tcpproxy import Proxy, running_proxy
+
+__all__ = ["ACCESS_KEY", "SECRET_KEY", "MotoS3", "moto_process", "store_env", "proxied"]
 
 ACCESS_KEY = "AKIAXVIZTESTKEY00001"
 #: A made-up secret that tests look for in every output: it must never show.
@@ -97,3 +100,13 @@ def moto_process() -> Iterator[MotoS3]:
     finally:
         process.terminate()
         process.wait(10)
+
+
+@contextlib.asynccontextmanager
+async def proxied(store: MotoS3, monkeypatch: pytest.MonkeyPatch, delay: float = 0.0) -> AsyncIterator[Proxy]:
+    """A proxy (tests/tcpproxy.py) to ``store``, waiting ``delay`` s before each request, and the AWS variables pointing
+    at it for the test."""
+    async with running_proxy(store.port, delay) as running:
+        for name, value in store_env(running.url).items():
+            monkeypatch.setenv(name, value)
+        yield running

@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 
 from helpers import Client, client, run_xviz_session_async, running_server, ten_hz, write_log, xviz_decode
-from s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, store_env
-from tcpproxy import Proxy, running_proxy
+from s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, proxied, store_env
+from tcpproxy import Proxy
 from test_exposure import run_cli, start_serving, stop_serving
 from xviz_server.codec import Format
 
@@ -44,9 +44,7 @@ def s3(kitti_log: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Mo
 @pytest.fixture
 async def proxy(s3: MotoS3, monkeypatch: pytest.MonkeyPatch) -> Any:
     """A proxy to the store, and the AWS variables pointing at it."""
-    async with running_proxy(s3.port) as running:
-        for name, value in store_env(running.url).items():
-            monkeypatch.setenv(name, value)
+    async with proxied(s3, monkeypatch) as running:
         yield running
 
 
@@ -142,9 +140,7 @@ async def test_a_point_in_time_query_is_one_get(proxy: Proxy):
 
 
 async def test_a_stream_keeps_several_gets_in_flight_within_its_count(s3: MotoS3, monkeypatch: pytest.MonkeyPatch):
-    async with running_proxy(s3.port, delay=0.05) as slow:
-        for name, value in store_env(slow.url).items():
-            monkeypatch.setenv(name, value)
+    async with proxied(s3, monkeypatch, delay=0.05) as slow:
         async with running_server([ROOT], store_read_ahead=6) as server:
             await server.catalog.open(KITTI)
             slow.most_in_flight = 0
@@ -155,9 +151,7 @@ async def test_a_stream_keeps_several_gets_in_flight_within_its_count(s3: MotoS3
 async def test_a_stream_keeps_its_gets_within_its_bytes(s3: MotoS3, monkeypatch: pytest.MonkeyPatch, kitti_log: Path):
     """With room for fewer bytes than one frame holds, each frame loads alone."""
     smallest = min((kitti_log / f"{i}-frame.glb").stat().st_size for i in range(2, 27))
-    async with running_proxy(s3.port, delay=0.05) as slow:
-        for name, value in store_env(slow.url).items():
-            monkeypatch.setenv(name, value)
+    async with proxied(s3, monkeypatch, delay=0.05) as slow:
         async with running_server([ROOT], store_read_ahead=6, store_read_ahead_mb=smallest / 2 / (1 << 20)) as server:
             await server.catalog.open(KITTI)
             slow.most_in_flight = 0

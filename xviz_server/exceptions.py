@@ -7,6 +7,8 @@ it: it names the file, offset, field or request that is wrong and says why.
 
 from __future__ import annotations
 
+from typing import Any
+
 __all__ = [
     "XVIZError",
     "DecodeError",
@@ -163,6 +165,13 @@ class StoreError(XVIZError, OSError):
     def __init__(self, message: str, *, key: str) -> None:
         super().__init__(message)
         self.key = key
+
+    def __reduce__(self) -> tuple[Any, ...]:  # from a worker process: ``key`` is keyword-only
+        return _rebuild_store_error, (str(self), self.key)
+
+
+def _rebuild_store_error(message: str, key: str) -> StoreError:
+    return StoreError(message, key=key)
 
 
 class BrokerError(XVIZError):

@@ -30,9 +30,9 @@ from .layout import INDEX_FILE, LOG, Found, discover, is_log_directory
 from .providers import LogSource
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
-from .datasets import FILE_KINDS, GENERATED, detect
+from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store
 from .readahead import ReadAhead
-from .store import ObjectStore, StoredLog
+from .store import ObjectStore, StoredDataset, StoredLog
 from .work import Place, Workers
 
 __all__ = ["Catalog", "Log", "check_log_name"]
@@ -303,7 +303,7 @@ class Catalog:
         self._cache = cache
         self._workers = workers
         self._validate = validate
-        self._found: dict[str, Found | StoredLog] = {}
+        self._found: dict[str, Found | StoredLog | StoredDataset] = {}
         self._open: dict[str, asyncio.Task[Log]] = {}
         self._stamps: dict[str, tuple[int, ...]] = {}  # what _stamp() said when each was opened
 
@@ -317,9 +317,9 @@ class Catalog:
 
     async def scan(self) -> list[str]:
         """Look for logs again (a log added to a data directory appears, a removed one goes)."""
-        found: dict[str, Found | StoredLog] = {**await self._workers.io(self._discover)}
+        found: dict[str, Found | StoredLog | StoredDataset] = {**await self._workers.io(self._discover)}
         for store in self._stores:
-            for stored in await store.discover():
+            for stored in await store.discover(FILE_KINDS, STORE_REFUSED, detect_in_store):
                 found.setdefault(stored.name, stored)
         self._found = found
         for gone in self._open.keys() - self._found.keys():
@@ -366,7 +366,7 @@ class Catalog:
         if found is None:
             found = await self._workers.io(self._lookup, name)
             for store in self._stores:
-                found = found or await store.lookup(name)
+                found = found or await store.lookup(name, FILE_KINDS)
             if found is not None:
                 self._found[name] = found
         if found is None:
@@ -374,7 +374,7 @@ class Catalog:
             shown = ", ".join(repr(n) for n in available[:20]) or "none"
             raise LogNotFound(f"no log named {name!r}; available: {shown}", name=name, available=available)
         # A log in a store is read once; a scan finds the logs added or removed since.
-        where = None if isinstance(found, StoredLog) or found.kind in GENERATED else found.path
+        where = None if isinstance(found, (StoredLog, StoredDataset)) or found.kind in GENERATED else found.path
         stamp = () if where is None else await self._workers.io(_stamp, where)
         if stamp is None:
             self._found.pop(name, None)
@@ -391,13 +391,15 @@ class Catalog:
             self._stamps[name] = stamp
         return await asyncio.shield(task)
 
-    async def _open_log(self, found: Found | StoredLog) -> Log:
+    async def _open_log(self, found: Found | StoredLog | StoredDataset) -> Log:
         started = time.perf_counter()
         source: LogSource
         if isinstance(found, StoredLog):
             source = await self._logs.open_folder(found.name, found.folder)
+        elif isinstance(found, StoredDataset) or found.kind != LOG:
+            source = await self._converted.open(found)
         else:
-            source = await (self._logs if found.kind == LOG else self._converted).open(found)
+            source = await self._logs.open(found)
         log = await Log.open(source, self._cache, self._workers, self._validate)
         logger.info("opened log %r: %d frames, %s, in %.3f s", found.name, len(log.index), log.format.value, time.perf_counter() - started)
         return log

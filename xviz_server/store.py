@@ -6,79 +6,47 @@ is the log ``kitti/0005`` of the root ``s3://b/fleet``), in the layout of
 :mod:`xviz_server.layout`. A log is a :class:`StoreFolder`: the static-log
 provider reads it as it reads a directory, one GET per file.
 
-The store is configured the way every AWS tool is: ``AWS_ACCESS_KEY_ID``,
-``AWS_SECRET_ACCESS_KEY``, ``AWS_SESSION_TOKEN``, ``AWS_REGION`` (or
-``AWS_DEFAULT_REGION``) and ``AWS_ENDPOINT_URL`` (or ``AWS_ENDPOINT_URL_S3``)
-for S3-compatible stores; what the environment leaves out is taken from the
-profile ``AWS_PROFILE`` (``default``) of the shared files
-``~/.aws/credentials`` and ``~/.aws/config`` (or ``AWS_SHARED_CREDENTIALS_FILE``
-and ``AWS_CONFIG_FILE``). Plain ``http://`` is allowed when the endpoint URL
-says ``http://`` or ``AWS_ALLOW_HTTP`` is ``true``.
+A one-file dataset under the prefix (a Waymo ``.tfrecord`` segment, a ROS 1
+``.bag``, an ``.mcap`` file) is served too, named by its key path below the
+prefix without its suffix, and so is a dataset that is a folder of files (a
+KITTI raw drive), named by its folder's key path; both are read with ranged
+GETs (see :mod:`xviz_server.storepath`).
 
-Time limits, so that a dead store never holds a session: connecting gives up
-after :data:`CONNECT_TIMEOUT`; a request, from connecting to the end of its
-body, after ``timeout`` seconds (``--store-timeout``). A GET that fails with
-a 5xx, a timeout or a lost connection is tried again ``retries`` times
-(``--store-retries``), after an exponential backoff with jitter from
-:data:`BACKOFF_START` to :data:`BACKOFF_MAX` (obstore retries, a body cut
-short included). A missing object, a 401 or a 403 is not retried. However
-the store behaves, a request with its retries ends within
-``(retries + 1) * (timeout + CONNECT_TIMEOUT) + retries * BACKOFF_MAX + 1``
-seconds. What still fails is a
-:class:`~xviz_server.exceptions.StoreError` naming the object's URL and the
-cause, never a credential.
+The client, its time limits and retries, and the errors of a failed
+request are those of :mod:`xviz_server.storeclient`.
 """
 
 from __future__ import annotations
 
 import asyncio
-import configparser
 import logging
-import os
 import re
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from datetime import timedelta
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any
 
 import obstore
-from obstore.exceptions import BaseError, NotFoundError, PermissionDeniedError, UnauthenticatedError
-from obstore.store import S3Store
+from obstore.exceptions import BaseError
 
 from .exceptions import ConfigError, StoreError
 from .layout import FRAME_FILE, LOG
 from .readahead import ReadAhead
-from .settings import Settings
+from .storeclient import BACKOFF_MAX, CONNECT_TIMEOUT, SCHEME, failure, s3_client, store_config
+from .storepath import StorePath, StoreTree
 
 if TYPE_CHECKING:
     from obstore import ObjectMeta
-    from obstore.store import ClientConfig, RetryConfig, S3Config
 
-__all__ = [
-    "SCHEME",
-    "CONNECT_TIMEOUT",
-    "BACKOFF_START",
-    "BACKOFF_MAX",
-    "is_store_url",
-    "data_roots",
-    "ObjectStore",
-    "StoreFolder",
-    "StoredLog",
-]
+    from .settings import Settings
+
+__all__ = ["is_store_url", "data_roots", "ObjectStore", "StoreFolder", "StoredLog", "StoredDataset"]
 
 logger = logging.getLogger(__name__)
 
-SCHEME = "s3://"
-#: Seconds to open a connection to the store.
-CONNECT_TIMEOUT = 5.0
-#: Seconds before the first retry of a failed GET; each next waits up to twice as long.
-BACKOFF_START = 0.1
-#: Most seconds between two tries of a GET.
-BACKOFF_MAX = 2.0
 #: S3 bucket names: 3 to 63 lower-case letters, digits, dots and hyphens.
 _BUCKET = re.compile(r"[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]")
-_STATUS = re.compile(r"status code: (\d{3})")
 
 
 def is_store_url(text: str) -> bool:
@@ -106,6 +74,20 @@ class StoredLog:
     kind: str = LOG
 
 
+@dataclass(frozen=True)
+class StoredDataset:
+    """A dataset found in a store: its name, its object (or folder) and its kind.
+
+    The counterpart of :class:`~xviz_server.layout.Found`, whose path is a
+    file: providers open either.
+    """
+
+    name: str
+    path: StorePath | StoreTree
+    kind: str
+    options: tuple[tuple[str, str], ...] = ()
+
+
 class ObjectStore:
     """One ``s3://BUCKET/PREFIX`` data root.
 
@@ -120,18 +102,11 @@ class ObjectStore:
         self.url = f"{SCHEME}{self.bucket}/{self.prefix}".rstrip("/")
         self.read_ahead = read_ahead
         self._timeout = timeout
-        self._retries = retries
         # Beyond obstore's own limits: every try, every backoff, and some slack.
         self._deadline = (retries + 1) * (timeout + CONNECT_TIMEOUT) + retries * BACKOFF_MAX + 1
-        config, client = _aws_settings()
-        client["connect_timeout"] = timedelta(seconds=CONNECT_TIMEOUT)
-        client["timeout"] = timedelta(seconds=timeout)
-        retry: RetryConfig = {
-            "max_retries": retries,
-            "retry_timeout": timedelta(seconds=(retries + 1) * timeout),
-            "backoff": {"init_backoff": timedelta(seconds=BACKOFF_START), "max_backoff": timedelta(seconds=BACKOFF_MAX), "base": 2},
-        }
-        self._store = S3Store(self.bucket, config=config, client_options=client, retry_config=retry)
+        self.config = store_config(self.bucket, timeout, retries)
+        self._store = s3_client(self.config)
+        self._warned: set[str] = set()
 
     def key_url(self, key: str) -> str:
         """The ``s3://`` URL of an object (what errors name)."""
@@ -141,13 +116,22 @@ class ObjectStore:
         """The key of ``name`` below the prefix."""
         return f"{self.prefix}/{name}" if self.prefix else name
 
-    async def discover(self) -> list[StoredLog]:
-        """Every log under the prefix, in name order: one listing of the whole prefix.
+    async def discover(
+        self, kinds: Mapping[str, str], refused: Mapping[str, str], detect: Callable[[StoreTree], str | None]
+    ) -> list[StoredLog | StoredDataset]:
+        """Every log and dataset under the prefix, in name order: one listing of the whole prefix.
 
         A folder holding message files is a log; folders below a log are
         searched too, and hidden ones (a component starting with ``.``) are
         not. The prefix itself is a log named after its last component when
-        it holds message files.
+        it holds message files. ``kinds`` maps a file suffix to the kind of
+        dataset such a file is (``.tfrecord``: ``waymo``): each one outside a
+        log's folder is a dataset, named by its key path below the prefix
+        without the suffix. ``refused`` maps the suffixes of datasets that are
+        not read from a store to why: each such file is left out with a
+        warning, once. ``detect`` names the kind of dataset that a folder
+        (a :class:`~xviz_server.storepath.StoreTree` of the listing) is, if
+        any; a dataset's folders are not searched further.
         """
         base = self._key("")
         try:
@@ -156,30 +140,78 @@ class ObjectStore:
             logger.warning("cannot list %s: %s", self.url, exc)
             return []
         folders: set[str] = set()
+        files: list[tuple[str, int]] = []
+        sizes: dict[str, int] = {}
         for meta in objects:
             relative = meta["path"][len(base):]
+            if any(part.startswith(".") for part in relative.split("/")):
+                continue
+            sizes[meta["path"]] = meta["size"]
             folder, _, file = relative.rpartition("/")
-            if FRAME_FILE.fullmatch(file) and not any(part.startswith(".") for part in relative.split("/")):
+            suffix = PurePosixPath(file).suffix
+            if FRAME_FILE.fullmatch(file):
                 folders.add(folder)
-        return [self._log(folder) for folder in sorted(folders)]
+            elif suffix in kinds:
+                files.append((relative, meta["size"]))
+            elif suffix in refused and meta["path"] not in self._warned:
+                self._warned.add(meta["path"])
+                logger.warning("%s is not served: %s", self.key_url(meta["path"]), refused[suffix])
+        found: list[StoredLog | StoredDataset] = [self._log(folder) for folder in folders]
+        found += [self._dataset(relative, size, kinds) for relative, size in files if relative.rpartition("/")[0] not in folders]
+        found += self._folder_datasets(sizes, folders, detect)
+        return sorted(found, key=lambda entry: entry.name)
 
-    async def lookup(self, name: str) -> StoredLog | None:
-        """The log ``name`` if its folder holds message files: one listing of that folder."""
+    def _folder_datasets(self, sizes: dict[str, int], logs: set[str], detect: Callable[[StoreTree], str | None]) -> list[StoredDataset]:
+        """The folders of the listing (objects by key: ``sizes``) that ``detect`` finds to be datasets, outside logs.
+
+        Each is handed the objects below it and those beside it (a KITTI
+        drive's calibration is in the folder above), not the whole listing.
+        """
+        tree = StoreTree(self.config, self.prefix, sizes)
+        below = len(self._key(""))
+        candidates = {key[below:].rsplit("/", depth)[0] for key in sizes for depth in range(1, key[below:].count("/") + 1)}
+        found: list[StoredDataset] = []
+        for folder in sorted(candidates):  # a folder before the folders below it
+            if folder in logs or any(folder.startswith(f"{taken.name}/") for taken in found):
+                continue
+            kind = detect(tree / folder)
+            if kind is not None:
+                key, parent = self._key(folder), self._key(folder).rpartition("/")[0]
+                files = {k: size for k, size in sizes.items() if k.startswith(f"{key}/") or k.rpartition("/")[0] == parent}
+                found.append(StoredDataset(folder, StoreTree(self.config, key, files), kind))
+        return found
+
+    async def lookup(self, name: str, kinds: Mapping[str, str]) -> StoredLog | StoredDataset | None:
+        """The log ``name`` if its folder holds message files (one listing of that folder), else the dataset
+        ``name`` if its folder holds ``name`` with one of the suffixes of ``kinds`` (one more listing)."""
         folder = StoreFolder(self, self._key(name))
+        parent, _, own = self._key(name).rpartition("/")
         try:
-            files = await folder.files()
+            if await folder.files():
+                return self._log(name, folder)
+            listed = {meta["path"]: meta["size"] for meta in await self.list_folder(parent)}
         except StoreError as exc:
             logger.warning("cannot look for %r in %s: %s", name, self.url, exc)
             return None
-        return self._log(name, folder) if files else None
+        for suffix in kinds:
+            key = f"{parent}/{own}{suffix}" if parent else f"{own}{suffix}"
+            if key in listed:
+                return self._dataset(f"{name}{suffix}", listed[key], kinds)
+        return None
+
+    def _dataset(self, relative: str, size: int, kinds: Mapping[str, str]) -> StoredDataset:
+        """The dataset in the file ``relative`` (below the prefix) of ``size`` bytes, named without its suffix."""
+        suffix = PurePosixPath(relative).suffix
+        path = StorePath(self.config, self._key(relative), size)
+        return StoredDataset(relative.removesuffix(suffix), path, kinds[suffix])
 
     def _log(self, name: str, folder: StoreFolder | None = None) -> StoredLog:
         own = name or self.prefix.rpartition("/")[2] or self.bucket
         return StoredLog(own, folder or StoreFolder(self, self._key(name)))
 
     async def list_folder(self, prefix: str) -> list[ObjectMeta]:
-        """The objects directly in the folder ``prefix`` (not in folders below it)."""
-        listing = self._store.list_with_delimiter_async(prefix.rstrip("/") + "/")
+        """The objects directly in the folder ``prefix`` (not in folders below it; the bucket's top for ``""``)."""
+        listing = self._store.list_with_delimiter_async(prefix.rstrip("/") + "/" if prefix else None)
         result = await self._guard(listing, prefix)
         return list(result["objects"])
 
@@ -197,10 +229,9 @@ class ObjectStore:
         try:
             return await asyncio.wait_for(request, self._deadline)
         except asyncio.TimeoutError:
-            raise _failure(self.key_url(key), f"no answer in {self._deadline:g} s") from None
+            raise StoreError(f"{self.key_url(key)}: no answer in {self._deadline:g} s", key=self.key_url(key)) from None
         except (BaseError, OSError) as exc:  # obstore's own classes, and builtins (FileNotFoundError) for some
-            timed_out = time.monotonic() - started >= self._timeout
-            raise _explain(self.key_url(key), exc, self._timeout if timed_out else None) from None
+            raise failure(self.key_url(key), exc, started, self._timeout) from None
 
 
 class StoreFolder:
@@ -240,66 +271,3 @@ def _parse(url: str) -> tuple[str, str]:
             "credentials go in the AWS variables or files, not in the URL"
         )
     return bucket, prefix.strip("/")
-
-
-def _aws_settings() -> tuple[S3Config, ClientConfig]:
-    """What the environment leaves out, from the shared AWS files; plain HTTP where the endpoint says so.
-
-    obstore reads the ``AWS_*`` variables itself; the values returned here
-    come from the files (for keys the environment does not set) and are
-    given to obstore as its configuration.
-    """
-    profile = os.environ.get("AWS_PROFILE") or "default"
-    credentials = _profile(os.environ.get("AWS_SHARED_CREDENTIALS_FILE", "~/.aws/credentials"), profile)
-    settings = _profile(os.environ.get("AWS_CONFIG_FILE", "~/.aws/config"), profile if profile == "default" else f"profile {profile}")
-    from_files = {**settings, **credentials}
-    config: dict[str, str] = {}
-    for key, variables, option in (
-        ("access_key_id", ["AWS_ACCESS_KEY_ID"], "aws_access_key_id"),
-        ("secret_access_key", ["AWS_SECRET_ACCESS_KEY"], "aws_secret_access_key"),
-        ("session_token", ["AWS_SESSION_TOKEN"], "aws_session_token"),
-        ("region", ["AWS_REGION", "AWS_DEFAULT_REGION"], "region"),
-        ("endpoint", ["AWS_ENDPOINT_URL_S3", "AWS_ENDPOINT_URL"], "endpoint_url"),
-    ):
-        given = next((os.environ[v] for v in variables if os.environ.get(v)), None)
-        value = given or from_files.get(option)
-        if value:
-            config[key] = value
-    endpoint = config.get("endpoint", "")
-    allow = os.environ.get("AWS_ALLOW_HTTP", "").lower() in ("1", "true") or endpoint.startswith("http://")
-    client: ClientConfig = {"allow_http": allow}
-    return config, client  # type: ignore[return-value]  # S3Config is a TypedDict of these keys
-
-
-def _profile(path: str, section: str) -> dict[str, str]:
-    """The options of one section of an AWS shared file, or nothing if the file or section is not there."""
-    parser = configparser.ConfigParser(interpolation=None)
-    try:
-        parser.read(Path(path).expanduser(), encoding="utf-8")
-    except (configparser.Error, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not an AWS configuration file: {type(exc).__name__}") from None
-    return dict(parser[section]) if parser.has_section(section) else {}
-
-
-def _explain(url: str, exc: Exception, timeout: float | None) -> StoreError:
-    """An obstore failure as a :class:`StoreError`: the cause, without the request's headers or the endpoint.
-
-    ``timeout`` is the time limit of a try when the failure took that long.
-    """
-    text = str(exc)
-    status = _STATUS.search(text)
-    if isinstance(exc, (FileNotFoundError, NotFoundError)) or (status and status.group(1) == "404"):
-        return _failure(url, "no such object (404)")
-    if isinstance(exc, (PermissionError, PermissionDeniedError, UnauthenticatedError)) or (status and status.group(1) in ("401", "403")):
-        return _failure(url, f"access denied ({status.group(1) if status else 403}): check the credentials and the bucket policy")
-    retried = re.search(r"after (\d+) retries", text)
-    after = f" after {retried.group(1)} {'retry' if retried.group(1) == '1' else 'retries'}" if retried else ""
-    if status:
-        return _failure(url, f"the store answered {status.group(1)}{after}")
-    if timeout is not None:
-        return _failure(url, f"timed out (no whole answer within {timeout:g} s){after}")
-    return _failure(url, f"the connection failed or was cut short{after}")
-
-
-def _failure(url: str, cause: str) -> StoreError:
-    return StoreError(f"{url}: {cause}", key=url)

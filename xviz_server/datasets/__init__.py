@@ -18,10 +18,11 @@ import numpy as np
 from ..codec import Format, encode
 from ..exceptions import DatasetError
 from ..messages import envelope
+from ..storepath import StorePath, StoreTree
 
 __all__ = [
-    "Dataset", "KINDS", "FILE_KINDS", "GENERATED", "DEFAULT_IMAGE_WIDTH", "open_dataset", "detect", "dataset_options",
-    "convert_frame",
+    "Dataset", "KINDS", "FILE_KINDS", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
+    "open_dataset", "detect", "detect_in_store", "dataset_options", "convert_frame",
 ]
 
 
@@ -31,7 +32,7 @@ class Dataset(Protocol):
     #: The log name it is served under by default.
     name: str
     #: Where it is.
-    path: Path
+    path: Path | StorePath | StoreTree
     #: UNIX time of every frame, in frame order.
     times: np.ndarray
 
@@ -63,6 +64,14 @@ DEFAULT_IMAGE_WIDTH = 400
 
 #: Kinds whose datasets are single files, by file suffix: other files are never datasets.
 FILE_KINDS: dict[str, str] = {".tfrecord": "waymo", ".bag": "rosbag", ".mcap": "rosbag"}
+#: Kinds read from an object store: one-file datasets (their suffixes in :data:`FILE_KINDS`), and folders of files.
+STORE_KINDS = frozenset({"waymo", "rosbag", "kitti"})
+#: Kinds of :data:`STORE_KINDS` that are folders.
+STORE_FOLDER_KINDS = ("kitti",)
+#: Files of datasets that are not read from an object store, by suffix: why.
+STORE_REFUSED: dict[str, str] = {
+    ".db3": "a ROS 2 bag's SQLite file is read from a local file only: serve the bag from a directory, or convert it to MCAP",
+}
 
 
 def _member(kind: str, position: int) -> Callable[..., Any]:
@@ -70,18 +79,34 @@ def _member(kind: str, position: int) -> Callable[..., Any]:
     return getattr(module, KINDS[kind][position])
 
 
-def open_dataset(kind: str, path: Path, **options: Any) -> Dataset:
-    """Open the dataset of ``kind`` at ``path``; raises :class:`~xviz_server.exceptions.DatasetError`."""
+def open_dataset(kind: str, path: Path | StorePath | StoreTree, **options: Any) -> Dataset:
+    """Open the dataset of ``kind`` at ``path``; raises :class:`~xviz_server.exceptions.DatasetError`.
+
+    ``path`` is a file or folder, or an object or folder in a store for the
+    kinds of :data:`STORE_KINDS`.
+    """
     if kind not in KINDS:
         raise DatasetError(f"unknown dataset kind {kind!r}; known: {', '.join(sorted(KINDS))}", path=path)
-    if kind not in GENERATED and not Path(path).exists():
+    path = _in_store(path)
+    if isinstance(path, (StorePath, StoreTree)) and kind not in STORE_KINDS:
+        raise DatasetError(f"{path}: a {kind} dataset is not read from an object store", path=path)
+    if kind not in GENERATED and not path.exists():
         raise DatasetError(f"{path}: no such file or directory", path=path)
-    return _member(kind, 1)(Path(path), **options)
+    return _member(kind, 1)(path, **options)
 
 
 def dataset_options(kind: str) -> frozenset[str]:
     """The options the dataset class of ``kind`` takes besides its path (``image_max_width``, ``config`` ...)."""
     return frozenset(inspect.signature(_member(kind, 1)).parameters) - {"path"}
+
+
+def detect_in_store(folder: StoreTree) -> str | None:
+    """The kind of dataset whose layout a folder in a store has, of :data:`STORE_FOLDER_KINDS`, if any."""
+    return next((kind for kind in STORE_FOLDER_KINDS if _member(kind, 2)(folder)), None)
+
+
+def _in_store(path: Any) -> Path | StorePath | StoreTree:
+    return path if isinstance(path, (StorePath, StoreTree)) else Path(path)
 
 
 def detect(path: Path) -> str | None:
@@ -96,14 +121,16 @@ _opened: dict[tuple[str, str, tuple[tuple[str, Any], ...]], Dataset] = {}
 
 
 def convert_frame(
-    kind: str, path: str, options: dict[str, Any], frame: int, metadata: dict[str, Any], fmt: Format = Format.BINARY
+    kind: str, path: str | StorePath | StoreTree, options: dict[str, Any], frame: int, metadata: dict[str, Any],
+    fmt: Format = Format.BINARY,
 ) -> bytes:
     """Frame ``frame`` of a dataset as an encoded message; for worker processes.
 
-    Each process opens a dataset once and keeps it, with what it caches.
+    Each process opens a dataset once and keeps it, with what it caches
+    (and its own client of a store).
     """
-    key = (kind, path, tuple(sorted(options.items())))
+    key = (kind, str(path), tuple(sorted(options.items())))
     dataset = _opened.get(key)
     if dataset is None:
-        dataset = _opened[key] = open_dataset(kind, Path(path), **options)
+        dataset = _opened[key] = open_dataset(kind, _in_store(path), **options)
     return encode(envelope("state_update", dataset.convert(frame, metadata)), fmt)

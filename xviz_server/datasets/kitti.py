@@ -55,6 +55,7 @@ import numpy as np
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..codec.image import sniff_image
 from ..exceptions import DatasetError
+from ..storepath import StoreTree
 from . import DEFAULT_IMAGE_WIDTH
 from .images import encode_like, fit_width
 
@@ -88,12 +89,12 @@ CLASS_COLORS = {
 _COLOR_CHANNELS = ((80.0, 80.0), (80.0, 0.0), (60.0, 0.0))  # red, green, blue: (scale, offset)
 
 
-def is_kitti_drive(path: Path) -> bool:
+def is_kitti_drive(path: Path | StoreTree) -> bool:
     """Whether ``path`` is a KITTI raw drive folder (``oxts`` and ``velodyne_points`` with timestamps)."""
     return (path / "oxts" / "timestamps.txt").is_file() and (path / "velodyne_points" / "data").is_dir()
 
 
-def find_drive(path: Path) -> Path:
+def find_drive(path: Path | StoreTree) -> Path | StoreTree:
     """The KITTI raw drive folder that ``path`` names, with the calibration beside it.
 
     ``path`` is a drive folder, a date folder (``2011_09_26``, holding the
@@ -105,7 +106,7 @@ def find_drive(path: Path) -> Path:
     if is_kitti_drive(path):
         drive = path
     else:
-        drives = sorted(p for p in [*path.glob("*"), *path.glob("*/*")] if p.is_dir() and is_kitti_drive(p))
+        drives = sorted((p for p in [*path.glob("*"), *path.glob("*/*")] if p.is_dir() and is_kitti_drive(p)), key=str)
         if not drives:
             raise DatasetError(
                 f"{path}: not a KITTI raw drive, date folder or folder of dates (no drive with oxts/ and velodyne_points/)",
@@ -125,28 +126,28 @@ def find_drive(path: Path) -> Path:
     return drive
 
 
-def _read_bytes(path: Path) -> bytes:
+def _read_bytes(path: Path | StoreTree) -> bytes:
     try:
         return path.read_bytes()
     except OSError as exc:
         raise DatasetError(f"{path}: {exc.strerror or exc}", path=path) from None
 
 
-def _read_text(path: Path) -> str:
+def _read_text(path: Path | StoreTree) -> str:
     try:
         return _read_bytes(path).decode("ascii")
     except UnicodeDecodeError as exc:
         raise DatasetError(f"{path}: byte {exc.start} is not ASCII; not a KITTI text file", path=path) from None
 
 
-def _png_size(head: bytes, path: Path) -> tuple[int, int]:
+def _png_size(head: bytes, path: Path | StoreTree) -> tuple[int, int]:
     info = sniff_image(head)
     if info is None or info.mime_type != "image/png":
         raise DatasetError(f"{path}: not a PNG image", path=path)
     return info.width, info.height
 
 
-def read_timestamps(path: Path) -> np.ndarray:
+def read_timestamps(path: Path | StoreTree) -> np.ndarray:
     """The times of a ``timestamps.txt``, float64 UNIX seconds truncated to the millisecond.
 
     Each line is a UTC time with nanoseconds, ``2011-09-26 13:02:25.964389445``;
@@ -164,7 +165,7 @@ def read_timestamps(path: Path) -> np.ndarray:
     return np.array(milliseconds, dtype=np.int64) / 1000
 
 
-def read_calibration(path: Path) -> dict[str, np.ndarray]:
+def read_calibration(path: Path | StoreTree) -> dict[str, np.ndarray]:
     """The numeric entries of a KITTI ``calib_*.txt``, by name (``R``, ``T``, ``P_rect_02`` ...).
 
     Entries of 9 numbers (rotations, camera matrices) are (3, 3), of 12
@@ -240,7 +241,7 @@ class Oxts:
     orimode: int
 
     @classmethod
-    def parse(cls, text: str, path: Path) -> Oxts:
+    def parse(cls, text: str, path: Path | StoreTree) -> Oxts:
         """The record in the text of ``oxts/data/<frame>.txt``; ``path`` names the file in errors."""
         values = text.split()
         try:
@@ -286,7 +287,7 @@ class FrameObjects:
         return footprints(self.positions, self.yaws, self.sizes[:, 0], self.sizes[:, 1])
 
 
-def _number(element: ElementTree.Element, key: str, path: Path, where: str) -> float:
+def _number(element: ElementTree.Element, key: str, path: Path | StoreTree, where: str) -> float:
     text = element.findtext(key)
     try:
         return float(text)  # type: ignore[arg-type]
@@ -295,17 +296,18 @@ def _number(element: ElementTree.Element, key: str, path: Path, where: str) -> f
         raise DatasetError(f"{path}: {where}: <{key}> {problem}", path=path) from None
 
 
-def _count(element: ElementTree.Element, items: list[ElementTree.Element], path: Path, what: str) -> None:
+def _count(element: ElementTree.Element, items: list[ElementTree.Element], path: Path | StoreTree, what: str) -> None:
     """Check a boost ``<count>`` against the items present (a file cut short has fewer)."""
     count = element.findtext("count")
     if count is not None and count.strip() != str(len(items)):
         raise DatasetError(f"{path}: {what} says {count.strip()} items but has {len(items)}", path=path)
 
 
-def read_tracklets(path: Path) -> list[Tracklet]:
+def read_tracklets(path: Path | StoreTree) -> list[Tracklet]:
     """Parse a ``tracklet_labels.xml`` (the devkit's boost serialisation XML)."""
     try:
-        root = ElementTree.parse(path).getroot()
+        with path.open("rb") as file:
+            root = ElementTree.parse(file).getroot()
     except (OSError, ElementTree.ParseError) as exc:
         raise DatasetError(f"{path}: cannot read tracklets: {exc}", path=path) from None
     container = root.find("tracklets")
@@ -372,19 +374,20 @@ class KittiDrive:
 
     ``path`` is the drive folder inside its date folder, the date folder
     (holding one drive), or the folder above date folders (holding one drive
-    in all); see :func:`find_drive`. Images wider than ``image_max_width`` are scaled down (aspect
+    in all); see :func:`find_drive`; or such a folder in an object store (a
+    :class:`~xviz_server.storepath.StoreTree`, each file one GET). Images wider than ``image_max_width`` are scaled down (aspect
     kept) and re-encoded as PNG. Small and picklable: worker processes get a
     copy and read the files themselves. Every missing or unreadable file
     raises :class:`~xviz_server.exceptions.DatasetError` naming it.
     """
 
-    path: Path
+    path: Path | StoreTree
     image_max_width: int = DEFAULT_IMAGE_WIDTH
     name: str = field(init=False)
     _oxts_cache: dict[int, Oxts] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        self.path = find_drive(Path(self.path))
+        self.path = find_drive(self.path if isinstance(self.path, StoreTree) else Path(self.path))
         self.name = self.path.name
 
     # -- raw data ---------------------------------------------------------
@@ -419,7 +422,7 @@ class KittiDrive:
         """The camera folders the drive has, of ``image_00`` .. ``image_03``."""
         return tuple(camera for camera in CAMERAS if (self.path / camera / "data").is_dir())
 
-    def image_path(self, camera: str, frame: int) -> Path:
+    def image_path(self, camera: str, frame: int) -> Path | StoreTree:
         """Where a camera's image of a frame is (``image_02/data/0000000007.png``)."""
         return self.path / camera / "data" / f"{frame:010d}.png"
 

@@ -21,7 +21,6 @@ CRC does not match. Every other record reads as usual.
 
 from __future__ import annotations
 
-import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +28,8 @@ from typing import Iterable
 
 import google_crc32c
 
-from ..exceptions import DatasetError
+from ..exceptions import DatasetError, StoreError
+from ..storepath import StorePath, data_path
 
 __all__ = ["Record", "RecordFile", "is_tfrecord", "masked_crc", "write_records"]
 
@@ -62,11 +62,17 @@ class Record:
         return self.offset + _HEADER.size
 
 
-def is_tfrecord(path: Path) -> bool:
-    """Whether ``path`` is a file that starts with a TFRecord header whose CRC matches."""
+def is_tfrecord(path: Path | StorePath) -> bool:
+    """Whether ``path`` is a file that starts with a TFRecord header whose CRC matches.
+
+    Raises :class:`~xviz_server.exceptions.StoreError` when an object in a
+    store cannot be read.
+    """
     try:
-        with open(path, "rb") as file:
+        with path.open("rb") as file:
             header = file.read(_HEADER.size)
+    except StoreError:
+        raise
     except OSError:
         return False
     return len(header) == _HEADER.size and masked_crc(header[:8]) == _HEADER.unpack(header)[1]
@@ -75,12 +81,17 @@ def is_tfrecord(path: Path) -> bool:
 class RecordFile:
     """The records of a TFRecord file; indexed at once, read on demand.
 
-    Raises :class:`~xviz_server.exceptions.DatasetError` if the file cannot
-    be read.
+    ``path`` is a file, or an object in a store (each read one ranged GET).
+    With ``peek``, the index keeps the first ``peek`` bytes of each
+    record's data, read with its header, for :meth:`head`, until
+    :meth:`forget_heads`. Raises :class:`~xviz_server.exceptions.DatasetError`
+    if the file cannot be read.
     """
 
-    def __init__(self, path: Path) -> None:
-        self.path = Path(path)
+    def __init__(self, path: Path | StorePath, peek: int = 0) -> None:
+        self.path = data_path(path)
+        self._peek = peek
+        self._heads: dict[int, bytes] = {}
         self.records = self._index()
 
     def __len__(self) -> int:
@@ -96,12 +107,12 @@ class RecordFile:
         if record.problem is not None:
             raise DatasetError(f"{self.where(number)}: {record.problem}", path=self.path)
         try:
-            with open(self.path, "rb", buffering=0) as file:
+            with self.path.open("rb", buffering=0) as file:
                 file.seek(record.data_offset)
-                data = file.read(record.length)
-                footer = file.read(_FOOTER.size)
+                blob = file.read(record.length + _FOOTER.size)  # one read: one GET from a store
         except OSError as exc:
             raise DatasetError(f"{self.where(number)}: cannot read: {exc}", path=self.path) from None
+        data, footer = blob[: record.length], blob[record.length :]
         if len(data) < record.length or len(footer) < _FOOTER.size:
             raise DatasetError(f"{self.where(number)}: truncated: the file is shorter than when it was indexed", path=self.path)
         if masked_crc(data) != _FOOTER.unpack(footer)[0]:
@@ -115,22 +126,32 @@ class RecordFile:
         whatever its length says.
         """
         record = self.records[number]
+        kept = self._heads.get(number)
+        if kept is not None and (size <= len(kept) or (record.problem is None and len(kept) == record.length)):
+            return kept[:size]
         try:
-            with open(self.path, "rb", buffering=0) as file:
+            with self.path.open("rb", buffering=0) as file:
                 file.seek(record.data_offset)
                 return file.read(size if record.problem is not None else min(size, record.length))
         except OSError as exc:
             raise DatasetError(f"{self.where(number)}: cannot read: {exc}", path=self.path) from None
 
+    def forget_heads(self) -> None:
+        """Drop the first bytes kept by the index (see ``peek``)."""
+        self._heads.clear()
+
     def _index(self) -> list[Record]:
         records: list[Record] = []
         try:
-            with open(self.path, "rb", buffering=0) as file:
-                size = os.fstat(file.fileno()).st_size
+            with self.path.open("rb", buffering=0) as file:
+                size = file.seek(0, 2)
                 offset = 0
                 while offset < size:
                     file.seek(offset)
-                    record = self._header(len(records), offset, file.read(_HEADER.size), size)
+                    read = file.read(_HEADER.size + self._peek)
+                    record = self._header(len(records), offset, read[: _HEADER.size], size)
+                    if self._peek:
+                        self._heads[record.number] = read[_HEADER.size :] if record.problem else read[_HEADER.size : _HEADER.size + record.length]
                     records.append(record)
                     if record.problem is not None:
                         break

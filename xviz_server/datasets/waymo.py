@@ -53,6 +53,7 @@ import numpy as np
 
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..exceptions import DatasetError
+from ..storepath import StorePath
 from . import DEFAULT_IMAGE_WIDTH
 from .images import jpeg
 from .kitti import footprints
@@ -81,9 +82,9 @@ def is_waymo_segment(path: Path) -> bool:
     return path.is_dir() and any(p.suffix == ".npz" and p.stem.isdigit() for p in path.iterdir())
 
 
-def open_segment(path: Path, image_max_width: int = DEFAULT_IMAGE_WIDTH) -> WaymoLog:
-    """The segment at ``path``: a ``.tfrecord`` file or a folder of ``.npz`` frames."""
-    if Path(path).is_file():
+def open_segment(path: Path | StorePath, image_max_width: int = DEFAULT_IMAGE_WIDTH) -> WaymoLog:
+    """The segment at ``path``: a ``.tfrecord`` file (or object in a store) or a folder of ``.npz`` frames."""
+    if isinstance(path, StorePath) or Path(path).is_file():
         from .waymo_tfrecord import WaymoRecordSegment
 
         return WaymoRecordSegment(path, image_max_width)
@@ -139,7 +140,7 @@ class WaymoFrame:
 class WaymoLog(abc.ABC):
     """A segment of either layout: metadata and state updates from its :class:`WaymoFrame` s."""
 
-    path: Path
+    path: Path | StorePath
     name: str
     image_max_width: int
 
@@ -222,6 +223,8 @@ class WaymoSegment(WaymoLog):
 
     Camera images are scaled down to ``image_max_width`` and encoded as JPEG.
     """
+
+    path: Path
 
     def __init__(self, path: Path, image_max_width: int = DEFAULT_IMAGE_WIDTH) -> None:
         self.path = Path(path)

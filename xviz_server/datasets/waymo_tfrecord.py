@@ -42,6 +42,7 @@ from google.protobuf.message import DecodeError
 from zlib_ng import zlib_ng
 
 from ..exceptions import DatasetError
+from ..storepath import StorePath, data_path
 from . import DEFAULT_IMAGE_WIDTH
 from . import waymo_frame_pb2 as pb
 from . import threads
@@ -108,15 +109,23 @@ def _timestamp(head: bytes) -> int | None:
 
 
 class WaymoRecordSegment(WaymoLog):
-    """A Waymo segment ``.tfrecord`` file, named by its file name without ``.tfrecord``."""
+    """A Waymo segment ``.tfrecord`` file, named by its file name without ``.tfrecord``.
 
-    def __init__(self, path: Path, image_max_width: int = DEFAULT_IMAGE_WIDTH) -> None:
-        self.path = Path(path)
+    ``path`` is a file, or an object in a store: opening it then reads each
+    record's header and first bytes with one ranged GET, and reading a
+    frame is one ranged GET.
+    """
+
+    def __init__(self, path: Path | StorePath, image_max_width: int = DEFAULT_IMAGE_WIDTH) -> None:
+        self.path = data_path(path)
         self.image_max_width = image_max_width
         self.name = self.path.name.removesuffix(SUFFIX)
-        if not is_tfrecord(self.path):
-            raise DatasetError(f"{self.path}: not a TFRecord file (no record header with a matching CRC at its start)", path=self.path)
-        self.records = RecordFile(self.path)
+        try:
+            if not is_tfrecord(self.path):
+                raise DatasetError(f"{self.path}: not a TFRecord file (no record header with a matching CRC at its start)", path=self.path)
+        except OSError as exc:  # an object the store fails
+            raise DatasetError(f"{self.path}: cannot read: {exc}", path=self.path) from None
+        self.records = RecordFile(self.path, peek=_PEEK)
         self._geometry: dict[tuple[int, int, int, bytes], tuple[np.ndarray, np.ndarray]] = {}
         if not len(self.times):
             raise DatasetError(f"{self.path}: no Waymo frames (no record with a timestamp)", path=self.path)
@@ -132,6 +141,7 @@ class WaymoRecordSegment(WaymoLog):
                 continue
             numbers.append(number)
             times.append(micros / 1e6)
+        self.records.forget_heads()
         return numbers, np.array(times, dtype=np.float64)
 
     @property

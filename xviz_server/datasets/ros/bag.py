@@ -18,6 +18,12 @@ rosbags' query by time.
 A ROS 1 bag whose recording was cut short has no readable index: it is
 indexed in memory at open, by one read of the whole file (see
 :mod:`.reindex`), and a warning says so.
+
+A ROS 1 bag or an MCAP file may be an object in a store
+(:class:`~xviz_server.storepath.StorePath`): it is read with ranged GETs, a
+chunk with one GET, and the message indexes of a topic's MCAP chunks all at
+once. A ROS 2 bag folder is read from disk only (SQLite reads a local
+file).
 """
 
 from __future__ import annotations
@@ -32,7 +38,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...exceptions import DatasetError
+from ...exceptions import DatasetError, StoreError
+from ...storepath import RangedFile, StorePath, data_path
 
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
@@ -51,14 +58,26 @@ _ROS1_CONNECTION = 0x07
 _CHUNK_CACHE = 4  # decompressed chunks kept: a frame reads a few neighbouring ones
 
 
-def is_rosbag(path: Path) -> bool:
+def is_rosbag(path: Path | StorePath) -> bool:
     """Whether ``path`` is a ROS 1 bag or an MCAP file (by their first bytes), or a ROS 2 bag folder (by the top
-    key of its ``metadata.yaml``)."""
+    key of its ``metadata.yaml``).
+
+    Raises :class:`~xviz_server.exceptions.StoreError` when an object in a
+    store cannot be read.
+    """
     magic = {".bag": ROS1_MAGIC, ".mcap": MCAP_MAGIC}.get(path.suffix)
-    start, target = (len(magic), path) if magic is not None else (256, path / "metadata.yaml")
+    target: Path | StorePath
+    if magic is not None:
+        start, target = len(magic), path
+    elif isinstance(path, StorePath):  # a ROS 2 bag folder is read from disk only
+        return False
+    else:
+        start, target = 256, path / "metadata.yaml"
     try:
         with target.open("rb") as file:
             head = file.read(start)
+    except StoreError:
+        raise
     except OSError:  # no such file, a folder named like a bag, unreadable
         return False
     return head == magic if magic is not None else ROS2_KEY in head
@@ -98,8 +117,8 @@ class Bag:
     :class:`~xviz_server.exceptions.DatasetError` naming the file (and the
     topic, for a message). Safe to use from several threads."""
 
-    def __init__(self, path: Path) -> None:
-        self.path = Path(path)
+    def __init__(self, path: Path | StorePath) -> None:
+        self.path = data_path(path)
         rosbags = _import_rosbags()
         from rosbags.typesys import Stores, get_typestore
 
@@ -186,6 +205,8 @@ class Bag:
         times: list[np.ndarray] = []
         places: list[np.ndarray] = []
         with owner.path.open("rb") as file:
+            if isinstance(file, RangedFile):  # an object in a store: every index of the topic in one call
+                file.prefetch([(o, o + c.message_index_length) for c in owner.chunks if (o := c.message_index_offsets.get(connection.id)) is not None])
             for chunk_number, chunk in enumerate(owner.chunks):
                 offset = chunk.message_index_offsets.get(connection.id)
                 if offset is None:
@@ -260,7 +281,7 @@ class Bag:
     def _guard(self, topic: str, read: Any) -> Any:
         try:
             return read()
-        except DatasetError:
+        except (DatasetError, StoreError):  # a store that fails is not a damaged bag: the frame fails, not the topic
             raise
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
             raise DatasetError(f"{self.path}: topic {topic}: cannot read: {_reason(exc)}", path=self.path) from None
@@ -285,10 +306,15 @@ def _read_chunk(owner: Any, key: int) -> bytes:
         from rosbags.rosbag2.storage_mcap import decompress
 
         info = owner.chunks[key]
-        file.seek(info.chunk_start_offset + 9 + 24)
-        (crc,) = struct.unpack("<I", file.read(4))
-        file.seek(info.chunk_start_offset + 9 + 40 + len(info.compression))
-        return bytes(decompress(file.read(info.compressed_size), info.compression, info.uncompressed_size, crc))
+        # The chunk record in one read: opcode, length, two times, uncompressed size, CRC, compression, records.
+        start = 9 + 40 + len(info.compression)
+        file.seek(info.chunk_start_offset)
+        record = file.read(start + info.compressed_size)
+        if len(record) < start + info.compressed_size:
+            raise DatasetError(f"{owner.path}: chunk {key} is cut short", path=owner.path)
+        (crc,) = struct.unpack_from("<I", record, 9 + 24)
+        data = memoryview(record)[start:]  # not copied: rosbags' decompressors take any buffer
+        return bytes(decompress(data, info.compression, info.uncompressed_size, crc))  # type: ignore[arg-type]
 
 
 def _ros1_reader() -> type[Reader]:

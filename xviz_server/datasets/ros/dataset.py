@@ -36,6 +36,7 @@ import numpy as np
 
 from ...builder import FrameBuilder, MetadataBuilder, ui
 from ...exceptions import DatasetError
+from ...storepath import StorePath, data_path
 from .bag import Bag, is_rosbag
 from .config import RosConfig, load_config
 from .geometry import IDENTITY, apply, enu, from_pose, from_quaternion, interpolate, rpy
@@ -95,13 +96,13 @@ class RosBag:
     naming the file.
     """
 
-    path: Path
+    path: Path | StorePath
     image_max_width: int = 400
     config: str | None = None
     name: str = field(init=False)
 
     def __post_init__(self) -> None:
-        self.path = Path(self.path)
+        self.path = data_path(self.path)
         if not is_rosbag(self.path):
             raise DatasetError(
                 f"{self.path}: not a ROS bag (a .bag or .mcap file, or a ROS 2 bag folder with metadata.yaml)", path=self.path

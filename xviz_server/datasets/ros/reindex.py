@@ -13,6 +13,13 @@ how many bytes that was.
 
 Opening such a bag reads all of it, where an indexed bag needs only its
 index: :attr:`~MemoryIndexedReader.reindexed` tells which happened.
+
+An indexed bag's index is not all at its end: each chunk is followed by
+the index records of its messages. For a bag in an object store
+(:class:`~xviz_server.storepath.RangedFile`), the reader fetches the
+headers of every chunk in one batch of parallel ranged GETs, and then every
+chunk's index records in another, where rosbags would make two GETs per
+chunk one after another.
 """
 
 from __future__ import annotations
@@ -25,11 +32,19 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag1 import Reader, ReaderError
 from rosbags.rosbag1.reader import Chunk, ChunkInfo, Header, IndexData, RecordType, decompressors, read_uint32
 
+from ...storepath import RangedFile
+
 __all__ = ["MemoryIndexedReader"]
+
+# Bytes fetched for a chunk record's header (its length, op, compression, size fields and data length: about 60).
+_CHUNK_HEADER = 256
+# Bytes of an index data record besides its entries (the header of fixed fields, lengths), and of each entry.
+_INDEX_HEADER, _INDEX_ENTRY = 55, 12
 
 
 class MemoryIndexedReader(Reader):
-    """rosbags' ROS 1 reader, which also opens a bag without a readable index by indexing it in memory."""
+    """rosbags' ROS 1 reader, which also opens a bag without a readable index by indexing it in memory, and reads
+    the index of a bag in a store in two batches of GETs."""
 
     #: Whether the bag had no readable index and was indexed in memory at open.
     reindexed = False
@@ -54,6 +69,24 @@ class MemoryIndexedReader(Reader):
             self.close()
             raise
         self.reindexed = True
+
+    def read_chunk(self) -> Chunk:
+        if not self.chunks and isinstance(self.bio, RangedFile):  # the first chunk Reader.open reads
+            self._prefetch_index(self.bio)
+        return super().read_chunk()
+
+    def _prefetch_index(self, bio: RangedFile) -> None:
+        """Fetch the header and the index records of every chunk, in two batches; what is not fetched is read later."""
+        position = bio.tell()
+        bio.prefetch([(info.pos, info.pos + _CHUNK_HEADER) for info in self.chunk_infos])
+        ranges = []
+        for info in self.chunk_infos:
+            bio.seek(info.pos)
+            chunk = super().read_chunk()
+            end = chunk.datapos + chunk.datasize
+            ranges.append((end, end + sum(_INDEX_HEADER + _INDEX_ENTRY * count for count in info.connection_counts.values())))
+        bio.prefetch(ranges)
+        bio.seek(position)
 
     def _index_in_memory(self, size: int) -> None:
         """Read every record after the bag header; index the messages of every whole chunk."""
