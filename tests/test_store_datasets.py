@@ -18,6 +18,7 @@ import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import pytest
 
@@ -201,6 +202,41 @@ async def test_a_dataset_uploaded_while_serving_is_found_on_first_request(proxy:
         assert server.catalog.names() == []
         s3.put(BUCKET, "late/more/drive.mcap", (files / DATASETS["mcap"][0]).read_bytes())
         assert len(updates(await stream(server, "more/drive"))) == BAG_FRAMES
+
+
+async def test_a_kitti_drive_uploaded_while_serving_is_found_on_first_request_as_on_disk(
+    proxy: Proxy, s3: MotoS3, files: Path, shared_dir: Path, tmp_path: Path
+):
+    name = DATASETS["kitti"][1]
+    local = on_disk("kitti", files, shared_dir, tmp_path / "local")
+    async with running_server([f"s3://{BUCKET}/late-kitti"]) as from_store, running_server([local]) as from_disk:
+        assert from_store.catalog.names() == []
+        await asyncio.to_thread(s3.upload, shared_dir / "data" / RAW / "2011_09_26", BUCKET, "late-kitti/kitti-raw/2011_09_26")
+        started = len(proxy.requests)
+        messages = await stream(from_store, name)  # the first request that names it
+        lookup = [r for r in proxy.requests[started:] if "list-type" in r]
+        stored, read = await frames(from_store, name), await frames(from_disk, name)
+        assert (await from_store.catalog.open(name)).metadata == (await from_disk.catalog.open(name)).metadata
+        assert from_store.catalog.names() == [name]
+    assert len(updates(messages)) == 25 and not [m for m in messages if m["type"] == "xviz/error"]
+    assert stored == read and len(stored) == 25
+    # the drive's folder, the date folder, then everything below the drive: never the whole prefix
+    assert len(lookup) == 3 and all("prefix=late-kitti%2Fkitti-raw%2F2011_09_26%2F" in r for r in lookup), lookup
+
+
+@pytest.mark.parametrize(("unknown", "listings"), [("kitti-raw/2011_09_26/drive_9", 2), ("kitti-raw/2011_09_26", 3), ("nothing", 2)])
+async def test_an_unknown_name_is_not_found_after_at_most_one_listing_of_the_named_folder(
+    unknown: str, listings: int, proxy: Proxy, s3: MotoS3, shared_dir: Path
+):
+    async with running_server([f"s3://{BUCKET}/unknown"]) as server:
+        await asyncio.to_thread(s3.upload, shared_dir / "data" / RAW / "2011_09_26", BUCKET, "unknown/kitti-raw/2011_09_26")
+        started = len(proxy.requests)
+        async with client(server, f"/?log={unknown}") as viewer:
+            error = await viewer.recv()
+        lookup = [r for r in proxy.requests[started:] if "list-type" in r]
+    assert error["type"] == "xviz/error" and f"no log named {unknown!r}" in error["data"]["message"], error
+    whole = [r for r in lookup if "delimiter=" not in r]  # listings of everything below a folder
+    assert len(lookup) == listings and all(r.endswith(f"prefix={quote(f'unknown/{unknown}/', safe='')}") for r in whole), lookup
 
 
 async def test_a_store_path_pickles_shows_no_credential_and_reads_ranges_through_a_bounded_cache(proxy: Proxy, files: Path):

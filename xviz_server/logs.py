@@ -366,7 +366,7 @@ class Catalog:
         if found is None:
             found = await self._workers.io(self._lookup, name)
             for store in self._stores:
-                found = found or await store.lookup(name, FILE_KINDS)
+                found = found or await store.lookup(name, FILE_KINDS, detect_in_store)
             if found is not None:
                 self._found[name] = found
         if found is None:

@@ -144,7 +144,7 @@ class ObjectStore:
         sizes: dict[str, int] = {}
         for meta in objects:
             relative = meta["path"][len(base):]
-            if any(part.startswith(".") for part in relative.split("/")):
+            if _hidden(relative):
                 continue
             sizes[meta["path"]] = meta["size"]
             folder, _, file = relative.rpartition("/")
@@ -162,42 +162,64 @@ class ObjectStore:
         return sorted(found, key=lambda entry: entry.name)
 
     def _folder_datasets(self, sizes: dict[str, int], logs: set[str], detect: Callable[[StoreTree], str | None]) -> list[StoredDataset]:
-        """The folders of the listing (objects by key: ``sizes``) that ``detect`` finds to be datasets, outside logs.
-
-        Each is handed the objects below it and those beside it (a KITTI
-        drive's calibration is in the folder above), not the whole listing.
-        """
-        tree = StoreTree(self.config, self.prefix, sizes)
+        """The folders of the listing (objects by key: ``sizes``) that ``detect`` finds to be datasets, outside logs."""
         below = len(self._key(""))
         candidates = {key[below:].rsplit("/", depth)[0] for key in sizes for depth in range(1, key[below:].count("/") + 1)}
         found: list[StoredDataset] = []
         for folder in sorted(candidates):  # a folder before the folders below it
             if folder in logs or any(folder.startswith(f"{taken.name}/") for taken in found):
                 continue
-            kind = detect(tree / folder)
-            if kind is not None:
-                key, parent = self._key(folder), self._key(folder).rpartition("/")[0]
-                files = {k: size for k, size in sizes.items() if k.startswith(f"{key}/") or k.rpartition("/")[0] == parent}
-                found.append(StoredDataset(folder, StoreTree(self.config, key, files), kind))
+            dataset = self._folder_dataset(folder, sizes, detect)
+            if dataset is not None:
+                found.append(dataset)
         return found
 
-    async def lookup(self, name: str, kinds: Mapping[str, str]) -> StoredLog | StoredDataset | None:
-        """The log ``name`` if its folder holds message files (one listing of that folder), else the dataset
-        ``name`` if its folder holds ``name`` with one of the suffixes of ``kinds`` (one more listing)."""
-        folder = StoreFolder(self, self._key(name))
-        parent, _, own = self._key(name).rpartition("/")
+    def _folder_dataset(self, name: str, sizes: dict[str, int], detect: Callable[[StoreTree], str | None]) -> StoredDataset | None:
+        """The folder ``name`` (below the prefix) as a dataset, if ``detect`` finds it one among the objects ``sizes``.
+
+        The dataset holds the objects below the folder and those beside it
+        (a KITTI drive's calibration is in the folder above), not all of ``sizes``.
+        """
+        key = self._key(name)
+        kind = detect(StoreTree(self.config, key, sizes))
+        if kind is None:
+            return None
+        parent = key.rpartition("/")[0]
+        files = {k: size for k, size in sizes.items() if k.startswith(f"{key}/") or k.rpartition("/")[0] == parent}
+        return StoredDataset(name, StoreTree(self.config, key, files), kind)
+
+    async def lookup(
+        self, name: str, kinds: Mapping[str, str], detect: Callable[[StoreTree], str | None]
+    ) -> StoredLog | StoredDataset | None:
+        """The log or dataset ``name``, as :meth:`discover` would find it, without listing the whole prefix.
+
+        The log ``name`` if its folder holds message files (one listing of
+        that folder); else the dataset ``name`` if the folder above holds
+        ``name`` with one of the suffixes of ``kinds`` (one more listing);
+        else, when that folder holds a folder ``name``, that folder if
+        ``detect`` finds it a dataset (one more listing: everything below
+        it). A name that is nothing in the store costs two listings.
+        """
+        key = self._key(name)
+        folder = StoreFolder(self, key)
+        parent = key.rpartition("/")[0]
         try:
             if await folder.files():
                 return self._log(name, folder)
-            listed = {meta["path"]: meta["size"] for meta in await self.list_folder(parent)}
+            objects, folders = await self._list_level(parent)
+            beside = {meta["path"]: meta["size"] for meta in objects}
+            for suffix in kinds:
+                if f"{key}{suffix}" in beside:
+                    return self._dataset(f"{name}{suffix}", beside[f"{key}{suffix}"], kinds)
+            if key not in folders:
+                return None
+            below = await self._guard(obstore.list(self._store, f"{key}/", chunk_size=1000).collect_async(), key)
         except StoreError as exc:
             logger.warning("cannot look for %r in %s: %s", name, self.url, exc)
             return None
-        for suffix in kinds:
-            key = f"{parent}/{own}{suffix}" if parent else f"{own}{suffix}"
-            if key in listed:
-                return self._dataset(f"{name}{suffix}", listed[key], kinds)
-        return None
+        start = len(self._key(""))
+        sizes = {meta["path"]: meta["size"] for meta in [*objects, *below] if not _hidden(meta["path"][start:])}
+        return self._folder_dataset(name, sizes, detect)
 
     def _dataset(self, relative: str, size: int, kinds: Mapping[str, str]) -> StoredDataset:
         """The dataset in the file ``relative`` (below the prefix) of ``size`` bytes, named without its suffix."""
@@ -211,9 +233,13 @@ class ObjectStore:
 
     async def list_folder(self, prefix: str) -> list[ObjectMeta]:
         """The objects directly in the folder ``prefix`` (not in folders below it; the bucket's top for ``""``)."""
+        return (await self._list_level(prefix))[0]
+
+    async def _list_level(self, prefix: str) -> tuple[list[ObjectMeta], set[str]]:
+        """The objects directly in the folder ``prefix``, and the keys of the folders directly in it."""
         listing = self._store.list_with_delimiter_async(prefix.rstrip("/") + "/" if prefix else None)
         result = await self._guard(listing, prefix)
-        return list(result["objects"])
+        return list(result["objects"]), {folder.rstrip("/") for folder in result["common_prefixes"]}
 
     async def get(self, key: str) -> bytes:
         """The whole object ``key``; raises :class:`~xviz_server.exceptions.StoreError` after the retries."""
@@ -258,6 +284,11 @@ class StoreFolder:
 
     def size(self, name: str) -> int | None:
         return self._sizes.get(name)
+
+
+def _hidden(relative: str) -> bool:
+    """Whether a key path below the prefix is hidden: one of its components starts with ``.``."""
+    return any(part.startswith(".") for part in relative.split("/"))
 
 
 def _parse(url: str) -> tuple[str, str]:
