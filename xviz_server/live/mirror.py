@@ -59,11 +59,6 @@ class Mirror:
         feed.on_viewers = self._viewers
         self._viewers(feed.viewers)
 
-    @property
-    def reading(self) -> bool:
-        """Whether the feed is being read (it has viewers here, or had within :data:`LINGER` seconds)."""
-        return self._task is not None
-
     def registered(self, meta: bytes | None, connected: bytes | None) -> None:
         """Take the feed's registered metadata and state (``connected``: ``b"1"`` or ``b"0"``), unless it is read."""
         if self._task is None and meta is not None:

@@ -62,8 +62,8 @@ class Wire(asyncio.Protocol):
             if options.get("password") is not None:
                 login = [str(options["username"])] if options.get("username") else []
                 hello.append(wire.send(b"AUTH", *(part.encode() for part in [*login, str(options["password"])])))
-            if int(options.get("db", 0) or 0):
-                hello.append(wire.send(b"SELECT", b"%d" % int(options.get("db", 0) or 0)))
+            if database := int(options.get("db") or 0):
+                hello.append(wire.send(b"SELECT", b"%d" % database))
             hello.append(wire.send(b"CLIENT", b"SETNAME", name.encode()))
             await asyncio.wait_for(asyncio.gather(*hello), timeout)
         except BaseException:
