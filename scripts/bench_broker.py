@@ -10,7 +10,7 @@ send time) pushes to replica A at ``--rate`` Hz.
 
 1. Latency: ``--viewers`` viewers on A (served by A directly) and as many on B
    (through the broker), in the same run: p50 and p99 from the source's send
-   to each viewer, B against A; ``--runs`` times, and the medians of B - A
+   to each viewer, B against A, and the CPU each replica used; ``--runs`` times, and the medians of B - A
    (p50) and B / A (p99) over the runs (on a shared machine one run says little).
 2. Broker CPU: the CPU seconds redis-server used for the feed read by one
    replica with ``--cpu-viewers`` viewers, then by three replicas sharing
@@ -55,9 +55,11 @@ def start_redis(directory: str) -> tuple[subprocess.Popen[bytes], str]:
     return process, f"redis://127.0.0.1:{port}/0"
 
 
-def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace, name: str) -> list[list[float]]:
+def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace, name: str,
+        cpu: list[float] | None = None) -> list[list[float]]:
     """Start one replica with the source and one per entry of ``viewers_on`` (its viewer count; the first is
-    the source's replica); push; the latencies seen by the viewers of each replica."""
+    the source's replica); push; the latencies seen by the viewers of each replica (and, into ``cpu``, the
+    CPU seconds each replica used while the source pushed)."""
     replicas = [start_server(Path(empty), "--broker", broker, "--broker-ttl", "2", "--live-queue", "8")
                 for _ in viewers_on]
     try:
@@ -68,8 +70,11 @@ def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace
                               replica.url(f"?logGuid={name}"), str(count), str(watch)], stdout=subprocess.PIPE, text=True, cwd=REPO)
             for replica, count in zip(replicas, viewers_on) if count
         ]
+        used = [cpu_seconds(replica.pid) for replica in replicas]
         subprocess.run([sys.executable, str(REPO / "scripts" / "bench_live.py"), "--role", "source",
                         replicas[0].url(f"ingest/{name}"), str(args.rate), str(args.seconds)], cwd=REPO, check=True)
+        if cpu is not None:
+            cpu[:] = [cpu_seconds(replica.pid) - before for replica, before in zip(replicas, used)]
         return [json.loads(group.communicate()[0])["latencies"] for group in groups]
     finally:
         for replica in replicas:
@@ -93,13 +98,15 @@ def main() -> None:
         try:
             # 1. the source on A; viewers on A (direct) and on B (through the broker), same run
             print(f"latency, {args.viewers} viewers on A (the source's replica) and {args.viewers} on B:")
-            print(f"{'run':>4} {'':>2} {'updates':>8} {'p50 ms':>8} {'p99 ms':>8}")
+            print(f"{'run':>4} {'':>2} {'updates':>8} {'p50 ms':>8} {'p99 ms':>8} {'CPU s':>8}")
             differences, ratios = [], []
             for number in range(1, args.runs + 1):
                 before = other_cpu(), time.perf_counter()
-                on_a, on_b = run(url, empty, [args.viewers, args.viewers], args, f"latency{number}")
-                for name, latencies in (("A", on_a), ("B", on_b)):
-                    print(f"{number:>4} {name:>2} {len(latencies):>8} {statistics.median(latencies):8.1f} {percentile(latencies, 99):8.1f}")
+                cpu: list[float] = []
+                on_a, on_b = run(url, empty, [args.viewers, args.viewers], args, f"latency{number}", cpu)
+                for name, latencies, used in (("A", on_a, cpu[0]), ("B", on_b, cpu[1])):
+                    print(f"{number:>4} {name:>2} {len(latencies):>8} {statistics.median(latencies):8.1f} "
+                          f"{percentile(latencies, 99):8.1f} {used:8.2f}")
                 differences.append(statistics.median(on_b) - statistics.median(on_a))
                 ratios.append(percentile(on_b, 99) / percentile(on_a, 99))
                 print(f"{'':>4} B - A: p50 {differences[-1]:+.1f} ms; B / A: p99 x{ratios[-1]:.2f} "
