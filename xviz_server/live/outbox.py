@@ -6,9 +6,10 @@ each change), every update and the source's departure to the feed's stream
 task of its own behind a short queue: the source and this replica's viewers
 never wait for the broker. Entries go through a connection of the outbox's
 own (:mod:`.wire`); an update that finds it idle is written at once, from
-the feed's publish, before the feed's fan-out to this replica's viewers. Updates that cannot be written (the broker is
-down or full, or slower than the source) are dropped and counted; readers on
-other replicas see the gap in the numbers and tell their viewers.
+the feed's publish, before the feed's fan-out to this replica's viewers.
+Updates that cannot be written (the broker is down or full, or slower than
+the source) are dropped and counted; readers on other replicas see the gap
+in the numbers and tell their viewers.
 """
 
 from __future__ import annotations
