@@ -358,6 +358,58 @@ async def test_reconfigure_passes_through_the_broker_and_a_second_source_is_refu
             await viewer_b.close()
 
 
+async def test_a_replica_reads_a_feed_only_while_it_has_viewers_there(tmp_path: Path, broker: Broker):
+    """One reader per feed on B, started by B's first viewer, stopped after its last left, started again."""
+    updates = frames()[:12]
+    client = broker.client()
+
+    async def readers() -> list[str]:
+        return [entry["name"] for entry in await client.client_list() if entry["name"].startswith("xviz-reader:")]
+
+    async def no_reader() -> bool:
+        return await readers() == [] and await b.metric("xviz_broker_readers") == 0
+
+    async with replicas(tmp_path, broker, 2) as (a, b):
+        async with source(a) as car:
+            await push(car, updates[:2])
+            await until(lambda: _started(b, "car"), what="B to list A's feed, its source connected")
+            await asyncio.sleep(1.5)  # B polls the broker every 0.5 s: it would have started a reader by now
+            assert await no_reader() and await b.metric("xviz_broker_reads_total") == 0
+
+            # The first viewer starts the one reader, and draws at once: metadata, then the newest frame.
+            first = await Viewer.join(b)
+            await first.count(1, timeout=10)
+            assert first.metadata == 1 and first.updates == [updates[1]]
+            second = await Viewer.join(b)
+            await until(lambda: _sessions(b, 2), what="the second viewer on B")
+            await push(car, updates[2:5])
+            for viewer in (first, second):
+                await viewer.count(4 if viewer is first else 3)
+            assert first.updates[1:] == updates[2:5] and second.updates[-3:] == updates[2:5]
+            assert await readers() == ["xviz-reader:car"] and await b.metric("xviz_broker_readers") == 1
+
+            # The last viewer leaves: the reader stops a little later, and B reads nothing more.
+            await first.close()
+            await second.close()
+            assert await readers() == ["xviz-reader:car"]  # not at once: a viewer reloading the page finds it read
+            await until(no_reader, timeout=10, what="B's reader to stop")
+            read = await b.metric("xviz_broker_reads_total")
+            await push(car, updates[5:8])
+            await asyncio.sleep(0.5)
+            assert await b.metric("xviz_broker_reads_total") == read and await _started(b, "car")
+
+            # A viewer joining later starts it again, from the newest frame, and follows the feed.
+            third = await Viewer.join(b)
+            await third.count(1, timeout=10)
+            assert third.updates == [updates[7]] and third.metadata == 1
+            await push(car, updates[8:])
+            await third.count(1 + len(updates[8:]))
+            assert third.updates[1:] == updates[8:] and not third.notices
+            assert await readers() == ["xviz-reader:car"]
+            await third.close()
+    await client.aclose()
+
+
 async def test_the_broker_down_at_start_then_restarted_mid_feed(tmp_path: Path):
     broker = Broker(tmp_path)  # not started: the replicas start without it
     updates = (frames() * 2)[:50]
@@ -478,18 +530,21 @@ async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_start
 
         await until(all_written, what="A to write the feed")
         async with running_server(tmp_path, **settings) as c:
-            async def mirrored() -> bool:
+            async def listed() -> bool:
                 found = c.live.find("sim", exact=True)
-                return found is not None and found.state() is not None
+                return found is not None and found.metadata is not None
 
-            await until(mirrored, what="C to read the feed")
+            await until(listed, what="C to list the feed")
+            assert c.live.find("sim", exact=True).state() is None  # not read: no viewer on C yet
             async with client(c, "/?log=sim&session_type=live") as viewer:
                 assert (await viewer.recv())["type"] == "xviz/metadata"
                 state = await viewer.recv()
-            assert state["data"]["update_type"] == "COMPLETE_STATE"
-            merged = state["data"]["updates"][0]
-            assert merged["poses"]["/vehicle_pose"]["position"][0] == 2.2  # the newest pose
-            assert merged["primitives"]["/points"]["points"][0]["points"].shape == (50, 3)  # from the snapshot
+                assert state["data"]["update_type"] == "COMPLETE_STATE"  # the keyframe the reader starts at
+                assert state["data"]["updates"][0]["primitives"]["/points"]["points"][0]["points"].shape == (50, 3)
+                poses = [state["data"]["updates"][0]["poses"]["/vehicle_pose"]["position"][0]]
+                while poses[-1] != 2.2:  # then the updates after it, up to the newest
+                    poses.append((await asyncio.wait_for(viewer.recv(), 10))["data"]["updates"][0]["poses"]["/vehicle_pose"]["position"][0])
+            assert poses == sorted(poses) and poses[0] >= 1.9, poses
             assert c.live.find("sim", exact=True).origin == a.broker.link.id.decode()
 
 

@@ -4,8 +4,9 @@ With ``--broker redis://...`` on every replica, a source may connect to any
 of them and its viewers to any other. The replica that holds the source
 *owns* the feed: it checks and records the source and serves its own viewers
 as without a broker, and writes the feed to the broker (:mod:`.outbox`).
-Every other replica lists the feed with its own and reads it once into a
-local feed (:mod:`.mirror`) that its viewers follow like any other.
+Every other replica lists the feed with its own and, while it has viewers
+of it, reads it once into a local feed (:mod:`.mirror`) that they follow
+like any other.
 
 A :class:`Broker` hooks into a :class:`~xviz_server.live.feed.LiveRegistry`
 at its edges only (what is published, metadata changes and departures, and
@@ -180,21 +181,24 @@ class Broker:
                     outbox.refused(exc)
 
     async def _follow(self, holding: bool) -> None:
-        """Mirror every feed another replica holds; end the mirrors of feeds no longer registered."""
+        """Mirror every feed another replica holds (readers start with viewers: :mod:`.mirror`), from its
+        registration; end the mirrors of feeds no longer registered."""
         names = sorted(cast(set[bytes], await self.link.redis.smembers(FEEDS)))
         pipeline = self.link.redis.pipeline(transaction=False)
         for name in names:
-            pipeline.hget(registration(name.decode(errors="replace")), "owner")
-        owners: dict[str, bytes] = {}
+            pipeline.hmget(registration(name.decode(errors="replace")), ["owner", "connected", "meta"])
+        owners: dict[str, list[bytes | None]] = {}
         unregistered = []
-        found: list[bytes | None] = await pipeline.execute()
-        for name, owner in zip(names, found):
+        found: list[list[bytes | None]] = await pipeline.execute()
+        for name, (owner, *registered) in zip(names, found):
             if owner is None:
                 unregistered.append(name)
             elif owner != self.link.id:
-                owners[name.decode(errors="replace")] = owner
-        for feed, holder in owners.items():
-            self._mirror(feed, holder.decode(errors="replace"))
+                owners[name.decode(errors="replace")] = [owner, *registered]
+        for feed, (holder, connected, meta) in owners.items():
+            mirror = self._mirror(feed, cast(bytes, holder).decode(errors="replace"))
+            if mirror is not None:
+                mirror.registered(meta, connected)
         if holding:
             return
         for feed in [feed for feed in self._mirrors if feed not in owners]:
@@ -202,24 +206,25 @@ class Broker:
         if unregistered:
             await self.link.redis.srem(FEEDS, *unregistered)
 
-    def _mirror(self, name: str, owner: str) -> None:
+    def _mirror(self, name: str, owner: str) -> Mirror | None:
+        """The mirror of the feed ``name`` that replica ``owner`` holds, made if new (``None`` if refused)."""
         mirror = self._mirrors.get(name)
         if mirror is not None:
             mirror.feed.origin = owner  # another replica took it over: its entries follow
-            return
+            return mirror
         try:
             check_log_name(name)
         except XVIZError as exc:
             if name not in self._conflicts:
                 logger.warning("broker %s: ignored a feed registered as %r: %s", self.link.url, name, exc)
                 self._conflicts.add(name)
-            return
+            return None
         feed = self.registry.find(name, exact=True)
         if feed is not None and feed.origin is None and (feed.connected or name in self._outboxes):
             if name not in self._conflicts:  # this replica's source (or one within its grace period), or one claiming it
                 logger.error("live feed %r has a source here and on replica %s: each replica serves its own", name, owner)
                 self._conflicts.add(name)
-            return
+            return None
         if feed is None:
             departed = self._departed.pop(name, None)
             feed = self.registry.feed(name) if departed is None else self.registry.add(departed)
@@ -229,8 +234,9 @@ class Broker:
             await self._forward(name, config_update)
 
         feed.on_reconfigure = forward
-        self._mirrors[name] = Mirror(self.link, feed)
+        mirror = self._mirrors[name] = Mirror(self.link, feed)
         logger.info("live feed %r of replica %s: following it through the broker", name, owner)
+        return mirror
 
     async def _unmirror(self, name: str) -> None:
         mirror = self._mirrors.pop(name)

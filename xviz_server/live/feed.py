@@ -166,6 +166,8 @@ class LiveFeed:
         self.owner: str | None = None
         #: The replica whose source feeds it, when this feed mirrors one held elsewhere (see :mod:`.broker`).
         self.origin: str | None = None
+        #: Called with the number of viewers after each one joins or leaves (a mirror reads while there are any).
+        self.on_viewers: Callable[[int], None] | None = None
         self._left_at = -math.inf
         self._metadata_messages: dict[Format, bytes] = {}
         self._state: dict[str, Any] | None = None
@@ -214,10 +216,10 @@ class LiveFeed:
         if original is None and self._subscribers:  # GLB, the live default, made once before the viewers ask
             await update.encoded(Variant(Format.BINARY), self.registry.workers)
         self._remember(update)
+        for listener in self.registry.listeners:  # first: the broker's write then goes on beside the fan-out
+            listener(self, update)
         for subscriber in self._subscribers:
             subscriber.offer(update)
-        for listener in self.registry.listeners:
-            listener(self, update)
         return update
 
     def disconnect(self) -> None:
@@ -280,13 +282,27 @@ class LiveFeed:
         """
         return None if self._state is None else LiveUpdate(self._state_number, self._state)
 
+    @property
+    def viewers(self) -> int:
+        """How many viewers follow the feed."""
+        return len(self._subscribers)
+
     def subscribe(self, size: int, decimate: int = 1) -> Subscription:
         subscription = Subscription(self, size, decimate)
         self._subscribers.add(subscription)
+        if self.on_viewers is not None:
+            self.on_viewers(len(self._subscribers))
         return subscription
 
     def unsubscribe(self, subscription: Subscription) -> None:
-        self._subscribers.discard(subscription)
+        if subscription in self._subscribers:
+            self._subscribers.discard(subscription)
+            if self.on_viewers is not None:
+                self.on_viewers(len(self._subscribers))
+
+    def forget_state(self) -> None:
+        """Forget the latest complete state (a mirror that stops reading the feed: it would go stale)."""
+        self._state = None
 
     async def reconfigure(self, config_update: dict[str, Any]) -> bool:
         """Pass a viewer's configuration change to the source; whether it accepts any."""

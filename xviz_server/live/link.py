@@ -24,6 +24,7 @@ from redis.exceptions import RedisError
 
 from ..logfmt import redact_password
 from ..metrics import Metrics
+from .wire import Wire
 
 __all__ = ["Link", "FAILURES", "BLOCK_MS", "COMMAND_TIMEOUT", "cancel"]
 
@@ -54,6 +55,10 @@ class BrokerMetrics:
             ["reason"],
             registry=registry,
         )
+        self.readers = Gauge(
+            "xviz_broker_readers", "Feeds of other replicas being read from the broker (while they have viewers here).",
+            registry=registry,
+        )
         self.lag = Histogram(
             "xviz_broker_lag_seconds",
             "Time from an update's entry in the broker to its reader on another replica.",
@@ -66,13 +71,15 @@ class Link:
     """This replica's clients of the broker at ``url``, and whether it answers.
 
     :attr:`redis` is for short commands, :attr:`blocking` for XREAD with
-    BLOCK (one connection per waiting reader). :attr:`id` names this replica
+    BLOCK (one connection per waiting reader); a feed's updates go through
+    connections of their own (:meth:`wire`). :attr:`id` names this replica
     in the broker: host, process and a random part, so that a restarted
     process is another replica.
     """
 
     def __init__(self, url: str, metrics: Metrics) -> None:
         self.url = redact_password(url)
+        self._target = url
         self.id = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(3)}".encode()
         self.metrics = BrokerMetrics(metrics)
         self.redis = _client(url, COMMAND_TIMEOUT)
@@ -117,6 +124,10 @@ class Link:
         """The entries of ``stream`` after id ``last``, at most ``count``, waiting up to :data:`BLOCK_MS` for one."""
         answer = await self.blocking.xread({stream: last}, count=count, block=BLOCK_MS)
         return [entry for _, entries in cast(list[tuple[bytes, list[tuple[bytes, dict[bytes, bytes]]]]], answer or []) for entry in entries]
+
+    async def wire(self, name: str) -> Wire:
+        """A connection of its own to the broker, named ``name`` in its ``CLIENT LIST`` (see :mod:`.wire`)."""
+        return await Wire.open(self._target, name, CONNECT_TIMEOUT)
 
     async def fields(self, key: str, *names: str) -> list[bytes | None]:
         """Fields of the hash ``key``, ``None`` for those it lacks."""

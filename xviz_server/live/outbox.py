@@ -4,9 +4,12 @@ The replica whose source feeds a feed writes, in order, its metadata (and
 each change), every update and the source's departure to the feed's stream
 (see :mod:`.streams`), and keeps the feed registered. Writing happens in a
 task of its own behind a short queue: the source and this replica's viewers
-never wait for the broker. Updates that cannot be written (the broker is
-down or full, or slower than the source) are dropped and counted; readers on
-other replicas see the gap in the numbers and tell their viewers.
+never wait for the broker. Entries go through a connection of the outbox's
+own (:mod:`.wire`); an update that finds it idle is written at once, from
+the feed's publish, before the feed's fan-out to this replica's viewers.
+Updates that cannot be written (the broker is down or full, or slower than
+the source) are dropped and counted; readers on other replicas see the gap
+in the numbers and tell their viewers.
 """
 
 from __future__ import annotations
@@ -17,7 +20,6 @@ from collections import deque
 from typing import Any, cast
 
 import orjson
-from redis.asyncio.client import Pipeline
 from redis.exceptions import OutOfMemoryError, ResponseError
 
 from ..codec import Format
@@ -28,6 +30,7 @@ from ..work import Workers
 from .feed import FeedEvent, LiveFeed, LiveUpdate
 from .link import BLOCK_MS, COMMAND_TIMEOUT, FAILURES, Link, cancel
 from .streams import CLAIM, FEEDS, Entry, control, registration, updates
+from .wire import Wire
 
 __all__ = ["Outbox"]
 
@@ -74,6 +77,9 @@ class Outbox:
         self._ready = asyncio.Event()
         self._since_key = 0  # updates written since the last complete one
         self._full = False  # the broker refused the last write for want of memory
+        self._wire: Wire | None = None
+        self._busy = False  # the writing task is on an item
+        self._early: tuple[LiveUpdate, asyncio.Future[tuple[Any, Any]]] | None = None  # an update written from put()
         self._claim = link.redis.register_script(CLAIM)
         self._set = link.redis.register_script(SET_IF_OWNER)
         self._release = link.redis.register_script(RELEASE)
@@ -94,6 +100,10 @@ class Outbox:
         elif sum(isinstance(i, LiveUpdate) for i in self._items) >= QUEUE:
             self._items.remove(next(i for i in self._items if isinstance(i, LiveUpdate)))
             self.link.metrics.drops.labels("behind").inc()
+        elif not self._items and not self._busy and self.claimed and self._wire is not None and not self._wire.closed:
+            data = item.ready(GLB)
+            if data is not None:
+                self._early = item, self._add(self._entry(item, data))
         self._items.append(item)
         self._ready.set()
 
@@ -133,6 +143,7 @@ class Outbox:
             self._ready.clear()
             while self._items:
                 item = self._items.popleft()
+                self._busy = True
                 try:
                     if not self.claimed and await self.claim() is not None:
                         continue
@@ -141,7 +152,7 @@ class Outbox:
                     elif item.kind == "metadata":
                         await self._write_metadata()
                     else:
-                        await self._append(Entry(b"gone", self.link.id), MIN_ENTRIES)
+                        await self._append((Entry(b"gone", self.link.id), MIN_ENTRIES))
                         await self._set(keys=[registration(self.feed.name)], args=[self.link.id, "connected", 0])
                     if self._full:
                         logger.info("broker %s: writing live feed %r again", self.link.url, self.feed.name)
@@ -157,14 +168,25 @@ class Outbox:
                     else:  # metadata and departures are written once the broker is back
                         self._items.appendleft(item)
                         break
+                finally:
+                    self._busy = False
 
-    async def _write_update(self, update: LiveUpdate) -> None:
-        data = await update.encoded(GLB, self.workers)
+    def _entry(self, update: LiveUpdate, data: bytes) -> tuple[Entry, int]:
+        """The entry of ``update`` (``data``, its GLB), and the length to trim the stream to."""
         maxlen = max(MIN_ENTRIES, min(MAX_ENTRIES, self._max_bytes // max(1, len(data))))
         complete = str(update.message["data"].get("update_type", "")).upper() in COMPLETE_TYPES
-        entry_id = await self._append(Entry(b"update", self.link.id, update.number, data, complete), maxlen)
+        return Entry(b"update", self.link.id, update.number, data, complete), maxlen
+
+    async def _write_update(self, update: LiveUpdate) -> None:
+        early, self._early = self._early, None
+        data = await update.encoded(GLB, self.workers)
+        entry, maxlen = self._entry(update, data)
+        if early is not None and early[0] is update:
+            entry_id = await self._added(early[1])
+        else:
+            entry_id = await self._append((entry, maxlen))
         self.link.metrics.written_bytes.inc(len(data))
-        if complete:
+        if entry.complete:
             self._since_key = 0
         else:
             self._since_key += 1
@@ -173,7 +195,7 @@ class Outbox:
                 return
             # A source of incremental updates: its complete state, where a new reader can start.
             data = await state.encoded(GLB, self.workers)
-            entry_id = await self._append(Entry(b"key", self.link.id, state.number, data, True), maxlen)
+            entry_id = await self._append((Entry(b"key", self.link.id, state.number, data, True), maxlen))
             self._since_key = 0
         await self._set(keys=[registration(self.feed.name)], args=[self.link.id, "key", entry_id])
 
@@ -181,18 +203,37 @@ class Outbox:
         if self.feed.metadata is None:
             return
         data = orjson.dumps(self.feed.metadata)
-        await self._append(Entry(b"meta", self.link.id, data=data), MIN_ENTRIES)
+        await self._append((Entry(b"meta", self.link.id, data=data), MIN_ENTRIES))
         await self._set(keys=[registration(self.feed.name)], args=[self.link.id, "meta", data, "connected", 1])
 
-    async def _append(self, entry: Entry, maxlen: int) -> bytes:
-        """Add ``entry`` to the feed's stream, trimmed to about ``maxlen`` entries; its id."""
-        stream = updates(self.feed.name)
-        pipeline: Pipeline = self.link.redis.pipeline(transaction=False)
-        pipeline.xadd(stream, entry.fields(), maxlen=maxlen, approximate=True)  # type: ignore[arg-type]
-        pipeline.pexpire(stream, self._ttl_ms + 30_000)
-        entry_id, _ = answers = await pipeline.execute(raise_on_error=False)
-        for answer in answers:
-            if isinstance(answer, Exception):
+    async def _append(self, trimmed: tuple[Entry, int]) -> bytes:
+        """Add the entry of ``trimmed`` to the feed's stream, trimmed to about as many entries as it says; its id."""
+        if self._wire is None or self._wire.closed:
+            self._wire = await self.link.wire(f"xviz-writer:{self.feed.name}")
+        return await self._added(self._add(trimmed))
+
+    def _add(self, trimmed: tuple[Entry, int]) -> asyncio.Future[tuple[Any, Any]]:
+        """Write the commands that add the entry of ``trimmed`` to the feed's stream now; a future for their replies."""
+        assert self._wire is not None
+        entry, maxlen = trimmed
+        stream = updates(self.feed.name).encode()
+        fields = [part for field in entry.fields().items() for part in field]
+        added = self._wire.send(b"XADD", stream, b"MAXLEN", b"~", b"%d" % maxlen, b"*", *fields)
+        expiring = self._wire.send(b"PEXPIRE", stream, b"%d" % (self._ttl_ms + 30_000))
+        return asyncio.gather(added, expiring, return_exceptions=True)
+
+    async def _added(self, replies: asyncio.Future[tuple[Any, Any]]) -> bytes:
+        """The id of the entry whose commands' ``replies`` these are; raises what the broker answered instead."""
+        try:
+            entry_id, expired = await asyncio.wait_for(replies, COMMAND_TIMEOUT)
+        except FAILURES:
+            if self._wire is not None:
+                self._wire.close()
+            raise
+        for answer in (entry_id, expired):
+            if isinstance(answer, BaseException):
+                if not isinstance(answer, ResponseError) and self._wire is not None:
+                    self._wire.close()
                 raise answer
         self.link.metrics.writes.inc()
         return bytes(entry_id)
@@ -240,7 +281,9 @@ class Outbox:
                 await asyncio.wait_for(self._unregister(), COMMAND_TIMEOUT)
             except FAILURES as exc:
                 logger.warning("live feed %r: cannot unregister it from the broker: %s", self.feed.name, exc)
+        if self._wire is not None:
+            self._wire.close()
 
     async def _unregister(self) -> None:
         if await self._release(keys=[registration(self.feed.name)], args=[self.link.id]):
-            await self._append(Entry(b"gone", self.link.id), MIN_ENTRIES)
+            await self._append((Entry(b"gone", self.link.id), MIN_ENTRIES))
