@@ -97,7 +97,9 @@ def main() -> None:
                     print(f"{viewport}: the 3D view was not drawn in every run: {reports}")
                     continue
                 drawn = statistics.median(report["firstDrawnMs"] for report in reports)
-                stages = ", ".join(f"{stage} {statistics.median(r['marks'][stage] for r in reports):.0f}" for stage in STAGES)
+                # A page built before a stage had its mark reports the stages it has.
+                known = [stage for stage in STAGES if all(stage in r["marks"] for r in reports)]
+                stages = ", ".join(f"{stage} {statistics.median(r['marks'][stage] for r in reports):.0f}" for stage in known)
                 print(
                     f"{viewport}: {stages}, shown {drawn:.0f} ms (median of {args.runs}; "
                     f"{drawn / statistics.median(reference):.1f} x the reference)"
