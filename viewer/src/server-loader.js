@@ -9,17 +9,45 @@ function clamp(value, low, high) {
   return Number.isFinite(high) ? Math.min(above, high) : above;
 }
 
-/** The requests a loader sends on one socket: ranges of frames wait for a pending point in time. */
+// What a frame of @xviz/parser's synchronizers draws, besides the vehicle's pose: each a
+// stream name's data at the frame's time.
+const FRAME_PARTS = ['streams', 'features', 'lookAheads', 'pointCloud', 'components', 'variables', 'links', 'poses'];
+
+/** Whether objects `a` and `b` have the same keys, each with the same value. */
+function sameEntries(a, b) {
+  if (a === b) {
+    return true;
+  }
+  if (!a || !b) {
+    return false;
+  }
+  const keys = Object.keys(a);
+  return keys.length === Object.keys(b).length && keys.every(key => a[key] === b[key]);
+}
+
+/** Whether `frame` draws what `other` draws: the same pose, and the same data for every stream. */
+function sameFrame(frame, other) {
+  return frame.vehiclePose === other.vehiclePose && FRAME_PARTS.every(part => sameEntries(frame[part], other[part]));
+}
+
+/**
+ * The requests a loader sends on one socket: ranges of frames wait for a pending point in
+ * time and, until it opens, for `gate` (a promise, or null for none).
+ */
 class Requests {
-  constructor(socket) {
+  constructor(socket, gate) {
     this.socket = socket;
     this.count = 0;
     this.pending = null; // the instant asked for, until a state at or before it arrives
     this.held = null; // the range asked for meanwhile
+    this.gated = Boolean(gate);
+    if (gate) {
+      gate.then(() => this.open());
+    }
   }
 
   transformLog({startTimestamp, endTimestamp}) {
-    if (this.pending !== null) {
+    if (this.pending !== null || this.gated) {
       this.held = {startTimestamp, endTimestamp};
       return;
     }
@@ -38,7 +66,7 @@ class Requests {
     this._send('transform_point_in_time', {id: `${this.count++}`, query_timestamp: timestamp});
   }
 
-  /** A state for `timestamp` arrived: the range held back, if any, is asked for now. */
+  /** A state for `timestamp` arrived: the range held back, if any, is asked for now (unless gated). */
   received(timestamp) {
     if (this.pending !== null && timestamp <= this.pending) {
       this.release();
@@ -48,6 +76,16 @@ class Requests {
   /** Stop waiting for the point in time (it came, or the server said it has none). */
   release() {
     this.pending = null;
+    this._sendHeld();
+  }
+
+  /** Stop waiting for the gate. */
+  open() {
+    this.gated = false;
+    this._sendHeld();
+  }
+
+  _sendHeld() {
     if (this.held) {
       const range = this.held;
       this.held = null;
@@ -63,23 +101,38 @@ class Requests {
 /**
  * A seek to a time not loaded yet first asks for the complete state at that time (one
  * message, drawn as soon as it comes), then, once it came, for the frames around it as
- * XVIZStreamLoader does. The log's first frame is such a seek: it is drawn before the
- * rest of the buffer is on its way.
+ * XVIZStreamLoader does. The log's first frame is such a seek. Its buffer (the frames
+ * around it) is asked for once `options.bufferAfter` (a promise) resolves: the page
+ * passes the first frame's drawing, which the buffer's messages, parsed on the page's
+ * thread, would otherwise delay. Without that option, it is asked for at once.
  */
 export default class ServerLoader extends XVIZStreamLoader {
   constructor(options) {
     super(options);
+    const gate = options.bufferAfter || null;
+    // XVIZLoaderInterface makes a new frame for every message that arrives; while the current
+    // time's data stay the same (the buffer filling up around it), the frame drawn stays.
+    const currentFrame = this.getCurrentFrame;
+    this.getCurrentFrame = () => {
+      const frame = currentFrame();
+      if (!(frame && this.shownFrame && sameFrame(frame, this.shownFrame))) {
+        this.shownFrame = frame;
+      }
+      return this.shownFrame;
+    };
     // XVIZWebsocketLoader sets its socket's request sender here, as an instance property.
     this._onWSOpen = () => {
-      this.xvizHandler = new Requests(this.socket);
+      this.xvizHandler = new Requests(this.socket, gate);
       this._onOpen();
     };
     // An xviz/error that comes while a point in time is pending is taken as its answer (the
     // parser keeps no more of an error than that it is one): the log has no state at that
-    // time, say before its first frame. The range is asked for; it is not the person's error.
+    // time, say before its first frame. The range is asked for (there is no frame to draw
+    // first); it is not the person's error.
     const onXVIZMessage = this.onXVIZMessage;
     this.onXVIZMessage = message => {
       if (message.type === LOG_STREAM_MESSAGE.ERROR && this.xvizHandler && this.xvizHandler.pending !== null) {
+        this.xvizHandler.open();
         this.xvizHandler.release();
       } else {
         onXVIZMessage(message);

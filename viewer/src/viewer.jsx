@@ -7,6 +7,7 @@ import {
   XVIZPanel
 } from 'streetscape.gl';
 import ErrorBanner from './error-banner';
+import {firstDraw} from './first-draw';
 import {POINT_STREAMS} from './point-layer';
 import ServerLoader from './server-loader';
 import {serverUrl} from './page';
@@ -44,7 +45,7 @@ function formatTimestamp(seconds) {
   return new Date(seconds * 1000).toISOString().slice(11, 23);
 }
 
-function createLoader({name, live, token, onClose}) {
+function createLoader({name, live, token, onClose, drawn}) {
   const options = {
     // The loaders put it in the URL as it is; the server decodes the query.
     logGuid: encodeURIComponent(name),
@@ -57,17 +58,32 @@ function createLoader({name, live, token, onClose}) {
     // Messages are parsed on the page's thread: a worker would first have to start and load
     // its own copy of the parser, which costs more than the first frames' parse.
     worker: false,
-    WebSocketClass: watchedSocket(onClose)
+    WebSocketClass: watchedSocket(onClose),
+    bufferAfter: drawn
   };
   return live ? new XVIZLiveLoader(options) : new ServerLoader(options);
 }
 
-/** One log or live feed: the 3D view, playback, the stream list and the log's UI panels. */
+/**
+ * One log or live feed: the 3D view, playback, the stream list and the log's UI panels.
+ * Until the 3D view's first frame is on screen, the page does nothing else it can put off:
+ * the log's panels (plots, camera images, drawn by the same GPU) and the buffer of frames
+ * around the first (ServerLoader's bufferAfter) wait for it.
+ */
 export default class Viewer extends React.Component {
   constructor(props) {
     super(props);
-    this.state = {error: null, panels: []};
-    this.log = createLoader({...props, onClose: this._onSocketClose});
+    this.state = {error: null, panels: [], drawn: false};
+    const drawn = new Promise(resolve => {
+      this._onDeckLoad = deck => firstDraw(deck).then(resolve);
+    });
+    drawn.then(() => {
+      markOnce('first-draw');
+      if (!this.closed) {
+        this.setState({drawn: true});
+      }
+    });
+    this.log = createLoader({...props, drawn, onClose: this._onSocketClose});
     // The socket opens while React mounts the 3D view; nothing it receives is handled
     // before componentDidMount, which runs in this same task. Refusals are reported by
     // _onSocketClose as they happen; the loader gives up after a few.
@@ -112,7 +128,7 @@ export default class Viewer extends React.Component {
 
   render() {
     const {name, live, mapToken, onClose} = this.props;
-    const {error, panels} = this.state;
+    const {error, panels, drawn} = this.state;
     return (
       <div style={{display: 'flex', flexDirection: 'column', height: '100%'}}>
         <header style={{display: 'flex', gap: 16, alignItems: 'center', padding: '8px 16px', background: '#fff'}}>
@@ -138,10 +154,11 @@ export default class Viewer extends React.Component {
               mapStyle={MAP_STYLE}
               showTooltip
               customXVIZLayers={CUSTOM_XVIZ_LAYERS}
+              onDeckLoad={this._onDeckLoad}
             />
           </div>
           <aside className="sidebar" style={{width: 340, overflowY: 'auto', background: '#fff', padding: 12}}>
-            {panels.map(panel => (
+            {(drawn ? panels : []).map(panel => (
               <section key={panel} className="xviz-panel">
                 <h3>{panel}</h3>
                 <XVIZPanel log={this.log} name={panel} />
