@@ -30,6 +30,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -124,18 +125,24 @@ def run(command: list[str], args: argparse.Namespace) -> dict:
     server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=REPO)
     assert server.stderr is not None
     port = next(int(m.group(1)) for line in server.stderr if (m := re.search(r"ws://127\.0\.0\.1:(\d+)/", line)))
+    threading.Thread(target=server.stderr.read, daemon=True).start()  # drained: a full pipe would stall the server
     try:
         watch = args.seconds + 3
         share = [args.viewers // args.processes + (i < args.viewers % args.processes) for i in range(args.processes)]
-        viewer_processes = [
-            subprocess.Popen([sys.executable, __file__, "--role", "viewers", f"ws://127.0.0.1:{port}/?logGuid=bench",
-                              str(n), str(watch)], stdout=subprocess.PIPE, text=True, cwd=REPO)
-            for n in share
-        ]
-        time.sleep(0.5)
-        subprocess.run([sys.executable, __file__, "--role", "source", f"ws://127.0.0.1:{port}/ingest/bench",
-                        str(args.rate), str(args.seconds)], cwd=REPO, check=True)
-        results = [json.loads(p.communicate()[0]) for p in viewer_processes]
+        with tempfile.TemporaryDirectory() as scratch:
+            outputs = [Path(scratch) / f"viewers-{i}.json" for i in range(len(share))]
+            viewer_processes = [
+                subprocess.Popen([sys.executable, __file__, "--role", "viewers", f"ws://127.0.0.1:{port}/?logGuid=bench",
+                                  str(n), str(watch), str(output)], cwd=REPO)
+                for n, output in zip(share, outputs)
+            ]
+            time.sleep(0.5)
+            subprocess.run([sys.executable, __file__, "--role", "source", f"ws://127.0.0.1:{port}/ingest/bench",
+                            str(args.rate), str(args.seconds)], cwd=REPO, check=True)
+            for process in viewer_processes:
+                if process.wait() != 0:
+                    raise RuntimeError(f"a viewer process failed (exit {process.returncode})")
+            results = [json.loads(output.read_text()) for output in outputs]
     finally:
         server.terminate()
         server.wait(10)
@@ -168,7 +175,7 @@ def main() -> None:
         else:
             import uvloop
 
-            print(json.dumps(uvloop.run(viewers(url, int(rest[0]), float(rest[1])))))
+            Path(rest[2]).write_text(json.dumps(uvloop.run(viewers(url, int(rest[0]), float(rest[1])))))
         return
 
     if args.most:
