@@ -65,17 +65,22 @@ def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace
     try:
         time.sleep(1.5)  # the replicas find each other's feeds when the source starts
         watch = args.seconds + 4
-        groups = [
-            subprocess.Popen([sys.executable, str(REPO / "scripts" / "bench_live.py"), "--role", "viewers",
-                              replica.url(f"?logGuid={name}"), str(count), str(watch)], stdout=subprocess.PIPE, text=True, cwd=REPO)
-            for replica, count in zip(replicas, viewers_on) if count
-        ]
-        used = [cpu_seconds(replica.pid) for replica in replicas]
-        subprocess.run([sys.executable, str(REPO / "scripts" / "bench_live.py"), "--role", "source",
-                        replicas[0].url(f"ingest/{name}"), str(args.rate), str(args.seconds)], cwd=REPO, check=True)
-        if cpu is not None:
-            cpu[:] = [cpu_seconds(replica.pid) - before for replica, before in zip(replicas, used)]
-        return [json.loads(group.communicate()[0])["latencies"] for group in groups]
+        with tempfile.TemporaryDirectory() as scratch:
+            counts = [(replica, count) for replica, count in zip(replicas, viewers_on) if count]
+            outputs = [Path(scratch) / f"viewers-{i}.json" for i in range(len(counts))]
+            groups = [
+                subprocess.Popen([sys.executable, str(REPO / "scripts" / "bench_live.py"), "--role", "viewers",
+                                  replica.url(f"?logGuid={name}"), str(count), str(watch), str(output)], cwd=REPO)
+                for (replica, count), output in zip(counts, outputs)
+            ]
+            used = [cpu_seconds(replica.pid) for replica in replicas]
+            subprocess.run([sys.executable, str(REPO / "scripts" / "bench_live.py"), "--role", "source",
+                            replicas[0].url(f"ingest/{name}"), str(args.rate), str(args.seconds)], cwd=REPO, check=True)
+            if cpu is not None:
+                cpu[:] = [cpu_seconds(replica.pid) - before for replica, before in zip(replicas, used)]
+            if any(group.wait() for group in groups):
+                raise RuntimeError("a viewer process failed")
+            return [json.loads(output.read_text())["latencies"] for output in outputs]
     finally:
         for replica in replicas:
             replica.stop()
