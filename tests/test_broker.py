@@ -611,3 +611,24 @@ def test_entries_round_trip_and_anything_else_is_refused_by_name():
     assert before(b"1700000000123-3") == b"1700000000123-2"
     assert before(b"1700000000123-0") == b"1700000000122-18446744073709551615"
     assert before(b"0-0") == b"0-0"
+
+
+async def test_a_broker_that_answers_what_is_not_resp_fails_the_wire_at_once():
+    # A peer on the broker's address that answers garbage: the connection is dropped and its replies fail, no hang.
+    from redis.exceptions import ConnectionError as BrokerConnectionError
+
+    from xviz_server.live.wire import Wire
+
+    async def garbage(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        await reader.read(100)
+        writer.write(b"!not RESP at all\r\n")
+        await writer.drain()
+        await asyncio.sleep(10)
+        writer.close()
+
+    server = await asyncio.start_server(garbage, "127.0.0.1", 0)
+    try:
+        with pytest.raises(BrokerConnectionError, match="the broker closed the connection"):
+            await Wire.open(f"redis://127.0.0.1:{server.sockets[0].getsockname()[1]}/0", "xviz-test", timeout=5)
+    finally:
+        server.close()
