@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 from pathlib import Path
 
@@ -124,3 +125,34 @@ async def test_a_log_copied_in_while_running_is_served_to_a_logguid_url(tmp_path
             assert (await c.recv(5))["type"] == "xviz/metadata"
             await c.send("transform_log", {"id": "1"})
             assert len(timestamps(await c.until("transform_log_done", "1", timeout=5))) == 3
+
+
+async def _stream_after_frames_deleted(server, root: Path, name: str) -> tuple[list[float], list[dict]]:
+    """Open ``name`` in a session, wait for any preload, delete its frame files, stream it in the same session."""
+    async with client(server, f"/{name}") as c:
+        assert (await c.recv())["type"] == "xviz/metadata"
+        preload = server.catalog._preloads.get(name)
+        if preload is not None:
+            await asyncio.wait_for(asyncio.shield(preload), 10)
+        for path in (root / name).glob("*-frame.json"):
+            if int(path.name.split("-")[0]) >= 2:
+                path.unlink()
+        await c.send("transform_log", {"id": "all"})
+        messages = await c.until("transform_log_done", "all")
+        return timestamps(messages), [m for m in messages if m["type"] == "xviz/error"]
+
+
+async def test_a_small_log_is_read_into_the_cache_when_opened(tmp_path: Path):
+    # Its frames are served from memory once read in: even with the files gone.
+    write_log(tmp_path / "small", ten_hz(40), fmt=Format.JSON)
+    async with running_server(tmp_path) as server:
+        served, errors = await _stream_after_frames_deleted(server, tmp_path, "small")
+    assert served == [round(100 + i / 10, 3) for i in range(40)] and errors == []
+
+
+@pytest.mark.parametrize("preload_mb", [0, 0.001])
+async def test_a_log_is_not_read_in_when_preload_is_off_or_it_is_larger(tmp_path: Path, preload_mb: float):
+    write_log(tmp_path / "small", ten_hz(40), fmt=Format.JSON)
+    async with running_server(tmp_path, preload_mb=preload_mb) as server:
+        served, errors = await _stream_after_frames_deleted(server, tmp_path, "small")
+    assert served == [] and len(errors) == 40

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Collection, Sequence
 
-from .codec import Format, decode, edit_glb, encode
+from .codec import Format, decode, detect_format, edit_glb, encode
 from .exceptions import DecodeError
 from .layout import update_span
 from .state import complete_state, downsample_points, filter_streams
@@ -117,13 +117,15 @@ def merge(frames: Sequence[bytes], fmt: Format, streams: Collection[str] | None)
 
 
 def relabel_complete(data: bytes) -> bytes:
-    """A GLB frame of one complete stream set as a ``COMPLETE_STATE`` update.
+    """A frame of one complete stream set as a ``COMPLETE_STATE`` update, in its own format.
 
     Such a frame is already the whole state at its time, and this is what
-    :func:`merge` would make of it, at the cost of rewriting the JSON chunk
-    only: the arrays are not decoded or copied one by one.
+    :func:`merge` would make of it. For GLB it costs the rewriting of the
+    JSON chunk only: the arrays are not decoded or copied one by one.
     """
     def edit(message: Any) -> Any:
         return {**message, "data": {**message["data"], "update_type": "COMPLETE_STATE"}}
 
-    return edit_glb(data, edit)
+    if detect_format(data) is Format.BINARY:
+        return edit_glb(data, edit)
+    return encode(edit(_decode_update(data)), Format.JSON)

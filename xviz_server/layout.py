@@ -36,6 +36,7 @@ __all__ = [
     "file_number",
     "frame_name",
     "frame_files",
+    "frame_bytes",
     "is_log_directory",
     "frame_numbers",
     "index_document",
@@ -75,6 +76,17 @@ def frame_files(directory: str | os.PathLike[str]) -> dict[int, str]:
             if match and entry.is_file():
                 files[int(match.group(1))] = entry.name
     return files
+
+
+def frame_bytes(directory: str | os.PathLike[str]) -> int:
+    """How many bytes the state-update files of a log directory hold together (the index and metadata left out)."""
+    total = 0
+    with os.scandir(directory) as entries:
+        for entry in entries:
+            match = FRAME_FILE.fullmatch(entry.name)
+            if match and int(match.group(1)) >= 2 and entry.is_file():
+                total += entry.stat().st_size
+    return total
 
 
 def is_log_directory(directory: str | os.PathLike[str]) -> bool:

@@ -26,7 +26,7 @@ from .exceptions import DecodeError, FrameError, LogError, LogNotFound, SchemaVa
 from .index import TimeIndex
 from .messages import XVIZ_VERSION, envelope, is_number
 from .state import COMPLETE_TYPES
-from .layout import INDEX_FILE, LOG, Found, discover, is_log_directory
+from .layout import INDEX_FILE, LOG, Found, discover, frame_bytes, is_log_directory
 from .providers import LogSource
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
@@ -160,6 +160,22 @@ class Log:
                 return data
         return await self._cache.get((self._key, number, fmt, streams), lambda: self._render(number, fmt, streams))
 
+    async def preload(self) -> int:
+        """Load every frame into the frame cache, in frame order, one at a time; how many were read.
+
+        Each is loaded as a session's first request would load it, so that
+        later requests find it there. A frame that cannot be read is skipped:
+        a session that asks for it gets the error.
+        """
+        loaded = 0
+        for number in self.index.frames.tolist():
+            try:
+                await self._checked(number)
+            except XVIZError:
+                continue
+            loaded += 1
+        return loaded
+
     async def _checked(self, number: int) -> bytes:
         """The frame as the source stores it, checked to be a readable state update."""
         return await self._cache.get((self._key, number, None, None), lambda: self._read(number))
@@ -203,10 +219,11 @@ class Log:
         Every instant between two frames has the same answer. When the frame
         it ends at is a complete state of its own in ``fmt`` and every stream
         is wanted, the answer is that frame, relabelled ``COMPLETE_STATE`` if
-        needed: made again each time (a GLB frame's JSON chunk is rewritten,
-        its arrays are not), so that it takes no second place in the cache.
-        Other answers are merged once and kept in the frame cache by the
-        frame they end at.
+        needed. Where that is cheap (a GLB frame, whose JSON chunk is
+        rewritten and arrays are not, or a JSON frame of at most
+        :data:`~xviz_server.frames.INLINE_BYTES`), it is made again each
+        time, so that it takes no second place in the cache. Other answers
+        are merged once and kept in the frame cache by the frame they end at.
         """
         position = self.index.at(instant)
         if position is None:
@@ -218,7 +235,7 @@ class Log:
             if number in self._whole and detect_format(data) is fmt:
                 if self._update_types[number] == "COMPLETE_STATE":
                     return data
-                if fmt is Format.BINARY:
+                if fmt is Format.BINARY or len(data) <= frames.INLINE_BYTES:
                     return await self._workers.run(frames.placement(len(data), fmt), frames.relabel_complete, data)
         key = (self._key, "state", position, fmt, streams, lookback)
         return await self._cache.get(key, lambda: self._merge(position, fmt, streams, lookback))
@@ -283,6 +300,12 @@ class Catalog:
     directory or among the datasets is served from there rather than from a
     store. ``datasets`` are ``(kind, path, options)`` (``--dataset``);
     ``options`` go to every dataset (``image_max_width``).
+
+    A log folder on disk whose frames take at most ``preload_bytes`` is
+    read into the frame cache in the background when first opened (see
+    :meth:`Log.preload`), so that seeking in it soon never waits for the
+    disk. Logs in a store (a billed request a frame) and datasets (a
+    conversion a frame) are read only as sessions ask.
     """
 
     def __init__(
@@ -294,6 +317,7 @@ class Catalog:
         datasets: Sequence[tuple[str, Path, dict[str, str]]] = (),
         options: dict[str, Any] | None = None,
         validate: bool = False,
+        preload_bytes: int = 0,
     ) -> None:
         self._roots = [Path(root) for root in roots if not isinstance(root, ObjectStore)]
         self._stores = [root for root in roots if isinstance(root, ObjectStore)]
@@ -306,6 +330,8 @@ class Catalog:
         self._found: dict[str, Found | StoredLog | StoredDataset] = {}
         self._open: dict[str, asyncio.Task[Log]] = {}
         self._stamps: dict[str, tuple[int, ...]] = {}  # what _stamp() said when each was opened
+        self._preload_bytes = preload_bytes
+        self._preloads: dict[str, asyncio.Task[None]] = {}
 
     def names(self) -> list[str]:
         """Names of the logs known since the last scan."""
@@ -325,6 +351,7 @@ class Catalog:
         for gone in self._open.keys() - self._found.keys():
             del self._open[gone]
             self._stamps.pop(gone, None)
+            self._stop_preload(gone)
         return self.names()
 
     def _discover(self) -> dict[str, Found]:
@@ -384,6 +411,7 @@ class Catalog:
         task = self._open.get(name)
         if task is not None and self._stamps.get(name) != stamp:
             logger.info("log %r changed on disk; reading it again", name)
+            self._stop_preload(name)
             task = None
         if task is None or (task.done() and (task.cancelled() or task.exception() is not None)):
             task = asyncio.ensure_future(self._open_log(found))
@@ -402,7 +430,34 @@ class Catalog:
             source = await self._logs.open(found)
         log = await Log.open(source, self._cache, self._workers, self._validate)
         logger.info("opened log %r: %d frames, %s, in %.3f s", found.name, len(log.index), log.format.value, time.perf_counter() - started)
+        if isinstance(found, Found) and found.kind == LOG and self._preload_bytes > 0:
+            self._stop_preload(found.name)
+            self._preloads[found.name] = asyncio.ensure_future(self._preload(log, found.path))
         return log
+
+    async def _preload(self, log: Log, directory: Path) -> None:
+        try:
+            size = await self._workers.io(frame_bytes, directory)
+        except OSError:
+            return  # whoever opens it next is told why
+        if size > self._preload_bytes:
+            return
+        started = time.perf_counter()
+        loaded = await log.preload()
+        logger.info(
+            "read log %r into the frame cache: %d of %d frames, %.1f MB, in %.1f s",
+            log.name, loaded, len(log.index), size / 2**20, time.perf_counter() - started,
+        )
+
+    def _stop_preload(self, name: str) -> None:
+        task = self._preloads.pop(name, None)
+        if task is not None:
+            task.cancel()
+
+    def close(self) -> None:
+        """Stop reading logs into the frame cache."""
+        for name in list(self._preloads):
+            self._stop_preload(name)
 
     async def describe(self) -> list[dict[str, Any]]:
         """A summary of every log, opening those not yet open; a log that fails shows its error."""

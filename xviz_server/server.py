@@ -95,6 +95,7 @@ class XVIZServer:
             datasets=[parse_dataset(text) for text in settings.dataset],
             options={"image_max_width": settings.image_max_width},
             validate=settings.validate_frames,
+            preload_bytes=int(min(settings.preload_mb, settings.cache_mb / 2) * MB),
         )
         #: The live feeds; programs embedding the server publish with ``server.live.feed(name)``.
         self.live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
@@ -203,6 +204,7 @@ class XVIZServer:
                     connection.transport.abort()
                 await server.wait_closed()
             self._server = None
+        self.catalog.close()
         if self.broker is not None:
             await self.broker.close()
         if self._recorder is not None:

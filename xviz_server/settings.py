@@ -57,6 +57,10 @@ class Settings(BaseSettings):
     host: str = Field(default="127.0.0.1", description="address to listen on (0.0.0.0 for every interface)")
     port: int = Field(default=3000, ge=0, le=65535, description="TCP port for WebSocket and HTTP")
     cache_mb: float = Field(default=512, gt=0, description="size of the frame cache shared by all sessions, MB")
+    preload_mb: float = Field(
+        default=64, ge=0, description="read a log on local disk whose frames take at most this many MB into the frame "
+        "cache when first opened, so that seeking in it does not wait for the disk (0: never; at most half of cache_mb)",
+    )
     max_sessions: int = Field(default=256, ge=1, description="connections beyond this are refused with HTTP 503")
     max_message_kb: int = Field(default=1024, ge=1, description="largest message a client may send, KB")
     idle_timeout: float = Field(
