@@ -156,3 +156,20 @@ async def test_a_log_is_not_read_in_when_preload_is_off_or_it_is_larger(tmp_path
     async with running_server(tmp_path, preload_mb=preload_mb) as server:
         served, errors = await _stream_after_frames_deleted(server, tmp_path, "small")
     assert served == [] and len(errors) == 40
+
+
+async def test_listing_the_catalog_reads_no_frames(tmp_path: Path):
+    # GET / opens every log to describe it; only a session's open reads a log in.
+    for name in ("a", "b"):
+        write_log(tmp_path / name, ten_hz(20), fmt=Format.JSON)
+    async with running_server(tmp_path) as server:
+        assert len(await server.catalog.describe()) == 2
+        await asyncio.sleep(0.5)
+        assert len(server.cache) == 0
+        async with client(server, "/a") as c:
+            assert (await c.recv())["type"] == "xviz/metadata"
+            for _ in range(100):
+                if len(server.cache) >= 20:
+                    break
+                await asyncio.sleep(0.05)
+        assert len(server.cache) == 20

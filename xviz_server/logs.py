@@ -302,10 +302,11 @@ class Catalog:
     ``options`` go to every dataset (``image_max_width``).
 
     A log folder on disk whose frames take at most ``preload_bytes`` is
-    read into the frame cache in the background when first opened (see
-    :meth:`Log.preload`), so that seeking in it soon never waits for the
-    disk. Logs in a store (a billed request a frame) and datasets (a
-    conversion a frame) are read only as sessions ask.
+    read into the frame cache in the background when a session first opens
+    it (see :meth:`Log.preload`), so that seeking in it soon never waits
+    for the disk; listing the catalog reads no frames. Logs in a store (a
+    billed request a frame) and datasets (a conversion a frame) are read
+    only as sessions ask.
     """
 
     def __init__(
@@ -378,8 +379,8 @@ class Catalog:
                     return Found(name, candidate, FILE_KINDS[suffix])
         return None
 
-    async def open(self, name: str) -> Log:
-        """The open log called ``name``.
+    async def open(self, name: str, *, preload: bool = True) -> Log:
+        """The open log called ``name``; with ``preload``, read into the frame cache if it may be (see the class).
 
         Raises :class:`~xviz_server.exceptions.LogNotFound` for a name that is
         not allowed or not served, and :class:`~xviz_server.exceptions.LogError`
@@ -417,7 +418,10 @@ class Catalog:
             task = asyncio.ensure_future(self._open_log(found))
             self._open[name] = task
             self._stamps[name] = stamp
-        return await asyncio.shield(task)
+        log = await asyncio.shield(task)
+        if preload and name not in self._preloads and isinstance(found, Found) and found.kind == LOG and self._preload_bytes > 0:
+            self._preloads[name] = asyncio.ensure_future(self._preload(log, found.path))
+        return log
 
     async def _open_log(self, found: Found | StoredLog | StoredDataset) -> Log:
         started = time.perf_counter()
@@ -430,9 +434,6 @@ class Catalog:
             source = await self._logs.open(found)
         log = await Log.open(source, self._cache, self._workers, self._validate)
         logger.info("opened log %r: %d frames, %s, in %.3f s", found.name, len(log.index), log.format.value, time.perf_counter() - started)
-        if isinstance(found, Found) and found.kind == LOG and self._preload_bytes > 0:
-            self._stop_preload(found.name)
-            self._preloads[found.name] = asyncio.ensure_future(self._preload(log, found.path))
         return log
 
     async def _preload(self, log: Log, directory: Path) -> None:
@@ -465,7 +466,7 @@ class Catalog:
         summaries = []
         for name in self.names():
             try:
-                summaries.append((await self.open(name)).describe())
+                summaries.append((await self.open(name, preload=False)).describe())
             except XVIZError as exc:
                 summaries.append({"name": name, "error": str(exc)})
         return summaries
