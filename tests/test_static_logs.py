@@ -158,6 +158,14 @@ async def test_a_log_is_not_read_in_when_preload_is_off_or_it_is_larger(tmp_path
     assert served == [] and len(errors) == 40
 
 
+async def _cache_fills(server, entries: int, timeout: float = 5) -> None:
+    """Wait until the frame cache holds ``entries`` entries, or ``timeout`` s."""
+    for _ in range(int(timeout / 0.05)):
+        if len(server.cache) >= entries:
+            return
+        await asyncio.sleep(0.05)
+
+
 async def test_listing_the_catalog_reads_no_frames(tmp_path: Path):
     # GET / opens every log to describe it; only a session's open reads a log in.
     for name in ("a", "b"):
@@ -168,8 +176,16 @@ async def test_listing_the_catalog_reads_no_frames(tmp_path: Path):
         assert len(server.cache) == 0
         async with client(server, "/a") as c:
             assert (await c.recv())["type"] == "xviz/metadata"
-            for _ in range(100):
-                if len(server.cache) >= 20:
-                    break
-                await asyncio.sleep(0.05)
+            await _cache_fills(server, 20)
         assert len(server.cache) == 20
+
+
+async def test_logs_opened_together_are_all_read_in(tmp_path: Path):
+    for name in ("a", "b", "c"):
+        write_log(tmp_path / name, ten_hz(15), fmt=Format.JSON)
+    async with running_server(tmp_path) as server:
+        async with client(server, "/a") as a, client(server, "/b") as b, client(server, "/c") as c:
+            for session in (a, b, c):
+                assert (await session.recv())["type"] == "xviz/metadata"
+            await _cache_fills(server, 45)
+        assert len(server.cache) == 45

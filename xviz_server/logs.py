@@ -304,7 +304,8 @@ class Catalog:
     A log folder on disk whose frames take at most ``preload_bytes`` is
     read into the frame cache in the background when a session first opens
     it (see :meth:`Log.preload`), so that seeking in it soon never waits
-    for the disk; listing the catalog reads no frames. Logs in a store (a
+    for the disk; listing the catalog reads no frames, and logs are read in
+    one at a time, in the order sessions opened them. Logs in a store (a
     billed request a frame) and datasets (a conversion a frame) are read
     only as sessions ask.
     """
@@ -333,6 +334,7 @@ class Catalog:
         self._stamps: dict[str, tuple[int, ...]] = {}  # what _stamp() said when each was opened
         self._preload_bytes = preload_bytes
         self._preloads: dict[str, asyncio.Task[None]] = {}
+        self._preloading = asyncio.Lock()  # one log read in at a time, however many sessions open
 
     def names(self) -> list[str]:
         """Names of the logs known since the last scan."""
@@ -437,14 +439,19 @@ class Catalog:
         return log
 
     async def _preload(self, log: Log, directory: Path) -> None:
-        try:
-            size = await self._workers.io(frame_bytes, directory)
-        except OSError:
-            return  # whoever opens it next is told why
-        if size > self._preload_bytes:
-            return
-        started = time.perf_counter()
-        loaded = await log.preload()
+        async with self._preloading:
+            try:
+                size = await self._workers.io(frame_bytes, directory)
+            except OSError:
+                return  # whoever opens it next is told why
+            if size > self._preload_bytes:
+                return
+            started = time.perf_counter()
+            try:
+                loaded = await log.preload()
+            except Exception:
+                logger.exception("log %r: reading it into the frame cache failed", log.name)
+                return
         logger.info(
             "read log %r into the frame cache: %d of %d frames, %.1f MB, in %.1f s",
             log.name, loaded, len(log.index), size / 2**20, time.perf_counter() - started,
