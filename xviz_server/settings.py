@@ -59,7 +59,7 @@ class Settings(BaseSettings):
     cache_mb: float = Field(default=512, gt=0, description="size of the frame cache shared by all sessions, MB")
     preload_mb: float = Field(
         default=64, ge=0, description="read a log on local disk whose frames take at most this many MB into the frame "
-        "cache when first opened, so that seeking in it does not wait for the disk (0: never; at most half of cache_mb)",
+        "cache when a session first opens it, so that seeking in it does not wait for the disk (0: never; at most half of cache_mb)",
     )
     max_sessions: int = Field(default=256, ge=1, description="connections beyond this are refused with HTTP 503")
     max_message_kb: int = Field(default=1024, ge=1, description="largest message a client may send, KB")
