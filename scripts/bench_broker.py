@@ -92,7 +92,7 @@ def main() -> None:
     parser.add_argument("--cpu-viewers", type=int, default=12, help="viewers in all (broker CPU)")
     parser.add_argument("--rate", type=float, default=10.0)
     parser.add_argument("--seconds", type=float, default=10.0)
-    parser.add_argument("--runs", type=int, default=1, help="latency runs")
+    parser.add_argument("--runs", type=int, default=1, help="latency runs (0: only the broker CPU part)")
     parser.add_argument("--no-cpu", action="store_true", help="skip the broker CPU part")
     args = parser.parse_args()
     sent = int(args.rate * args.seconds)
@@ -116,8 +116,9 @@ def main() -> None:
                 ratios.append(percentile(on_b, 99) / percentile(on_a, 99))
                 print(f"{'':>4} B - A: p50 {differences[-1]:+.1f} ms; B / A: p99 x{ratios[-1]:.2f} "
                       f"(other processes used {other_cores(*before):.2f} cores meanwhile)")
-            print(f"median of {args.runs} run(s): B - A p50 {statistics.median(differences):+.1f} ms, "
-                  f"B / A p99 x{statistics.median(ratios):.2f}")
+            if differences:
+                print(f"median of {args.runs} run(s): B - A p50 {statistics.median(differences):+.1f} ms, "
+                      f"B / A p99 x{statistics.median(ratios):.2f}")
 
             # 2. broker CPU: the source on A (no viewers there), viewers on 1 replica, then on 3
             if args.no_cpu:
