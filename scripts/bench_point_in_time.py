@@ -53,18 +53,20 @@ async def ask(websocket: ClientConnection, request_id: str, instant: float) -> f
     return elapsed
 
 
-async def latencies(server: Process, logs: dict[str, tuple[float, float]], rounds: int, seed: int) -> list[dict[str, np.ndarray]]:
-    """Per phase (before and after the server has read the long log into memory), ms by log."""
+async def latencies(
+    server: Process, logs: dict[str, tuple[float, float]], rounds: int, seed: int
+) -> tuple[list[dict[str, np.ndarray]], str]:
+    """Per phase (before and after the server has read the long log into memory), ms by log; and what the server said of the read-in."""
     rng = np.random.default_rng(seed)
     sessions = {}
     for name in logs:
         sessions[name] = await connect(server.url(name), max_size=None)
         await sessions[name].recv()  # metadata
-    phases = []
+    phases, said = [], ""
     try:
         for phase in range(2):
             if phase == 1:
-                await preloaded(server, "long")
+                said = await preloaded(server, "long")
             measured: dict[str, list[float]] = {name: [] for name in logs}
             for round_number in range(rounds):
                 for name, (start, end) in logs.items():
@@ -74,13 +76,16 @@ async def latencies(server: Process, logs: dict[str, tuple[float, float]], round
     finally:
         for websocket in sessions.values():
             await websocket.close()
-    return phases
+    return phases, said
 
 
-async def preloaded(server: Process, name: str, timeout: float = 120) -> None:
-    """Wait until the server logs that it has read log ``name`` into its frame cache."""
+async def preloaded(server: Process, name: str, timeout: float = 120) -> str:
+    """Wait until the server logs that it has read log ``name`` into its frame cache; that log line."""
     deadline = time.monotonic() + timeout
-    while not any(f"read log {name!r} into the frame cache" in line for line in list(server.tail)):
+    while True:
+        said = [line for line in list(server.tail) if f"read log {name!r} into the frame cache" in line]
+        if said:
+            return said[0].strip().split(": ", 1)[-1]
         if time.monotonic() > deadline:
             raise RuntimeError(f"the server did not read log {name!r} into its cache in {timeout} s:\n{''.join(server.tail)}")
         await asyncio.sleep(0.05)
@@ -130,9 +135,8 @@ def main() -> None:
         frame_bytes = (root / "long" / "2-frame.json").stat().st_size
         print(f"generated {args.frames} + 11 JSON frames of {frame_bytes} bytes in {time.perf_counter() - started:.1f} s")
         with start_server(root) as server:
-            phases = asyncio.run(latencies(server, spans, args.rounds, args.seed))
-            said = next(line for line in server.tail if "read log 'long' into the frame cache" in line)
-            print("server:", said.strip().split(": ", 1)[-1])
+            phases, said = asyncio.run(latencies(server, spans, args.rounds, args.seed))
+            print("server:", said)
 
     print(f"\n1. transform_point_in_time, {args.rounds} random instants a log, answers awaited one by one (ms)")
     print(f"{'log':<40}{'p50':>8}{'p90':>8}{'p99':>8}{'max':>8}")
