@@ -33,7 +33,7 @@ from obstore.exceptions import BaseError
 from .exceptions import ConfigError, StoreError
 from .layout import FRAME_FILE, LOG
 from .readahead import ReadAhead
-from .storeclient import BACKOFF_MAX, CONNECT_TIMEOUT, SCHEME, failure, s3_client, store_config
+from .storeclient import BACKOFF_MAX, CONNECT_TIMEOUT, SCHEME, failure, s3_client, store_config, store_error
 from .storepath import StorePath, StoreTree
 
 if TYPE_CHECKING:
@@ -255,7 +255,7 @@ class ObjectStore:
         try:
             return await asyncio.wait_for(request, self._deadline)
         except asyncio.TimeoutError:
-            raise StoreError(f"{self.key_url(key)}: no answer in {self._deadline:g} s", key=self.key_url(key)) from None
+            raise store_error(self.key_url(key), f"no answer in {self._deadline:g} s") from None
         except (BaseError, OSError) as exc:  # obstore's own classes, and builtins (FileNotFoundError) for some
             raise failure(self.key_url(key), exc, started, self._timeout) from None
 

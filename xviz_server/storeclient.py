@@ -42,7 +42,7 @@ from .exceptions import ConfigError, StoreError
 if TYPE_CHECKING:
     from obstore.store import ClientConfig, RetryConfig, S3Config
 
-__all__ = ["SCHEME", "CONNECT_TIMEOUT", "BACKOFF_START", "BACKOFF_MAX", "StoreConfig", "store_config", "s3_client", "failure"]
+__all__ = ["SCHEME", "CONNECT_TIMEOUT", "BACKOFF_START", "BACKOFF_MAX", "StoreConfig", "store_config", "s3_client", "failure", "store_error"]
 
 SCHEME = "s3://"
 #: Seconds to open a connection to the store.
@@ -150,17 +150,18 @@ def _explain(url: str, exc: Exception, timeout: float | None) -> StoreError:
     text = str(exc)
     status = _STATUS.search(text)
     if isinstance(exc, (FileNotFoundError, NotFoundError)) or (status and status.group(1) == "404"):
-        return _failure(url, "no such object (404)")
+        return store_error(url, "no such object (404)")
     if isinstance(exc, (PermissionError, PermissionDeniedError, UnauthenticatedError)) or (status and status.group(1) in ("401", "403")):
-        return _failure(url, f"access denied ({status.group(1) if status else 403}): check the credentials and the bucket policy")
+        return store_error(url, f"access denied ({status.group(1) if status else 403}): check the credentials and the bucket policy")
     retried = re.search(r"after (\d+) retries", text)
     after = f" after {retried.group(1)} {'retry' if retried.group(1) == '1' else 'retries'}" if retried else ""
     if status:
-        return _failure(url, f"the store answered {status.group(1)}{after}")
+        return store_error(url, f"the store answered {status.group(1)}{after}")
     if timeout is not None:
-        return _failure(url, f"timed out (no whole answer within {timeout:g} s){after}")
-    return _failure(url, f"the connection failed or was cut short{after}")
+        return store_error(url, f"timed out (no whole answer within {timeout:g} s){after}")
+    return store_error(url, f"the connection failed or was cut short{after}")
 
 
-def _failure(url: str, cause: str) -> StoreError:
+def store_error(url: str, cause: str) -> StoreError:
+    """The error for the object at ``url``, saying ``cause``; it names the object, never a credential."""
     return StoreError(f"{url}: {cause}", key=url)

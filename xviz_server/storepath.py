@@ -49,8 +49,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO, NamedTuple, TypeVar, cast
 import obstore
 from obstore.exceptions import BaseError
 
-from .exceptions import StoreError
-from .storeclient import SCHEME, StoreConfig, failure, s3_client
+from .storeclient import SCHEME, StoreConfig, failure, s3_client, store_error
 
 if TYPE_CHECKING:
     from obstore.store import S3Store
@@ -299,10 +298,7 @@ class RangedFile(io.RawIOBase):
         fetch = min(self.path.size, max(end, start + MIN_FETCH))
         data = self.path.read_range(start, fetch)
         if len(data) < end - start:
-            raise StoreError(
-                f"{self.path}: {len(data)} bytes at {start}, not {end - start}: the object is shorter than when listed",
-                key=str(self.path),
-            )
+            raise store_error(str(self.path), f"{len(data)} bytes at {start}, not {end - start}: the object is shorter than when listed")
         self._keep(start, data)
         return data if len(data) == end - start else data[: end - start]
 
