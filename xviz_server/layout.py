@@ -69,24 +69,18 @@ def frame_files(directory: str | os.PathLike[str]) -> dict[int, str]:
     Names, not paths: a log can hold 100 000 frames, and making a ``Path``
     for each costs more than listing the directory.
     """
-    files = {}
-    with os.scandir(directory) as entries:
-        for entry in entries:
-            match = FRAME_FILE.fullmatch(entry.name)
-            if match and entry.is_file():
-                files[int(match.group(1))] = entry.name
-    return files
+    return {number: entry.name for number, entry in _message_files(directory)}
 
 
 def frame_bytes(directory: str | os.PathLike[str]) -> int:
     """How many bytes the state-update files of a log directory hold together (the index and metadata left out)."""
-    total = 0
+    return sum(entry.stat().st_size for number, entry in _message_files(directory) if number >= 2)
+
+
+def _message_files(directory: str | os.PathLike[str]) -> list[tuple[int, os.DirEntry[str]]]:
+    """The message files of a log directory (named as :data:`FRAME_FILE` says) with their file numbers."""
     with os.scandir(directory) as entries:
-        for entry in entries:
-            match = FRAME_FILE.fullmatch(entry.name)
-            if match and int(match.group(1)) >= 2 and entry.is_file():
-                total += entry.stat().st_size
-    return total
+        return [(int(match.group(1)), entry) for entry in entries if (match := FRAME_FILE.fullmatch(entry.name)) and entry.is_file()]
 
 
 def is_log_directory(directory: str | os.PathLike[str]) -> bool:
