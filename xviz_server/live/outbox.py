@@ -39,6 +39,8 @@ logger = logging.getLogger("xviz_server.broker")
 GLB = Variant(Format.BINARY)
 #: Updates of one feed that may wait to be written.
 QUEUE = 4
+#: Milliseconds a feed's stream outlives its registration's time to live, unless written to again.
+STREAM_EXTRA_MS = 30_000
 #: Fewest and most entries a feed's stream keeps (within its bytes).
 MIN_ENTRIES, MAX_ENTRIES = 4, 1000
 #: Sets fields of a registration if this replica holds it. KEYS: registration; ARGV: replica, field, value, ...
@@ -219,7 +221,7 @@ class Outbox:
         stream = updates(self.feed.name).encode()
         fields = [part for field in entry.fields().items() for part in field]
         added = self._wire.send(b"XADD", stream, b"MAXLEN", b"~", b"%d" % maxlen, b"*", *fields)
-        expiring = self._wire.send(b"PEXPIRE", stream, b"%d" % (self._ttl_ms + 30_000))
+        expiring = self._wire.send(b"PEXPIRE", stream, b"%d" % (self._ttl_ms + STREAM_EXTRA_MS))
         return asyncio.gather(added, expiring, return_exceptions=True)
 
     async def _added(self, replies: asyncio.Future[tuple[Any, Any]]) -> bytes:
