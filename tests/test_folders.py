@@ -66,7 +66,8 @@ async def test_a_log_on_a_file_system_that_cannot_read_without_waiting_is_served
 
 async def test_a_fifo_in_place_of_a_frame_is_an_error_and_holds_nothing(tmp_path: Path):
     log = write_log(tmp_path / "logs" / "piped", ten_hz(4), fmt=Format.JSON)
-    async with running_server(tmp_path / "logs") as server:
+    # preload_mb=0: a read-in started by the first session would race the swap and serve the frames from the cache.
+    async with running_server(tmp_path / "logs", preload_mb=0) as server:
         async with client(server, "/piped") as viewer:
             await viewer.recv()  # metadata: the log is listed, no frame read yet
         listed = log.stat()
