@@ -628,7 +628,92 @@ async def test_a_broker_that_answers_what_is_not_resp_fails_the_wire_at_once():
 
     server = await asyncio.start_server(garbage, "127.0.0.1", 0)
     try:
-        with pytest.raises(BrokerConnectionError, match="the broker closed the connection"):
+        with pytest.raises(BrokerConnectionError, match="carried what is not RESP: not a RESP2 reply from the broker: b'!not RESP at all'"):
             await Wire.open(f"redis://127.0.0.1:{server.sockets[0].getsockname()[1]}/0", "xviz-test", timeout=5)
     finally:
         server.close()
+
+
+async def test_the_wire_reads_a_frame_from_the_broker_as_written(broker: Broker):
+    # XADD and XREAD of real frames through a real redis-server: a value as large as LARGE, one byte over it, 2.1 MB.
+    from xviz_server.live.wire import LARGE, Wire
+
+    frame = frames()[0]
+    wire = await Wire.open(broker.url, "xviz-test", timeout=5)
+    try:
+        values = [frame[:LARGE], frame[: LARGE + 1], frame]
+        ids = [await wire.send(b"XADD", b"s", b"*", b"d", value, b"n", b"%d" % len(value)) for value in values]
+        assert await wire.send(b"PEXPIRE", b"s", b"60000") == 1
+        answer = await wire.send(b"XREAD", b"COUNT", b"10", b"STREAMS", b"s", b"0-0")
+        assert answer[0][0] == b"s"
+        assert [entry_id for entry_id, _ in answer[0][1]] == ids
+        assert [fields for _, fields in answer[0][1]] == [[b"d", value, b"n", b"%d" % len(value)] for value in values]
+        assert await wire.send(b"XREAD", b"BLOCK", b"50", b"STREAMS", b"s", ids[-1]) is None  # nothing new: nil
+        with pytest.raises(redis.ResponseError, match="WRONGTYPE"):
+            await wire.send(b"HGET", b"s", b"d")
+    finally:
+        wire.close()
+
+
+def _parse(data: bytes, sizes: Any) -> list[Any]:
+    """``data`` put in a :class:`Replies` buffer in reads of ``next(sizes)`` bytes (at most what it offers)."""
+    from xviz_server.live.wire import Replies
+
+    replies, parsed, at = Replies(), [], 0
+    while at < len(data):
+        room = replies.buffer()
+        assert len(room) > 0
+        count = min(len(room), next(sizes), len(data) - at)
+        room[:count] = data[at : at + count]
+        at += count
+        parsed += replies.received(count)
+    return parsed
+
+
+def test_replies_come_out_whole_however_the_socket_splits_them():
+    import itertools
+    import random
+
+    from redis.exceptions import ResponseError
+
+    from xviz_server.live.wire import LARGE
+
+    frame = frames()[0]
+    small, shorter = frame[: LARGE - 7], frame[-LARGE - 100 :]  # the second large one is read where the first was
+    stream = (
+        b"+OK\r\n-ERR wrong number of arguments\r\n:42\r\n$-1\r\n*-1\r\n*0\r\n$0\r\n\r\n"
+        + b"*1\r\n*2\r\n$1\r\ns\r\n*2\r\n*2\r\n$3\r\n1-0\r\n*2\r\n$1\r\nd\r\n$%d\r\n%s\r\n" % (len(frame), frame)
+        + b"*2\r\n$3\r\n2-0\r\n*2\r\n$1\r\nd\r\n$%d\r\n%s\r\n" % (len(small), small)
+        + b":-7\r\n$%d\r\n%s\r\n" % (len(shorter), shorter)
+    )
+    rng = random.Random(21)
+    for sizes in [itertools.repeat(len(stream)), itertools.repeat(1), itertools.cycle([2, 3, 5, 7]), itertools.repeat(65_536),
+                  iter(lambda: rng.randint(1, 300_000), None)]:
+        replies = _parse(stream, sizes)
+        assert replies[0] == b"OK" and isinstance(replies[1], ResponseError) and str(replies[1]) == "ERR wrong number of arguments"
+        assert replies[2:7] == [42, None, None, [], b""]
+        assert replies[7] == [[b"s", [[b"1-0", [b"d", frame]], [b"2-0", [b"d", small]]]]] and replies[8] == -7
+        assert replies[9] == shorter and len(replies) == 10
+        assert all(type(value) is bytes for value in (replies[7][0][1][0][1][1], replies[7][0][1][1][1][1], replies[9]))
+
+
+@pytest.mark.parametrize(
+    "data, problem",
+    [
+        (b"!oops\r\n", "not a RESP2 reply from the broker: b'!oops'"),
+        (b"$5\r\nabcdefg\r\n", "does not end where its length says"),
+        (b"$70000\r\n" + b"x" * 70_001 + b"\r\n", "does not end where its length says"),
+        (b"$-5\r\n", "a length of -5"),
+        (b"*x\r\n", "not an integer from the broker: b'x'"),
+        (b"$%d\r\n" % (2**40), "a bulk string of 1099511627776 bytes from the broker (at most 536870912)"),
+        (b"+" + b"a" * 200_000, "a line of over 65536 bytes"),
+    ],
+)
+def test_what_is_not_resp_is_refused_by_name(data: bytes, problem: str):
+    import itertools
+
+    from redis.exceptions import InvalidResponse
+
+    for sizes in [itertools.repeat(len(data)), itertools.repeat(3)]:
+        with pytest.raises(InvalidResponse, match=re.escape(problem)):
+            _parse(data, sizes)

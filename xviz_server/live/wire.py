@@ -5,13 +5,15 @@ The two commands that carry a feed's updates between replicas, the owner's
 paths a :class:`Wire` replaces the client: it writes a command's large
 argument to the socket as it is (never joined into one buffer with the
 rest), starts writing at once (a caller need not wait for its turn in the
-event loop), and hands the bytes it receives to hiredis's parser as they
-come. Everything else goes through :mod:`redis` (see :mod:`.link`).
+event loop), and reads a large bulk string of a reply from the socket
+straight into a buffer kept for them (:class:`Replies`) and copies it out
+once, where hiredis, fed what the transport read, copies it three times.
+Everything else goes through :mod:`redis` (see :mod:`.link`).
 
 Replies come back in order: :meth:`Wire.send` returns a future for its
 reply. An error reply is a :class:`redis.exceptions.ResponseError`
 (:class:`~redis.exceptions.OutOfMemoryError` for ``OOM``); a connection that
-closes fails every pending reply with a
+closes, or that carries what is not RESP, fails every pending reply with a
 :class:`redis.exceptions.ConnectionError`.
 """
 
@@ -21,22 +23,169 @@ import asyncio
 from collections import deque
 from typing import Any, cast
 
-import hiredis
 from redis.asyncio.connection import SSLConnection, UnixDomainSocketConnection, parse_url
-from redis.exceptions import ConnectionError, OutOfMemoryError, ResponseError
+from redis.exceptions import ConnectionError, InvalidResponse, OutOfMemoryError, ResponseError
 
-__all__ = ["Wire"]
+__all__ = ["Wire", "Replies"]
 
-#: Arguments longer than this are written to the socket on their own, not copied into the command's buffer.
+#: Arguments and bulk strings longer than this go between the socket and their own buffer, not through a shared one.
 LARGE = 64 * 1024
+#: The longest reply line taken from the broker (a type and a length, a status or an error).
+MAX_LINE = 64 * 1024
+#: The longest bulk string taken from the broker: Redis's own default ``proto-max-bulk-len``.
+MAX_BULK = 512 * 1024 * 1024
+#: The largest buffer for large bulk strings kept from one reply to the next.
+KEEP = 32 * 1024 * 1024
+
+_MORE = object()  # the bytes so far end inside a value
+_OPENED = object()  # an array was opened (or holds more values to come)
 
 
-class Wire(asyncio.Protocol):
-    """A connection to the broker, RESP2 written by hand and parsed by hiredis."""
+class Replies:
+    """The broker's replies (RESP2), parsed from a buffer the socket reads into.
+
+    Sans I/O: :meth:`buffer` is where the next bytes go, :meth:`received`
+    takes how many came and returns the replies they completed. A bulk
+    string longer than :data:`LARGE` is read into a buffer kept for them
+    (at most :data:`KEEP` bytes are kept between replies), in as many reads
+    as it takes, and copied out once. Strings come out as :class:`bytes`,
+    integers as :class:`int`, nil as ``None``, arrays as :class:`list` and
+    error replies as :class:`~redis.exceptions.ResponseError` instances.
+    Bytes that are not RESP2 raise :class:`~redis.exceptions.InvalidResponse`.
+    """
+
+    def __init__(self) -> None:
+        # Holds at most one unfinished line (MAX_LINE) or bulk string (LARGE) besides what was read after it.
+        self._buffer = bytearray(2 * max(LARGE, MAX_LINE))
+        self._start = self._end = 0  # the bytes read and not parsed yet
+        self._large = bytearray()  # where a large bulk string is read
+        self._length: int | None = None  # of the large bulk string being read
+        self._filled = 0
+        self._held: bytes | None = None  # a large bulk string read whole, before its CRLF
+        self._arrays: list[tuple[list[Any], int]] = []  # the arrays being filled, outermost first
+
+    def buffer(self) -> memoryview:
+        """Where the socket puts the next bytes (never empty)."""
+        if self._length is not None:
+            return memoryview(self._large)[self._filled : self._length]
+        if self._start == self._end:
+            self._start = self._end = 0
+        elif self._end == len(self._buffer):
+            pending = self._end - self._start
+            self._buffer[:pending] = self._buffer[self._start : self._end]
+            self._start, self._end = 0, pending
+        return memoryview(self._buffer)[self._end :]
+
+    def received(self, nbytes: int) -> list[Any]:
+        """Take ``nbytes`` more bytes, put by the socket at :meth:`buffer`; the replies they complete."""
+        if self._length is not None:
+            self._filled += nbytes
+            if self._filled == self._length:
+                self._held = self._take_large()
+        else:
+            self._end += nbytes
+        replies = []
+        while (value := self._value()) is not _MORE:
+            while value is not _OPENED and self._arrays:
+                items, count = self._arrays[-1]
+                items.append(value)
+                if len(items) < count:
+                    value = _OPENED
+                else:
+                    self._arrays.pop()
+                    value = items
+            if value is not _OPENED:
+                replies.append(value)
+        return replies
+
+    def _take_large(self) -> bytes:
+        assert self._length is not None
+        with memoryview(self._large) as whole:
+            value = bytes(whole[: self._length])
+        self._length = None
+        if len(self._large) > KEEP:
+            self._large = bytearray()
+        return value
+
+    def _value(self) -> Any:
+        """The next whole value, ``_OPENED`` after an array's header, ``_MORE`` when the rest is still to come."""
+        if self._length is not None:
+            return _MORE
+        buffer, start, end = self._buffer, self._start, self._end
+        if self._held is not None:
+            if end - start < 2:
+                return _MORE
+            if buffer[start : start + 2] != b"\r\n":
+                raise InvalidResponse("a bulk string from the broker does not end where its length says")
+            self._start += 2
+            held, self._held = self._held, None
+            return held
+        eol = buffer.find(b"\r\n", start, end)
+        if eol < 0:
+            if end - start > MAX_LINE:
+                raise InvalidResponse(f"a line of over {MAX_LINE} bytes from the broker")
+            return _MORE
+        kind, line, after = buffer[start], bytes(buffer[start + 1 : eol]), eol + 2
+        if kind == ord("$"):
+            length = _length(line)
+            if length > MAX_BULK:
+                raise InvalidResponse(f"a bulk string of {length} bytes from the broker (at most {MAX_BULK})")
+            if length == -1:
+                value: Any = None
+            elif after + length + 2 <= end:
+                if buffer[after + length : after + length + 2] != b"\r\n":
+                    raise InvalidResponse("a bulk string from the broker does not end where its length says")
+                value, after = bytes(buffer[after : after + length]), after + length + 2
+            elif length > LARGE:
+                if len(self._large) < length:
+                    self._large = bytearray(length)
+                here = min(end - after, length)
+                self._large[:here] = memoryview(buffer)[after : after + here]
+                self._start, self._length, self._filled = after + here, length, here
+                if here == length:
+                    self._held = self._take_large()
+                return _MORE
+            else:
+                return _MORE
+        elif kind == ord("*"):
+            count = _length(line)
+            self._start = after
+            if count > 0:
+                self._arrays.append(([], count))
+                return _OPENED
+            return None if count == -1 else []
+        elif kind == ord("+"):
+            value = line
+        elif kind == ord("-"):
+            value = ResponseError(line.decode(errors="replace"))
+        elif kind == ord(":"):
+            value = _integer(line)
+        else:
+            raise InvalidResponse(f"not a RESP2 reply from the broker: {bytes(buffer[start : min(eol, start + 40)])!r}")
+        self._start = after
+        return value
+
+
+def _integer(line: bytes) -> int:
+    try:
+        return int(line)
+    except ValueError:
+        raise InvalidResponse(f"not an integer from the broker: {line[:40]!r}") from None
+
+
+def _length(line: bytes) -> int:
+    length = _integer(line)
+    if length < -1:
+        raise InvalidResponse(f"a length of {length} from the broker")
+    return length
+
+
+class Wire(asyncio.BufferedProtocol):
+    """A connection to the broker, RESP2 written and read by hand."""
 
     def __init__(self) -> None:
         self._transport: asyncio.Transport | None = None
-        self._parser = hiredis.Reader(replyError=ResponseError)
+        self._replies = Replies()
         self._waiting: deque[asyncio.Future[Any]] = deque()
         self._lost: Exception | None = None
 
@@ -99,14 +248,25 @@ class Wire(asyncio.Protocol):
         """Whether the connection is down (closed, or not made yet)."""
         return self._transport is None or self._lost is not None
 
-    # -- asyncio.Protocol ---------------------------------------------------------
+    # -- asyncio.BufferedProtocol -------------------------------------------------
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = cast(asyncio.Transport, transport)
 
-    def data_received(self, data: bytes) -> None:
-        self._parser.feed(data)
-        while (reply := self._parser.gets()) is not False:
+    def get_buffer(self, sizehint: int) -> memoryview:
+        return self._replies.buffer()
+
+    def buffer_updated(self, nbytes: int) -> None:
+        if self._lost is not None:
+            return  # what follows bytes that were not RESP is not read
+        try:
+            replies = self._replies.received(nbytes)
+        except InvalidResponse as exc:
+            self._fail(ConnectionError(f"the broker's connection carried what is not RESP: {exc}"))
+            assert self._transport is not None
+            self._transport.close()
+            return
+        for reply in replies:
             if not self._waiting:
                 continue  # a reply nobody waits for (its caller was cancelled): dropped
             waiting = self._waiting.popleft()
@@ -118,7 +278,11 @@ class Wire(asyncio.Protocol):
                 waiting.set_result(reply)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self._lost = ConnectionError(f"the broker closed the connection{f': {exc}' if exc else ''}")
+        self._fail(ConnectionError(f"the broker closed the connection{f': {exc}' if exc else ''}"))
+
+    def _fail(self, error: Exception) -> None:
+        if self._lost is None:
+            self._lost = error
         while self._waiting:
             waiting = self._waiting.popleft()
             if not waiting.done():
