@@ -70,7 +70,7 @@ class Replies:
             return memoryview(self._large)[self._filled : self._length]
         if self._start == self._end:
             self._start = self._end = 0
-        elif self._end == len(self._buffer):
+        elif self._start and len(self._buffer) - self._end < LARGE:  # room for a whole line or small string
             pending = self._end - self._start
             self._buffer[:pending] = self._buffer[self._start : self._end]
             self._start, self._end = 0, pending
