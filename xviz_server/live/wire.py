@@ -55,7 +55,7 @@ class Replies:
     """
 
     def __init__(self) -> None:
-        # Holds at most one unfinished line (MAX_LINE) or bulk string (LARGE) besides what was read after it.
+        # Room for one unfinished line (at most MAX_LINE) or small bulk string (at most LARGE), and as much to read into.
         self._buffer = bytearray(2 * max(LARGE, MAX_LINE))
         self._start = self._end = 0  # the bytes read and not parsed yet
         self._large = bytearray()  # where a large bulk string is read
