@@ -38,7 +38,7 @@ MAX_BULK = 512 * 1024 * 1024
 KEEP = 32 * 1024 * 1024
 
 _MORE = object()  # the bytes so far end inside a value
-_OPENED = object()  # an array was opened (or holds more values to come)
+_OPENED = object()  # an array was opened
 
 
 class Replies:
@@ -58,16 +58,15 @@ class Replies:
         # Room for one unfinished line (at most MAX_LINE) or small bulk string (at most LARGE), and as much to read into.
         self._buffer = bytearray(2 * max(LARGE, MAX_LINE))
         self._start = self._end = 0  # the bytes read and not parsed yet
-        self._large = bytearray()  # where a large bulk string is read
+        self._large = bytearray()  # where a large bulk string is read, with its CRLF
         self._length: int | None = None  # of the large bulk string being read
         self._filled = 0
-        self._held: bytes | None = None  # a large bulk string read whole, before its CRLF
         self._arrays: list[tuple[list[Any], int]] = []  # the arrays being filled, outermost first
 
     def buffer(self) -> memoryview:
         """Where the socket puts the next bytes (never empty)."""
         if self._length is not None:
-            return memoryview(self._large)[self._filled : self._length]
+            return memoryview(self._large)[self._filled : self._length + 2]
         if self._start == self._end:
             self._start = self._end = 0
         elif self._start and len(self._buffer) - self._end < LARGE:  # room for a whole line or small string
@@ -78,48 +77,44 @@ class Replies:
 
     def received(self, nbytes: int) -> list[Any]:
         """Take ``nbytes`` more bytes, put by the socket at :meth:`buffer`; the replies they complete."""
+        replies: list[Any] = []
         if self._length is not None:
             self._filled += nbytes
-            if self._filled == self._length:
-                self._held = self._take_large()
+            if self._filled < self._length + 2:
+                return replies
+            self._place(self._take_large(), replies)
         else:
             self._end += nbytes
-        replies = []
         while (value := self._value()) is not _MORE:
-            while value is not _OPENED and self._arrays:
-                items, count = self._arrays[-1]
-                items.append(value)
-                if len(items) < count:
-                    value = _OPENED
-                else:
-                    self._arrays.pop()
-                    value = items
-            if value is not _OPENED:
-                replies.append(value)
+            self._place(value, replies)
         return replies
 
+    def _place(self, value: Any, replies: list[Any]) -> None:
+        """Put a whole ``value`` in the array being filled, or in ``replies`` if none is (or it completes one)."""
+        while value is not _OPENED and self._arrays:
+            items, count = self._arrays[-1]
+            items.append(value)
+            if len(items) < count:
+                return
+            self._arrays.pop()
+            value = items
+        if value is not _OPENED:
+            replies.append(value)
+
     def _take_large(self) -> bytes:
+        """The large bulk string read whole, with its CRLF, copied out."""
         assert self._length is not None
+        length, self._length = self._length, None
+        _check_end(self._large, length)
         with memoryview(self._large) as whole:
-            value = bytes(whole[: self._length])
-        self._length = None
+            value = bytes(whole[:length])
         if len(self._large) > KEEP:
             self._large = bytearray()
         return value
 
     def _value(self) -> Any:
         """The next whole value, ``_OPENED`` after an array's header, ``_MORE`` when the rest is still to come."""
-        if self._length is not None:
-            return _MORE
         buffer, start, end = self._buffer, self._start, self._end
-        if self._held is not None:
-            if end - start < 2:
-                return _MORE
-            if buffer[start : start + 2] != b"\r\n":
-                raise InvalidResponse("a bulk string from the broker does not end where its length says")
-            self._start += 2
-            held, self._held = self._held, None
-            return held
         eol = buffer.find(b"\r\n", start, end)
         if eol < 0:
             if end - start > MAX_LINE:
@@ -133,18 +128,15 @@ class Replies:
             if length == -1:
                 value: Any = None
             elif after + length + 2 <= end:
-                if buffer[after + length : after + length + 2] != b"\r\n":
-                    raise InvalidResponse("a bulk string from the broker does not end where its length says")
+                _check_end(buffer, after + length)
                 value, after = bytes(buffer[after : after + length]), after + length + 2
             elif length > LARGE:
-                if len(self._large) < length:
-                    self._large = bytearray(length)
-                here = min(end - after, length)
+                if len(self._large) < length + 2:
+                    self._large = bytearray(length + 2)
+                here = min(end - after, length + 2)
                 self._large[:here] = memoryview(buffer)[after : after + here]
                 self._start, self._length, self._filled = after + here, length, here
-                if here == length:
-                    self._held = self._take_large()
-                return _MORE
+                return self._take_large() if here == length + 2 else _MORE
             else:
                 return _MORE
         elif kind == ord("*"):
@@ -164,6 +156,12 @@ class Replies:
             raise InvalidResponse(f"not a RESP2 reply from the broker: {bytes(buffer[start : min(eol, start + 40)])!r}")
         self._start = after
         return value
+
+
+def _check_end(data: bytearray, at: int) -> None:
+    """Raise unless the bulk string whose bytes end at ``at`` in ``data`` is followed by CRLF there."""
+    if data[at : at + 2] != b"\r\n":
+        raise InvalidResponse("a bulk string from the broker does not end where its length says")
 
 
 def _integer(line: bytes) -> int:
