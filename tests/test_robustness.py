@@ -18,6 +18,8 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from helpers import client, running_server, ten_hz, timestamps, write_log
 from xviz_server.codec import Format
+from xviz_server.server import run
+from xviz_server.settings import Settings
 
 
 @pytest.fixture
@@ -277,3 +279,20 @@ async def test_sigterm_closes_sessions_with_1001_and_exits(root: Path):
             await asyncio.wait_for(websocket.recv(), 10)
     assert closed.value.rcvd.code == 1001
     assert await asyncio.wait_for(process.wait(), 10) == 0
+
+
+async def test_serving_leaves_what_start_made_out_of_full_collections(root: Path):
+    """``run`` freezes the objects made before it listens, so that a full collection goes over what serving made
+    only, and gives them back to the collector when it stops."""
+    assert gc.get_freeze_count() == 0
+    task = asyncio.ensure_future(run(Settings(data_dir=[str(root)], port=0)))
+    for _ in range(600):
+        if gc.get_freeze_count() or task.done():
+            break
+        await asyncio.sleep(0.05)
+    frozen = gc.get_freeze_count()
+    tracked = len(gc.get_objects(generation=2))
+    os.kill(os.getpid(), signal.SIGINT)  # run's own handler stops it
+    await asyncio.wait_for(task, 30)
+    assert frozen > 10 * tracked  # the process's modules and the catalog, against what is left to collect
+    assert gc.get_freeze_count() == 0

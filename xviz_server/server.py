@@ -23,6 +23,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import errno
+import gc
 import urllib.parse
 import logging
 import os
@@ -339,11 +340,21 @@ def _cannot_listen(host: str, port: int, exc: OSError) -> str:
 
 
 async def run(settings: Settings) -> None:
-    """Serve until SIGINT or SIGTERM, then close every session and stop."""
+    """Serve until SIGINT or SIGTERM, then close every session and stop.
+
+    Once the server listens, the objects made so far (modules, settings,
+    the catalog) are frozen (:func:`gc.freeze`): the collector's full
+    collections, which stop the event loop, then go over what serving made
+    only, not the whole process. They are unfrozen when the server stops.
+    """
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
     async with XVIZServer(settings):
-        await stop.wait()
+        gc.freeze()
+        try:
+            await stop.wait()
+        finally:
+            gc.unfreeze()
         logger.info("shutting down: closing sessions")
