@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark live fan-out: latency from source to viewers, and throughput.
 
-    python scripts/bench_live.py [--viewers 50] [--rate 10] [--seconds 20] [--processes 2] [--most]
+    python scripts/bench_live.py [--viewers 50] [--rate 10] [--seconds 20] [--processes 2] [--runs 1] [--most]
 
 The server (``xviz-server serve``), the source and the viewers are separate
 processes. The source pushes a real KITTI frame (2.1 MB of GLB: 121k points,
@@ -12,12 +12,16 @@ when each update's last byte arrives. They are minimal WebSocket clients
 that read each frame's JSON chunk and only count the rest of its bytes, so
 that the viewers' own decoding is not what is measured. Reported: latency
 p50/p99/max over every update every viewer got, updates lost, and the bytes
-fanned out per second. The same source and viewers then run against a
-reference: a bare websockets server that forwards each pushed message to
-every viewer with ``websockets.broadcast`` (no decoding, no queues, no
-checks). With ``--most``, the viewers go up by 10 until neither server
-delivers every update with p99 under 100 ms, and the most each held is
-reported.
+fanned out per second. The same source and viewers run against two
+references, websockets servers on uvloop that forward each pushed message to
+every viewer (no decoding, no queues, no checks): ``broadcast``, with
+``websockets.broadcast`` (the bare library), and ``writes``, writing the
+frame's header and the message itself to each viewer's transport (raw TCP
+with WebSocket framing: the machine's limit for a Python server). Each of
+``--runs`` runs the three in a rotated order; this server's p99 is reported
+as a ratio to each reference's in the same run. With ``--most``, the
+viewers go up by 10 until no server delivers every update with p99 under
+100 ms, and the most each held is reported.
 """
 
 from __future__ import annotations
@@ -100,14 +104,28 @@ async def viewers(url: str, count: int, seconds: float) -> dict:
     return {"latencies": latencies, "received": received, "bytes": size[0]}
 
 
-async def reference_server() -> None:
-    """Forward every message from ``/ingest/...`` to every other connection."""
+async def reference_server(kind: str) -> None:
+    """Forward every message from ``/ingest/...`` to every other connection.
+
+    ``broadcast``: with ``websockets.broadcast``, the bare library. ``writes``:
+    each viewer's transport gets the frame's header and the message itself
+    (``writelines``, what raw TCP with WebSocket framing costs: the machine's
+    limit for a Python server); websockets only does the handshakes.
+    """
+    from xviz_server.framing import frame_header
+    from websockets.frames import Frame, Opcode
+
     viewers: set = set()
 
     async def handler(websocket) -> None:
         if websocket.request.path.startswith("/ingest/"):
             async for message in websocket:
-                websockets.broadcast(viewers, message)
+                if kind == "broadcast":
+                    websockets.broadcast(viewers, message)
+                    continue
+                head = frame_header(Frame(Opcode.BINARY, message))
+                for viewer in viewers:
+                    viewer.transport.writelines((head, message))
             return
         viewers.add(websocket)
         try:
@@ -162,54 +180,70 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=10.0)
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--processes", type=int, default=2, help="viewer processes")
+    parser.add_argument("--runs", type=int, default=1, help="runs of the three servers, in rotated order")
     parser.add_argument("--most", action="store_true",
                         help="find the most viewers (in steps of 10) each server holds at --rate with p99 under 100 ms")
     parser.add_argument("--role", nargs="+", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.role:
         role, url, *rest = args.role
-        if role == "reference":
-            asyncio.run(reference_server())
+        import uvloop
+
+        if role in ("broadcast", "writes"):
+            uvloop.run(reference_server(role))
         elif role == "source":
             asyncio.run(source(url, float(rest[0]), float(rest[1])))
         else:
-            import uvloop
-
             Path(rest[2]).write_text(json.dumps(uvloop.run(viewers(url, int(rest[0]), float(rest[1])))))
         return
 
     if args.most:
         most(args)
         return
-    ours, bare = run_both(args)
     sent = int(args.rate * args.seconds)
     frame_mb = FRAME.stat().st_size / 1e6
     print(f"live fan-out: {args.viewers} viewers in {args.processes} processes, "
-          f"{frame_mb:.1f} MB frames at {args.rate:g} Hz for {args.seconds:g} s ({sent} updates)")
-    print(f"{'':>10} {'got (min-max)':>14} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'MB/s out':>9}")
-    for name, result in (("server", ours), ("reference", bare)):
-        print(f"{name:>10} {min(result['received']):>6}-{max(result['received']):<7} {result['p50']:8.1f} "
-              f"{result['p99']:8.1f} {result['max']:8.1f} {result['mb_s']:9.0f}")
-    print(f"server/reference: p99 x{ours['p99'] / bare['p99']:.2f}, throughput x{ours['mb_s'] / bare['mb_s']:.2f}")
+          f"{frame_mb:.1f} MB frames at {args.rate:g} Hz for {args.seconds:g} s ({sent} updates), {args.runs} run(s)")
+    ratios: dict[str, list[float]] = {name: [] for name in SERVERS[1:]}
+    for number in range(args.runs):
+        results = run_all(args, number)
+        print(f"run {number + 1}: {'':>10} {'got (min-max)':>14} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'MB/s out':>9}")
+        for name, result in results.items():
+            print(f"{'':>6} {name:>10} {min(result['received']):>6}-{max(result['received']):<7} "
+                  f"{result['p50']:8.1f} {result['p99']:8.1f} {result['max']:8.1f} {result['mb_s']:9.0f}")
+        for name in ratios:
+            ratios[name].append(results["server"]["p99"] / results[name]["p99"])
+        print("       server p99 x" + ", x".join(f"{ratios[name][-1]:.2f} {name}" for name in ratios))
+    print("median over runs: server p99 x" + ", x".join(
+        f"{statistics.median(values):.2f} {name}" for name, values in ratios.items()))
 
 
-def run_both(args: argparse.Namespace) -> tuple[dict, dict]:
-    """This server, then the bare broadcast, with the same source and viewers."""
-    with tempfile.TemporaryDirectory() as empty:
-        ours = run([sys.executable, "-m", "xviz_server", "serve", "--data-dir", empty, "--port", "0", "--live-queue", "8"], args)
-    bare = run([sys.executable, __file__, "--role", "reference", "-"], args)
-    return ours, bare
+#: The servers compared: this one, then the references (the ``--role`` of each).
+SERVERS = ("server", "broadcast", "writes")
+
+
+def run_all(args: argparse.Namespace, number: int = 0) -> dict[str, dict]:
+    """This server, the bare broadcast and raw writes with the same source and viewers, in an order rotated by ``number``."""
+    results: dict[str, dict] = {}
+    turn = number % len(SERVERS)
+    for name in SERVERS[turn:] + SERVERS[:turn]:
+        if name == "server":
+            with tempfile.TemporaryDirectory() as empty:
+                results[name] = run([sys.executable, "-m", "xviz_server", "serve", "--data-dir", empty, "--port", "0",
+                                     "--live-queue", "8"], args)
+        else:
+            results[name] = run([sys.executable, __file__, "--role", name, "-"], args)
+    return {name: results[name] for name in SERVERS}
 
 
 def most(args: argparse.Namespace) -> None:
-    """Raise the viewers by 10 until neither server holds the rate with p99 under 100 ms; the most each held."""
+    """Raise the viewers by 10 until no server holds the rate with p99 under 100 ms; the most each held."""
     sent = int(args.rate * args.seconds)
-    held = {"server": 0, "reference": 0}
+    held = dict.fromkeys(SERVERS, 0)
     args.viewers = 10
     while True:
-        ours, bare = run_both(args)
         kept = False
-        for name, result in (("server", ours), ("reference", bare)):
+        for name, result in run_all(args).items():
             ok = min(result["received"]) == sent and result["p99"] < 100
             print(f"{args.viewers:4} viewers {name:>10}: p99 {result['p99']:7.1f} ms, "
                   f"got {min(result['received'])}-{max(result['received'])} of {sent}{'' if ok else '  (not held)'}")
@@ -218,8 +252,8 @@ def most(args: argparse.Namespace) -> None:
         if not kept:
             break
         args.viewers += 10
-    print(f"most viewers held at {args.rate:g} Hz with p99 under 100 ms: server {held['server']}, "
-          f"bare broadcast {held['reference']}")
+    print(f"most viewers held at {args.rate:g} Hz with p99 under 100 ms: "
+          + ", ".join(f"{name} {count}" for name, count in held.items()))
 
 
 if __name__ == "__main__":
