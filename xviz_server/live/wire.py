@@ -130,13 +130,13 @@ class Replies:
             elif after + length + 2 <= end:
                 _check_end(buffer, after + length)
                 value, after = bytes(buffer[after : after + length]), after + length + 2
-            elif length > LARGE:
+            elif length > LARGE:  # the rest of it is read into self._large
                 if len(self._large) < length + 2:
                     self._large = bytearray(length + 2)
-                here = min(end - after, length + 2)
-                self._large[:here] = memoryview(buffer)[after : after + here]
-                self._start, self._length, self._filled = after + here, length, here
-                return self._take_large() if here == length + 2 else _MORE
+                here = end - after  # less than the string and its CRLF (else the branch above took it)
+                self._large[:here] = memoryview(buffer)[after:end]
+                self._start, self._length, self._filled = end, length, here
+                return _MORE
             else:
                 return _MORE
         elif kind == ord("*"):
