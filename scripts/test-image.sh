@@ -4,15 +4,17 @@
 # built-in viewer with nothing mounted, the `convert` service writing into the
 # store of a running server, a store mounted at start, the operator's mistakes
 # (a read-only store, an unreadable certificate, a bad port) each told in one
-# line, no token in the logs, what the image holds, and a SIGTERM stop with a
-# session open.
+# line, no token in the logs, what the image holds, a SIGTERM stop with a
+# session open, and compose.yaml's replicas profile (Redis, three replicas and
+# the proxy) carrying a live feed to a viewer on every replica.
 # Prints the image size, build time, time to healthy and stop time.
 #
 # Engine: docker when an engine answers; else podman, installed from Debian
 # packages when missing (as root), with runc, the container's ulimits set in
 # a containers.conf given by CONTAINERS_CONF, and base images (Python for the
-# image, Node for the viewer's build stage) made by mmdebstrap from the Debian
-# release the Dockerfile names (no registry needed).
+# image, Node for the viewer's build stage, Redis and nginx for compose.yaml)
+# made by mmdebstrap from the Debian release the Dockerfile names (no registry
+# needed), and podman-compose from PyPI.
 # Where no engine can run containers, it says so and exits 0.
 # Every engine command has a time limit: the script cannot hang CI.
 set -euo pipefail
@@ -23,8 +25,10 @@ image=localhost/xviz-server:ci
 work=$(mktemp -d)
 failures=0
 containers=()
+project=""
 
 cleanup() {
+    [ -z "$project" ] || limit=120 e_compose down -v >/dev/null 2>&1 || true
     for name in "${containers[@]}"; do
         timeout 60 "$engine" rm -f "$name" >/dev/null 2>&1 || true
     done
@@ -80,14 +84,14 @@ EOF
     export CONTAINERS_CONF=$work/containers.conf
     # No registry: bases made of the Debian release the Dockerfile's BASE_IMAGE names.
     release=$(sed -n 's/^ARG BASE_IMAGE=.*-\([a-z]*\)$/\1/p' docker/Dockerfile)
-    make_base() {  # make_base IMAGE PACKAGES: mmdebstrap a minimal $release with PACKAGES, unless IMAGE exists
+    make_base() {  # make_base IMAGE PACKAGES [CHANGE]: mmdebstrap a minimal $release with PACKAGES, unless IMAGE exists
         e image exists "$1" && return 0
         say "making the base image $1 with mmdebstrap"
         local started
         started=$(seconds)
         limit=900 timeout 900 mmdebstrap --quiet --variant=minbase --include="$2" "$release" "$work/base.tar" \
             || skip "mmdebstrap could not make a $release base"
-        limit=300 e import --quiet "$work/base.tar" "$1" >/dev/null
+        limit=300 e import --quiet ${3:+--change "$3"} "$work/base.tar" "$1" >/dev/null
         rm -f "$work/base.tar"
         say "base image $1 made in $(elapsed "$started") s"
     }
@@ -96,6 +100,12 @@ EOF
     make_base "$base" python3,python3-venv,python3-pip,ca-certificates,passwd
     make_base "$node_base" nodejs,npm,ca-certificates
     base_arg=(--build-arg "BASE_IMAGE=$base" --build-arg "NODE_IMAGE=$node_base")
+    # compose.yaml's Redis and proxy, for its replicas profile: Debian's redis-server and nginx
+    REDIS_IMAGE=localhost/xviz-redis:$release
+    PROXY_IMAGE=localhost/xviz-nginx:$release
+    export REDIS_IMAGE PROXY_IMAGE
+    make_base "$REDIS_IMAGE" redis-server
+    make_base "$PROXY_IMAGE" nginx 'CMD ["nginx", "-g", "daemon off;"]'
     # RUN steps reach the package index through the host's proxy, whose CA is
     # in the host's bundle: mounted for RUN steps only, never in a layer.
     bundle=/etc/ssl/certs/ca-certificates.crt
@@ -105,6 +115,17 @@ EOF
     e run --rm "$base" true >/dev/null 2>&1 || skip "podman cannot start a container on this machine"
 fi
 say "engine: $engine ($($engine --version))"
+
+# compose, for compose.yaml's profiles: docker's plugin, or podman-compose from PyPI (Debian's
+# 1.0.3 has no profiles) in a virtual environment of its own.
+compose=()
+if [ "$engine" = docker ]; then
+    docker compose version >/dev/null 2>&1 && compose=(docker compose)
+elif python3 -m venv "$work/compose" >/dev/null 2>&1 &&
+        timeout 300 "$work/compose/bin/pip" install -q 'podman-compose==1.6.0' >"$work/pip.log" 2>&1; then
+    compose=("$work/compose/bin/podman-compose")
+fi
+e_compose() { timeout "${limit:-120}" "${compose[@]}" -p "$project" -f docker/compose.yaml --profile replicas "$@"; }
 
 # -- build --------------------------------------------------------------------
 started=$(seconds)
@@ -287,6 +308,94 @@ if [ -d "$raw" ]; then
         refused "Read-only file system" -v "$raw:/raw:ro" -v "$work/store:/data:ro" "$image" convert kitti /raw /data/again --frames 0:2
 else
     say "SKIPPED the convert service and mounted store: no KITTI excerpt at $raw"
+fi
+
+# -- compose.yaml's `replicas` profile: Redis, three replicas, the proxy. A live feed pushed
+# through the proxy (to one replica) reaches a viewer on every replica, each update once, in order.
+kitti=$repo/../shared/data/kitti-2011_09_26_drive_0001-head
+if [ ${#compose[@]} -eq 0 ]; then
+    say "SKIPPED the replicas profile: no compose command for $engine"
+elif [ ! -x "$python" ] || [ ! -d "$kitti" ]; then
+    say "SKIPPED the replicas profile: no $python (run scripts/test.sh first) or no KITTI frames at $kitti"
+else
+    PROXY_PORT=$(free_port)
+    XVIZ_INGEST_TOKEN=ci-ingest-$$
+    export PROXY_PORT XVIZ_INGEST_TOKEN
+    e tag "$image" localhost/xviz-server:latest  # the image compose.yaml's services run
+    project=$run_id-replicas
+    compose_up() {
+        limit=300 e_compose up -d redis replica proxy >"$work/compose.log" 2>&1 || { cat "$work/compose.log"; return 1; }
+    }
+    check "replicas profile: Redis, the replicas and the proxy start" compose_up
+    replicas=$(e ps --filter "label=com.docker.compose.project=$project" \
+                    --filter label=com.docker.compose.service=replica --format '{{.Names}}' | sed "s/^$run_id-//" | sort)
+    three_healthy() {
+        [ "$(wc -w <<<"$replicas")" -eq 3 ] || return 1
+        local name
+        for name in $replicas; do wait_healthy "$name" || return 1; done
+    }
+    check "replicas profile: three replicas, each healthy" three_healthy
+    # The source: the KITTI metadata through the proxy; once every viewer has joined, the updates at 10 Hz.
+    updates=$(($(find "$kitti" -name '*-frame.glb' | wc -l) - 1))
+    timeout 150 "$python" - "$PROXY_PORT" "$XVIZ_INGEST_TOKEN" "$kitti" "$work/go" >"$work/source.out" 2>&1 <<'PY' &
+import asyncio, pathlib, sys
+from websockets.asyncio.client import connect
+async def main(port, token, folder, go):
+    frames = sorted(pathlib.Path(folder).glob("*-frame.glb"), key=lambda path: int(path.name.split("-")[0]))
+    async with connect(f"ws://127.0.0.1:{port}/ingest/car", additional_headers={"Authorization": f"Bearer {token}"},
+                       max_size=None, open_timeout=20) as websocket:
+        await websocket.send(frames[0].read_bytes())
+        while not pathlib.Path(go).exists():
+            await asyncio.sleep(0.1)
+        for frame in frames[1:]:
+            await websocket.send(frame.read_bytes())
+            await asyncio.sleep(0.1)
+        await asyncio.sleep(5)  # the viewers count before the source leaves
+        print(len(frames) - 1, "sent", flush=True)
+asyncio.run(main(*sys.argv[1:]))
+PY
+    source_pid=$!
+    # A viewer inside each replica ($run_id-NAME), on that replica's own port: waits for the feed
+    # in its catalog, joins, and counts the updates (complete states sent on joining aside).
+    viewer() {
+        limit=150 e exec -i "$run_id-$1" python3 - "$updates" >"$work/viewer-$1.out" 2>&1 <<'PY'
+import asyncio, json, sys, urllib.request
+from websockets.asyncio.client import connect
+from xviz_server.codec import decode
+async def main():
+    while not any(feed["name"] == "car" and feed["connected"]
+                  for feed in json.load(urllib.request.urlopen("http://127.0.0.1:3000/", timeout=5)).get("live", [])):
+        await asyncio.sleep(0.2)
+    async with connect("ws://127.0.0.1:3000/?log=car&session_type=live", max_size=None) as websocket:
+        times = []
+        async for data in websocket:
+            message = decode(data)
+            if message["type"] == "xviz/metadata":
+                print("joined", flush=True)
+            elif message["type"] == "xviz/state_update" and message["data"]["update_type"] != "COMPLETE_STATE":
+                times.append(message["data"]["updates"][0]["timestamp"])
+                if len(times) == int(sys.argv[1]):
+                    break
+        print("updates", len(times), "in order" if times == sorted(set(times)) else f"out of order: {times}", flush=True)
+asyncio.run(asyncio.wait_for(main(), 120))
+PY
+    }
+    viewers=()
+    for name in $replicas; do viewer "$name" & viewers+=($!); done
+    joined() { local name; for name in $replicas; do grep -q joined "$work/viewer-$name.out" 2>/dev/null || return 1; done; }
+    deadline=$((SECONDS + 90))
+    until joined || [ "$SECONDS" -ge "$deadline" ]; do sleep 0.2; done
+    touch "$work/go"
+    for pid in "${viewers[@]}"; do wait "$pid" || true; done
+    wait "$source_pid" || true
+    every_viewer() {
+        [ "$(wc -w <<<"$replicas")" -eq 3 ] || return 1
+        local name
+        for name in $replicas; do
+            grep -q "updates $updates in order" "$work/viewer-$name.out" || { cat "$work/viewer-$name.out" "$work/source.out"; return 1; }
+        done
+    }
+    check "replicas profile: a feed pushed through the proxy reaches a viewer on every replica, all $updates updates in order" every_viewer
 fi
 
 # -- numbers ----------------------------------------------------------------------
