@@ -37,6 +37,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Callable
 
 import websockets
 
@@ -104,28 +105,25 @@ async def viewers(url: str, count: int, seconds: float) -> dict:
     return {"latencies": latencies, "received": received, "bytes": size[0]}
 
 
-async def reference_server(kind: str) -> None:
-    """Forward every message from ``/ingest/...`` to every other connection.
-
-    ``broadcast``: with ``websockets.broadcast``, the bare library. ``writes``:
-    each viewer's transport gets the frame's header and the message itself
-    (``writelines``, what raw TCP with WebSocket framing costs: the machine's
-    limit for a Python server); websockets only does the handshakes.
-    """
-    from xviz_server.framing import frame_header
+def raw_writes(viewers: set, message: bytes | memoryview) -> None:
+    """Write a binary frame of ``message`` to each viewer: its header, then the message itself."""
     from websockets.frames import Frame, Opcode
 
-    viewers: set = set()
+    from xviz_server.framing import frame_header
+
+    head = frame_header(Frame(Opcode.BINARY, message))
+    for viewer in viewers:
+        viewer.transport.writelines((head, message))
+
+
+async def forward(viewers: set, pushed: Callable[[bytes], None]) -> None:
+    """Serve WebSocket on a free loopback port: each message pushed to ``/ingest/...`` goes to ``pushed``,
+    every other connection is in ``viewers`` while it is open."""
 
     async def handler(websocket) -> None:
         if websocket.request.path.startswith("/ingest/"):
             async for message in websocket:
-                if kind == "broadcast":
-                    websockets.broadcast(viewers, message)
-                    continue
-                head = frame_header(Frame(Opcode.BINARY, message))
-                for viewer in viewers:
-                    viewer.transport.writelines((head, message))
+                pushed(message)
             return
         viewers.add(websocket)
         try:
@@ -136,6 +134,20 @@ async def reference_server(kind: str) -> None:
     async with websockets.serve(handler, "127.0.0.1", 0, max_size=None, compression=None) as server:
         print(f"listening on ws://127.0.0.1:{server.sockets[0].getsockname()[1]}/", file=sys.stderr, flush=True)
         await asyncio.Future()
+
+
+async def reference_server(kind: str) -> None:
+    """Forward every message from ``/ingest/...`` to every other connection.
+
+    ``broadcast``: with ``websockets.broadcast``, the bare library. ``writes``:
+    :func:`raw_writes` (what raw TCP with WebSocket framing costs: the machine's
+    limit for a Python server); websockets only does the handshakes.
+    """
+    viewers: set = set()
+    if kind == "broadcast":
+        await forward(viewers, lambda message: websockets.broadcast(viewers, message))
+    else:
+        await forward(viewers, lambda message: raw_writes(viewers, message))
 
 
 def run(command: list[str], args: argparse.Namespace) -> dict:
