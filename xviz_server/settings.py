@@ -132,7 +132,7 @@ class Settings(BaseSettings):
     broker_ttl: float = Field(
         default=10, gt=0, description="a feed whose replica stops renewing it for this long leaves other replicas, s"
     )
-    broker_max_mb: float = Field(default=256, gt=0, description="most bytes of updates kept in the broker per feed, MB")
+    broker_max_mb: float = Field(default=32, gt=0, description="most bytes of updates kept in the broker per feed, MB")
     allowed_origins: list[str] = Field(
         default_factory=list,
         description="browser origins allowed to connect, e.g. https://viewer.example.com; repeat for more "

@@ -32,7 +32,7 @@ from .link import BLOCK_MS, COMMAND_TIMEOUT, FAILURES, Link, cancel
 from .streams import CLAIM, FEEDS, Entry, control, registration, updates
 from .wire import Wire
 
-__all__ = ["Outbox"]
+__all__ = ["Outbox", "kept"]
 
 logger = logging.getLogger("xviz_server.broker")
 
@@ -54,6 +54,11 @@ RELEASE = """
 if redis.call('HGET', KEYS[1], 'owner') ~= ARGV[1] then return 0 end
 return redis.call('DEL', KEYS[1])
 """
+
+
+def kept(max_bytes: int, size: int) -> int:
+    """How many entries of ``size`` bytes a feed's stream keeps within ``max_bytes`` (its ``XADD``'s ``MAXLEN ~``)."""
+    return max(MIN_ENTRIES, min(MAX_ENTRIES, max_bytes // max(1, size)))
 
 
 class Outbox:
@@ -175,7 +180,7 @@ class Outbox:
 
     def _entry(self, update: LiveUpdate, data: bytes) -> tuple[Entry, int]:
         """The entry of ``update`` (``data``, its GLB), and the length to trim the stream to."""
-        maxlen = max(MIN_ENTRIES, min(MAX_ENTRIES, self._max_bytes // max(1, len(data))))
+        maxlen = kept(self._max_bytes, len(data))
         complete = str(update.message["data"].get("update_type", "")).upper() in COMPLETE_TYPES
         return Entry(b"update", self.link.id, update.number, data, complete), maxlen
 
