@@ -85,12 +85,12 @@ def resp(*parts: bytes, more: int = 0) -> bytes:
 FIELD = b"\r\n$1\r\nd\r\n$"
 
 
-def read_stream(address: tuple[str, int], key: bytes, deliver: Callable[[memoryview], None]) -> None:
+def read_stream(broker: str, key: bytes, deliver: Callable[[memoryview], None]) -> None:
     """B' of the bare relays: ``XREAD BLOCK`` on a blocking socket, each reply read into the next buffer of a
     ring, and ``deliver`` called with the frame's bytes in it (from this thread)."""
     ring = [bytearray(2 * FRAME.stat().st_size) for _ in range(8)]  # 800 ms at 10 Hz before one is read into again
     last = b"$"
-    with socket.create_connection(address) as sock:
+    with socket.create_connection(address(broker)) as sock:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         for buffer in itertools.cycle(ring):
             view = memoryview(buffer)
@@ -120,7 +120,7 @@ async def relay(kind: str, broker: str, name: str) -> None:
     if kind == "reader":
         loop = asyncio.get_running_loop()
         deliver = lambda frame: loop.call_soon_threadsafe(raw_writes, viewers, frame)  # noqa: E731
-        threading.Thread(target=read_stream, args=(address(broker), key, deliver), daemon=True).start()
+        threading.Thread(target=read_stream, args=(broker, key, deliver), daemon=True).start()
         await forward(viewers, lambda message: None)
         return
     replies, redis = await asyncio.open_connection(*address(broker))

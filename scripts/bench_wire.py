@@ -32,7 +32,7 @@ import sys
 import tempfile
 import time
 
-from bench_broker import start_redis
+from bench_broker import address, resp, start_redis
 from bench_live import FRAME
 from benchkit import percentile
 
@@ -95,17 +95,15 @@ async def read_redis_py(url: str, frames: int) -> tuple[list[float], list[float]
 
 
 def read_raw(url: str, frames: int) -> tuple[list[float], list[float]]:
-    host, port = url.removeprefix("redis://").split("/")[0].split(":")
     size = len(FRAME.read_bytes())
     header = b"$%d\r\n" % size  # the frame's bulk string; the reply ends 2 bytes after it
     buffer = bytearray(size + 4096)
     view = memoryview(buffer)
     whole, spread, last = [], [], b"$"
-    with socket.create_connection((host, int(port))) as sock:
+    with socket.create_connection(address(url)) as sock:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         for _ in range(frames):
-            command = [b"XREAD", b"COUNT", b"1", b"BLOCK", b"5000", b"STREAMS", STREAM, last]
-            sock.sendall(b"*%d\r\n" % len(command) + b"".join(b"$%d\r\n%s\r\n" % (len(part), part) for part in command))
+            sock.sendall(resp(b"XREAD", b"COUNT", b"1", b"BLOCK", b"5000", b"STREAMS", STREAM, last))
             got = sock.recv_into(view)
             first = time.perf_counter()
             while (at := buffer.find(header, 0, got)) < 0:
