@@ -321,7 +321,7 @@ else
     PROXY_PORT=$(free_port)
     XVIZ_INGEST_TOKEN=ci-ingest-$$
     export PROXY_PORT XVIZ_INGEST_TOKEN
-    e tag "$image" localhost/xviz-server:latest  # the image compose.yaml's services run
+    e tag "$image" xviz-server:latest  # the image compose.yaml's services run (podman: localhost/xviz-server)
     project=$run_id-replicas
     compose_up() {
         limit=300 e_compose up -d redis replica proxy >"$work/compose.log" 2>&1 || { cat "$work/compose.log"; return 1; }
