@@ -193,8 +193,7 @@ class Connection:
     def _count_update(self, data: bytes, fmt: Format) -> None:
         self.frames_sent += 1
         self.bytes_sent += len(data)
-        self.metrics.frames_sent.labels(fmt.value).inc()
-        self.metrics.bytes_sent.labels(fmt.value).inc(len(data))
+        self.metrics.update_sent(fmt.value, len(data))
 
     async def _quietly(self, awaitable: Coroutine[Any, Any, None]) -> None:
         """Run ``awaitable`` unless the connection is gone."""

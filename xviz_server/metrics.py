@@ -62,6 +62,17 @@ class Metrics:
             registry=registry,
         )
 
+        # the counters of each format, looked up once: a live update is counted once per viewer
+        self._sent: dict[str, tuple[Counter, Counter]] = {}
+
+    def update_sent(self, fmt: str, size: int) -> None:
+        """Count a state update of ``size`` bytes sent in message format ``fmt``."""
+        counters = self._sent.get(fmt)
+        if counters is None:
+            counters = self._sent[fmt] = (self.frames_sent.labels(fmt), self.bytes_sent.labels(fmt))
+        counters[0].inc()
+        counters[1].inc(size)
+
     def exposition(self) -> bytes:
         """The metrics in Prometheus text format."""
         return generate_latest(self.registry)
