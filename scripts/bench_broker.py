@@ -11,9 +11,9 @@ send time) pushes to replica A at ``--rate`` Hz.
 1. Latency: ``--viewers`` viewers on A (served by A directly) and as many on B
    (through the broker), in the same run: p50 and p99 from the source's send
    to each viewer, B against A, and the CPU each replica used. The same source
-   and viewers then go through the machine's limit for this path, a pair of
-   bare relays (``relay``): A' adds each pushed message to a Redis stream and
-   writes it to its own viewers; B' reads the stream with a blocking socket
+   and viewers also go through the machine's limit for this path, a pair of
+   bare relays (``relay``): A' adds each pushed message to a Redis stream
+   (trimmed as the server trims it) and writes it to its own viewers; B' reads the stream with a blocking socket
    into a ring of buffers, parsing nothing but where the frame is, and writes
    each frame to its viewers. Both write the frame's header and the message to
    each viewer's transport (bench_live's raw writes): no checks, no state, no
