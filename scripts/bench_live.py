@@ -42,8 +42,10 @@ from pathlib import Path
 from typing import Callable
 
 import websockets
+from websockets.frames import Frame, Opcode
 
 from benchkit import percentile
+from xviz_server.framing import frame_header
 
 REPO = Path(__file__).resolve().parents[1]
 FRAME = REPO.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head" / "2-frame.glb"
@@ -109,10 +111,6 @@ async def viewers(url: str, count: int, seconds: float) -> dict:
 
 def raw_writes(viewers: set, message: bytes | memoryview) -> None:
     """Write a binary frame of ``message`` to each viewer: its header, then the message itself."""
-    from websockets.frames import Frame, Opcode
-
-    from xviz_server.framing import frame_header
-
     head = frame_header(Frame(Opcode.BINARY, message))
     for viewer in viewers:
         viewer.transport.writelines((head, message))
