@@ -339,7 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"scale camera images down to W pixels (default {DEFAULT_IMAGE_WIDTH})",
     )
     convert.add_argument("--processes", type=int, metavar="N", help="worker processes (default: one per core)")
-    convert.add_argument("--config", type=Path, metavar="FILE", help="rosbag: TOML file of the mapping (see README)")
+    convert.add_argument("--config", type=Path, metavar="FILE", help="rosbag: TOML file of the mapping (see docs/bags.md)")
     convert.set_defaults(run=_convert)
 
     inspect = commands.add_parser(

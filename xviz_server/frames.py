@@ -36,7 +36,7 @@ def placement(size: int, *formats: Format) -> Place:
     a thread. Parsing or writing JSON holds the GIL in proportion to its
     size: up to :data:`HEAVY_JSON_BYTES` that costs less than the hop to a
     worker process, so only larger JSON jobs go there.
-    ``scripts/bench_point_in_time.py`` measures the three.
+    See docs/performance.md#point-in-time-on-a-long-json-log.
     """
     if size <= INLINE_BYTES:
         return Place.LOOP

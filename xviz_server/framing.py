@@ -3,7 +3,8 @@
 websockets' sans-I/O protocol serializes each frame into one new ``bytes``,
 header and payload together. The frames this server sends are mostly cached
 frames of megabytes, shared by every session that sends them: copying each
-one per send costs about as much CPU as the kernel's own copy to the socket.
+one per send costs about as much CPU as the kernel's own copy to the socket
+(see docs/performance.md#sending-frames).
 
 :class:`FramingProtocol` is websockets' server protocol, except that a data
 frame (text, binary or continuation) whose payload is a ``bytes`` object of

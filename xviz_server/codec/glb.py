@@ -38,8 +38,7 @@ copied. The decoder also reads the ``extensions.AVS_xviz`` form, the legacy
 ``XVIZ`` magic and the legacy chunk types 0 (JSON) and 1 (BIN).
 
 The container code is written here rather than on pygltflib: pygltflib is
-far slower on a point-cloud frame (``scripts/bench_codec.py`` and the README
-give the numbers), drops the ``xviz`` key, and cannot read the golden files.
+far slower on a point-cloud frame (see docs/performance.md#codecs), drops the ``xviz`` key, and cannot read the golden files.
 pygltflib still provides the glTF constants.
 """
 

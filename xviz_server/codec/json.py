@@ -1,7 +1,7 @@
 """XVIZ messages as JSON.
 
 Encoding uses orjson, which writes numpy arrays natively (far faster than
-the standard library on a point cloud: ``scripts/bench_codec.py``). Binary image data (``bytes`` or ``memoryview``,
+the standard library on a point cloud: see docs/performance.md#codecs). Binary image data (``bytes`` or ``memoryview``,
 as the GLB decoder returns it) becomes base64 text, which is how XVIZ JSON
 carries images.
 """

@@ -7,7 +7,8 @@ argument to the socket as it is (never joined into one buffer with the
 rest), starts writing at once (a caller need not wait for its turn in the
 event loop), and reads a large bulk string of a reply from the socket
 straight into a buffer kept for them (:class:`Replies`) and copies it out
-once, where hiredis, fed what the transport read, copies it three times.
+once, where hiredis, fed what the transport read, copies it three times
+(see docs/performance.md#the-hop-through-redis).
 Everything else goes through :mod:`redis` (see :mod:`.link`).
 
 Replies come back in order: :meth:`Wire.send` returns a future for its
