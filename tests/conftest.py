@@ -3,23 +3,11 @@
 from __future__ import annotations
 
 import logging
-import os
-import sys
 from pathlib import Path
 
 import pytest
 
-
-def _shared_dir() -> Path:
-    configured = os.environ.get("XVIZ_SHARED_DIR")
-    return Path(configured) if configured else Path(__file__).resolve().parents[2] / "shared"
-
-
-SHARED_DIR = _shared_dir()
-# Test data that the benchmarks generate too (scripts/waymo_frames.py) lives beside them.
-sys.path.append(str(Path(__file__).resolve().parents[1] / "scripts"))
-KITTI_LOG = SHARED_DIR / "data" / "kitti-2011_09_26_drive_0001-head"
-FIXTURES = SHARED_DIR / "conformance" / "fixtures"
+from devkit.data import KITTI_LOG, SHARED_DIR
 
 
 @pytest.fixture(scope="session")
@@ -32,7 +20,7 @@ def shared_dir() -> Path:
 @pytest.fixture(scope="session")
 def kitti_log(shared_dir: Path) -> Path:
     """The official 25-frame KITTI GLB log."""
-    return shared_dir / "data" / "kitti-2011_09_26_drive_0001-head"
+    return KITTI_LOG
 
 
 @pytest.fixture

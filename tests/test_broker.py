@@ -26,11 +26,12 @@ import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
+from devkit.data import KITTI_LOG
 from helpers import client, metadata, run_xviz_session_async, running_server, update
 from xviz_server.codec import decode
 from xviz_server.viewer import STATIC_DIR
 
-KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
+KITTI = KITTI_LOG
 BROWSER = Path(__file__).with_name("browser.mjs")
 PASSWORD = "pa55-for-the-broker"
 TTL = 2.0  # --broker-ttl of the replicas here

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from rosbag_kitti import (
+from devkit.rosbag_kitti import (
     CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, FIX_TOPIC, GRAY_TOPIC, IMU_TOPIC, RAW, Messages, kitti_messages, marker,
     write_bag,
 )

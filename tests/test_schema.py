@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from jsonschema import Draft202012Validator
 
-from conftest import SHARED_DIR
+from devkit.data import SCHEMA_EXAMPLES
 from helpers import assert_same_message
 from xviz_server.codec import decode_glb
 from xviz_server.exceptions import SchemaValidationError, UnknownSchemaError, XVIZError
 from xviz_server.validation import ARRAY_ROWS, XVIZValidator, get_validator
 
 SCHEMA_DIR = Path(__file__).resolve().parents[1] / "schema"
-CORPUS = SHARED_DIR / "conformance" / "schema-examples"
+CORPUS = SCHEMA_EXAMPLES
 
 #: A problem line: a JSON path, a colon, a description.
 PROBLEM = re.compile(r"^\$(\.\w+|\[\d+\]|\['[^']*'\])*: \S")

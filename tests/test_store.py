@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 
 from helpers import Client, client, run_xviz_session_async, running_server, ten_hz, write_log, xviz_decode
-from s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, proxied, store_env
-from tcpproxy import Proxy
+from devkit.s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, proxied, store_env
+from devkit.tcpproxy import Proxy
 from test_exposure import run_cli, start_serving, stop_serving
 from xviz_server.codec import Format
 

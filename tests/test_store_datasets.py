@@ -23,9 +23,9 @@ from urllib.parse import quote
 import pytest
 
 from helpers import client, run_xviz_session_async, running_server
-from rosbag_kitti import CLOUD_TOPIC, RAW, write_bag
-from s3 import SECRET_KEY, MotoS3, moto_process, proxied
-from tcpproxy import Proxy
+from devkit.rosbag_kitti import CLOUD_TOPIC, RAW, write_bag
+from devkit.s3 import SECRET_KEY, MotoS3, moto_process, proxied
+from devkit.tcpproxy import Proxy
 from test_waymo_tfrecord import write_scene
 from xviz_server.codec import Format
 from xviz_server.datasets.kitti import KittiDrive

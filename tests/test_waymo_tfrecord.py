@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps, xviz_decode
-from waymo_frames import calibration, frame, jpeg_image, pose_matrix, write_segment
+from devkit.waymo_frames import calibration, frame, jpeg_image, pose_matrix, write_segment
 from xviz_server.check import check_paths
 from xviz_server.codec import Format, encode
 from xviz_server.datasets import detect, open_dataset

@@ -1,27 +1,27 @@
 #!/usr/bin/env python3
 """Benchmark streaming a log from an object store, against the store's own GET rate, in one run.
 
-    .venv/bin/python scripts/bench_store.py [--trials N] [--delay S] [--json FILE] [--kitti DIR]
+    .venv/bin/python scripts/bench/store.py [--trials N] [--delay S] [--json FILE] [--kitti DIR] [--quick]
 
 Every party is its own process: moto's S3 server (``python -m moto.server``)
 holding the KITTI excerpt (25 frames, 2.5 s of drive at 10 Hz) as
 ``s3://xviz-logs/fleet/kitti``; the server under test
 (``python -m xviz_server serve --data-dir s3://xviz-logs/fleet``); the client
-(scripts/benchpeers.py, the "raw" client). Rows:
+(``kit.peers``, the "raw" client). Rows:
 
 1. cold: a whole-log stream from a server just started (its log open, no
    frame read yet), against the store's own sequential GET rate measured
    here with obstore, one GET after another, for the same objects, the
    median of as many trials (target: >= 0.8x);
-2. the same through a loopback proxy (tests/tcpproxy.py) that waits
+2. the same through a loopback proxy (``devkit.tcpproxy``) that waits
    ``--delay`` (50 ms) before each request: the stream's rate as a multiple
    of real time (target: >= 5x), and against sequential GETs through the
    same proxy;
 3. warm: whole-log streams of frames in the cache, from the store-backed log
    and from the same log on disk, each as a ratio to the bare websockets
-   server of scripts/benchpeers.py (target: the same ratio);
+   server of ``kit.peers`` (target: the same ratio);
 4. datasets: a ROS 1 bag and an MCAP file of ``--bag-frames`` generated
-   frames (scripts/bench_rosbag.py: a 120 000-point cloud and a 1242x375
+   frames (``kit.gen.generate_bag``: a 120 000-point cloud and a 1242x375
    image each), and the KITTI excerpt's raw drive (25 frames), served on
    demand from the store, against the same files served from a directory:
    the open (connect to metadata) and the whole-log stream, each server just
@@ -41,7 +41,6 @@ import argparse
 import asyncio
 import json
 import os
-import sys
 import tempfile
 import threading
 import time
@@ -50,19 +49,17 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-SCRIPTS = Path(__file__).resolve().parent
-sys.path[:0] = [str(SCRIPTS), str(SCRIPTS.parent / "tests")]
+import obstore
+import websockets
+from obstore.store import S3Store
 
-import obstore  # noqa: E402
-import websockets  # noqa: E402
-from obstore.store import S3Store  # noqa: E402
-
-from bench_kitti import RAW  # noqa: E402
-from bench_rosbag import generate  # noqa: E402
-from benchproc import KITTI, MB, Process, other_cores, other_cpu, run_clients, start_reference, start_server  # noqa: E402
-from s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, store_env  # noqa: E402
-from tcpproxy import Proxy  # noqa: E402
-from xviz_server.codec import decode  # noqa: E402
+from devkit.s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, store_env
+from devkit.tcpproxy import Proxy
+from kit import KITTI, parse
+from kit import KITTI_RAW as RAW
+from kit.gen import generate_bag as generate
+from kit.proc import MB, Process, other_cores, other_cpu, run_clients, start_reference, start_server
+from xviz_server.codec import decode
 
 BUCKET = "xviz-logs"
 ROOT = f"s3://{BUCKET}/fleet"
@@ -220,7 +217,7 @@ def main() -> None:
     parser.add_argument("--bag-frames", type=int, default=30, help="frames of each generated bag of row 4")
     parser.add_argument("--datasets-only", action="store_true", help="only row 4")
     parser.add_argument("--json", type=Path, help="also write the numbers to this file")
-    args = parser.parse_args()
+    args = parse(parser, quick={"trials": 1, "repeats": 1, "bag_frames": 3})
     extra = (*(("--store-read-ahead", str(args.read_ahead)) if args.read_ahead else ()),
              *(("--store-read-ahead-mb", str(args.read_ahead_mb)) if args.read_ahead_mb else ()))
     results: dict[str, Any] = {"load_average_at_start": os.getloadavg(), "server_options": extra}

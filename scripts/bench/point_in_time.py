@@ -1,6 +1,6 @@
 """Point-in-time latency on a long JSON log of small frames, against a short one in the same run.
 
-    .venv/bin/python scripts/bench_point_in_time.py [--frames 20000] [--rounds 2000] [--seed 17]
+    .venv/bin/python scripts/bench/point_in_time.py [--frames 20000] [--rounds 2000] [--seed 17] [--quick]
 
 1. A server (``xviz-server serve``, its own process) serves two generated JSON
    logs of the same small frames (a pose, a 10-point cloud, a time series):
@@ -18,7 +18,7 @@
    process, by frame size (what ``frames.INLINE_BYTES`` and
    ``frames.HEAVY_JSON_BYTES`` are set from).
 
-Percentiles are by nearest rank (benchkit.percentile), over the measured round trips.
+Percentiles are by nearest rank (``kit.percentile``), over the measured round trips.
 """
 
 from __future__ import annotations
@@ -33,13 +33,11 @@ from pathlib import Path
 import numpy as np
 from websockets.asyncio.client import ClientConnection, connect
 
-REPO = Path(__file__).resolve().parents[1]
-from benchkit import percentile, update, write_log  # noqa: E402
-from benchproc import Process, start_server  # noqa: E402
-
-from xviz_server import frames  # noqa: E402
-from xviz_server.codec import Format, encode  # noqa: E402
-from xviz_server.work import Workers  # noqa: E402
+from kit import parse, percentile, update, write_log
+from kit.proc import Process, start_server
+from xviz_server import frames
+from xviz_server.codec import Format, encode
+from xviz_server.work import Workers
 
 
 async def ask(websocket: ClientConnection, request_id: str, instant: float) -> float:
@@ -122,7 +120,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=20_000)
     parser.add_argument("--rounds", type=int, default=2_000)
     parser.add_argument("--seed", type=int, default=17)
-    args = parser.parse_args()
+    args = parse(parser, quick={"frames": 200, "rounds": 50})
 
     with tempfile.TemporaryDirectory() as directory:
         root = Path(directory)

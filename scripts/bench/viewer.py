@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Measure the built-in viewer: page load to first drawn frame, where the time goes, and the bundle's size.
 
-    .venv/bin/python scripts/bench_viewer.py [--runs N] [--kitti DIR] [--viewport WxH ...]
+    .venv/bin/python scripts/bench/viewer.py [--runs N] [--kitti DIR] [--viewport WxH ...] [--quick]
 
 Starts the server (``python -m xviz_server serve --data-dir`` a folder holding the
 KITTI excerpt, ``--port 0``) and, for each viewport, opens
@@ -40,9 +40,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchproc import KITTI, start_server
+from kit import KITTI, REPO, parse
+from kit.proc import start_server
 
-REPO = Path(__file__).resolve().parents[1]
 DRIVER = REPO / "tests" / "browser.mjs"
 STATIC = REPO / "xviz_server" / "viewer_static"
 
@@ -78,7 +78,7 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--kitti", type=Path, default=KITTI)
     parser.add_argument("--viewport", nargs="+", default=["1280x800", "800x500"])
-    args = parser.parse_args()
+    args = parse(parser, quick={"runs": 1, "viewport": ["800x500"]})
 
     print(f"bundle (JS + CSS), all files: {megabytes(bundle_sizes())}")
     with tempfile.TemporaryDirectory() as data_dir:

@@ -1,6 +1,6 @@
 """Soak: hostile clients against a server started here on loopback; memory and file descriptors before and after.
 
-    .venv/bin/python scripts/soak.py [--aborted 1000] [--stalled 20] [--slowloris 50] [--hold 15]
+    .venv/bin/python scripts/bench/soak.py [--aborted 1000] [--stalled 20] [--slowloris 50] [--hold 15] [--quick]
 
 The server (``xviz-server serve``, its own process, ``--idle-timeout 5``)
 serves the real KITTI log (../shared) when it is there, else a generated
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import base64
 import json
 import os
 import re
@@ -39,10 +38,9 @@ from pathlib import Path
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
-REPO = Path(__file__).resolve().parents[1]
-KITTI = REPO.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
-from bench_point_in_time import start_server  # noqa: E402  (scripts/ is on the path of a script run from it)
-from benchkit import write_log  # noqa: E402
+from kit import KITTI, parse, write_log
+from kit.proc import start_server
+from kit.ws import handshake_request, masked_frame
 
 REQUEST = json.dumps({"type": "xviz/transform_log", "data": {"id": "soak"}}).encode()
 
@@ -52,23 +50,6 @@ def usage(pid: int) -> tuple[float, int]:
     status = Path(f"/proc/{pid}/status").read_text()
     rss_kb = int(re.search(r"VmRSS:\s+(\d+)", status).group(1))  # type: ignore[union-attr]
     return rss_kb / 1024, len(os.listdir(f"/proc/{pid}/fd"))
-
-
-def masked_text_frame(payload: bytes) -> bytes:
-    """A client's WebSocket text frame (RFC 6455 5.2), masked as clients must."""
-    mask = os.urandom(4)
-    length = len(payload)
-    if length < 126:
-        head = struct.pack("!BB", 0x81, 0x80 | length)
-    else:
-        head = struct.pack("!BBH", 0x81, 0x80 | 126, length)
-    return head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
-
-
-def handshake(path: str) -> bytes:
-    key = base64.b64encode(os.urandom(16)).decode()
-    return (f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode()
 
 
 async def fresh_client(port: int, log: str) -> int:
@@ -141,12 +122,12 @@ def stalled(port: int, log: str, count: int, hold: float) -> tuple[int, list[soc
     sockets = []
     for _ in range(count):
         sock = open_socket(port, receive_buffer=4096)
-        sock.sendall(handshake(f"/{log}"))
+        sock.sendall(handshake_request(f"/{log}"))
         sock.settimeout(10)
         head = b""
         while b"\r\n\r\n" not in head:
             head += sock.recv(1)  # the handshake answer only: nothing after it is read
-        sock.sendall(masked_text_frame(REQUEST))
+        sock.sendall(masked_frame(0x1, REQUEST))
         sockets.append(sock)
     time.sleep(hold)
     return sum(closed_by_server(sock) for sock in sockets), sockets
@@ -155,7 +136,7 @@ def stalled(port: int, log: str, count: int, hold: float) -> tuple[int, list[soc
 def slowloris(port: int, count: int, hold: float) -> tuple[int, list[socket.socket]]:
     """Connections that send their handshake a byte a second; returns how many the server closed within ``hold`` s."""
     sockets = [open_socket(port) for _ in range(count)]
-    request = handshake("/")
+    request = handshake_request("/")
     deadline = time.monotonic() + hold
     sent = 0
     while time.monotonic() < deadline and sent < len(request) - 1:  # never the last byte
@@ -175,7 +156,7 @@ def main() -> None:
     parser.add_argument("--stalled", type=int, default=20)
     parser.add_argument("--slowloris", type=int, default=50)
     parser.add_argument("--hold", type=float, default=15.0)
-    args = parser.parse_args()
+    args = parse(parser, quick={"aborted": 20, "stalled": 2, "slowloris": 2, "hold": 1.0})
 
     with tempfile.TemporaryDirectory() as directory:
         root = Path(directory)
@@ -185,7 +166,8 @@ def main() -> None:
         else:
             write_log(root / "generated", 25, points=100_000)
             log = "generated"
-        server, port = start_server(root, "--idle-timeout", "5")
+        server = start_server(root, "--idle-timeout", "5")
+        port = server.port
         held: list[socket.socket] = []
         try:
             frames = asyncio.run(fresh_client(port, log))
@@ -218,13 +200,13 @@ def main() -> None:
             print("(the stalled readers stay connected through SIGTERM)")
         finally:
             started = time.perf_counter()
-            server.send_signal(signal.SIGTERM)
+            server.popen.send_signal(signal.SIGTERM)
             try:
-                server.wait(30)
-                print(f"SIGTERM: exited in {time.perf_counter() - started:.1f} s (code {server.returncode})")
+                server.popen.wait(30)
+                print(f"SIGTERM: exited in {time.perf_counter() - started:.1f} s (code {server.popen.returncode})")
             except subprocess.TimeoutExpired:
-                server.kill()
-                server.wait()
+                server.popen.kill()
+                server.popen.wait()
                 print("SIGTERM: still running after 30 s; killed")
             for sock in held:
                 sock.close()

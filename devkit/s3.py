@@ -19,7 +19,7 @@ from pathlib import Path
 import boto3
 import pytest
 
-from tcpproxy import Proxy, running_proxy
+from devkit.tcpproxy import Proxy, running_proxy
 
 __all__ = ["ACCESS_KEY", "SECRET_KEY", "MotoS3", "moto_process", "store_env", "proxied"]
 

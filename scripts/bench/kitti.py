@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark KITTI reading and conversion: per frame, with the pool, and served on demand.
 
-    python scripts/bench_kitti.py [RAW_DIR] [--repeat N]
+    python scripts/bench/kitti.py [RAW_DIR] [--repeat N] [--quick]
 
 1. Reading one frame's raw data in this process: velodyne points with their
    colours, the OXTS record, the four camera images: median ms, and each part.
@@ -18,40 +18,18 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import os
 import statistics
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import websockets
-
-from xviz_server.codec import Format, decode, encode
+from kit import KITTI_RAW, parse
+from kit.gen import served
+from xviz_server.codec import Format, encode
 from xviz_server.datasets import convert_frame
 from xviz_server.datasets.kitti import KittiDrive, reflectance_colors
 from xviz_server.messages import envelope
-
-from benchproc import start_server
-
-RAW = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
-
-
-async def served(raw: Path, settle: float) -> tuple[float, float, int]:
-    with start_server(None, "--dataset", f"kitti:{raw}") as server:
-        await asyncio.sleep(settle)
-        async with websockets.connect(server.url(), max_size=None) as websocket:
-            await websocket.recv()
-            started = time.perf_counter()
-            await websocket.send(json.dumps({"type": "xviz/transform_log", "data": {"id": "1"}}))
-            frames, first = 0, None
-            while True:
-                message = await websocket.recv()
-                if len(message) < 200 and decode(message)["type"] == "xviz/transform_log_done":
-                    break
-                frames += 1
-                first = first or time.perf_counter() - started
-            return first, time.perf_counter() - started, frames
 
 
 def read_frame(drive: KittiDrive, frame: int) -> dict[str, float]:
@@ -73,9 +51,10 @@ def read_frame(drive: KittiDrive, frame: int) -> dict[str, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("raw", nargs="?", type=Path, default=RAW)
+    parser.add_argument("raw", nargs="?", type=Path, default=KITTI_RAW)
     parser.add_argument("--repeat", type=int, default=3)
-    args = parser.parse_args()
+    parser.add_argument("--settle", type=float, default=3.0, help="seconds after the server listens for the second stream")
+    args = parse(parser, quick={"repeat": 1, "settle": 0.5})
     drive = KittiDrive(args.raw)
     metadata = drive.metadata()
 
@@ -107,8 +86,8 @@ def main() -> None:
         pooled = len(drive) / (time.perf_counter() - started)
     print(f"3. whole drive, {processes} processes: {pooled:.0f} frames/s ({1000 / pooled:.1f} ms per frame)")
 
-    for settle, when in ((0.0, "the moment the server listens"), (3.0, "3 s after start (worker processes up)")):
-        first, total, frames = asyncio.run(served(args.raw, settle))
+    for settle, when in ((0.0, "the moment the server listens"), (args.settle, f"{args.settle:g} s after start (worker processes up)")):
+        first, total, frames = asyncio.run(served(f"kitti:{args.raw}", settle))
         rate = frames / total
         print(f"4. served on demand, asked {when}: first frame after {first * 1000:.0f} ms; "
               f"{rate:.0f} frames/s over the drive = {rate / 10:.1f}x real time (10 Hz)")

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark the broker hop: a 2.1 MB frame from XADD in one process to the whole XREAD reply in another.
 
-    python scripts/bench_wire.py [--frames 50] [--rate 10] [--rounds 3]
+    python scripts/bench/wire.py [--frames 50] [--rate 10] [--rounds 3] [--quick]
 
 Starts Debian's ``redis-server`` on a free loopback port. A writer process
 adds a real KITTI frame (2.1 MB of GLB) to a stream at ``--rate`` Hz with
@@ -32,9 +32,9 @@ import sys
 import tempfile
 import time
 
-from bench_broker import address, resp, start_redis
-from bench_live import FRAME
-from benchkit import percentile
+from kit import KITTI_FRAME as FRAME
+from kit import parse, percentile
+from kit.proc import address, resp, start_redis
 
 STREAM = b"bench"
 READERS = ("wire", "redis-py", "raw socket")
@@ -151,7 +151,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--role", choices=["writer", *READERS], help=argparse.SUPPRESS)
     parser.add_argument("--url", help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    args = parse(parser, quick={"frames": 5, "rounds": 1})
     if args.role:
         role(args)
         return

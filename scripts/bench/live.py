@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark live fan-out: latency from source to viewers, and throughput.
 
-    python scripts/bench_live.py [--viewers 50] [--rate 10] [--seconds 20] [--processes 2] [--runs 1] [--most]
+    python scripts/bench/live.py [--viewers 50] [--rate 10] [--seconds 20] [--processes 2] [--runs 1] [--most] [--quick]
 
 The server (``xviz-server serve``), the source and the viewers are separate
 processes. The source pushes a real KITTI frame (2.1 MB of GLB: 121k points,
@@ -29,7 +29,6 @@ viewers go up by 10 until no server delivers every update with p99 under
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import re
 import statistics
@@ -39,120 +38,15 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Callable
 
-import websockets
-from websockets.frames import Frame, Opcode
-
-from benchkit import percentile
-from xviz_server.framing import frame_header
-
-REPO = Path(__file__).resolve().parents[1]
-FRAME = REPO.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head" / "2-frame.glb"
-METADATA = FRAME.with_name("1-frame.glb")
-
-
-#: The send time travels in the frame as this many characters, patched into the encoded bytes.
-STAMP = 16
-
-
-async def source(url: str, rate: float, seconds: float) -> None:
-    from xviz_server.codec import decode_glb, encode_glb
-
-    message = decode_glb(FRAME.read_bytes())
-    sentinel = b"8" * 9 + b"." + b"8" * 6  # 15 digits: written back as read
-    message["data"]["updates"][0]["timestamp"] = float(sentinel)
-    frame = bytearray(encode_glb(message))  # encoded once: the source's encoding is no part of the latency
-    at = frame.index(sentinel)
-    async with websockets.connect(url, max_size=None, compression=None) as websocket:
-        await websocket.send(METADATA.read_bytes())
-        await asyncio.sleep(1.0)  # let the viewers subscribe
-        start = time.perf_counter()
-        for k in range(int(rate * seconds)):
-            await asyncio.sleep(max(0.0, start + k / rate - time.perf_counter()))
-            # perf_counter is the system's monotonic clock, the same in every process; padded with spaces (valid JSON)
-            frame[at:at + STAMP] = f"{time.perf_counter():>{STAMP}.6f}".encode()
-            await websocket.send(bytes(frame))
-
-
-async def viewers(url: str, count: int, seconds: float) -> dict:
-    """``count`` minimal WebSocket clients (benchpeers.RawClient) that read each frame's JSON chunk and count the rest.
-
-    A frame's arrival is when its last byte is read; the viewers do no more
-    work per frame than that, so that they measure the server, not their own
-    decoding.
-    """
-    from benchpeers import RawClient, envelope_of
-
-    latencies: list[float] = []
-    received = [0] * count
-    size = [0]
-
-    async def view(i: int) -> None:
-        viewer = await RawClient.open(url, keep=65536)
-        deadline = time.perf_counter() + seconds
-        try:
-            while time.perf_counter() < deadline:
-                try:
-                    length, head, arrived = await asyncio.wait_for(viewer.recv(), max(0.1, deadline - time.perf_counter()))
-                except asyncio.TimeoutError:
-                    break
-                if length > 100_000:
-                    sent = envelope_of(head)["data"]["updates"][0]["timestamp"]
-                    latencies.append((arrived - sent) * 1000)
-                    received[i] += 1
-                    size[0] += length
-        finally:
-            viewer.abort()
-
-    await asyncio.gather(*(view(i) for i in range(count)))
-    return {"latencies": latencies, "received": received, "bytes": size[0]}
-
-
-def raw_writes(viewers: set, message: bytes | memoryview) -> None:
-    """Write a binary frame of ``message`` to each viewer: its header, then the message itself."""
-    head = frame_header(Frame(Opcode.BINARY, message))
-    for viewer in viewers:
-        viewer.transport.writelines((head, message))
-
-
-async def forward(viewers: set, pushed: Callable[[bytes], None]) -> None:
-    """Serve WebSocket on a free loopback port: each message pushed to ``/ingest/...`` goes to ``pushed``,
-    every other connection is in ``viewers`` while it is open."""
-
-    async def handler(websocket) -> None:
-        if websocket.request.path.startswith("/ingest/"):
-            async for message in websocket:
-                pushed(message)
-            return
-        viewers.add(websocket)
-        try:
-            await websocket.wait_closed()
-        finally:
-            viewers.discard(websocket)
-
-    async with websockets.serve(handler, "127.0.0.1", 0, max_size=None, compression=None) as server:
-        print(f"listening on ws://127.0.0.1:{server.sockets[0].getsockname()[1]}/", file=sys.stderr, flush=True)
-        await asyncio.Future()
-
-
-async def reference_server(kind: str) -> None:
-    """Forward every message from ``/ingest/...`` to every other connection.
-
-    ``broadcast``: with ``websockets.broadcast``, the bare library. ``writes``:
-    :func:`raw_writes` (what raw TCP with WebSocket framing costs: the machine's
-    limit for a Python server); websockets only does the handshakes.
-    """
-    viewers: set = set()
-    if kind == "broadcast":
-        await forward(viewers, lambda message: websockets.broadcast(viewers, message))
-    else:
-        await forward(viewers, lambda message: raw_writes(viewers, message))
-
+from kit import KITTI_FRAME as FRAME
+from kit import REPO, parse, percentile
+from kit.live import ROLE
+from kit.proc import BENCH
 
 def run(command: list[str], args: argparse.Namespace) -> dict:
     """Start a server with ``command``, run the source and viewers against it, stop it."""
-    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=BENCH if command[:3] == ROLE else REPO)
     assert server.stderr is not None
     port = next(int(m.group(1)) for line in server.stderr if (m := re.search(r"ws://127\.0\.0\.1:(\d+)/", line)))
     threading.Thread(target=server.stderr.read, daemon=True).start()  # drained: a full pipe would stall the server
@@ -162,13 +56,13 @@ def run(command: list[str], args: argparse.Namespace) -> dict:
         with tempfile.TemporaryDirectory() as scratch:
             outputs = [Path(scratch) / f"viewers-{i}.json" for i in range(len(share))]
             viewer_processes = [
-                subprocess.Popen([sys.executable, __file__, "--role", "viewers", f"ws://127.0.0.1:{port}/?logGuid=bench",
-                                  str(n), str(watch), str(output)], cwd=REPO)
+                subprocess.Popen([*ROLE, "viewers", f"ws://127.0.0.1:{port}/?logGuid=bench",
+                                  str(n), str(watch), str(output)], cwd=BENCH)
                 for n, output in zip(share, outputs)
             ]
             time.sleep(0.5)
-            subprocess.run([sys.executable, __file__, "--role", "source", f"ws://127.0.0.1:{port}/ingest/bench",
-                            str(args.rate), str(args.seconds)], cwd=REPO, check=True)
+            subprocess.run([*ROLE, "source", f"ws://127.0.0.1:{port}/ingest/bench",
+                            str(args.rate), str(args.seconds)], cwd=BENCH, check=True)
             for process in viewer_processes:
                 if process.wait() != 0:
                     raise RuntimeError(f"a viewer process failed (exit {process.returncode})")
@@ -195,19 +89,7 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=1, help="runs of the three servers, in rotated order")
     parser.add_argument("--most", action="store_true",
                         help="find the most viewers (in steps of 10) each server holds at --rate with p99 under 100 ms")
-    parser.add_argument("--role", nargs="+", help=argparse.SUPPRESS)
-    args = parser.parse_args()
-    if args.role:
-        role, url, *rest = args.role
-        import uvloop
-
-        if role in ("broadcast", "writes"):
-            uvloop.run(reference_server(role))
-        elif role == "source":
-            asyncio.run(source(url, float(rest[0]), float(rest[1])))
-        else:
-            Path(rest[2]).write_text(json.dumps(uvloop.run(viewers(url, int(rest[0]), float(rest[1])))))
-        return
+    args = parse(parser, quick={"viewers": 4, "seconds": 1.0, "processes": 1})
 
     if args.most:
         most(args)
@@ -248,7 +130,7 @@ def run_all(args: argparse.Namespace, number: int = 0) -> dict[str, dict]:
                 results[name] = run([sys.executable, "-m", "xviz_server", "serve", "--data-dir", empty, "--port", "0",
                                      "--live-queue", "8"], args)
         else:
-            results[name] = run([sys.executable, __file__, "--role", name, "-"], args)
+            results[name] = run([*ROLE, name, "-"], args)
     return {name: results[name] for name in SERVERS}
 
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark the XVIZ server against a bare websockets server, in one run.
 
-    .venv/bin/python scripts/bench_server.py [--quick] [--json FILE] [--kitti DIR] [--client-procs N] [--tmp DIR]
+    .venv/bin/python scripts/bench/server.py [--short] [--json FILE] [--kitti DIR] [--client-procs N] [--tmp DIR] [--quick]
 
 Every party is its own process:
 
@@ -22,15 +22,15 @@ Sections:
    transcoded to JSON, as a ratio to the reference (target: >= 0.8);
 2. time to first frame, cold (first request after start) and warm;
 3. point-in-time latency p50/p99 on a generated 100 000-frame log (10 000 with
-   --quick), on the same generator's 25-frame log and on KITTI, beside the
+   --short), on the same generator's 25-frame log and on KITTI, beside the
    loopback round trip (target: p99 < 5 ms, nearly independent of log length);
 4. server peak RSS with 20 clients of which 5 stop reading, against the bound
    cache + 20 x (read-ahead + 1) x largest frame;
 5. permessage-deflate off (the default) and on: payload and wire rates, bytes
    ratio, CPU cost.
 
-The reference server and the clients are scripts/benchpeers.py; the processes and
-their accounting, scripts/benchproc.py; percentiles and generated logs, scripts/benchkit.py.
+The reference server and the clients are ``kit.peers``; the processes and
+their accounting, ``kit.proc``; percentiles and generated logs, ``kit``.
 Speed is reported as numbers and ratios against the reference measured in the
 same run; nothing here asserts a time. The machine may be shared: each
 measurement also says how many cores other processes used meanwhile.
@@ -53,14 +53,15 @@ from typing import Any
 import uvloop
 import websockets
 
-REPO = Path(__file__).resolve().parents[1]
-KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
 MB = 1e6  # rates in MB/s are 10^6 bytes per second
 MIB = 1 << 20  # memory in MiB, like --cache-mb
 QUIET = 0.25  # a trial is "quiet" when other processes used fewer cores than this
 
-from benchkit import metadata, update  # noqa: E402
-from benchproc import Process, RssSampler, other_cores, other_cpu, rss_mib, run_clients, start_reference, start_server  # noqa: E402
+from kit import KITTI, REPO, metadata, parse, update
+from kit.proc import Process, RssSampler, other_cores, other_cpu, rss_mib, run_clients, start_reference, start_server
+
+#: ``--quick``: every section once, on a few megabytes (a check that the benchmark works, not a measurement).
+SMOKE = False
 
 
 # ================================================================ the generated log
@@ -69,7 +70,7 @@ from benchproc import Process, RssSampler, other_cores, other_cpu, rss_mib, run_
 def generate_log(directory: Path, count: int) -> Path:
     """A log of ``count`` small GLB state updates at 10 Hz, in the reference layout (with ``0-frame.json``).
 
-    Each frame is benchkit's ``update(t)`` (a pose, a 10-point cloud, a time
+    Each frame is the kit's ``update(t)`` (a pose, a 10-point cloud, a time
     series; SNAPSHOT), encoded once with a placeholder time whose digits
     are then replaced, at equal width, in each copy: 100 000 frames in seconds.
     """
@@ -151,11 +152,11 @@ def median_run(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 def throughput_section(args: argparse.Namespace, root: Path, reference: Process, results: dict[str, Any], quick: bool) -> None:
     frames_in_log = len(list(args.kitti.glob("*-frame.glb"))) - 1
-    n_trials = 2 if quick else 5
+    n_trials = 1 if SMOKE else 2 if quick else 5
     # Bytes each trial moves: a window of about a second at the rates seen here.
     volume = {"raw": 2.5e9, "websockets": 0.8e9}
     if quick:
-        volume = {kind: v / 2 for kind, v in volume.items()}
+        volume = {kind: v / (500 if SMOKE else 2) for kind, v in volume.items()}
     section(f"1. Whole-log throughput, KITTI ({frames_in_log} frames)")
     line(f"Each client fetches the whole log N times after its metadata (N chosen so that a trial moves ~{volume['raw'] / 1e9:.1f} GB "
          f"with the raw client, ~{volume['websockets'] / 1e9:.1f} GB with websockets); {n_trials} trials, each a server run "
@@ -169,6 +170,8 @@ def throughput_section(args: argparse.Namespace, root: Path, reference: Process,
         glb_bytes = run_clients({"task": "stream", "url": kitti, "clients": 1, "repeats": 1})["bytes"]
         json_bytes = run_clients({"task": "stream", "url": kitti + "?message_format=JSON", "clients": 1, "repeats": 1})["bytes"]
         configs = [("raw", 1, 1), ("raw", 20, 1), ("websockets", 1, 1), ("websockets", 20, 1)]
+        if SMOKE:
+            configs = [("raw", 1, 1), ("websockets", 1, 1)]
         if not quick:
             configs += [("raw", 20, 2), ("websockets", 20, 2)]
         if args.client_procs > 2:
@@ -232,7 +235,7 @@ def throughput_section(args: argparse.Namespace, root: Path, reference: Process,
 
 
 def first_frame_section(root: Path, reference: Process, results: dict[str, Any], quick: bool) -> None:
-    restarts = 3 if quick else 7
+    restarts = 1 if SMOKE else 3 if quick else 7
     warm = 5
     section("2. Time to first frame (transform_log sent -> first state update received)")
     line(f"Cold: the first request after server start (median of {restarts} fresh servers; frame files in the OS page cache). "
@@ -263,7 +266,7 @@ def first_frame_section(root: Path, reference: Process, results: dict[str, Any],
 
 
 def point_in_time_section(root: Path, reference: Process, results: dict[str, Any], quick: bool, long_frames: int) -> None:
-    rounds = 500 if quick else 2000
+    rounds = 20 if SMOKE else 500 if quick else 2000
     section("3. Point-in-time latency (random instants, fixed seed, one client, each answer awaited)")
     line(f"One fresh server serving all three logs; one client, one connection per row below, {rounds} rounds in which each "
          "connection in turn sends one request and awaits its answer (server and reference interleaved: same load for all).")
@@ -332,7 +335,7 @@ def point_in_time_section(root: Path, reference: Process, results: dict[str, Any
 
 def memory_section(args: argparse.Namespace, root: Path, results: dict[str, Any], quick: bool) -> None:
     read_ahead = 4
-    repeats = 3 if quick else 4
+    repeats = 1 if SMOKE else 3 if quick else 4
     n_trials = 1 if quick else 3
     frames_in_log = len(list(args.kitti.glob("*-frame.glb"))) - 1
     largest = max(p.stat().st_size for p in args.kitti.glob("*-frame.glb")) / MIB
@@ -388,7 +391,7 @@ def memory_section(args: argparse.Namespace, root: Path, results: dict[str, Any]
 
 
 def deflate_section(root: Path, results: dict[str, Any], quick: bool) -> None:
-    repeats_off = 2 if quick else 4
+    repeats_off = 1 if SMOKE else 2 if quick else 4
     section("5. permessage-deflate (1 client, KITTI; the client offers deflate, as websockets does by default)")
     rows = []
     for label, flags in (("off (default)", ()), ("--compression", ("--compression",))):
@@ -422,25 +425,27 @@ def deflate_section(root: Path, results: dict[str, Any], quick: bool) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--kitti", type=Path, default=KITTI, help=f"the KITTI GLB log (default {KITTI})")
-    parser.add_argument("--quick", action="store_true", help="fewer repeats and a 10 000-frame long log (under ~2 minutes)")
+    parser.add_argument("--short", action="store_true", help="fewer repeats and a 10 000-frame long log (under ~2 minutes)")
     parser.add_argument("--json", type=Path, help="also write the numbers to this file")
     parser.add_argument("--client-procs", type=int, default=1,
                         help="also run the 20-client throughput rows with this many client processes (rows with 1, and "
                         "2 in a full run, are always there)")
-    parser.add_argument("--long-frames", type=int, help="frames of the generated long log (default 100 000; 10 000 with --quick)")
+    parser.add_argument("--long-frames", type=int, help="frames of the generated long log (default 100 000; 10 000 with --short)")
     shm = Path("/dev/shm")
     parser.add_argument("--tmp", type=Path, default=shm if shm.is_dir() and os.access(shm, os.W_OK) else None,
                         help="where to write the generated logs (default /dev/shm, a RAM disk: 100 000 small files are "
                         "written in ~2 s there and can take a minute on a busy disk)")
-    args = parser.parse_args()
+    args = parse(parser, quick={"short": True, "long_frames": 200})
+    global SMOKE
+    SMOKE = args.quick
 
     began = time.perf_counter()
-    quick = args.quick
+    quick = args.short
     long_frames = args.long_frames or (10_000 if quick else 100_000)
     info = machine()
     results: dict[str, Any] = {"machine": info, "quick": quick, "long_frames": long_frames, "sections": {},
                                "load_average_at_start": os.getloadavg()}
-    line(f"xviz-server benchmark ({'quick' if quick else 'full'} run), {time.strftime('%Y-%m-%d %H:%M:%S')}")
+    line(f"xviz-server benchmark ({'smoke' if SMOKE else 'short' if quick else 'full'} run), {time.strftime('%Y-%m-%d %H:%M:%S')}")
     line(f"machine: {info['cores']} cores ({info['cpu']}), Linux {info['kernel']}, Python {info['python']}, "
          f"websockets {info['websockets']}, uvloop {info['uvloop']}; load average at start "
          + " ".join(f"{x:.2f}" for x in os.getloadavg()))

@@ -1,4 +1,4 @@
-"""Synthetic Waymo ``Frame`` records for scripts/bench_datasets.py and the tests: range images, poses, cameras, labels.
+"""Synthetic Waymo ``Frame`` records for scripts/bench/datasets.py and the tests: range images, poses, cameras, labels.
 
 Everything is built here from arrays with the protobuf runtime and written
 with the TFRecord framing, CRCs included, as Waymo's files are.

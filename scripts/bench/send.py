@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark sending a whole log: xviz-server against raw TCP and bare websockets, in one run.
 
-    .venv/bin/python scripts/bench_send.py [--frames 154] [--repeats 4] [--trials 5] [--clients 1 4]
+    .venv/bin/python scripts/bench/send.py [--frames 154] [--repeats 4] [--trials 5] [--clients 1 4] [--quick]
 
 A longer log is made from the 25 real KITTI GLB frames (2.1 MB each), repeated
 with shifted timestamps (``--frames``). Three servers, each its own process on
@@ -25,11 +25,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import base64
 import json
 import os
 import shutil
-import socket
 import statistics
 import subprocess
 import sys
@@ -38,8 +36,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchproc import KITTI, Process, cpu_seconds, other_cores, other_cpu, start_server  # noqa: E402
+from kit import KITTI, parse
+from kit.proc import Process, cpu_seconds, other_cores, other_cpu, start_server
+from kit.ws import Reader
 
 MB = 1e6
 HIGH_WATER = 2**15  # websockets' default write limit, for the raw server's flow control
@@ -49,7 +48,6 @@ HIGH_WATER = 2**15  # websockets' default write limit, for the raw server's flow
 
 def long_log(source: Path, target: Path, frames: int) -> list[Path]:
     """``frames`` state updates: the source's, repeated with their timestamps shifted; the frame files in order."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from xviz_server.codec import edit_glb
 
     originals = sorted(source.glob("*-frame.glb"), key=lambda p: int(p.name.split("-")[0]))[1:]
@@ -138,77 +136,6 @@ async def websockets_server(frames: list[bytes]) -> None:
 # ================================================================ readers
 
 
-class Reader:
-    """A blocking socket reading responses into one reused buffer."""
-
-    def __init__(self, port: int) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port))
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
-        self.pending = bytearray()
-        self.buffer = memoryview(bytearray(1 << 20))
-
-    def take(self, n: int) -> bytes:
-        while len(self.pending) < n:
-            chunk = self.sock.recv(1 << 16)
-            if not chunk:
-                raise ConnectionError("the server closed the connection")
-            self.pending += chunk
-        data = bytes(self.pending[:n])
-        del self.pending[:n]
-        return data
-
-    def skip(self, n: int) -> None:
-        used = min(n, len(self.pending))
-        del self.pending[:used]
-        n -= used
-        while n:
-            got = self.sock.recv_into(self.buffer, min(n, len(self.buffer)))
-            if not got:
-                raise ConnectionError("the server closed the connection")
-            n -= got
-
-    def handshake(self, path: str) -> None:
-        key = base64.b64encode(os.urandom(16)).decode()
-        self.sock.sendall(f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                          f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
-        while b"\r\n\r\n" not in self.pending:
-            self.pending += self.sock.recv(1 << 16)
-        head, _, rest = bytes(self.pending).partition(b"\r\n\r\n")
-        if not head.startswith(b"HTTP/1.1 101"):
-            raise ConnectionError(head.decode(errors="replace"))
-        self.pending = bytearray(rest)
-
-    def send_text(self, text: str) -> None:
-        payload = text.encode()
-        assert len(payload) < 126
-        self.sock.sendall(bytes([0x81, 0x80 | len(payload)]) + bytes(4) + payload)  # zero mask key
-
-    def frame(self) -> tuple[int, int, bytes | None]:
-        """The next frame's opcode, length and payload (``None`` for large payloads, skipped)."""
-        first, second = self.take(2)
-        length = second & 0x7F
-        if length >= 126:
-            length = int.from_bytes(self.take(2 if length == 126 else 8), "big")
-        opcode = first & 0x0F
-        if length >= 1 << 16:
-            self.skip(length)
-            return opcode, length, None
-        payload = self.take(length)
-        if opcode == 0x9:  # ping: answer, or the server closes us
-            self.sock.sendall(bytes([0x8A, 0x80 | length]) + bytes(4) + payload)
-        return opcode, length, payload
-
-    def websocket_response(self) -> int:
-        """Payload bytes of data frames until a small one saying done (xviz-server sends it as GLB or JSON)."""
-        total = 0
-        while True:
-            opcode, length, payload = self.frame()
-            if opcode in (0x1, 0x2) and payload is not None and b"done" in payload:
-                return total
-            if opcode in (0x0, 0x2):
-                total += length
-
-
 def reader_main(kind: str, port: int, repeats: int) -> None:
     """Connect, say ``ready``, wait for ``go`` on stdin, read ``repeats`` responses, print the result."""
     reader = Reader(port)
@@ -261,7 +188,7 @@ def main() -> None:
     parser.add_argument("--kitti", type=Path, default=KITTI)
     parser.add_argument("--json", type=Path, help="write the results here")
     parser.add_argument("--role", nargs="+", help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    args = parse(parser, quick={"frames": 26, "repeats": 1, "trials": 1, "clients": [1]})
     if args.role:
         role, *rest = args.role
         if role == "reader":

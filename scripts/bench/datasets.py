@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Conversion speed per frame of every dataset kind, side by side, in one process.
 
-    python scripts/bench_datasets.py [--frames N]
+    python scripts/bench/datasets.py [--frames N] [--quick]
 
 KITTI is the real drive in shared/data; Waymo and VISTA frames are generated
 at their real sizes (Waymo: a 64 x 2650 top range image, four 200 x 600
@@ -25,12 +25,13 @@ from typing import Any
 
 import numpy as np
 
+from devkit.waymo_frames import real_size_frame, write_segment
+from kit import KITTI_RAW as KITTI
+from kit import parse
 from xviz_server.codec import Format, encode
 from xviz_server.datasets import open_dataset
 from xviz_server.messages import envelope
 
-REPO = Path(__file__).resolve().parents[1]
-KITTI = REPO.parent / "shared" / "data" / "kitti-raw-2011_09_26_drive_0001-head"
 
 
 def waymo_segment(directory: Path, frames: int) -> Path:
@@ -54,7 +55,6 @@ def waymo_segment(directory: Path, frames: int) -> Path:
 
 def waymo_tfrecord(path: Path, frames: int, returns_top: tuple[float, float], returns_short: tuple[float, float]) -> Path:
     from PIL import Image
-    from waymo_frames import real_size_frame, write_segment  # scripts/ is on the path of a script run from it
 
     rng = np.random.default_rng(0)
     cameras = {}
@@ -111,7 +111,7 @@ def per_frame(kind: str, path: Path, frames: int, options: dict[str, Any]) -> tu
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=10)
-    args = parser.parse_args()
+    args = parse(parser, quick={"frames": 1})
     with tempfile.TemporaryDirectory() as scratch:
         scaled: dict[str, Any] = {}  # cameras scaled down to the default 400 pixels
         rows = [("kitti", KITTI, scaled, "real drive 0001 excerpt")]

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark serving protobuf (PBE) frames: PBE -> GLB, the transcode each frame of a PBE log gets once.
 
-    python scripts/bench_pbe.py [PBE_LOG_DIR] [--repeat N]
+    python scripts/bench/pbe.py [PBE_LOG_DIR] [--repeat N] [--quick]
 
 Without a log, the KITTI excerpt (25 frames of about 121 000 points and four
 camera images) is written as PBE by @xviz/io 1.0.13's XVIZProtobufWriter
@@ -33,13 +33,13 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench_codec import median_ms
+from kit import KITTI as KITTI_LOG
+from kit import REPO as REPOSITORY
+from kit import median_ms, parse
 
 from xviz_server.codec import Format, decode_pbe, encode
 from xviz_server.frames import render
 
-REPOSITORY = Path(__file__).resolve().parents[1]
-KITTI_LOG = REPOSITORY.parent / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
 
 
 def faults() -> int:
@@ -93,7 +93,7 @@ def main() -> None:
     parser.add_argument("log", nargs="?", type=Path)
     parser.add_argument("--repeat", type=int, default=50)
     parser.add_argument("--rounds", type=int, default=3, help="passes over the whole log")
-    args = parser.parse_args()
+    args = parse(parser, quick={"repeat": 3, "rounds": 1})
 
     with tempfile.TemporaryDirectory() as scratch:
         log = args.log or kitti_as_pbe(Path(scratch) / "pbe")

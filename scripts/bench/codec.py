@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark the XVIZ codecs on a real KITTI frame.
 
-    python scripts/bench_codec.py [FRAME.glb] [--repeat N]
+    python scripts/bench/codec.py [FRAME.glb] [--repeat N] [--quick]
 
 Prints the median time of GLB decode (to numpy views), GLB encode (from
 numpy), JSON encode and decode, with two references measured in the same
@@ -13,37 +13,16 @@ standard library's json for JSON).
 from __future__ import annotations
 
 import argparse
-import gc
 import json
-import statistics
-import time
 import warnings
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pygltflib
 
+from kit import KITTI_FRAME, median_ms, parse
 from xviz_server.codec import decode_glb, decode_json, encode_glb, encode_json
-
-DEFAULT_FRAME = (
-    Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-2011_09_26_drive_0001-head" / "2-frame.glb"
-)
-
-
-def median_ms(function: Callable[[], Any], repeat: int) -> float:
-    function()  # warm up
-    gc.disable()
-    try:
-        times = []
-        for _ in range(repeat):
-            start = time.perf_counter()
-            function()
-            times.append(time.perf_counter() - start)
-    finally:
-        gc.enable()
-    return statistics.median(times) * 1000
-
 
 def stdlib_json(message: Any) -> str:
     def default(value: Any) -> Any:
@@ -66,9 +45,9 @@ def pygltflib_load(data: bytes) -> Any:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("frame", nargs="?", type=Path, default=DEFAULT_FRAME)
+    parser.add_argument("frame", nargs="?", type=Path, default=KITTI_FRAME)
     parser.add_argument("--repeat", type=int, default=50)
-    args = parser.parse_args()
+    args = parse(parser, quick={"repeat": 3})
 
     data = args.frame.read_bytes()
     message = decode_glb(data)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The kernel's part of a live fan-out: one frame to many sockets over loopback, three ways.
 
-    python scripts/bench_kernel_fanout.py [--receivers 50] [--frames 50] [--rounds 3]
+    python scripts/bench/kernel_fanout.py [--receivers 50] [--frames 50] [--rounds 3] [--quick]
 
 No WebSocket and no event loop: one process writes a real KITTI frame (2.1 MB
 of GLB) to ``--receivers`` TCP connections at 10 Hz, with non-blocking
@@ -32,8 +32,8 @@ import socket
 import statistics
 import time
 
-from bench_live import FRAME
-from benchkit import percentile
+from kit import KITTI_FRAME as FRAME
+from kit import parse, percentile
 
 WAYS = ("send", "sendfile", "zerocopy")
 SO_ZEROCOPY = getattr(socket, "SO_ZEROCOPY", 60)
@@ -136,7 +136,7 @@ def main() -> None:
     parser.add_argument("--receivers", type=int, default=50)
     parser.add_argument("--frames", type=int, default=50)
     parser.add_argument("--rounds", type=int, default=3)
-    args = parser.parse_args()
+    args = parse(parser, quick={"receivers": 5, "frames": 5, "rounds": 1})
     data = FRAME.read_bytes()
     print(f"{len(data) / 1e6:.1f} MB frame to {args.receivers} loopback sockets at 10 Hz, "
           f"{args.frames} frames, {args.rounds} rounds")

@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 """Benchmark live feeds across replicas through the broker (Redis Streams).
 
-    python scripts/bench_broker.py [--viewers 4] [--cpu-viewers 12] [--rate 10] [--seconds 10] [--runs 1]
+    python scripts/bench/broker.py [--viewers 4] [--cpu-viewers 12] [--rate 10] [--seconds 10] [--runs 1] [--quick]
 
 Starts Debian's ``redis-server`` on a free loopback port (``--save "" --appendonly
 no``) and ``xviz-server serve --broker`` replicas, each a process. The source
-(scripts/bench_live.py's: a real KITTI frame, 2.1 MB of GLB, stamped with its
+(``kit.live``'s: a real KITTI frame, 2.1 MB of GLB, stamped with its
 send time) pushes to replica A at ``--rate`` Hz.
 
 1. Latency: ``--viewers`` viewers on A (served by A directly) and as many on B
@@ -16,7 +16,7 @@ send time) pushes to replica A at ``--rate`` Hz.
    (trimmed as the server trims it) and writes it to its own viewers; B' reads the stream with a blocking socket
    into a ring of buffers, parsing nothing but where the frame is, and writes
    each frame to its viewers. Both write the frame's header and the message to
-   each viewer's transport (bench_live's raw writes): no checks, no state, no
+   each viewer's transport (``kit.ws.raw_writes``): no checks, no state, no
    queues. ``--runs`` times, the two in a rotated order, and the medians over
    the runs of B - A (p50) and B / A (p99) for each (on a shared machine one
    run says little).
@@ -41,44 +41,14 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from bench_live import FRAME, forward, raw_writes
-from benchkit import percentile
-from benchproc import MIB, REPO, Process, cpu_seconds, other_cores, other_cpu, start_server
+from kit import KITTI_FRAME as FRAME
+from kit import parse, percentile
+from kit.live import ROLE
+from kit.proc import BENCH, MIB, Process, address, cpu_seconds, other_cores, other_cpu, resp, start_redis, start_server
+from kit.ws import forward, raw_writes
 
 #: The latency runs' pairs of replicas: this server's, and the bare relays (the machine's limit).
 PAIRS = ("server", "relay")
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
-def start_redis(directory: str) -> tuple[subprocess.Popen[bytes], str]:
-    port = free_port()
-    process = subprocess.Popen(
-        ["redis-server", "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no", "--dir", directory],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )
-    for _ in range(100):
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.1).close()
-            break
-        except OSError:
-            time.sleep(0.05)
-    return process, f"redis://127.0.0.1:{port}/0"
-
-
-def address(broker: str) -> tuple[str, int]:
-    """The ``(host, port)`` of a ``redis://HOST:PORT/0`` URL."""
-    host, port = broker.removeprefix("redis://").split("/")[0].split(":")
-    return host, int(port)
-
-
-def resp(*parts: bytes, more: int = 0) -> bytes:
-    """A Redis command in RESP, or its start when ``more`` parts follow."""
-    return b"*%d\r\n" % (len(parts) + more) + b"".join(b"$%d\r\n%s\r\n" % (len(part), part) for part in parts)
 
 
 #: Where the frame starts in an XREAD reply of the relays' entries (one field, ``d``).
@@ -162,13 +132,13 @@ def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace
             counts = [(replica, count) for replica, count in zip(replicas, viewers_on) if count]
             outputs = [Path(scratch) / f"viewers-{i}.json" for i in range(len(counts))]
             groups = [
-                subprocess.Popen([sys.executable, str(REPO / "scripts" / "bench_live.py"), "--role", "viewers",
-                                  replica.url(f"?logGuid={name}"), str(count), str(watch), str(output)], cwd=REPO)
+                subprocess.Popen([*ROLE, "viewers", replica.url(f"?logGuid={name}"), str(count), str(watch), str(output)],
+                                 cwd=BENCH)
                 for (replica, count), output in zip(counts, outputs)
             ]
             used = [cpu_seconds(replica.pid) for replica in replicas]
-            subprocess.run([sys.executable, str(REPO / "scripts" / "bench_live.py"), "--role", "source",
-                            replicas[0].url(f"ingest/{name}"), str(args.rate), str(args.seconds)], cwd=REPO, check=True)
+            subprocess.run([*ROLE, "source", replicas[0].url(f"ingest/{name}"), str(args.rate), str(args.seconds)],
+                           cwd=BENCH, check=True)
             if cpu is not None:
                 cpu[:] = [cpu_seconds(replica.pid) - before for replica, before in zip(replicas, used)]
             if any(group.wait() for group in groups):
@@ -188,7 +158,7 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=1, help="latency runs (0: only the broker CPU part)")
     parser.add_argument("--no-cpu", action="store_true", help="skip the broker CPU part")
     parser.add_argument("--role", nargs=3, help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    args = parse(parser, quick={"viewers": 1, "seconds": 1.0, "no_cpu": True})
     if args.role:
         import uvloop
 

@@ -1,9 +1,8 @@
 #!/usr/bin/env python3
-"""The benchmarks' processes: the server under test, the reference server, client processes, and
-what each costs (CPU seconds of a process and its children, RSS, the cores other processes took).
+"""The benchmarks' processes: the server under test, the reference server, client processes, Redis,
+and what each costs (CPU seconds of a process and its children, RSS, the cores other processes took).
 
-Imported by scripts/bench_server.py and scripts/bench_send.py; the reference server and the
-clients themselves are scripts/benchpeers.py.
+The reference server and the client processes themselves are :mod:`kit.peers`.
 """
 
 from __future__ import annotations
@@ -11,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import socket
 import statistics
 import subprocess
 import sys
@@ -21,11 +21,13 @@ from pathlib import Path
 from typing import Any, Self
 
 
-REPO = Path(__file__).resolve().parents[1]
-KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-2011_09_26_drive_0001-head"
+from kit import REPO
+
+#: Where ``python -m kit.peers`` runs: the folder that holds the kit.
+BENCH = Path(__file__).resolve().parents[1]
+PEERS = [sys.executable, "-m", "kit.peers"]
 MB = 1e6  # rates in MB/s are 10^6 bytes per second
-MIB = 1 << 20
-PEERS = Path(__file__).with_name("benchpeers.py")  # memory in MiB, like --cache-mb
+MIB = 1 << 20  # memory in MiB, like --cache-mb
 QUIET = 0.25  # a trial is "quiet" when other processes used fewer cores than this
 
 # ================================================================ processes
@@ -39,12 +41,12 @@ def _clean_env() -> dict[str, str]:
 class Process:
     """A child process that prints ``ready`` (a regex with the port) on stderr; stderr is drained after."""
 
-    def __init__(self, args: list[str], ready: str, name: str) -> None:
+    def __init__(self, args: list[str], ready: str, name: str, cwd: Path = REPO) -> None:
         self.name = name
         self.started = time.perf_counter()
         self.popen = subprocess.Popen(
             args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-            text=True, cwd=REPO, env=_clean_env(),
+            text=True, cwd=cwd, env=_clean_env(),
         )
         self.tail: deque[str] = deque(maxlen=30)
         assert self.popen.stderr is not None
@@ -98,7 +100,7 @@ def start_server(root: Path | str | None, *extra: str) -> Process:
 
 def start_reference(logs: dict[str, Path]) -> Process:
     spec = json.dumps({name: str(path) for name, path in logs.items()})
-    return Process([sys.executable, str(PEERS), "--role", "reference", spec], r"reference listening on ws://127\.0\.0\.1:(\d+)/", "reference")
+    return Process([*PEERS, "--role", "reference", spec], r"reference listening on ws://127\.0\.0\.1:(\d+)/", "reference", cwd=BENCH)
 
 
 def descendants(pid: int) -> list[int]:
@@ -206,8 +208,8 @@ def run_clients(spec: dict[str, Any], procs: int = 1, server_pid: int | None = N
     for clients, stalls in zip(counts, stalled):
         part = {**spec, "clients": clients, "stalled": stalls}
         child = subprocess.Popen(
-            [sys.executable, str(PEERS), "--role", "client", "-"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPO, env=_clean_env(),
+            [*PEERS, "--role", "client", "-"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=BENCH, env=_clean_env(),
         )
         assert child.stdin is not None
         child.stdin.write(json.dumps(part) + "\n")  # the spec, on stdin: a schedule can be long
@@ -265,3 +267,38 @@ def run_clients(spec: dict[str, Any], procs: int = 1, server_pid: int | None = N
     return result
 
 
+# ================================================================ Redis
+
+
+def free_port() -> int:
+    """A loopback TCP port free at the time of the call."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def start_redis(directory: str) -> tuple[subprocess.Popen[bytes], str]:
+    """Debian's redis-server on a free loopback port, without persistence, in ``directory``; and its URL."""
+    port = free_port()
+    process = subprocess.Popen(
+        ["redis-server", "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no", "--dir", directory],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    for _ in range(100):
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.1).close()
+            break
+        except OSError:
+            time.sleep(0.05)
+    return process, f"redis://127.0.0.1:{port}/0"
+
+
+def address(broker: str) -> tuple[str, int]:
+    """The ``(host, port)`` of a ``redis://HOST:PORT/0`` URL."""
+    host, port = broker.removeprefix("redis://").split("/")[0].split(":")
+    return host, int(port)
+
+
+def resp(*parts: bytes, more: int = 0) -> bytes:
+    """A Redis command in RESP, or its start when ``more`` parts follow."""
+    return b"*%d\r\n" % (len(parts) + more) + b"".join(b"$%d\r\n%s\r\n" % (len(part), part) for part in parts)
