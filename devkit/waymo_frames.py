@@ -75,7 +75,7 @@ def frame(
     for name, data in (images or {}).items():
         message.images.add(name=name, image=data)
     for (x, y, z, length, width, height, heading), kind, object_id in labels:
-        label = message.laser_labels.add(type=kind, id=object_id)  # type: ignore[arg-type]
+        label = message.laser_labels.add(type=kind, id=object_id)
         label.box.center_x, label.box.center_y, label.box.center_z = x, y, z
         label.box.length, label.box.width, label.box.height, label.box.heading = length, width, height, heading
     return message

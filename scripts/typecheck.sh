@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Type-check the package with mypy, as it is installed: providers/ and schema/
-# sit inside xviz_server/ there (pyproject.toml's package-dir), so mypy reads a
+# Type-check with mypy: the package as it is installed, then the benchmarks (scripts/bench/)
+# and the helpers they share with the tests (devkit/) against it. providers/ and schema/
+# sit inside xviz_server/ when installed (pyproject.toml's package-dir), so mypy reads a
 # tree of links laid out that way. Reported paths are as installed
 # (xviz_server/providers/static_log.py is providers/static_log.py here).
 set -euo pipefail
@@ -10,5 +11,8 @@ trap 'rm -rf "$tree"' EXIT
 mkdir "$tree/xviz_server"
 cp -rs "$repo/xviz_server/." "$tree/xviz_server/"
 cp -rs "$repo/providers" "$tree/xviz_server/providers"
+cp -rs "$repo/devkit" "$tree/devkit"
 cd "$tree"
-exec "${PYTHON:-python}" -m mypy --config-file "$repo/pyproject.toml" -p xviz_server "$@"
+"${PYTHON:-python}" -m mypy --config-file "$repo/pyproject.toml" -p xviz_server "$@"
+cd "$repo/scripts/bench"
+MYPYPATH="$tree" "${PYTHON:-python}" -m mypy --config-file "$repo/pyproject.toml" kit *.py "$tree/devkit" "$@"

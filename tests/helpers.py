@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from typing import Any, AsyncIterator
 
 import numpy as np
+from prometheus_client.parser import text_string_to_metric_families
 from websockets.asyncio.client import ClientConnection, connect
 
 from xviz_server.codec import Format, decode, encode
@@ -41,13 +42,18 @@ DRIVER = INTEROP / "xviz-session.js"
 # ------------------------------------------------------------ comparisons
 
 
-def assert_same_message(actual: Any, expected: Any, path: str = "$") -> None:
+def assert_same_message(actual: Any, expected: Any, path: str = "$", *, lists_as_arrays: bool = False) -> None:
     """Assert two decoded messages hold the same data.
 
     numpy arrays compare by dtype, shape and values; ``bytes`` and
-    ``memoryview`` compare by content; everything else with ``==``.
+    ``memoryview`` compare by content; everything else with ``==``. With
+    ``lists_as_arrays``, ``actual`` may hold nested lists where ``expected``
+    has arrays (a JSON message against a GLB one): they are read as arrays
+    of the expected dtype, so the values must match to the bit.
     """
     if isinstance(expected, np.ndarray):
+        if lists_as_arrays and isinstance(actual, list):
+            actual = np.asarray(actual, dtype=expected.dtype)
         assert isinstance(actual, np.ndarray), f"{path}: {type(actual).__name__} is not an array"
         assert actual.dtype == expected.dtype, f"{path}: dtype {actual.dtype} != {expected.dtype}"
         assert actual.shape == expected.shape, f"{path}: shape {actual.shape} != {expected.shape}"
@@ -59,14 +65,29 @@ def assert_same_message(actual: Any, expected: Any, path: str = "$") -> None:
         assert isinstance(actual, dict), f"{path}: {type(actual).__name__} is not an object"
         assert list(actual) == list(expected), f"{path}: keys {list(actual)} != {list(expected)}"
         for key in expected:
-            assert_same_message(actual[key], expected[key], f"{path}[{key!r}]")
+            assert_same_message(actual[key], expected[key], f"{path}[{key!r}]", lists_as_arrays=lists_as_arrays)
     elif isinstance(expected, list):
         assert isinstance(actual, list), f"{path}: {type(actual).__name__} is not a list"
         assert len(actual) == len(expected), f"{path}: length {len(actual)} != {len(expected)}"
         for index, (a, e) in enumerate(zip(actual, expected)):
-            assert_same_message(a, e, f"{path}[{index}]")
+            assert_same_message(a, e, f"{path}[{index}]", lists_as_arrays=lists_as_arrays)
     else:
         assert actual == expected, f"{path}: {actual!r} != {expected!r}"
+
+
+def metric(text: str | bytes, name: str, **labels: str) -> float:
+    """The sum of the samples named ``name`` on a ``/metrics`` page whose labels include ``labels`` (0 if none).
+
+    The page is parsed as Prometheus text (``prometheus_client``'s parser),
+    so a page it cannot read fails the test.
+    """
+    page = text.decode() if isinstance(text, bytes) else text
+    return sum(
+        sample.value
+        for family in text_string_to_metric_families(page)
+        for sample in family.samples
+        if sample.name == name and labels.items() <= sample.labels.items()
+    )
 
 
 def assert_same_parse(mine, theirs, path: str) -> None:

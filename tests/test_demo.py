@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from helpers import client, running_server, timestamps, write_demo, xviz_decode
+from helpers import assert_same_message, client, running_server, timestamps, write_demo, xviz_decode
 from xviz_server.check import check_paths
 from xviz_server.codec import Format, decode, decode_json, encode
 from xviz_server.datasets.demo import DemoDrive
@@ -250,23 +250,7 @@ def test_glb_and_json_logs_hold_the_same_data(glb_log: Path, json_log: Path):
     glb_index, *glb_messages = read_log(glb_log)
     json_index, *json_messages = read_log(json_log)
     assert glb_index == json_index
-    assert_same_data(glb_messages, json_messages)
-
-
-def assert_same_data(glb: Any, json: Any, path: str = "$") -> None:
-    """Assert that a GLB message and a JSON one hold the same data: arrays to the bit."""
-    if isinstance(glb, np.ndarray):
-        assert np.array_equal(np.asarray(json, dtype=glb.dtype), glb), path
-    elif isinstance(glb, dict):
-        assert isinstance(json, dict) and list(json) == list(glb), path
-        for key in glb:
-            assert_same_data(glb[key], json[key], f"{path}.{key}")
-    elif isinstance(glb, list):
-        assert isinstance(json, list) and len(json) == len(glb), path
-        for i, (a, b) in enumerate(zip(glb, json)):
-            assert_same_data(a, b, f"{path}[{i}]")
-    else:
-        assert glb == json, path
+    assert_same_message(json_messages, glb_messages, lists_as_arrays=True)
 
 
 # --------------------------------------------------------------------------

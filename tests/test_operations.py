@@ -17,7 +17,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
-from helpers import client, run_cli, running_server, ten_hz, write_log
+from helpers import client, metric, run_cli, running_server, ten_hz, write_log
 from xviz_server.codec import decode
 
 
@@ -159,8 +159,7 @@ async def test_metrics_parse_as_prometheus_text(root: Path):
                  "xviz_cache_misses", "xviz_cache_bytes", "xviz_cache_evictions", "xviz_live_dropped_updates",
                  "xviz_errors", "xviz_request_seconds", "xviz_first_frame_seconds"):
         assert name in families, name
-    samples = {(s.name, tuple(sorted(s.labels.items()))): s.value for f in families.values() for s in f.samples}
-    assert samples[("xviz_frames_sent_total", (("format", "BINARY"),))] == 6  # 5 frames and the complete state
-    assert samples[("xviz_errors_total", (("kind", "malformed"),))] == 1
-    assert samples[("xviz_request_seconds_count", (("type", "transform_point_in_time"),))] == 1
+    assert metric(text, "xviz_frames_sent_total", format="BINARY") == 6  # 5 frames and the complete state
+    assert metric(text, "xviz_errors_total", kind="malformed") == 1
+    assert metric(text, "xviz_request_seconds_count", type="transform_point_in_time") == 1
     assert families["xviz_request_seconds"].type == "histogram"

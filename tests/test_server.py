@@ -11,7 +11,7 @@ import pytest
 
 from websockets.asyncio.client import connect
 
-from helpers import assert_same_message, client, running_server, ten_hz, timestamps, update, write_log
+from helpers import assert_same_message, client, metric, running_server, ten_hz, timestamps, update, write_log
 from xviz_server import frames
 from xviz_server.codec import Format, decode
 
@@ -285,8 +285,6 @@ async def test_reconfigure_full_and_delta(root: Path):
 async def test_catalog_health_and_metrics(root: Path):
     import urllib.request
 
-    from prometheus_client.parser import text_string_to_metric_families
-
     async with running_server(root) as server:
         async with client(server, "/?log=kitti") as c:
             await c.recv()
@@ -307,11 +305,6 @@ async def test_catalog_health_and_metrics(root: Path):
         assert (await asyncio.to_thread(get, "/healthz"))[2] == b"ok\n"
         status, kind, body = await asyncio.to_thread(get, "/metrics")
         assert kind.startswith("text/plain")
-        samples = {
-            (sample.name, tuple(sorted(sample.labels.items()))): sample.value
-            for family in text_string_to_metric_families(body.decode())
-            for sample in family.samples
-        }
-        assert samples[("xviz_frames_sent_total", (("format", "BINARY"),))] == 25
-        assert samples[("xviz_sessions_total", ())] == 1
-        assert samples[("xviz_cache_misses_total", ())] >= 25
+        assert metric(body, "xviz_frames_sent_total", format="BINARY") == 25
+        assert metric(body, "xviz_sessions_total") == 1
+        assert metric(body, "xviz_cache_misses_total") >= 25

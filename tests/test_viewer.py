@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import metadata, running_server, ten_hz, write_demo, write_log
+from helpers import metadata, metric, running_server, ten_hz, write_demo, write_log
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
 from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, ViewerPage, accepted_encodings
@@ -189,16 +189,15 @@ def assert_stream_list_shows(report: dict[str, Any], streams: list[str]) -> None
         assert f"/{group}" in shown and (not rest or f"/{rest}" in shown), stream
 
 
-def counted(server: XVIZServer, sample: str) -> int:
+def counted(server: XVIZServer, name: str, **labels: str) -> int:
     """The value of one sample of the server's metrics (0 when it has none yet)."""
     _, _, body = get(server, "/metrics")
-    match = re.search(rb"^" + re.escape(sample.encode()) + rb" (\S+)$", body, re.MULTILINE)
-    return int(float(match.group(1))) if match else 0
+    return int(metric(body, name, **labels))
 
 
 def point_in_time_requests(server: XVIZServer) -> int:
     """How many ``xviz/transform_point_in_time`` requests the server answered."""
-    return counted(server, 'xviz_request_seconds_count{type="transform_point_in_time"}')
+    return counted(server, "xviz_request_seconds_count", type="transform_point_in_time")
 
 
 @browser

@@ -200,12 +200,12 @@ def main() -> None:
             for readers in (1, 3):
                 share = [args.cpu_viewers // readers + (i < args.cpu_viewers % readers) for i in range(readers)]
                 cpu_before, others_before, wall = cpu_seconds(redis.pid), other_cpu(), time.perf_counter()
-                latencies = run(url, empty, [0, *share], args, f"cpu{readers}")
+                groups = run(url, empty, [0, *share], args, f"cpu{readers}")
                 used = cpu_seconds(redis.pid) - cpu_before
-                got = sum(len(group) for group in latencies)
+                got = sum(len(group) for group in groups)
                 print(f"  {readers} replica(s) x {share[0]} viewers: redis-server {used:.2f} CPU s "
                       f"({used / args.seconds * 100:.0f}% of a core), {got}/{sent * args.cpu_viewers} updates delivered, "
-                      f"p99 {percentile([x for group in latencies for x in group], 99):.1f} ms; "
+                      f"p99 {percentile([x for group in groups for x in group], 99):.1f} ms; "
                       f"other processes used {other_cores(others_before, wall):.2f} cores meanwhile")
         finally:
             redis.terminate()

@@ -38,7 +38,7 @@ def waymo_segment(directory: Path, frames: int) -> Path:
     rng = np.random.default_rng(0)
     directory.mkdir()
     for i in range(frames):
-        arrays = {"POSE": np.eye(4, dtype=np.float32)}
+        arrays: dict[str, np.ndarray] = {"POSE": np.eye(4, dtype=np.float32)}
         for lidar, shape in (("TOP", (64, 2650)), ("FRONT", (200, 600)), ("SIDE_LEFT", (200, 600)),
                              ("SIDE_RIGHT", (200, 600)), ("REAR", (200, 600))):
             image = rng.uniform(0, 50, (*shape, 6)).astype(np.float32)
@@ -49,7 +49,7 @@ def waymo_segment(directory: Path, frames: int) -> Path:
         arrays["LABEL_BOXES"] = np.column_stack([rng.uniform(-40, 40, (60, 3)), rng.uniform(1, 5, (60, 3)), rng.uniform(-3, 3, 60)])
         arrays["LABEL_TYPES"] = rng.integers(0, 5, 60)
         arrays["LABEL_IDS"] = np.array([f"obj-{k}" for k in range(60)])
-        np.savez(directory / f"{1_557_000_000_000_000 + i * 100_000}.npz", **arrays)
+        np.savez(directory / f"{1_557_000_000_000_000 + i * 100_000}.npz", **arrays)  # type: ignore[arg-type]  # numpy's stub takes **arrays for allow_pickle
     return directory
 
 

@@ -89,7 +89,7 @@ async def preloaded(server: Process, name: str, timeout: float = 120) -> str:
         await asyncio.sleep(0.05)
 
 
-async def job_costs(points: list[int]) -> list[tuple[int, float, float, float]]:
+async def job_costs(points: list[int]) -> list[tuple[float, ...]]:
     """For frames of each cloud size: bytes, and median ms the check holds the GIL, of its thread round trip, of its worker-process round trip."""
     workers = Workers(processes=1)
     await workers.warm()

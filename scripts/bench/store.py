@@ -217,7 +217,7 @@ def main() -> None:
     parser.add_argument("--bag-frames", type=int, default=30, help="frames of each generated bag of row 4")
     parser.add_argument("--datasets-only", action="store_true", help="only row 4")
     parser.add_argument("--json", type=Path, help="also write the numbers to this file")
-    args = parse(parser, quick={"trials": 1, "repeats": 1, "bag_frames": 3})
+    args = parse(parser, quick={"trials": 1, "repeats": 1, "bag_frames": 3, "delay": 0.005})
     extra = (*(("--store-read-ahead", str(args.read_ahead)) if args.read_ahead else ()),
              *(("--store-read-ahead-mb", str(args.read_ahead_mb)) if args.read_ahead_mb else ()))
     results: dict[str, Any] = {"load_average_at_start": os.getloadavg(), "server_options": extra}

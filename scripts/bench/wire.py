@@ -31,6 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import Any
 
 from kit import KITTI_FRAME as FRAME
 from kit import parse, percentile
@@ -68,6 +69,7 @@ async def read_wire(url: str, frames: int) -> tuple[list[float], list[float]]:
             super().buffer_updated(nbytes)
 
     wire = await Timed.open(url, "bench-reader", 5)
+    assert isinstance(wire, Timed)
     whole, spread, last = [], [], b"$"
     for _ in range(frames):
         wire.first = 0.0
@@ -86,7 +88,7 @@ async def read_redis_py(url: str, frames: int) -> tuple[list[float], list[float]
     client = Redis.from_url(url, protocol=2)
     whole, last = [], "$"
     for _ in range(frames):
-        answer = await client.xread({STREAM: last}, count=1, block=5000)
+        answer: Any = await client.xread({STREAM: last}, count=1, block=5000)
         done = time.perf_counter()
         last, fields = answer[0][1][0]
         whole.append(done - struct.unpack("d", fields[b"t"])[0])

@@ -94,7 +94,7 @@ async def served(dataset: str, settle: float) -> tuple[float, float, int]:
             await websocket.recv()
             started = time.perf_counter()
             await websocket.send(json.dumps({"type": "xviz/transform_log", "data": {"id": "1"}}))
-            frames, first = 0, None
+            frames, first = 0, 0.0
             while True:
                 message = await websocket.recv()
                 if len(message) < 200 and decode(message)["type"] == "xviz/transform_log_done":

@@ -18,7 +18,7 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any, Self
+from typing import Any
 
 
 from kit import REPO
@@ -84,7 +84,7 @@ class Process:
                 self.popen.kill()
                 self.popen.wait()
 
-    def __enter__(self) -> Self:
+    def __enter__(self) -> Process:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -187,7 +187,7 @@ class RssSampler:
             self.peak, self.peak_total = max(self.peak, main), max(self.peak_total, total)
             self._stop.wait(self.interval)
 
-    def __enter__(self) -> Self:
+    def __enter__(self) -> RssSampler:
         self._thread.start()
         return self
 

@@ -29,6 +29,7 @@ from urllib.parse import urlsplit
 
 import websockets
 from websockets.asyncio.client import ClientConnection, connect
+from websockets.asyncio.server import ServerConnection
 from websockets.frames import Frame, Opcode
 
 from xviz_server.framing import frame_header
@@ -255,6 +256,7 @@ class RawClient:
             raise ValueError("the raw client does not do compression")
         parts = urlsplit(url)
         loop = asyncio.get_running_loop()
+        assert parts.hostname and parts.port, url
         _, protocol = await loop.create_connection(lambda: RawProtocol(keep), parts.hostname, parts.port)
         target = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
         assert protocol.transport is not None
@@ -297,7 +299,7 @@ class RawClient:
         return RawProtocol.wire_bytes
 
 
-CLIENTS = {"raw": RawClient, "websockets": WebsocketsClient}
+CLIENTS: dict[str, type[RawClient] | type[WebsocketsClient]] = {"raw": RawClient, "websockets": WebsocketsClient}
 
 
 
@@ -380,9 +382,11 @@ async def forward(viewers: set, pushed: Callable[[bytes], None]) -> None:
     """Serve WebSocket on a free loopback port: each message pushed to ``/ingest/...`` goes to ``pushed``,
     every other connection is in ``viewers`` while it is open."""
 
-    async def handler(websocket) -> None:
+    async def handler(websocket: ServerConnection) -> None:
+        assert websocket.request is not None
         if websocket.request.path.startswith("/ingest/"):
             async for message in websocket:
+                assert isinstance(message, bytes), "a live source pushes GLB"
                 pushed(message)
             return
         viewers.add(websocket)
