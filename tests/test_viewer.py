@@ -242,7 +242,7 @@ async def test_a_point_in_time_with_no_state_is_no_error_to_the_person(tmp_path:
     write_log(tmp_path / "late", ten_hz(60, start=101.0), meta=metadata(start_time=100.0, end_time=107.0))
     async with running_server(tmp_path) as server:
         report = await open_page(server, "/?log=late", "late-start", draw=False, settle=3000)
-        refused = await asyncio.to_thread(counted, server, 'xviz_errors_total{kind="query"}')
+        refused = await asyncio.to_thread(counted, server, "xviz_errors_total", kind="query")
     assert report["alerts"] == [] and report["pageErrors"] == [] and report["consoleErrors"] == []
     assert refused == 1 and report["frames"] >= 1 + 1 + 40  # metadata, the error, then 101 s to 105 s
 
