@@ -104,7 +104,7 @@ def moto_process() -> Iterator[MotoS3]:
 
 @contextlib.asynccontextmanager
 async def proxied(store: MotoS3, monkeypatch: pytest.MonkeyPatch, delay: float = 0.0) -> AsyncIterator[Proxy]:
-    """A proxy (tests/tcpproxy.py) to ``store``, waiting ``delay`` s before each request, and the AWS variables pointing
+    """A proxy (devkit/tcpproxy.py) to ``store``, waiting ``delay`` s before each request, and the AWS variables pointing
     at it for the test."""
     async with running_proxy(store.port, delay) as running:
         for name, value in store_env(running.url).items():

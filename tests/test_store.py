@@ -1,6 +1,6 @@
 """Logs in an object store (issue 14): a real S3 API on loopback (moto's server), through a real proxy.
 
-The proxy (tests/tcpproxy.py) sits between the server and the store: it
+The proxy (devkit/tcpproxy.py) sits between the server and the store: it
 counts GETs and how many were in flight at once, adds latency, and answers
 chosen requests with a 403 or a 5xx, stalls them, or cuts their body short.
 """

@@ -3,7 +3,7 @@
 The KITTI excerpt as a raw drive, written as a ROS 1 bag and as an MCAP
 file, and a generated Waymo segment, are uploaded to the store and also kept
 on disk: the frames served from the store must be the bytes served from the
-files. A proxy (tests/tcpproxy.py) between the server and the store counts
+files. A proxy (devkit/tcpproxy.py) between the server and the store counts
 the GETs, answers 404 and cuts connections.
 """
 

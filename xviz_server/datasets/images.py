@@ -75,7 +75,7 @@ def fit_width(picture: Picture, max_width: int, reducing_gap: float = 2.0) -> Pi
     With the default ``reducing_gap`` this is the official KITTI converter's
     scaling; a smaller one first shrinks by a whole factor with a box filter
     (see Pillow's ``Image.resize``), which is several times faster for large
-    reductions.
+    reductions (see docs/performance.md#ros-bags-and-mcap).
     """
     if picture.width <= max_width:
         return picture
