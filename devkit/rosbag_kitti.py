@@ -179,6 +179,46 @@ def kitti_messages(drive: KittiDrive, m: Messages, frames: int | None = None) ->
         ])
 
 
+def viz_messages(m: Messages, pose_type: str = "geometry_msgs/msg/PoseStamped") -> Iterator[tuple[str, str, int, Any]]:
+    """Five frames at 10 Hz in the ``map`` frame, in time order: the pose (``pose_type``: ``PoseStamped`` or
+    ``PoseWithCovarianceStamped``) on ``/pose`` moving 1 m along x a frame, numbers (``Float64`` on ``/speed``,
+    ``Int32`` on ``/gear``, ``Bool`` on ``/engaged``), ``Marker``s on ``/viz`` (a SPHERE, LINE_STRIP, POINTS, ARROW,
+    LINE_LIST and CUBE_LIST; the LINE_STRIP deleted in the second frame, the ARROW expiring after 0.15 s) and on
+    ``/shapes`` (a CUBE, CYLINDER and SPHERE_LIST), and a ``Path`` on ``/plan`` along x.
+    """
+    t0, tick = 1_700_000_000 * 10**9, 100_000_000
+    ahead = [(0.0, 0.0, 0.0), (0.0, 5.0, 0.0)]
+    messages: list[tuple[str, str, int, Any]] = []
+    for i in range(5):
+        pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
+        if pose_type.endswith("PoseWithCovarianceStamped"):
+            stamped_pose = m.geometry_msgs__PoseWithCovarianceStamped(
+                header=m.header(t0, "map"), pose=m.geometry_msgs__PoseWithCovariance(pose=pose, covariance=np.zeros(36)))
+        else:
+            stamped_pose = m.geometry_msgs__PoseStamped(header=m.header(t0, "map"), pose=pose)
+        messages.append(("/pose", pose_type, t0 + i * tick, stamped_pose))
+        messages.append(("/speed", "std_msgs/msg/Float64", t0 + i * tick, m.std_msgs__Float64(data=1.5 * i)))
+        messages.append(("/gear", "std_msgs/msg/Int32", t0 + i * tick, m.std_msgs__Int32(data=i)))
+        messages.append(("/engaged", "std_msgs/msg/Bool", t0 + i * tick, m.std_msgs__Bool(data=i % 2 == 0)))
+    marker_type = "visualization_msgs/msg/Marker"
+    messages += [
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=2, id=1, x=10.0, frame="map", scale=2.0)),  # SPHERE
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=4, id=2, x=0.0, frame="map", points=ahead)),  # LINE_STRIP
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=8, id=3, x=0.0, frame="map", points=ahead)),  # POINTS
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=0, id=4, x=0.0, frame="map", lifetime=150_000_000)),  # ARROW
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=5, id=5, x=0.0, frame="map", points=ahead * 2)),  # LINE_LIST
+        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=6, id=6, x=0.0, frame="map", points=ahead)),  # CUBE_LIST
+        ("/shapes", marker_type, t0, marker(m, t0, action=0, kind=1, id=7, x=3.0, frame="map")),  # CUBE
+        ("/shapes", marker_type, t0, marker(m, t0, action=0, kind=3, id=8, x=6.0, frame="map")),  # CYLINDER
+        ("/shapes", marker_type, t0, marker(m, t0, action=0, kind=7, id=9, x=0.0, frame="map", points=ahead)),  # SPHERE_LIST
+        ("/viz", marker_type, t0 + tick, marker(m, t0, action=2, kind=4, id=2, x=0.0, frame="map")),  # DELETE the strip
+    ]
+    stamped = [m.geometry_msgs__PoseStamped(header=m.header(t0, "map"), pose=m.geometry_msgs__Pose(
+        position=m.geometry_msgs__Point(x=x, y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))) for x in (0.0, 5.0, 10.0)]
+    messages.append(("/plan", "nav_msgs/msg/Path", t0, m.nav_msgs__Path(header=m.header(t0, "map"), poses=stamped)))
+    return iter(sorted(messages, key=lambda e: e[2]))
+
+
 def marker(m: Messages, t: int, *, action: int, kind: int, id: int, x: float, text: str = "", frame: str = "base_link",
            points: list[tuple[float, float, float]] | None = None, lifetime: int = 0, scale: float = 4.0) -> Any:
     """A Marker: namespace ``boxes``, orange, at (x, 0, 0.75), scaled (scale, 2, 1.5); ``lifetime`` in ns."""

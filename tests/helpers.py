@@ -265,6 +265,36 @@ def xviz_decode(paths: list[Path]) -> list[dict]:
     return lines
 
 
+def xviz_write(source: Path, **targets: Path) -> None:
+    """Write the log in ``source`` again with @xviz/io's writers, one directory per format.
+
+    ``targets`` maps @xviz/io format names (``BINARY_PBE``, ``BINARY_GLB``,
+    ``JSON_STRING``) to output directories.
+    """
+    node = shutil.which("node")
+    assert node, "node is required for the interop tests"
+    subprocess.run(
+        [node, str(INTEROP / "xviz-write.js"), str(source), *(f"{fmt}:{out}" for fmt, out in targets.items())],
+        check=True, capture_output=True, timeout=300,
+    )
+
+
+def xviz_validate(paths: Sequence[Path]) -> list[dict[str, Any]]:
+    """Validate files with the published validator (``validate.js``); one ``{"file", "type", "errors"}`` per file.
+
+    A file that @xviz/io cannot read gives ``{"file", "error"}`` instead.
+    """
+    node = shutil.which("node")
+    assert node, "node is required for the interop tests"
+    assert (INTEROP / "node_modules" / "@xviz" / "schema").is_dir(), (
+        "the published validator is not installed: run `npm ci --prefix tests/interop`"
+    )
+    result = subprocess.run([node, str(INTEROP / "validate.js"), *map(str, paths)], capture_output=True, text=True, timeout=300)
+    lines = [json.loads(line) for line in result.stdout.splitlines()]
+    assert len(lines) == len(paths), result.stderr
+    return lines
+
+
 @dataclass(frozen=True)
 class SessionResult:
     """What the client received, and how the driver ended.
@@ -293,28 +323,31 @@ class SessionResult:
 
 
 def run_xviz_session(
-    url: str, script: list[dict[str, Any]], *, brief: bool = False, timeout: float = 60
+    url: str, script: list[dict[str, Any]], *, brief: bool = False, validate: bool = False, timeout: float = 60
 ) -> SessionResult:
     """Run ``script`` against the server at ``url``, blocking until the driver exits.
+
+    With ``validate``, the published validator checks every message received:
+    those it refuses are ``"schema"`` errors in the summary.
 
     ``timeout`` bounds the whole run in seconds; past it the driver is killed
     and ``subprocess.TimeoutExpired`` raised. Each wait step has its own,
     shorter limit (30 s, or the step's ``timeout_ms``) after which the driver
     reports and fails.
     """
-    command = _command(url, brief)
+    command = _command(url, brief, validate)
     completed = subprocess.run(command, input=_encode(script), capture_output=True, timeout=timeout)
     return _result(completed.stdout, completed.stderr, completed.returncode)
 
 
 async def run_xviz_session_async(
-    url: str, script: list[dict[str, Any]], *, brief: bool = False, timeout: float = 60
+    url: str, script: list[dict[str, Any]], *, brief: bool = False, validate: bool = False, timeout: float = 60
 ) -> SessionResult:
     """Run ``script`` against the server at ``url`` without blocking the event loop.
 
     Same contract as :func:`run_xviz_session`.
     """
-    command = _command(url, brief)
+    command = _command(url, brief, validate)
     process = await asyncio.create_subprocess_exec(
         *command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE
     )
@@ -327,7 +360,7 @@ async def run_xviz_session_async(
     return _result(stdout, stderr, process.returncode)
 
 
-def _command(url: str, brief: bool) -> list[str]:
+def _command(url: str, brief: bool, validate: bool) -> list[str]:
     node = shutil.which("node")
     assert node, "node is required for the interop tests"
     assert (INTEROP / "node_modules" / "ws").is_dir(), (
@@ -335,7 +368,8 @@ def _command(url: str, brief: bool) -> list[str]:
         "(scripts/test.sh does it)"
     )
     # The script goes on stdin, so no command line limits its size.
-    return [node, str(DRIVER), url, "--script-file", "-", *(["--brief"] if brief else [])]
+    options = [*(["--brief"] if brief else []), *(["--validate"] if validate else [])]
+    return [node, str(DRIVER), url, "--script-file", "-", *options]
 
 
 def _encode(script: list[dict[str, Any]]) -> bytes:

@@ -266,7 +266,7 @@ def test_tracklets_are_drawn(own_copy: Path):
     frame1 = drive.convert(1, metadata)["updates"][0]["primitives"]
     polygons = frame1["/tracklets/objects"]["polygons"]
     assert [p["base"]["classes"] for p in polygons] == [["Car"], ["Pedestrian"]]
-    assert polygons[0]["base"]["style"] == {"height": 1.5}
+    assert polygons[0]["base"]["style"] == {"stroke_color": "#50B3FF", "height": 1.5}  # the class's outline, and its own height
     assert np.allclose(np.ptp(polygons[0]["vertices"][:, 0]), 4.0)  # yaw 0 in frame 1
     assert [t["text"] for t in frame1["/tracklets/label"]["texts"]] == ["Car-0", "Pedestrian-1"]
     frame2 = drive.convert(2, metadata)["updates"][0]["primitives"]

@@ -13,7 +13,6 @@ import base64
 import os
 import shutil
 import struct
-import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -21,28 +20,12 @@ import numpy as np
 import pytest
 
 from helpers import PNG_2X1, assert_same_message, client, run_xviz_session_async, running_server, timestamps, write_log
-from helpers import xviz_decode
+from helpers import xviz_decode, xviz_write
 from xviz_server import frames
 from xviz_server.check import check_paths
 from xviz_server.codec import Format, decode, decode_pbe
 from xviz_server.codec.xviz_v2_pb2 import Envelope, StateUpdate
 from xviz_server.exceptions import DecodeError
-
-INTEROP = Path(__file__).parent / "interop"
-
-
-def xviz_write(source: Path, **targets: Path) -> None:
-    """Write the log in ``source`` again with @xviz/io's writers, one directory per format.
-
-    ``targets`` maps @xviz/io format names (``BINARY_PBE``, ``BINARY_GLB``) to
-    output directories.
-    """
-    node = shutil.which("node")
-    assert node, "node is required for the interop tests"
-    subprocess.run(
-        [node, str(INTEROP / "xviz-write.js"), str(source), *(f"{fmt}:{out}" for fmt, out in targets.items())],
-        check=True, capture_output=True, timeout=300,
-    )
 
 
 # --------------------------------------------------------------------------
@@ -90,7 +73,9 @@ RICH_METADATA = {
 
 
 def rich_update(i: int) -> dict[str, Any]:
+    """Frame ``i`` of the rich log; frame 0 holds zeros where XVIZ requires a value (protobuf leaves zeros out)."""
     t = 10.0 + i / 10
+    zero = i == 0
     rng = np.random.default_rng(i)
     points = rng.uniform(-20, 20, (300, 3)).astype(np.float32)
     colors = rng.integers(0, 256, (300, 4), dtype=np.uint8)
@@ -99,7 +84,7 @@ def rich_update(i: int) -> dict[str, Any]:
         "updates": [{
             "timestamp": t,
             "poses": {"/vehicle_pose": {
-                "timestamp": t, "map_origin": {"longitude": 8.4, "latitude": 49.0, "altitude": 110.25},
+                "timestamp": t, "map_origin": {"longitude": 0.0 if zero else 8.4, "latitude": 49.0, "altitude": 0.0 if zero else 110.25},
                 "position": [t, 1.5, 0.25], "orientation": [0.0, 0.01, 1.25],
             }},
             "primitives": {
@@ -112,8 +97,8 @@ def rich_update(i: int) -> dict[str, Any]:
                     "vertices": [[0, 0, 0], [10, 0.5, 0], [20, 1.5, 0]],
                     "colors": [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255]],
                 }]},
-                "/labels": {"texts": [{"position": [1.5, 2.25, 0.5], "text": f"frame {i}"}]},
-                "/markers": {"circles": [{"center": [3.0, 4.0, 0.0], "radius": 1.1}]},
+                "/labels": {"texts": [{"position": [1.5, 2.25, 0.5], "text": "" if zero else f"frame {i}"}]},
+                "/markers": {"circles": [{"center": [3.0, 4.0, 0.0], "radius": 0.0 if zero else 1.1}]},
                 "/paths": {"stadiums": [{"start": [0, 0, 0], "end": [5, 5, 0], "radius": 0.7}]},
                 "/camera": {"images": [{"data": base64.b64encode(PNG_2X1).decode(), "width_px": 2, "height_px": 1}]},
             },
@@ -132,7 +117,7 @@ def rich_update(i: int) -> dict[str, Any]:
             ]}},
             "ui_primitives": {"/table": {"treetable": {
                 "columns": [{"display_text": "Name", "type": "STRING"}, {"display_text": "Value", "type": "DOUBLE", "unit": "m"}],
-                "nodes": [{"id": 1, "column_values": ["a", "1.5"]}, {"id": 2, "parent": 1, "column_values": ["b", "2"]}],
+                "nodes": [{"id": 1, "column_values": ["a", "1.5"]}, {"id": 0, "parent": 1, "column_values": ["b", "2"]}],
             }}},
             "links": {"/other_pose": {"target_pose": "/vehicle_pose"}},
             "no_data_streams": ["/gear"],

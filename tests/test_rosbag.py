@@ -19,7 +19,7 @@ from PIL import Image
 
 from devkit.rosbag_kitti import (
     CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, FIX_TOPIC, GRAY_TOPIC, IMU_TOPIC, RAW, Messages, kitti_messages, marker,
-    write_bag,
+    viz_messages, write_bag,
 )
 from helpers import client, run_xviz_session_async, running_server, sha, timestamps, xviz_decode
 from xviz_server.cli import main
@@ -194,27 +194,7 @@ def test_markers_paths_numbers_in_the_map_frame(tmp_path: Path):
     from rosbags.typesys import Stores
 
     m = Messages(Stores.ROS2_HUMBLE)
-    t0, tick = 1_700_000_000 * 10**9, 100_000_000
-    ahead = [(0.0, 0.0, 0.0), (0.0, 5.0, 0.0)]
-    messages: list[tuple[str, str, int, Any]] = []
-    for i in range(5):
-        pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
-        messages.append(("/pose", "geometry_msgs/msg/PoseStamped", t0 + i * tick, m.geometry_msgs__PoseStamped(header=m.header(t0, "map"), pose=pose)))
-        messages.append(("/speed", "std_msgs/msg/Float64", t0 + i * tick, m.std_msgs__Float64(data=1.5 * i)))
-    marker_type = "visualization_msgs/msg/Marker"
-    messages += [
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=2, id=1, x=10.0, frame="map", scale=2.0)),  # SPHERE
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=4, id=2, x=0.0, frame="map", points=ahead)),  # LINE_STRIP
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=8, id=3, x=0.0, frame="map", points=ahead)),  # POINTS
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=0, id=4, x=0.0, frame="map", lifetime=150_000_000)),  # ARROW
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=5, id=5, x=0.0, frame="map", points=ahead * 2)),  # LINE_LIST
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=6, id=6, x=0.0, frame="map", points=ahead)),  # CUBE_LIST
-        ("/viz", marker_type, t0 + tick, marker(m, t0, action=2, kind=4, id=2, x=0.0, frame="map")),  # DELETE the strip
-    ]
-    stamped = [m.geometry_msgs__PoseStamped(header=m.header(t0, "map"), pose=m.geometry_msgs__Pose(
-        position=m.geometry_msgs__Point(x=x, y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))) for x in (0.0, 5.0, 10.0)]
-    messages.append(("/plan", "nav_msgs/msg/Path", t0, m.nav_msgs__Path(header=m.header(t0, "map"), poses=stamped)))
-    bag = RosBag(write_bag(tmp_path / "viz.mcap", "mcap", iter(sorted(messages, key=lambda e: e[2]))))
+    bag = RosBag(write_bag(tmp_path / "viz.mcap", "mcap", viz_messages(m)))
     assert bag.pose_source.kind == "topic" and bag.pose_source.fixed_frame == "map" and len(bag) == 5
     metadata = bag.metadata()
     frames = [bag.convert(i, metadata)["updates"][0] for i in range(5)]

@@ -93,7 +93,7 @@ def test_box_footprints_are_rotated_by_their_heading(segment: Path):
     update = WaymoSegment(segment).convert(1)["updates"][0]
     car, pedestrian = update["primitives"]["/objects/boxes"]["polygons"]
     assert car["base"]["object_id"] == "car-a" and car["base"]["classes"] == ["Vehicle"]
-    assert pedestrian["base"]["classes"] == ["Pedestrian"] and car["base"]["style"] == {"height": 1.6}
+    assert pedestrian["base"]["classes"] == ["Pedestrian"] and car["base"]["style"] == {"stroke_color": "#50B3FF", "height": 1.6}
     corners = car["vertices"].astype(np.float64)
     assert np.allclose(corners.mean(axis=0)[:2], [10.0, 5.0], atol=1e-5)
     assert np.allclose(corners[:, 2], 1.0 - 0.8, atol=1e-5)  # the box bottom

@@ -1,7 +1,8 @@
 // Run a scripted XVIZ session against a server with the published client
 // (@xviz/parser 1.0.13), as streetscape.gl would, and print what it received.
 //
-//   node xviz-session.js URL (--script JSON | --script-file FILE|-) [--brief] [--timeout-ms N]
+//   node xviz-session.js URL (--script JSON | --script-file FILE|-) [--brief] [--validate]
+//                        [--timeout-ms N]
 //
 // The script is a JSON array of steps, run in order once the socket is open:
 //
@@ -34,11 +35,15 @@
 // "envelope": false; one that fails to decode has "error". With --brief only
 // metadata, error and done messages keep "raw" and "parsed"; a state update
 // keeps its "timestamp" and the names of the "streams" and "poses" parsed.
+// With --validate every message is also checked by the published validator
+// (validate.js: @xviz/schema's XVIZValidator on the envelope's data as @xviz/io
+// unpacks it); a message it refuses has "invalid", the list of its errors.
 // The last line is {"summary": {"messages", "by_type", "errors", "closed"}}:
 // "by_type" counts messages by "type" (those of type null under "null");
 // "errors" lists {"index"?, "source", "message"} for every xviz/error the
 // server sent ("server"), message the client could not decode ("decode"),
-// socket error ("socket") and the step that failed ("script"); "closed" is
+// socket error ("socket"), message the validator refused ("schema", with
+// --validate) and the step that failed ("script"); "closed" is
 // {"code", "reason"}, or null if the socket was still open when the script
 // ended. Messages arriving after the last step are not reported.
 //
@@ -51,10 +56,11 @@ const {parseXVIZMessageSync} = require('@xviz/parser');
 const {XVIZData} = require('@xviz/io');
 const WebSocket = require('ws');
 const {plain} = require('./plain');
+const {validateMessage} = require('./validate');
 
 const USAGE =
   'usage: node xviz-session.js URL (--script JSON | --script-file FILE|-) ' +
-  '[--brief] [--timeout-ms N]';
+  '[--brief] [--validate] [--timeout-ms N]';
 const DEFAULT_TIMEOUT_MS = 30000;
 // The messages that keep "raw" and "parsed" in --brief output.
 const BRIEF_IN_FULL = new Set(['xviz/metadata', 'xviz/error', 'xviz/transform_log_done']);
@@ -68,7 +74,7 @@ class UsageError extends Error {}
 class SessionError extends Error {}
 
 function parseArgs(argv) {
-  const options = {url: null, script: null, brief: false, timeoutMs: DEFAULT_TIMEOUT_MS};
+  const options = {url: null, script: null, brief: false, validate: false, timeoutMs: DEFAULT_TIMEOUT_MS};
   for (let i = 0; i < argv.length; i++) {
     const arg = argv[i];
     const value = () => {
@@ -79,6 +85,8 @@ function parseArgs(argv) {
     };
     if (arg === '--brief') {
       options.brief = true;
+    } else if (arg === '--validate') {
+      options.validate = true;
     } else if (arg === '--script') {
       options.script = parseJSON(value(), '--script');
     } else if (arg === '--script-file') {
@@ -196,14 +204,17 @@ function condition(step) {
 }
 
 /** What @xviz/io and @xviz/parser make of one message, as streetscape.gl reads it. */
-function decode(payload) {
-  const decoded = {type: null, bare: false, raw: undefined, parsed: undefined, error: null};
+function decode(payload, validate) {
+  const decoded = {type: null, bare: false, raw: undefined, parsed: undefined, error: null, invalid: []};
   try {
     const message = new XVIZData(payload).message();
     if (message && message.type) {
       decoded.type = `xviz/${message.type}`;
       decoded.bare = message.message.type !== decoded.type;
       decoded.raw = message.message;
+      if (validate) {
+        decoded.invalid = validateMessage({type: decoded.type, data: decoded.raw.data}, typeof payload !== 'string');
+      }
     }
   } catch (error) {
     decoded.error = error;
@@ -246,6 +257,9 @@ function messageLine(index, frame, decoded, brief) {
   if (decoded.error) {
     line.error = describeError(decoded.error);
   }
+  if (decoded.invalid.length) {
+    line.invalid = decoded.invalid;
+  }
   return line;
 }
 
@@ -255,9 +269,10 @@ function print(value) {
 
 /** One WebSocket connection, what came over it, and the waits on it. */
 class Session {
-  constructor(url, brief) {
+  constructor(url, brief, validate) {
     this.url = url;
     this.brief = brief;
+    this.validate = validate;
     this.socket = null;
     this.received = 0;
     this.byType = {};
@@ -308,14 +323,14 @@ class Session {
     const frame = {kind: isBinary ? 'binary' : 'text', bytes: data.byteLength};
     // Text frames reach the parser as strings, as a browser's onmessage gives them.
     const payload = isBinary ? data : new TextDecoder().decode(data);
-    const decoded = decode(payload);
+    const decoded = decode(payload, this.validate);
     const index = this.received++;
     this.record(index, decoded);
     print(messageLine(index, frame, decoded, this.brief));
     this.notify();
   }
 
-  record(index, {type, raw, parsed, error}) {
+  record(index, {type, raw, parsed, error, invalid}) {
     this.byType[type] = (this.byType[type] || 0) + 1;
     if (type === 'xviz/metadata' && parsed && Number.isFinite(parsed.start_time)) {
       this.startTime = parsed.start_time;
@@ -326,6 +341,9 @@ class Session {
     }
     if (error) {
       this.errors.push({index, source: 'decode', message: String(error.message || error)});
+    }
+    for (const message of invalid) {
+      this.errors.push({index, source: 'schema', message: `${type}: ${message}`});
     }
   }
 
@@ -461,7 +479,7 @@ async function main() {
     process.exitCode = 2;
     return;
   }
-  const session = new Session(options.url, options.brief);
+  const session = new Session(options.url, options.brief, options.validate);
   try {
     await run(session, actions, options.script, options.timeoutMs);
   } catch (error) {

@@ -77,8 +77,8 @@ def _colors(where: str, colors: Any, count: int) -> np.ndarray:
 
 
 def _classes(stream: str, classes: Any) -> list[str]:
-    if isinstance(classes, str) or not all(isinstance(c, str) and c and " " not in c for c in classes):
-        raise BuilderError(f"{stream}: classes must be a list of class names without spaces, not {classes!r}")
+    if isinstance(classes, str) or not classes or not all(isinstance(c, str) and c and " " not in c for c in classes):
+        raise BuilderError(f"{stream}: classes must be a non-empty list of class names without spaces, not {classes!r}")
     return list(classes)
 
 

@@ -1,11 +1,14 @@
 """Checking styles and colours before they reach a log.
 
-The schema (``schema/style/``) says which properties exist and which may be
-set per object; the specification's property tables (§5.2) say which apply
-to which primitive type. A style that breaks either is refused with a
-message naming the stream, the field and the property, because a viewer
-would otherwise ignore it without a word: ``@xviz/parser`` turns a colour it
-cannot parse into ``null`` and draws the default.
+The schema (``schema/style/``, which agrees with the published
+``@xviz/schema``) says which properties exist, which may be set per object
+and that a style needs at least one property besides ``height``; the
+specification's property tables (§5.2) say which apply to which primitive
+type. A style that breaks either is refused with a message naming the
+stream, the field and the property, because a viewer would otherwise ignore
+it without a word (``@xviz/parser`` turns a colour it cannot parse into
+``null`` and draws the default), and a strict client would refuse the
+message.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import re
 from collections.abc import Mapping
 from functools import cache
 from importlib import resources
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -48,44 +51,29 @@ PRIMITIVE_STYLES: dict[str, frozenset[str]] = {
 
 _COLOR_PROPERTIES = frozenset({"fill_color", "stroke_color"})
 
-# The names the published client (the ``color`` package) understands: CSS
-# colour names, lower case, and "transparent".
-_CSS_NAMES = frozenset(
-    """aliceblue antiquewhite aqua aquamarine azure beige bisque black blanchedalmond blue blueviolet brown
-    burlywood cadetblue chartreuse chocolate coral cornflowerblue cornsilk crimson cyan darkblue darkcyan
-    darkgoldenrod darkgray darkgreen darkgrey darkkhaki darkmagenta darkolivegreen darkorange darkorchid darkred
-    darksalmon darkseagreen darkslateblue darkslategray darkslategrey darkturquoise darkviolet deeppink deepskyblue
-    dimgray dimgrey dodgerblue firebrick floralwhite forestgreen fuchsia gainsboro ghostwhite gold goldenrod gray
-    green greenyellow grey honeydew hotpink indianred indigo ivory khaki lavender lavenderblush lawngreen
-    lemonchiffon lightblue lightcoral lightcyan lightgoldenrodyellow lightgray lightgreen lightgrey lightpink
-    lightsalmon lightseagreen lightskyblue lightslategray lightslategrey lightsteelblue lightyellow lime limegreen
-    linen magenta maroon mediumaquamarine mediumblue mediumorchid mediumpurple mediumseagreen mediumslateblue
-    mediumspringgreen mediumturquoise mediumvioletred midnightblue mintcream mistyrose moccasin navajowhite navy
-    oldlace olive olivedrab orange orangered orchid palegoldenrod palegreen paleturquoise palevioletred papayawhip
-    peachpuff peru pink plum powderblue purple rebeccapurple red rosybrown royalblue saddlebrown salmon sandybrown
-    seagreen seashell sienna silver skyblue slateblue slategray slategrey snow springgreen steelblue tan teal
-    thistle tomato turquoise violet wheat white whitesmoke yellow yellowgreen transparent""".split()
-)
+# What the published client (the ``color`` package) draws but the schema
+# refuses: CSS colour names and functions.
+_CSS_COLOR = re.compile(r"[a-zA-Z]+|(?:rgba?|hsla?|hwb)\(.*\)", re.DOTALL)
 _HEX = re.compile(r"#(?:[0-9a-fA-F]{3,4}|[0-9a-fA-F]{6}|[0-9a-fA-F]{8})")
-_RGB = re.compile(r"rgba?\(\s*\d{1,3}\s*[,\s]\s*\d{1,3}\s*[,\s]\s*\d{1,3}\s*(?:[,/]\s*(?:0|1|0?\.\d+|\d{1,3}%)\s*)?\)")
-_COLOR_FORMS = "'#RRGGBB[AA]', '#RGB[A]', [r, g, b(, a)] with channels 0-255, 'rgb(r, g, b)' or a CSS colour name"
+_COLOR_FORMS = "'#RRGGBB[AA]', '#RGB[A]' or [r, g, b(, a)] with channels 0-255"
 
 
 def check_color(where: str, value: Any) -> str | list[float]:
     """Return ``value`` as a colour XVIZ carries, or raise :class:`BuilderError` naming ``where``.
 
-    A colour is a hex string (``"#RRGGBB[AA]"``, ``"#RGB[A]"``), a list of 3
-    or 4 channels in 0-255 (a tuple or numpy array becomes a list), an
-    ``rgb()``/``rgba()`` string or a lower-case CSS colour name. ``hsl()`` and
-    ``hwb()`` are refused: the published client reads their numbers as RGB.
+    A colour is a hex string (``"#RRGGBB[AA]"``, ``"#RGB[A]"``) or a list of
+    3 or 4 channels in 0-255 (a tuple or numpy array becomes a list). CSS
+    colour names and functions (``"red"``, ``"rgb(255, 0, 0)"``) are refused:
+    the published client draws them, but the published schema refuses them.
     """
     if isinstance(value, str):
-        if _HEX.fullmatch(value) or _RGB.fullmatch(value) or value in _CSS_NAMES:
+        if _HEX.fullmatch(value):
             return value
-        if value.lower() in _CSS_NAMES:
-            raise BuilderError(f"{where}: colour names are lower case for the client: write {value.lower()!r}")
-        if value.startswith(("hsl", "hwb")):
-            raise BuilderError(f"{where}: {value!r}: the client reads hsl()/hwb() numbers as RGB; write the colour in hex")
+        if _CSS_COLOR.fullmatch(value):
+            raise BuilderError(
+                f"{where}: {value!r} is not a colour the XVIZ schema takes (the client draws CSS colour names and "
+                f"functions, the schema refuses them); write {_COLOR_FORMS}"
+            )
         raise BuilderError(f"{where}: {value!r} is not a colour; write {_COLOR_FORMS}")
     if isinstance(value, (list, tuple, np.ndarray)):
         channels = np.asarray(value)
@@ -108,30 +96,43 @@ def check_style(where: str, style: Mapping[str, Any], primitive_type: str | None
     when unknown, as for annotations); ``per_object`` refuses the properties
     that only a stream style may set. Colours are checked by
     :func:`check_color`, other values by the schema; numpy scalars become
-    Python numbers.
+    Python numbers. A style needs at least one property besides ``height``
+    (a colour, a width...): the schema refuses one of ``height`` alone.
     """
     if not isinstance(style, Mapping):
         raise BuilderError(f"{where}: a style is a mapping of property names to values, not {type(style).__name__}")
-    object_properties, stream_properties, numbers = _schema_properties()
-    allowed = object_properties if per_object else stream_properties
+    properties = _schema_properties()
+    allowed = properties.per_object if per_object else properties.per_stream
     if primitive_type is not None:
         allowed = allowed & PRIMITIVE_STYLES[primitive_type]
     checked: dict[str, Any] = {}
     for name, value in style.items():
         if name not in allowed:
-            raise BuilderError(_unknown_property(where, name, primitive_type, per_object, allowed, stream_properties))
+            raise BuilderError(_unknown_property(where, name, primitive_type, per_object, allowed, properties.per_stream))
         if isinstance(value, np.generic):
             value = value.item()
         if name in _COLOR_PROPERTIES:
             value = check_color(f"{where}.{name}", value)
         elif isinstance(value, float) and not math.isfinite(value):
             raise BuilderError(f"{where}.{name}: {value!r} is not a finite number")
-        elif name in numbers and _within(value, numbers[name]):
+        elif name in properties.numbers and _within(value, properties.numbers[name]):
             pass  # all the schema asks of it
-        elif problems := get_validator().errors("style/stream_value", {name: value}):
+        elif problems := _property_problems(name, value):
             raise BuilderError(f"{where}.{problems[0].removeprefix('$.')}")
         checked[name] = value
+    needs = properties.object_needs if per_object else properties.stream_needs
+    if not needs & checked.keys():
+        given = f" beside {', '.join(checked)}" if checked else ""
+        raise BuilderError(
+            f"{where}: a style needs one of {', '.join(sorted(needs & allowed))}{given}: the XVIZ schema refuses one "
+            "without (a per-object height goes with the object's colour)"
+        )
     return checked
+
+
+def _property_problems(name: str, value: Any) -> list[str]:
+    """What the schema says of one property's value; only the property's own schema is asked."""
+    return [problem for problem in get_validator().errors("style/stream_value", {name: value}) if problem.startswith("$.")]
 
 
 def _unknown_property(
@@ -158,13 +159,24 @@ def _within(value: Any, bounds: tuple[float, float]) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and bounds[0] <= value <= bounds[1]
 
 
-@cache
-def _schema_properties() -> tuple[frozenset[str], frozenset[str], dict[str, tuple[float, float]]]:
-    """The property names of an object style and of a stream style, and the bounds of the plain numbers.
+class _Properties(NamedTuple):
+    """What the schema says of style properties."""
 
-    Read from the schema. A plain number is a property whose schema asks
-    only for a number, at most within a minimum and a maximum; a finite
-    value within them needs no further check.
+    per_object: frozenset[str]  #: the properties of an object (inline or class) style
+    per_stream: frozenset[str]  #: the properties of a stream style
+    object_needs: frozenset[str]  #: an object style needs one of these
+    stream_needs: frozenset[str]  #: a stream style needs one of these
+    numbers: dict[str, tuple[float, float]]  #: the bounds of the plain numbers
+
+
+@cache
+def _schema_properties() -> _Properties:
+    """The style properties, read from the schema.
+
+    A plain number is a property whose schema asks only for a number, at
+    most within a minimum and a maximum; a finite value within them needs no
+    further check. What a style needs is the ``anyOf`` of ``required``
+    properties of its schema.
     """
     folder = resources.files("xviz_server.schema") / "style"
     object_schema = json.loads((folder / "object_value.json").read_text("utf-8"))
@@ -176,4 +188,10 @@ def _schema_properties() -> tuple[frozenset[str], frozenset[str], dict[str, tupl
         if schema.get("type") == "number" and set(schema) <= {"type", "minimum", "maximum", "description"}
     }
     per_object = frozenset(object_schema["$defs"]["per_object"]["properties"])
-    return per_object, per_object | frozenset(stream_schema["properties"]), numbers
+
+    def needs(schema: dict[str, Any]) -> frozenset[str]:
+        return frozenset(name for alternative in schema["anyOf"] for name in alternative["required"])
+
+    return _Properties(
+        per_object, per_object | frozenset(stream_schema["properties"]), needs(object_schema), needs(stream_schema), numbers
+    )

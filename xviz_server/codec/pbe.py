@@ -30,8 +30,13 @@ to protobuf undone where that can be done:
 
 Protobuf cannot tell a field holding its default (0, ``""``, ``false``,
 empty) from a missing one, and the writer drops keys that XVIZ does not
-declare: those are absent from the result, except the ``timestamp`` of
-each stream set, which XVIZ requires and which is 0 when absent.
+declare: those are absent from the result, except the fields the XVIZ
+schema requires, which get their default when absent, as ``@xviz/io``'s
+reader gives them (a map origin at longitude 0 keeps its ``longitude: 0``):
+the ``timestamp`` of a stream set and of a time series entry, the three
+coordinates of a map origin, the ``radius`` of a circle or stadium, the
+``text`` of a text, the ``data``, ``width_px`` and ``height_px`` of an
+image, and the ``display_text`` of a tree table column and ``id`` of a node.
 
 Errors are :class:`~xviz_server.exceptions.DecodeError` naming the byte
 offset in the message and the field at fault.
@@ -74,8 +79,18 @@ _FIXED32 = 5  # wire type of one float written unpacked
 _VERTICES = {"xviz.v2.Point": "points", "xviz.v2.Polygon": "vertices", "xviz.v2.Polyline": "vertices"}
 _STYLES = frozenset({"xviz.v2.StyleObjectValue", "xviz.v2.StyleStreamValue"})
 _STYLE_COLORS = frozenset({"fill_color", "stroke_color"})
-# Fields that XVIZ requires, written even when they hold protobuf's default.
-_REQUIRED = {"xviz.v2.StreamSet": ("timestamp",)}
+# Scalar fields that the XVIZ schema requires, given their default when absent.
+_REQUIRED = {
+    "xviz.v2.StreamSet": ("timestamp",),
+    "xviz.v2.TimeSeriesState": ("timestamp",),
+    "xviz.v2.MapOrigin": ("longitude", "latitude", "altitude"),
+    "xviz.v2.Circle": ("radius",),
+    "xviz.v2.Stadium": ("radius",),
+    "xviz.v2.Text": ("text",),
+    "xviz.v2.Image": ("data", "width_px", "height_px"),
+    "xviz.v2.TreeTableColumn": ("display_text",),
+    "xviz.v2.TreeTableNode": ("id",),
+}
 
 
 def is_pbe(data: bytes | bytearray | memoryview) -> bool:

@@ -511,7 +511,9 @@ def _road_users(frame: FrameBuilder, users: list[_RoadUser], boxes: _Boxes, dist
     footprints = footprints.round(2).astype(np.float32)
     centers = boxes.center.round(2).tolist()
     for user, footprint, (x, y), height in zip(users, footprints, centers, boxes.height.tolist()):
-        frame.polygon(OBJECT_SHAPES, footprint, id=user.object_id, classes=[user.category], style={"height": height})
+        # The height is the object's own; the schema wants a colour beside it: the class's outline.
+        style = {"stroke_color": CLASS_COLORS[user.category], "height": height}
+        frame.polygon(OBJECT_SHAPES, footprint, id=user.object_id, classes=[user.category], style=style)
         frame.text(OBJECT_LABELS, (x, y, height + 0.5), user.object_id, id=user.object_id)
         frame.circle(OBJECT_CENTERS, (x, y, 0.0), 0.2, id=user.object_id)
     columns: list[tuple[str, str] | tuple[str, str, str]] = [

@@ -569,7 +569,9 @@ class KittiDrive:
             object_id = f"{object_type}-{number}"
             object_class = object_type if object_type in CLASS_COLORS else "Unknown"
             height = float(size[2])
-            builder.polygon("/tracklets/objects", polygon, id=object_id, classes=[object_class], style={"height": height})
+            # The height is the object's own; the schema wants a colour beside it: the class's outline.
+            style = {"stroke_color": CLASS_COLORS[object_class], "height": height}
+            builder.polygon("/tracklets/objects", polygon, id=object_id, classes=[object_class], style=style)
             builder.circle("/tracklets/tracking_point", position, 0.2, id=object_id)
             builder.text("/tracklets/label", (position[0], position[1], position[2] + height + 0.5), object_id, id=object_id)
 

@@ -214,7 +214,9 @@ class WaymoLog(abc.ABC):
         corners = footprints(bottoms, boxes[:, 6], boxes[:, 3], boxes[:, 4])
         for box, kind, object_id, polygon in zip(boxes, frame.types, frame.ids, corners):
             name = TYPES.get(int(kind), "Unknown")
-            builder.polygon("/objects/boxes", polygon, id=str(object_id), classes=[name], style={"height": float(box[5])})
+            # The height is the box's own; the schema wants a colour beside it: the class's outline.
+            style = {"stroke_color": TYPE_COLORS[name], "height": float(box[5])}
+            builder.polygon("/objects/boxes", polygon, id=str(object_id), classes=[name], style=style)
             builder.text("/objects/label", box[:3] + [0, 0, box[5] / 2 + 0.5], f"{name} {object_id}", id=str(object_id))
 
 

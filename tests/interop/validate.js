@@ -1,0 +1,87 @@
+// Validate XVIZ messages with the published validator (@xviz/schema 1.0.13's
+// XVIZValidator, the ajv draft-04 schemas the XVIZ authors publish).
+//
+//   node validate.js FILE...
+//
+// prints one JSON line per file, {"file", "type", "errors"}, or {"file",
+// "error"} when @xviz/io reads no XVIZ message in it; exit status 1 when a
+// message is invalid or unreadable. As a module, `validateMessage(message,
+// binary)` returns the errors of one envelope as @xviz/io unpacks it, and
+// xviz-session.js --validate uses it on every message a session receives.
+//
+// What is validated is the message's data as @xviz/io's XVIZData reads it
+// (JSON, GLB or PBE). A binary message holds typed arrays (points, colours,
+// image bytes) where JSON has arrays and base64 text: it is first turned into
+// its JSON form by @xviz/io's own JSON encoder (what its XVIZJSONWriter
+// writes), since the schema describes JSON. Messages of a type without a
+// schema of its own (none the server sends) are reported as such.
+'use strict';
+
+const fs = require('fs');
+const {XVIZData} = require('@xviz/io');
+const {XVIZValidator} = require('@xviz/schema');
+const {xvizConvertJson} = require('@xviz/io/dist/es5/writers/xviz-json-encoder');
+
+const validator = new XVIZValidator();
+const PREFIX = 'Validation errors: ';
+
+/** The errors of one envelope {type: "xviz/<name>", data}: [] when it is valid. */
+function validateMessage(message, binary) {
+  const name = String(message.type).replace(/^xviz\//, 'session/');
+  if (!validator.hasSchema(name)) {
+    return [`no schema for message type ${JSON.stringify(message.type)}`];
+  }
+  const data = binary ? xvizConvertJson(message.data) : message.data;
+  try {
+    validator.validate(name, data);
+  } catch (error) {
+    if (!String(error.message).startsWith(PREFIX)) {
+      throw error;
+    }
+    return JSON.parse(error.message.slice(PREFIX.length)).map(describe);
+  }
+  return [];
+}
+
+/** One ajv error as "<path>: <message> <params>". */
+function describe({dataPath, message, params}) {
+  return `${dataPath || '.'}: ${message} ${JSON.stringify(params)}`;
+}
+
+/** The envelope @xviz/io reads in a file or a received payload, or null. */
+function unpack(payload) {
+  const message = new XVIZData(payload).message();
+  return message && message.type ? {type: `xviz/${message.type}`, data: message.message.data} : null;
+}
+
+function main(files) {
+  for (const file of files) {
+    const buffer = fs.readFileSync(file);
+    const binary = buffer[0] !== 0x7b; // a JSON message starts with "{"
+    const payload = binary
+      ? buffer.buffer.slice(buffer.byteOffset, buffer.byteOffset + buffer.byteLength)
+      : buffer.toString('utf8');
+    const line = {file};
+    try {
+      const message = unpack(payload);
+      if (message) {
+        line.type = message.type;
+        line.errors = validateMessage(message, binary);
+      } else {
+        line.error = '@xviz/io reads no XVIZ message in this';
+      }
+    } catch (error) {
+      line.error = String(error && error.stack ? error.stack : error);
+    }
+    if (line.error || line.errors.length) {
+      process.exitCode = 1;
+    }
+    process.stdout.write(JSON.stringify(line) + '\n');
+  }
+}
+
+module.exports = {validateMessage, unpack};
+
+if (require.main === module) {
+  main(process.argv.slice(2));
+}

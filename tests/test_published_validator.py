@@ -1,0 +1,323 @@
+"""Every message the server sends, from every source it has, is valid to the published validator.
+
+The validator is the published client's own definition of a correct message:
+``@xviz/schema`` 1.0.13's ``XVIZValidator``, run by ``tests/interop/validate.js``
+inside the published client's session driver (``xviz-session.js --validate``).
+For each source in :data:`SOURCES`, a real server serves it over a real
+socket, in JSON and in GLB, and the driver validates the metadata and every
+state update of a window of :data:`WINDOW` seconds from the start of the log
+(three or four frames: the sources here are long only in bytes, and every
+frame of one source has the same streams). The datasets are also written by
+``convert``, in both formats, and their logs served and validated the same
+way. A live feed and its recording are validated in
+:func:`test_a_live_feed_and_its_recording_are_valid`.
+
+A provider that adds a stream is covered by its row here; a new source gets a
+row of its own.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import os
+import shutil
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from helpers import running_server, run_xviz_session_async, write_log, xviz_validate, xviz_write
+from xviz_server.codec import Format
+from xviz_server.convert import convert
+from xviz_server.datasets import open_dataset
+
+#: Seconds of each log validated, from its start: three or four frames at 10 Hz.
+WINDOW = 0.35
+
+
+@dataclass(frozen=True)
+class Served:
+    """What a source gives the server: a data directory or a dataset (``KIND:PATH``), and for ``convert``, the dataset."""
+
+    data_dir: Path | None = None
+    dataset: str | None = None
+    options: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def kind_and_path(self) -> tuple[str, Path] | None:
+        if self.dataset is None:
+            return None
+        kind, _, path = self.dataset.partition(":")
+        return kind, Path(path or kind)
+
+    def settings(self) -> dict[str, Any]:
+        if self.dataset is not None:
+            return {"data_dir": None, "dataset": [self.dataset]}
+        return {"data_dir": self.data_dir}
+
+
+# -- the sources ----------------------------------------------------------------
+
+
+def _kitti_glb(root: Path, shared: Path) -> Served:
+    return Served(data_dir=shared / "data" / "kitti-2011_09_26_drive_0001-head")
+
+
+def _written_by_xviz_io(fmt: str, source: Callable[[Path, Path], Path]) -> Callable[[Path, Path], Served]:
+    """A log re-written by the published writer of ``fmt`` (``JSON_STRING``, ``BINARY_GLB``, ``BINARY_PBE``)."""
+
+    def make(root: Path, shared: Path) -> Served:
+        output = root / "log"
+        xviz_write(source(root, shared), **{fmt: output})
+        return Served(data_dir=output)
+
+    return make
+
+
+def _kitti_log(root: Path, shared: Path) -> Path:
+    return shared / "data" / "kitti-2011_09_26_drive_0001-head"
+
+
+def _rich_log(root: Path, shared: Path) -> Path:
+    """The log of every kind of XVIZ content of the PBE tests, with values protobuf leaves out (0, "").
+
+    Its polylines lose their colours: the PBE tests keep them to test the
+    codec, but the published schema has none (though the client draws them).
+    """
+    from test_pbe import RICH_METADATA, rich_update
+
+    updates = [rich_update(i) for i in range(4)]
+    for update in updates:
+        for polyline in update["updates"][0]["primitives"]["/lanes"]["polylines"]:
+            del polyline["colors"]
+    return write_log(root / "rich-source", updates, fmt=Format.JSON, meta=RICH_METADATA)
+
+
+def _demo_log(root: Path, shared: Path) -> Path:
+    out = root / "demo-source"
+    convert("demo", Path("demo"), out, fmt=Format.JSON, frames="0:4", processes=1, out=io.StringIO())
+    return out
+
+
+def _rich_json(root: Path, shared: Path) -> Served:
+    return Served(data_dir=_rich_log(root, shared))
+
+
+def _demo(root: Path, shared: Path) -> Served:
+    return Served(dataset="demo")
+
+
+def _kitti_raw(root: Path, shared: Path) -> Served:
+    return Served(dataset=f"kitti:{shared / 'data' / 'kitti-raw-2011_09_26_drive_0001-head'}")
+
+
+def _kitti_raw_tracklets(root: Path, shared: Path) -> Served:
+    """The KITTI excerpt with tracklets (boxes of every class, with their heights), as links to the shared files."""
+    from test_kitti import TRACKLETS
+
+    copy = root / "raw"
+    shutil.copytree(shared / "data" / "kitti-raw-2011_09_26_drive_0001-head", copy, copy_function=os.symlink)
+    drive = copy / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    (drive / "tracklet_labels.xml").write_text(TRACKLETS)
+    return Served(dataset=f"kitti:{drive}")
+
+
+def _waymo_npz(root: Path, shared: Path) -> Served:
+    from test_waymo import write_segment
+
+    return Served(dataset=f"waymo:{write_segment(root / 'segment-1')}")
+
+
+def _waymo_tfrecord(root: Path, shared: Path) -> Served:
+    from test_waymo_tfrecord import write_scene
+
+    tfrecord, _, _ = write_scene(root / "scene")
+    return Served(dataset=f"waymo:{tfrecord}")
+
+
+def _vista(root: Path, shared: Path) -> Served:
+    from test_vista import write_trace
+
+    return Served(dataset=f"vista:{write_trace(root / 'trace-1')}")
+
+
+_BAGS = {"ros1": "drive.bag", "sqlite3": "drive", "mcap": "drive.mcap"}
+
+
+def _kitti_bag(container: str) -> Callable[[Path, Path], Served]:
+    """The KITTI excerpt as a bag: clouds, images (raw and compressed), fix, IMU, /tf, odometry, a MarkerArray."""
+
+    def make(root: Path, shared: Path) -> Served:
+        from rosbag_kitti import RAW, write_bag
+        from xviz_server.datasets.kitti import KittiDrive
+
+        bag = write_bag(root / _BAGS[container], container, drive=KittiDrive(shared / "data" / RAW), frames=4)
+        return Served(dataset=f"rosbag:{bag}")
+
+    return make
+
+
+def _viz_bag(container: str, pose_type: str) -> Callable[[Path, Path], Served]:
+    """Markers of every kind, a path, numbers, and a pose of ``pose_type``, as a bag."""
+
+    def make(root: Path, shared: Path) -> Served:
+        from rosbag_kitti import Messages, viz_messages, write_bag
+        from rosbags.typesys import Stores
+
+        m = Messages(Stores.ROS1_NOETIC if container == "ros1" else Stores.ROS2_HUMBLE)
+        bag = write_bag(root / _BAGS[container], container, viz_messages(m, pose_type))
+        return Served(dataset=f"rosbag:{bag}")
+
+    return make
+
+
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
+
+#: Every source the server has: a name and what makes it in a folder (given the shared data folder).
+SOURCES: dict[str, Callable[[Path, Path], Served]] = {
+    "kitti-glb": _kitti_glb,
+    "kitti-json-by-xviz-io": _written_by_xviz_io("JSON_STRING", _kitti_log),
+    "kitti-pbe-by-xviz-io": _written_by_xviz_io("BINARY_PBE", _kitti_log),
+    "rich-json": _rich_json,
+    "rich-glb-by-xviz-io": _written_by_xviz_io("BINARY_GLB", _rich_log),
+    "rich-pbe-by-xviz-io": _written_by_xviz_io("BINARY_PBE", _rich_log),
+    "demo-pbe-by-xviz-io": _written_by_xviz_io("BINARY_PBE", _demo_log),
+    "demo": _demo,
+    "kitti-raw": _kitti_raw,
+    "kitti-raw-tracklets": _kitti_raw_tracklets,
+    "waymo-npz": _waymo_npz,
+    "waymo-tfrecord": _waymo_tfrecord,
+    "vista": _vista,
+    **{f"rosbag-{container}-kitti": _kitti_bag(container) for container in _BAGS},
+    "rosbag-ros1-viz": _viz_bag("ros1", POSE_WITH_COVARIANCE),
+    "rosbag-sqlite3-viz": _viz_bag("sqlite3", POSE_STAMPED),
+    "rosbag-mcap-viz": _viz_bag("mcap", POSE_STAMPED),
+}
+#: The sources that ``convert`` takes.
+DATASETS = ["demo", "kitti-raw", "kitti-raw-tracklets", "waymo-npz", "waymo-tfrecord", "vista", *(s for s in SOURCES if s.startswith("rosbag-"))]
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory, shared_dir: Path) -> Iterator[Callable[[str], Served]]:
+    """Make a source once for the module, when first asked for."""
+    cache: dict[str, Served] = {}
+
+    def get(name: str) -> Served:
+        if name not in cache:
+            cache[name] = SOURCES[name](tmp_path_factory.mktemp(name), shared_dir)
+        return cache[name]
+
+    yield get
+
+
+# -- validating -----------------------------------------------------------------
+
+
+def window_script(request_id: str = "window") -> list[dict[str, Any]]:
+    return [
+        {"wait": "metadata"},
+        {"send_transform_log": {"id": request_id, "from_start": 0, "to_start": WINDOW}},
+        {"wait": "done", "id": request_id},
+        {"close": True},
+    ]
+
+
+async def validate_served(settings: dict[str, Any], fmt: Format, query: str = "") -> int:
+    """Serve with ``settings``, run a session of the published client in ``fmt``; assert every message is valid.
+
+    Returns the number of state updates received.
+    """
+    async with running_server(**settings) as server:
+        url = f"ws://127.0.0.1:{server.port}/?message_format={fmt.value}{query}"
+        result = await run_xviz_session_async(url, window_script(), brief=True, validate=True, timeout=120)
+    assert result.summary is not None, result.stderr
+    assert result.summary["errors"] == [], result.summary["errors"][:5]
+    assert result.ok, result.stderr
+    kinds = {"text" if fmt is Format.JSON else "binary"}
+    assert {message["kind"] for message in result.messages} == kinds
+    return len(result.of_type("xviz/state_update"))
+
+
+FORMATS = [Format.JSON, Format.BINARY]
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
+@pytest.mark.parametrize("source", list(SOURCES))
+async def test_served_messages_are_valid(source: str, fmt: Format, made: Callable[[str], Served]):
+    served = await asyncio.to_thread(made, source)
+    updates = await validate_served(served.settings(), fmt)
+    assert updates >= 3
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
+@pytest.mark.parametrize("source", DATASETS)
+async def test_converted_logs_are_valid(source: str, fmt: Format, made: Callable[[str], Served], tmp_path: Path):
+    served = await asyncio.to_thread(made, source)
+    assert served.kind_and_path is not None
+    kind, path = served.kind_and_path
+    output = tmp_path / "log"
+    written = await asyncio.to_thread(convert, kind, path, output, fmt=fmt, frames="0:4", processes=1, out=io.StringIO())
+    files = [output / f"{number}-frame{fmt.suffix}" for number in range(1, written + 2)]
+    assert written >= 3 and all(file.exists() for file in files)
+    lines = await asyncio.to_thread(xviz_validate, files)
+    assert [line.get("error") or line["errors"] for line in lines] == [[]] * len(files), lines
+    assert await validate_served({"data_dir": output}, fmt) >= 3
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
+async def test_a_live_feed_and_its_recording_are_valid(fmt: Format, tmp_path: Path):
+    """The demo's frames pushed into a live feed: what viewers of the feed get, and the recording of it."""
+    demo = open_dataset("demo", Path("demo"))
+    metadata = demo.metadata()
+    frames = [demo.convert(i, metadata) for i in range(4)]
+    record = tmp_path / "record"
+    async with running_server(None, record=record) as server:
+        feed = server.live.feed("car")
+        feed.set_metadata(metadata)
+        await feed.publish(frames[0])
+
+        async def publish() -> None:
+            for data in frames[1:]:
+                await asyncio.sleep(0.2)
+                await feed.publish(data)
+
+        publisher = asyncio.ensure_future(publish())
+        url = f"ws://127.0.0.1:{server.port}/?log=car&session_type=live&message_format={fmt.value}"
+        script = [{"wait": "metadata"}, {"wait": "state_updates", "count": 4}, {"close": True}]
+        result = await run_xviz_session_async(url, script, brief=True, validate=True)
+        await publisher
+    assert result.summary is not None, result.stderr
+    assert result.summary["errors"] == [], result.summary["errors"][:5]
+    assert result.ok, result.stderr
+    [recording] = list((record / "car").iterdir())
+    assert await validate_served({"data_dir": record}, fmt, f"&log=car/{recording.name}") >= 3
+
+
+def test_the_validator_refuses_what_the_schema_refuses(tmp_path: Path):
+    """The driver does validate: a height-only style and a map origin without longitude are refused, with the path."""
+    meta = {"version": "2.0.0", "streams": {"/vehicle_pose": {"category": "POSE"},
+                                           "/objects": {"category": "PRIMITIVE", "primitive_type": "POLYGON"}}}
+    pose = {"timestamp": 1.0, "map_origin": {"longitude": 8.4, "latitude": 49.0, "altitude": 110.0},
+            "position": [0, 0, 0], "orientation": [0, 0, 0]}
+    polygon = {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"style": {"fill_color": "#FF0000", "height": 2.0}}}
+    valid = {"update_type": "SNAPSHOT", "updates": [{"timestamp": 1.0, "poses": {"/vehicle_pose": pose},
+                                                     "primitives": {"/objects": {"polygons": [polygon]}}}]}
+    no_longitude = {**valid, "updates": [{**valid["updates"][0], "poses": {"/vehicle_pose": {
+        **pose, "map_origin": {"latitude": 49.0, "altitude": 110.0}}}}]}
+    height_only = {**valid, "updates": [{**valid["updates"][0], "primitives": {"/objects": {"polygons": [
+        {**polygon, "base": {"style": {"height": 2.0}}}]}}}]}
+    for fmt in FORMATS:
+        write_log(tmp_path / fmt.value, [valid, no_longitude, height_only], fmt=fmt, meta=meta)
+        files = [tmp_path / fmt.value / f"{n}-frame{fmt.suffix}" for n in range(1, 5)]
+        lines = xviz_validate(files)
+        assert [line["type"] for line in lines] == ["xviz/metadata"] + ["xviz/state_update"] * 3
+        assert lines[0]["errors"] == lines[1]["errors"] == []
+        assert lines[2]["errors"] == [
+            ".updates[0].poses['/vehicle_pose'].map_origin: should have required property 'longitude' "
+            '{"missingProperty":"longitude"}'
+        ]
+        assert lines[3]["errors"][0].startswith(".updates[0].primitives['/objects'].polygons[0].base.style: ")
