@@ -295,6 +295,22 @@ def xviz_validate(paths: Sequence[Path]) -> list[dict[str, Any]]:
     return lines
 
 
+def xviz_validate_instances(cases: Sequence[tuple[str, Any]], directory: Path) -> list[dict[str, Any]]:
+    """Validate ``(schema name, JSON value)`` pairs with the published validator; one ``{"schema", "errors"}`` each.
+
+    The cases go through a file in ``directory``.
+    """
+    node = shutil.which("node")
+    assert node, "node is required for the interop tests"
+    listing = directory / "instances.json"
+    listing.write_text(json.dumps([{"schema": name, "instance": instance} for name, instance in cases]))
+    command = [node, str(INTEROP / "validate.js"), "--instances", str(listing)]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    lines = [json.loads(line) for line in result.stdout.splitlines()]
+    assert len(lines) == len(cases), result.stderr
+    return lines
+
+
 @dataclass(frozen=True)
 class SessionResult:
     """What the client received, and how the driver ended.

@@ -6,10 +6,9 @@ inside the published client's session driver (``xviz-session.js --validate``).
 For each source in :data:`SOURCES`, a real server serves it over a real
 socket, in JSON and in GLB, and the driver validates the metadata and every
 state update of a window of :data:`WINDOW` seconds from the start of the log
-(three or four frames: the sources here are long only in bytes, and every
-frame of one source has the same streams). The datasets are also written by
-``convert``, in both formats, and their logs served and validated the same
-way. A live feed and its recording are validated in
+(two frames: every frame of a source here has the same streams, and the
+KITTI ones are 2 MB each). The datasets are also written by ``convert``, in
+both formats, and their logs served and validated the same way. A live feed and its recording are validated in
 :func:`test_a_live_feed_and_its_recording_are_valid`.
 
 A provider that adds a stream is covered by its row here; a new source gets a
@@ -34,8 +33,8 @@ from xviz_server.codec import Format
 from xviz_server.convert import convert
 from xviz_server.datasets import open_dataset
 
-#: Seconds of each log validated, from its start: three or four frames at 10 Hz.
-WINDOW = 0.35
+#: Seconds of each log validated, from its start: two frames at 10 Hz.
+WINDOW = 0.15
 
 
 @dataclass(frozen=True)
@@ -98,7 +97,7 @@ def _rich_log(root: Path, shared: Path) -> Path:
 
 def _demo_log(root: Path, shared: Path) -> Path:
     out = root / "demo-source"
-    convert("demo", Path("demo"), out, fmt=Format.JSON, frames="0:4", processes=1, out=io.StringIO())
+    convert("demo", Path("demo"), out, fmt=Format.JSON, frames="0:3", processes=1, out=io.StringIO())
     return out
 
 
@@ -154,7 +153,7 @@ def _kitti_bag(container: str) -> Callable[[Path, Path], Served]:
         from rosbag_kitti import RAW, write_bag
         from xviz_server.datasets.kitti import KittiDrive
 
-        bag = write_bag(root / _BAGS[container], container, drive=KittiDrive(shared / "data" / RAW), frames=4)
+        bag = write_bag(root / _BAGS[container], container, drive=KittiDrive(shared / "data" / RAW), frames=3)
         return Served(dataset=f"rosbag:{bag}")
 
     return make
@@ -249,8 +248,7 @@ FORMATS = [Format.JSON, Format.BINARY]
 @pytest.mark.parametrize("source", list(SOURCES))
 async def test_served_messages_are_valid(source: str, fmt: Format, made: Callable[[str], Served]):
     served = await asyncio.to_thread(made, source)
-    updates = await validate_served(served.settings(), fmt)
-    assert updates >= 3
+    assert await validate_served(served.settings(), fmt) >= 2
 
 
 @pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
@@ -260,12 +258,8 @@ async def test_converted_logs_are_valid(source: str, fmt: Format, made: Callable
     assert served.kind_and_path is not None
     kind, path = served.kind_and_path
     output = tmp_path / "log"
-    written = await asyncio.to_thread(convert, kind, path, output, fmt=fmt, frames="0:4", processes=1, out=io.StringIO())
-    files = [output / f"{number}-frame{fmt.suffix}" for number in range(1, written + 2)]
-    assert written >= 3 and all(file.exists() for file in files)
-    lines = await asyncio.to_thread(xviz_validate, files)
-    assert [line.get("error") or line["errors"] for line in lines] == [[]] * len(files), lines
-    assert await validate_served({"data_dir": output}, fmt) >= 3
+    await asyncio.to_thread(convert, kind, path, output, fmt=fmt, frames="0:2", processes=1, out=io.StringIO())
+    assert await validate_served({"data_dir": output}, fmt) == 2
 
 
 @pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
@@ -273,28 +267,26 @@ async def test_a_live_feed_and_its_recording_are_valid(fmt: Format, tmp_path: Pa
     """The demo's frames pushed into a live feed: what viewers of the feed get, and the recording of it."""
     demo = open_dataset("demo", Path("demo"))
     metadata = demo.metadata()
-    frames = [demo.convert(i, metadata) for i in range(4)]
     record = tmp_path / "record"
     async with running_server(None, record=record) as server:
         feed = server.live.feed("car")
         feed.set_metadata(metadata)
-        await feed.publish(frames[0])
 
-        async def publish() -> None:
-            for data in frames[1:]:
-                await asyncio.sleep(0.2)
-                await feed.publish(data)
+        async def publish() -> None:  # at 10 Hz until the viewer has seen enough (the demo is 200 frames long)
+            for frame in range(len(demo)):
+                await feed.publish(await asyncio.to_thread(demo.convert, frame, metadata))
+                await asyncio.sleep(0.1)
 
         publisher = asyncio.ensure_future(publish())
         url = f"ws://127.0.0.1:{server.port}/?log=car&session_type=live&message_format={fmt.value}"
-        script = [{"wait": "metadata"}, {"wait": "state_updates", "count": 4}, {"close": True}]
+        script = [{"wait": "metadata"}, {"wait": "state_updates", "count": 3}, {"close": True}]
         result = await run_xviz_session_async(url, script, brief=True, validate=True)
-        await publisher
+        publisher.cancel()
     assert result.summary is not None, result.stderr
     assert result.summary["errors"] == [], result.summary["errors"][:5]
     assert result.ok, result.stderr
     [recording] = list((record / "car").iterdir())
-    assert await validate_served({"data_dir": record}, fmt, f"&log=car/{recording.name}") >= 3
+    assert await validate_served({"data_dir": record}, fmt, f"&log=car/{recording.name}") >= 2
 
 
 def test_the_validator_refuses_what_the_schema_refuses(tmp_path: Path):

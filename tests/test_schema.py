@@ -13,7 +13,7 @@ import pytest
 from jsonschema import Draft202012Validator
 
 from devkit.data import SCHEMA_EXAMPLES
-from helpers import assert_same_message
+from helpers import assert_same_message, xviz_validate_instances
 from xviz_server.codec import decode_glb
 from xviz_server.exceptions import SchemaValidationError, UnknownSchemaError, XVIZError
 from xviz_server.validation import ARRAY_ROWS, XVIZValidator, get_validator
@@ -97,6 +97,51 @@ def test_invalid_example(validator: XVIZValidator, name: str, path: Path) -> Non
     assert problems
     for line in problems:
         assert PROBLEM.match(line), line
+
+
+# Where our schema and the published one (@xviz/schema 1.0.13) part, the published one is followed: these
+# instances are valid to one of them only if to both.
+AGREEMENT = [
+    ("style/object_value", {"height": 1.5}),
+    ("style/object_value", {}),
+    ("style/object_value", {"fill_color": "#FF000080", "height": 1.5}),
+    ("style/object_value", {"stroke_width": 0.2}),
+    ("style/object_value", {"fill_color": "red"}),
+    ("style/object_value", {"fill_color": "rgba(255, 0, 0, 0.5)"}),
+    ("style/object_value", {"fill_color": [255, 0, 0]}),
+    ("style/object_value", {"fill_color": "#f00", "opacity": 0.5}),
+    ("style/stream_value", {"height": 1.5}),
+    ("style/stream_value", {"extruded": True}),
+    ("style/stream_value", {"fill_color": "#fff", "font_weight": "bold"}),
+    ("style/stream_value", {"font_weight": 700}),
+    ("style/stream_value", {"point_color_mode": "DEFAULT"}),
+    ("style/stream_value", {"point_color_mode": "elevation"}),
+    ("style/stream_value", {"point_color_mode": "ELEVATION", "point_color_domain": [0, 3]}),
+    ("style/class", {"name": "Car", "style": {"height": 2.0}}),
+    ("style/class", {"name": "Car", "style": {"stroke_color": "#50B3FF", "height": 2.0}}),
+    ("primitives/polygon", {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"classes": []}}),
+    ("primitives/polygon", {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"classes": ["Car"], "style": {"height": 2.0}}}),
+    ("primitives/polyline", {"vertices": [[0, 0, 0], [1, 1, 1]], "colors": [[255, 0, 0], [0, 255, 0]]}),
+    ("primitives/polyline", {"vertices": [[0, 0, 0], [1, 1, 1]]}),
+    ("core/pose", {"timestamp": 1.0, "map_origin": {"latitude": 49.0, "altitude": 0.0}, "position": [0, 0, 0], "orientation": [0, 0, 0]}),
+    ("core/pose", {"timestamp": 1.0, "map_origin": {"longitude": 0.0, "latitude": 49.0, "altitude": 0.0},
+                   "position": [0, 0, 0], "orientation": [0, 0, 0]}),
+    ("core/annotation_visual", {"base": {"object_id": "car-1"}, "inline_style": {"height": 2.0}}),
+]
+
+
+def test_our_validator_agrees_with_the_published_one(validator: XVIZValidator, tmp_path: Path) -> None:
+    """On the conformance corpus and on the cases where the two schemas used to part (see AGREEMENT)."""
+    corpus = [(param.values[0], load(param.values[1])) for kind in ("valid", "invalid") for param in corpus_cases(kind)]
+    cases = [*corpus, *AGREEMENT]
+    published = xviz_validate_instances(cases, tmp_path)
+    compared = [
+        (name, instance, bool(validator.errors(name, instance)), bool(theirs["errors"]))
+        for (name, instance), theirs in zip(cases, published)
+        if "error" not in theirs  # a schema the published validator names otherwise (style/color is its style/_color)
+    ]
+    assert len(compared) >= len(AGREEMENT) + 100
+    assert [case for case in compared if case[2] != case[3]] == []
 
 
 @pytest.mark.parametrize(

@@ -2,10 +2,14 @@
 // XVIZValidator, the ajv draft-04 schemas the XVIZ authors publish).
 //
 //   node validate.js FILE...
+//   node validate.js --instances FILE
 //
-// prints one JSON line per file, {"file", "type", "errors"}, or {"file",
-// "error"} when @xviz/io reads no XVIZ message in it; exit status 1 when a
-// message is invalid or unreadable. As a module, `validateMessage(message,
+// The first prints one JSON line per file, {"file", "type", "errors"}, or
+// {"file", "error"} when @xviz/io reads no XVIZ message in it; exit status 1
+// when a message is invalid or unreadable. The second reads a JSON list of
+// {"schema", "instance"} (a schema name such as "style/object_value") and
+// prints {"schema", "errors"} for each, or {"schema", "error"} when the
+// validator has no such schema. As a module, `validateMessage(message,
 // binary)` returns the errors of one envelope as @xviz/io unpacks it, and
 // xviz-session.js --validate uses it on every message a session receives.
 //
@@ -31,16 +35,7 @@ function validateMessage(message, binary) {
   if (!validator.hasSchema(name)) {
     return [`no schema for message type ${JSON.stringify(message.type)}`];
   }
-  const data = binary ? xvizConvertJson(message.data) : message.data;
-  try {
-    validator.validate(name, data);
-  } catch (error) {
-    if (!String(error.message).startsWith(PREFIX)) {
-      throw error;
-    }
-    return JSON.parse(error.message.slice(PREFIX.length)).map(describe);
-  }
-  return [];
+  return validateInstance(name, binary ? xvizConvertJson(message.data) : message.data);
 }
 
 /** One ajv error as "<path>: <message> <params>". */
@@ -52,6 +47,34 @@ function describe({dataPath, message, params}) {
 function unpack(payload) {
   const message = new XVIZData(payload).message();
   return message && message.type ? {type: `xviz/${message.type}`, data: message.message.data} : null;
+}
+
+/** The errors of a plain JSON value against a schema of the validator, by name. */
+function validateInstance(name, instance) {
+  if (!validator.hasSchema(name)) {
+    throw new Error(`no schema ${JSON.stringify(name)}`);
+  }
+  try {
+    validator.validate(name, instance);
+  } catch (error) {
+    if (!String(error.message).startsWith(PREFIX)) {
+      throw error;
+    }
+    return JSON.parse(error.message.slice(PREFIX.length)).map(describe);
+  }
+  return [];
+}
+
+function mainInstances(file) {
+  for (const {schema, instance} of JSON.parse(fs.readFileSync(file, 'utf8'))) {
+    const line = {schema};
+    try {
+      line.errors = validateInstance(schema, instance);
+    } catch (error) {
+      line.error = String(error.message);
+    }
+    process.stdout.write(JSON.stringify(line) + '\n');
+  }
 }
 
 function main(files) {
@@ -83,5 +106,10 @@ function main(files) {
 module.exports = {validateMessage, unpack};
 
 if (require.main === module) {
-  main(process.argv.slice(2));
+  const args = process.argv.slice(2);
+  if (args[0] === '--instances') {
+    mainInstances(args[1]);
+  } else {
+    main(args);
+  }
 }
