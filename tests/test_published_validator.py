@@ -77,7 +77,12 @@ def _written_by_xviz_io(fmt: str, source: Callable[[Path, Path], Path]) -> Calla
 
 
 def _kitti_log(root: Path, shared: Path) -> Path:
-    return shared / "data" / "kitti-2011_09_26_drive_0001-head"
+    """The metadata and first three frames of the real KITTI log (links to them)."""
+    head = root / "kitti-head"
+    head.mkdir()
+    for number in range(1, 5):
+        (head / f"{number}-frame.glb").symlink_to(shared / "data" / "kitti-2011_09_26_drive_0001-head" / f"{number}-frame.glb")
+    return head
 
 
 def _rich_log(root: Path, shared: Path) -> Path:

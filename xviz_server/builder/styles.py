@@ -123,9 +123,10 @@ def check_style(where: str, style: Mapping[str, Any], primitive_type: str | None
     needs = properties.object_needs if per_object else properties.stream_needs
     if not needs & checked.keys():
         given = f" beside {', '.join(checked)}" if checked else ""
+        hint = " (a height of its own goes with the object's colour)" if per_object and "height" in checked else ""
         raise BuilderError(
             f"{where}: a style needs one of {', '.join(sorted(needs & allowed))}{given}: the XVIZ schema refuses one "
-            "without (a per-object height goes with the object's colour)"
+            f"without{hint}"
         )
     return checked
 
