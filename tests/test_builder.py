@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import sha, xviz_decode
+from helpers import sha, xviz_decode, xviz_validate
 from xviz_server.builder import FrameBuilder, MetadataBuilder, ui
 from xviz_server.codec import Format, decode, encode
 from xviz_server.exceptions import BuilderError
@@ -410,6 +410,7 @@ def test_published_client_reads_a_built_frame(metadata: dict, tmp_path: Path, fm
         files.append(path)
     meta, state = xviz_decode(files)
     assert "error" not in meta and "error" not in state, state.get("error") or meta.get("error")
+    assert [line.get("error") or line["errors"] for line in xviz_validate(files)] == [[], []]  # the published validator
     streams = state["parsed"]["streams"]
     assert streams["/lidar/points"]["pointCloud"]["numInstances"] == 2000
     assert [f["id"] for f in streams["/objects"]["features"]] == ["car-1", "car-2"]
