@@ -63,9 +63,9 @@ def full_metadata() -> dict:
                      ui.plot("/plan/distance", ["/plan/speed"], title="Plan"),
                      ui.plot(regions=[("/plan/distance", "/plan/speed", "/plan/speed")], title="Envelope")),
         ui.table("/objects/table", title="Objects", display_object_id=True),
-        ui.treetable("/objects/table", description="the same, as a tree"),
+        ui.treetable("/objects/table", title="Object tree", description="the same, as a tree"),
         ui.video(["/camera/front", "front"]),
-        ui.select("/plan/actions", "/action"),
+        ui.select("/plan/actions", "/action", title="Action"),
         layout="HORIZONTAL",
     ), needed_streams=["/vehicle/velocity"])
     return meta.build()
@@ -273,6 +273,8 @@ FRAME_MISUSE = [
      "/objects: style: 'extruded' can only be set in the stream's style, not per object or per class"),
     (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, style={"hieght": 2}), "/objects: style: no style property 'hieght' (did you mean 'height'?)"),
     (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, classes="Car"), "/objects: classes must be a non-empty list of class names without spaces, not 'Car'"),
+    (lambda f: f.pose("/vehicle_pose", -1.0), "/vehicle_pose: timestamp must be seconds >= 0, not -1.0"),
+    (lambda f: f.time_series("/vehicle/velocity", -0.5, 1.0), "/vehicle/velocity: timestamp must be seconds >= 0, not -0.5"),
     (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, classes=[]), "/objects: classes must be a non-empty list of class names without spaces, not []"),
     (lambda f: f.polygon("/objects", [[0, 0, 0]] * 3, style={"height": 2.0}),
      "/objects: style: a style needs one of fill_color, stroke_color, stroke_width beside height: the XVIZ schema refuses one without"),
@@ -351,7 +353,9 @@ METADATA_MISUSE = [
     (lambda m: m.camera("c", vehicle_orientation=np.eye(4)), "camera 'c': vehicle_orientation must have shape (3, 3), not (4, 4)"),
     (lambda m: m.camera("c", pixel_width=640), "camera 'c': give pixel_width and pixel_height together"),
     (lambda m: m.ui_panel({"type": "PANEL", "name": "p", "children": [{"type": "GAUGE"}]}), "ui panel 'p': $.config.children[0].type: 'GAUGE' is not one of"),
-    (lambda m: m.ui_panel(ui.panel("p", ui.metric([]))), "ui panel 'p': $.config.children[0].streams: [] should be non-empty"),
+    (lambda m: m.ui_panel(ui.panel("p", ui.metric([], title="Speed"))), "ui panel 'p': $.config.children[0].streams: [] should be non-empty"),
+    (lambda m: m.ui_panel({"type": "PANEL", "name": "p", "children": [{"type": "METRIC", "streams": ["/speed"]}]}),
+     "ui panel 'p': $.config.children[0]: 'title' is a required property"),
     (lambda m: m.ui_panel(ui.panel("p", ui.metric(["/speed"], title="Speed"))).build(), "ui panel 'p': Speed shows /speed, which is not declared"),
     (lambda m: m.ui_panel(ui.panel("p", ui.container("c", ui.video(["/cam"])))).build(), "ui panel 'p': VIDEO shows /cam, which is not declared"),
 ]

@@ -22,7 +22,7 @@ import io
 import os
 import shutil
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,11 +39,10 @@ WINDOW = 0.15
 
 @dataclass(frozen=True)
 class Served:
-    """What a source gives the server: a data directory or a dataset (``KIND:PATH``), and for ``convert``, the dataset."""
+    """What a source gives the server: a data directory, or a dataset (``KIND:PATH``) that ``convert`` takes too."""
 
     data_dir: Path | None = None
     dataset: str | None = None
-    options: dict[str, str] = field(default_factory=dict)
 
     @property
     def kind_and_path(self) -> tuple[str, Path] | None:
@@ -294,27 +293,35 @@ async def test_a_live_feed_and_its_recording_are_valid(fmt: Format, tmp_path: Pa
     assert await validate_served({"data_dir": record}, fmt, f"&log=car/{recording.name}") >= 2
 
 
-def test_the_validator_refuses_what_the_schema_refuses(tmp_path: Path):
-    """The driver does validate: a height-only style and a map origin without longitude are refused, with the path."""
-    meta = {"version": "2.0.0", "streams": {"/vehicle_pose": {"category": "POSE"},
-                                           "/objects": {"category": "PRIMITIVE", "primitive_type": "POLYGON"}}}
-    pose = {"timestamp": 1.0, "map_origin": {"longitude": 8.4, "latitude": 49.0, "altitude": 110.0},
-            "position": [0, 0, 0], "orientation": [0, 0, 0]}
-    polygon = {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"style": {"fill_color": "#FF0000", "height": 2.0}}}
-    valid = {"update_type": "SNAPSHOT", "updates": [{"timestamp": 1.0, "poses": {"/vehicle_pose": pose},
-                                                     "primitives": {"/objects": {"polygons": [polygon]}}}]}
-    no_longitude = {**valid, "updates": [{**valid["updates"][0], "poses": {"/vehicle_pose": {
-        **pose, "map_origin": {"latitude": 49.0, "altitude": 110.0}}}}]}
-    height_only = {**valid, "updates": [{**valid["updates"][0], "primitives": {"/objects": {"polygons": [
-        {**polygon, "base": {"style": {"height": 2.0}}}]}}}]}
-    for fmt in FORMATS:
-        write_log(tmp_path / fmt.value, [valid, no_longitude, height_only], fmt=fmt, meta=meta)
-        files = [tmp_path / fmt.value / f"{n}-frame{fmt.suffix}" for n in range(1, 5)]
-        lines = xviz_validate(files)
-        assert [line["type"] for line in lines] == ["xviz/metadata"] + ["xviz/state_update"] * 3
-        assert lines[0]["errors"] == lines[1]["errors"] == []
-        assert lines[2]["errors"] == [
-            ".updates[0].poses['/vehicle_pose'].map_origin: should have required property 'longitude' "
-            '{"missingProperty":"longitude"}'
-        ]
-        assert lines[3]["errors"][0].startswith(".updates[0].primitives['/objects'].polygons[0].base.style: ")
+def frame(t: float, *, longitude: bool = True, style: dict[str, Any] | None = None) -> dict[str, Any]:
+    origin = {"longitude": 8.4, "latitude": 49.0, "altitude": 110.0} if longitude else {"latitude": 49.0, "altitude": 110.0}
+    pose = {"timestamp": t, "map_origin": origin, "position": [0, 0, 0], "orientation": [0, 0, 0]}
+    polygon = {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"style": style or {"fill_color": "#FF0000", "height": 2.0}}}
+    return {"update_type": "SNAPSHOT", "updates": [{"timestamp": t, "poses": {"/vehicle_pose": pose},
+                                                    "primitives": {"/objects": {"polygons": [polygon]}}}]}
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
+async def test_the_validator_refuses_what_the_schema_refuses(fmt: Format, tmp_path: Path):
+    """The drivers do validate: a map origin without longitude and a height-only style are refused, with the path."""
+    meta = {"version": "2.0.0", "log_info": {"start_time": 1.0, "end_time": 1.1},
+            "streams": {"/vehicle_pose": {"category": "POSE"}, "/objects": {"category": "PRIMITIVE", "primitive_type": "POLYGON"}}}
+    log = write_log(tmp_path / "log", [frame(1.0), frame(1.05, longitude=False), frame(1.1, style={"height": 2.0})], fmt=fmt, meta=meta)
+    no_longitude = ".updates[0].poses['/vehicle_pose'].map_origin: should have required property 'longitude'"
+    height_only = ".updates[0].primitives['/objects'].polygons[0].base.style: "
+
+    files = [log / f"{number}-frame{fmt.suffix}" for number in range(1, 5)]
+    lines = await asyncio.to_thread(xviz_validate, files)
+    assert [line["type"] for line in lines] == ["xviz/metadata"] + ["xviz/state_update"] * 3
+    assert lines[0]["errors"] == lines[1]["errors"] == []
+    assert lines[2]["errors"] == [f'{no_longitude} {{"missingProperty":"longitude"}}']
+    assert lines[3]["errors"][0].startswith(height_only)
+
+    async with running_server(log) as server:
+        url = f"ws://127.0.0.1:{server.port}/?message_format={fmt.value}"
+        result = await run_xviz_session_async(url, window_script(), validate=True)
+    assert result.ok, result.stderr
+    refused = [(error["source"], error["index"], error["message"]) for error in result.summary["errors"]]
+    assert {index for _, index, _ in refused} == {2, 3} and {source for source, _, _ in refused} == {"schema"}  # 0 is the metadata
+    assert refused[0][2].startswith(f"xviz/state_update: {no_longitude}") and refused[1][2].startswith(f"xviz/state_update: {height_only}")
+    assert "invalid" not in result.messages[1] and result.messages[2]["invalid"][0].startswith(no_longitude)

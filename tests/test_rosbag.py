@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from devkit.rosbag_kitti import (
-    CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, FIX_TOPIC, GRAY_TOPIC, IMU_TOPIC, RAW, Messages, kitti_messages, marker,
+    CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, FIX_TOPIC, GRAY_TOPIC, IMU_TOPIC, RAW, Messages, kitti_messages,
     viz_messages, write_bag,
 )
 from helpers import client, run_xviz_session_async, running_server, sha, timestamps, xviz_decode

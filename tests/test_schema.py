@@ -127,6 +127,17 @@ AGREEMENT = [
     ("core/pose", {"timestamp": 1.0, "map_origin": {"longitude": 0.0, "latitude": 49.0, "altitude": 0.0},
                    "position": [0, 0, 0], "orientation": [0, 0, 0]}),
     ("core/annotation_visual", {"base": {"object_id": "car-1"}, "inline_style": {"height": 2.0}}),
+    ("core/pose", {"timestamp": -1.0, "position": [0, 0, 0], "orientation": [0, 0, 0]}),
+    ("core/timeseries_state", {"timestamp": -1.0, "streams": ["/speed"], "values": {"doubles": [1.0]}}),
+    ("core/future_instances", {"timestamps": [-1.0], "primitives": [{"polygons": [{"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]]}]}]}),
+    ("core/stream_set", {"timestamp": 1.0, "no_data_streams": ["/points"]}),
+    ("core/stream_set", {"timestamp": 1.0, "links": {"/points": {"target_pose": "/vehicle_pose"}}}),
+    ("core/stream_set", {"timestamp": 1.0, "time_series": []}),
+    ("session/camera_info", {"human_name": "Front", "source": "/camera", "gl_projection": [[1, 0, 0, 0]] * 4}),
+    ("declarative-ui/components/metric", {"type": "METRIC", "streams": ["/speed"]}),
+    ("declarative-ui/components/table", {"type": "TABLE", "stream": "/objects"}),
+    ("declarative-ui/components/plot", {"type": "PLOT", "independentVariable": "/a", "dependentVariables": ["/b"]}),
+    ("declarative-ui/components/video", {"type": "VIDEO", "cameras": ["/camera"]}),
 ]
 
 

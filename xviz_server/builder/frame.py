@@ -62,6 +62,14 @@ def _number(where: str, value: Any) -> float:
     return float(value)
 
 
+def _timestamp(where: str, value: Any) -> float:
+    """A time in seconds: a finite number, not negative (the schema refuses negative times of poses and values)."""
+    time = _number(where, value)
+    if time < 0:
+        raise BuilderError(f"{where} must be seconds >= 0, not {value!r}")
+    return time
+
+
 def _colors(where: str, colors: Any, count: int) -> np.ndarray:
     """(N, 3|4) uint8 colours; a uint8 array is kept, not copied, and integers 0-255 are converted."""
     array = np.asarray(colors)
@@ -163,7 +171,7 @@ class FrameBuilder:
         north, z up) and ``orientation`` (roll, pitch, yaw) in radians.
         """
         self._declared(stream, "POSE")
-        pose: dict[str, Any] = {"timestamp": _number(f"{stream}: timestamp", timestamp)}
+        pose: dict[str, Any] = {"timestamp": _timestamp(f"{stream}: timestamp", timestamp)}
         if map_origin is not None:
             longitude, latitude, altitude = _point(f"{stream}: map_origin", map_origin)
             if not (-180 <= longitude <= 180 and -90 <= latitude <= 90):
@@ -334,7 +342,7 @@ class FrameBuilder:
             primitive: dict[str, Any] = {key: _vertices(f"{stream}: shapes[{i}]", shape, _FUTURE_LEAST[primitive_type])}
             if base:
                 primitive["base"] = base
-            futures.setdefault(_number(f"{stream}: timestamps[{i}]", timestamp), []).append(primitive)
+            futures.setdefault(_timestamp(f"{stream}: timestamps[{i}]", timestamp), []).append(primitive)
         return self
 
     # -- values -----------------------------------------------------------
@@ -364,7 +372,7 @@ class FrameBuilder:
         in the official logs; a stream has one value per timestamp and object.
         """
         scalar_type = self._declared(stream, "TIME_SERIES")["scalar_type"]
-        time = _number(f"{stream}: timestamp", timestamp)
+        time = _timestamp(f"{stream}: timestamp", timestamp)
         object_id = None if id is None else _object_id(f"{stream}: id", id)
         if (stream, time, object_id) in self._series_seen:
             owner = "" if object_id is None else f" for object {object_id!r}"

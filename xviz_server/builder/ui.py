@@ -1,6 +1,7 @@
 """Declarative UI: panels of components that streetscape.gl lays out from the metadata.
 
-Each function returns the plain dict the specification describes; give a
+Each function returns the plain dict the specification describes (the
+published schema wants a ``title`` on every component but a video); give a
 :func:`panel` to :meth:`~xviz_server.builder.MetadataBuilder.ui_panel`,
 which checks it against the schema and, at ``build()``, checks that the
 streams it shows are declared::
@@ -42,7 +43,7 @@ def container(name: str, *children: dict[str, Any], layout: str = "HORIZONTAL") 
     return {"type": "CONTAINER", "name": name, "layout": layout, "children": list(children)}
 
 
-def metric(streams: Sequence[str], *, title: str | None = None, description: str | None = None) -> dict[str, Any]:
+def metric(streams: Sequence[str], *, title: str, description: str | None = None) -> dict[str, Any]:
     """A chart of time series streams over time."""
     return _component("METRIC", title, description, streams=list(streams))
 
@@ -52,7 +53,7 @@ def plot(
     dependents: Sequence[str] = (),
     *,
     regions: Sequence[tuple[str, str, str]] | None = None,
-    title: str | None = None,
+    title: str,
     description: str | None = None,
 ) -> dict[str, Any]:
     """Variable streams plotted against another (a speed plan against distance), and/or
@@ -68,14 +69,14 @@ def plot(
 
 
 def table(
-    stream: str, *, title: str | None = None, description: str | None = None, display_object_id: bool | None = None
+    stream: str, *, title: str, description: str | None = None, display_object_id: bool | None = None
 ) -> dict[str, Any]:
     """A flat table of a treetable UI-primitive stream."""
     return _component("TABLE", title, description, stream=stream, displayObjectId=display_object_id)
 
 
 def treetable(
-    stream: str, *, title: str | None = None, description: str | None = None, display_object_id: bool | None = None
+    stream: str, *, title: str, description: str | None = None, display_object_id: bool | None = None
 ) -> dict[str, Any]:
     """A collapsible tree table of a treetable UI-primitive stream."""
     return _component("TREETABLE", title, description, stream=stream, displayObjectId=display_object_id)
@@ -86,6 +87,6 @@ def video(cameras: Sequence[str], *, title: str | None = None, description: str 
     return _component("VIDEO", title, description, cameras=list(cameras))
 
 
-def select(stream: str, target: str, *, title: str | None = None, description: str | None = None) -> dict[str, Any]:
+def select(stream: str, target: str, *, title: str, description: str | None = None) -> dict[str, Any]:
     """A drop-down of a stream's values; choosing one sets the configuration key ``target`` (a JSON pointer)."""
     return _component("SELECT", title, description, stream=stream, onchange={"target": target})
