@@ -8,7 +8,8 @@ socket, in JSON and in GLB, and the driver validates the metadata and every
 state update of a window of :data:`WINDOW` seconds from the start of the log
 (two frames: every frame of a source here has the same streams, and the
 KITTI ones are 2 MB each). The datasets are also written by ``convert``, in
-both formats, and their logs served and validated the same way. A live feed and its recording are validated in
+both formats, and their logs served and validated the same way. A live feed
+and its recording are validated in
 :func:`test_a_live_feed_and_its_recording_are_valid`.
 
 A provider that adds a stream is covered by its row here; a new source gets a
@@ -18,6 +19,7 @@ row of its own.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import io
 import os
 import shutil
@@ -201,7 +203,10 @@ SOURCES: dict[str, Callable[[Path, Path], Served]] = {
     "rosbag-mcap-viz": _viz_bag("mcap", POSE_STAMPED),
 }
 #: The sources that ``convert`` takes.
-DATASETS = ["demo", "kitti-raw", "kitti-raw-tracklets", "waymo-npz", "waymo-tfrecord", "vista", *(s for s in SOURCES if s.startswith("rosbag-"))]
+DATASETS = [
+    "demo", "kitti-raw", "kitti-raw-tracklets", "waymo-npz", "waymo-tfrecord", "vista",
+    *(source for source in SOURCES if source.startswith("rosbag-")),
+]
 
 
 @pytest.fixture(scope="module")
@@ -286,6 +291,8 @@ async def test_a_live_feed_and_its_recording_are_valid(fmt: Format, tmp_path: Pa
         script = [{"wait": "metadata"}, {"wait": "state_updates", "count": 3}, {"close": True}]
         result = await run_xviz_session_async(url, script, brief=True, validate=True)
         publisher.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await publisher
     assert result.summary is not None, result.stderr
     assert result.summary["errors"] == [], result.summary["errors"][:5]
     assert result.ok, result.stderr

@@ -46,7 +46,12 @@ function describe({dataPath, message, params}) {
 /** The envelope @xviz/io reads in a file or a received payload, or null. */
 function unpack(payload) {
   const message = new XVIZData(payload).message();
-  return message && message.type ? {type: `xviz/${message.type}`, data: message.message.data} : null;
+  if (!message || !message.type) {
+    return null;
+  }
+  const type = `xviz/${message.type}`;
+  // A message without an envelope is its data.
+  return {type, data: message.message.type === type ? message.message.data : message.message};
 }
 
 /** The errors of a plain JSON value against a schema of the validator, by name. */

@@ -213,7 +213,8 @@ function decode(payload, validate) {
       decoded.bare = message.message.type !== decoded.type;
       decoded.raw = message.message;
       if (validate) {
-        decoded.invalid = validateMessage({type: decoded.type, data: decoded.raw.data}, typeof payload !== 'string');
+        const data = decoded.bare ? decoded.raw : decoded.raw.data;
+        decoded.invalid = validateMessage({type: decoded.type, data}, typeof payload !== 'string');
       }
     }
   } catch (error) {
