@@ -30,6 +30,7 @@ from typing import Any
 
 import pytest
 
+from devkit.data import KITTI_LOG, KITTI_RAW
 from helpers import running_server, run_xviz_session_async, write_log, xviz_validate, xviz_write
 from xviz_server.codec import Format
 from xviz_server.convert import convert
@@ -62,31 +63,31 @@ class Served:
 # -- the sources ----------------------------------------------------------------
 
 
-def _kitti_glb(root: Path, shared: Path) -> Served:
-    return Served(data_dir=shared / "data" / "kitti-2011_09_26_drive_0001-head")
+def _kitti_glb(root: Path) -> Served:
+    return Served(data_dir=KITTI_LOG)
 
 
-def _written_by_xviz_io(fmt: str, source: Callable[[Path, Path], Path]) -> Callable[[Path, Path], Served]:
+def _written_by_xviz_io(fmt: str, source: Callable[[Path], Path]) -> Callable[[Path], Served]:
     """A log re-written by the published writer of ``fmt`` (``JSON_STRING``, ``BINARY_GLB``, ``BINARY_PBE``)."""
 
-    def make(root: Path, shared: Path) -> Served:
+    def make(root: Path) -> Served:
         output = root / "log"
-        xviz_write(source(root, shared), **{fmt: output})
+        xviz_write(source(root), **{fmt: output})
         return Served(data_dir=output)
 
     return make
 
 
-def _kitti_log(root: Path, shared: Path) -> Path:
+def _kitti_log(root: Path) -> Path:
     """The metadata and first three frames of the real KITTI log (links to them)."""
     head = root / "kitti-head"
     head.mkdir()
     for number in range(1, 5):
-        (head / f"{number}-frame.glb").symlink_to(shared / "data" / "kitti-2011_09_26_drive_0001-head" / f"{number}-frame.glb")
+        (head / f"{number}-frame.glb").symlink_to(KITTI_LOG / f"{number}-frame.glb")
     return head
 
 
-def _rich_log(root: Path, shared: Path) -> Path:
+def _rich_log(root: Path) -> Path:
     """The log of every kind of XVIZ content of the PBE tests, with values protobuf leaves out (0, "").
 
     Its polylines lose their colours: the PBE tests keep them to test the
@@ -101,49 +102,49 @@ def _rich_log(root: Path, shared: Path) -> Path:
     return write_log(root / "rich-source", updates, fmt=Format.JSON, meta=RICH_METADATA)
 
 
-def _demo_log(root: Path, shared: Path) -> Path:
+def _demo_log(root: Path) -> Path:
     out = root / "demo-source"
     convert("demo", Path("demo"), out, fmt=Format.JSON, frames="0:3", processes=1, out=io.StringIO())
     return out
 
 
-def _rich_json(root: Path, shared: Path) -> Served:
-    return Served(data_dir=_rich_log(root, shared))
+def _rich_json(root: Path) -> Served:
+    return Served(data_dir=_rich_log(root))
 
 
-def _demo(root: Path, shared: Path) -> Served:
+def _demo(root: Path) -> Served:
     return Served(dataset="demo")
 
 
-def _kitti_raw(root: Path, shared: Path) -> Served:
-    return Served(dataset=f"kitti:{shared / 'data' / 'kitti-raw-2011_09_26_drive_0001-head'}")
+def _kitti_raw(root: Path) -> Served:
+    return Served(dataset=f"kitti:{KITTI_RAW}")
 
 
-def _kitti_raw_tracklets(root: Path, shared: Path) -> Served:
+def _kitti_raw_tracklets(root: Path) -> Served:
     """The KITTI excerpt with tracklets (boxes of every class, with their heights), as links to the shared files."""
     from test_kitti import TRACKLETS
 
     copy = root / "raw"
-    shutil.copytree(shared / "data" / "kitti-raw-2011_09_26_drive_0001-head", copy, copy_function=os.symlink)
+    shutil.copytree(KITTI_RAW, copy, copy_function=os.symlink)
     drive = copy / "2011_09_26" / "2011_09_26_drive_0001_sync"
     (drive / "tracklet_labels.xml").write_text(TRACKLETS)
     return Served(dataset=f"kitti:{drive}")
 
 
-def _waymo_npz(root: Path, shared: Path) -> Served:
+def _waymo_npz(root: Path) -> Served:
     from test_waymo import write_segment
 
     return Served(dataset=f"waymo:{write_segment(root / 'segment-1')}")
 
 
-def _waymo_tfrecord(root: Path, shared: Path) -> Served:
+def _waymo_tfrecord(root: Path) -> Served:
     from test_waymo_tfrecord import write_scene
 
     tfrecord, _, _ = write_scene(root / "scene")
     return Served(dataset=f"waymo:{tfrecord}")
 
 
-def _vista(root: Path, shared: Path) -> Served:
+def _vista(root: Path) -> Served:
     from test_vista import write_trace
 
     return Served(dataset=f"vista:{write_trace(root / 'trace-1')}")
@@ -152,24 +153,24 @@ def _vista(root: Path, shared: Path) -> Served:
 _BAGS = {"ros1": "drive.bag", "sqlite3": "drive", "mcap": "drive.mcap"}
 
 
-def _kitti_bag(container: str) -> Callable[[Path, Path], Served]:
+def _kitti_bag(container: str) -> Callable[[Path], Served]:
     """The KITTI excerpt as a bag: clouds, images (raw and compressed), fix, IMU, /tf, odometry, a MarkerArray."""
 
-    def make(root: Path, shared: Path) -> Served:
-        from rosbag_kitti import RAW, write_bag
+    def make(root: Path) -> Served:
+        from devkit.rosbag_kitti import write_bag
         from xviz_server.datasets.kitti import KittiDrive
 
-        bag = write_bag(root / _BAGS[container], container, drive=KittiDrive(shared / "data" / RAW), frames=3)
+        bag = write_bag(root / _BAGS[container], container, drive=KittiDrive(KITTI_RAW), frames=3)
         return Served(dataset=f"rosbag:{bag}")
 
     return make
 
 
-def _viz_bag(container: str, pose_type: str) -> Callable[[Path, Path], Served]:
+def _viz_bag(container: str, pose_type: str) -> Callable[[Path], Served]:
     """Markers of every kind, a path, numbers, and a pose of ``pose_type``, as a bag."""
 
-    def make(root: Path, shared: Path) -> Served:
-        from rosbag_kitti import Messages, viz_messages, write_bag
+    def make(root: Path) -> Served:
+        from devkit.rosbag_kitti import Messages, viz_messages, write_bag
         from rosbags.typesys import Stores
 
         m = Messages(Stores.ROS1_NOETIC if container == "ros1" else Stores.ROS2_HUMBLE)
@@ -182,8 +183,8 @@ def _viz_bag(container: str, pose_type: str) -> Callable[[Path, Path], Served]:
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 
-#: Every source the server has: a name and what makes it in a folder (given the shared data folder).
-SOURCES: dict[str, Callable[[Path, Path], Served]] = {
+#: Every source the server has: a name and what makes it in a folder.
+SOURCES: dict[str, Callable[[Path], Served]] = {
     "kitti-glb": _kitti_glb,
     "kitti-json-by-xviz-io": _written_by_xviz_io("JSON_STRING", _kitti_log),
     "kitti-pbe-by-xviz-io": _written_by_xviz_io("BINARY_PBE", _kitti_log),
@@ -210,13 +211,13 @@ DATASETS = [
 
 
 @pytest.fixture(scope="module")
-def made(tmp_path_factory: pytest.TempPathFactory, shared_dir: Path) -> Iterator[Callable[[str], Served]]:
+def made(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[[str], Served]]:
     """Make a source once for the module, when first asked for."""
     cache: dict[str, Served] = {}
 
     def get(name: str) -> Served:
         if name not in cache:
-            cache[name] = SOURCES[name](tmp_path_factory.mktemp(name), shared_dir)
+            cache[name] = SOURCES[name](tmp_path_factory.mktemp(name))
         return cache[name]
 
     yield get
