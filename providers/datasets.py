@@ -5,10 +5,12 @@ Datasets are found under a data root by their layout (see
 is named by its path without the suffix) or given explicitly (``--dataset
 kitti:PATH``: named by the folder's name, or a file's name without its
 suffix; a folder of datasets of that kind serves each of them; ``--dataset
-rosbag:PATH?config=FILE`` gives the kind's options). The metadata and the
-index come from the dataset's timestamps at once; each frame is converted
-in the process pool when first asked for, encoded as GLB once, and kept in
-the shared frame cache like any other frame. A frame whose raw files are
+rosbag:PATH?config=FILE`` gives the kind's options). A dataset is opened in
+the process pool, never in the server's own process: its metadata and its
+frame times come back from there (a recording that unpacks to too much, or
+kills the worker, fails that log alone). Each frame is converted in the
+process pool when first asked for, encoded as GLB once, and kept in the
+shared frame cache like any other frame. A frame whose raw files are
 missing or corrupt is an error naming the file; the rest of the drive is
 served.
 """
@@ -20,8 +22,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..codec import Format
-from ..datasets import Dataset, convert_frame, detect, open_dataset
-from ..exceptions import DatasetError, FrameError, LogError, StoreError
+import numpy as np
+
+from ..datasets import convert_frame, describe_dataset, detect
+from ..exceptions import DatasetError, FrameError, LogError, StoreError, WorkerError
 from ..index import TimeIndex
 from ..layout import Found, discover
 from ..store import StoredDataset
@@ -58,46 +62,43 @@ class DatasetProvider:
 
     async def open(self, found: Found | StoredDataset) -> DatasetLog:
         options = {**self._options, **dict(found.options)}
+        path = found.path  # an object in a store goes as it is: picklable, without a credential
+        where = path if isinstance(path, (StorePath, StoreTree)) else str(path)
         try:
-            dataset = await self._workers.io(lambda: open_dataset(found.kind, found.path, **options))
-        except DatasetError as exc:
+            metadata, times = await self._workers.cpu(describe_dataset, found.kind, where, options)
+        except (DatasetError, StoreError, WorkerError) as exc:
             raise LogError(f"log {found.name!r}: {exc}", log=found.name) from None
-        return DatasetLog(found.name, found.kind, dataset, options, self._workers)
+        return DatasetLog(found.name, found.kind, where, metadata, times, options, self._workers)
 
 
 class DatasetLog:
-    """One dataset as a log source: frames converted in the process pool."""
+    """One dataset as a log source: its metadata and frame times, and frames converted in the process pool."""
 
     format = Format.BINARY
 
-    def __init__(self, name: str, kind: str, dataset: Dataset, options: dict[str, Any], workers: Workers) -> None:
+    def __init__(
+        self, name: str, kind: str, path: str | StorePath | StoreTree, metadata: dict[str, Any], times: np.ndarray,
+        options: dict[str, Any], workers: Workers,
+    ) -> None:
         self.name = name
         self._kind = kind
-        self._dataset = dataset
+        self._path = path
+        self._metadata = metadata
+        self._times = times
         self._options = options
         self._workers = workers
-        self._metadata: dict[str, Any] | None = None
 
     async def metadata(self) -> dict[str, Any]:
-        if self._metadata is None:
-            try:
-                self._metadata = await self._workers.io(self._dataset.metadata)
-            except DatasetError as exc:
-                raise LogError(f"log {self.name!r}: {exc}", log=self.name) from None
         return self._metadata
 
     async def index(self) -> TimeIndex:
-        times = await self._workers.io(lambda: self._dataset.times)
-        return TimeIndex.from_spans((float(t), float(t), i) for i, t in enumerate(times))
+        return TimeIndex.from_spans((float(t), float(t), i) for i, t in enumerate(self._times))
 
     def describe_frame(self, frame: int) -> str:
-        return f"frame {frame} of {self._dataset.path}"
+        return f"frame {frame} of {self._path}"
 
     async def read(self, frame: int) -> bytes:
-        metadata = await self.metadata()
         try:
-            path = self._dataset.path  # an object in a store goes as it is: picklable, without a credential
-            where = path if isinstance(path, (StorePath, StoreTree)) else str(path)
-            return await self._workers.cpu(convert_frame, self._kind, where, self._options, frame, metadata)
+            return await self._workers.cpu(convert_frame, self._kind, self._path, self._options, frame, self._metadata)
         except (DatasetError, StoreError) as exc:
             raise FrameError(f"frame {frame} of log {self.name!r}: {exc}", log=self.name, frame=frame) from None

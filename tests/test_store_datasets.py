@@ -179,7 +179,9 @@ async def test_connections_cut_while_streaming_are_errors_and_the_server_serves_
         proxy.faults.clear()
         again = await stream(server, name)
     errors = [m["data"]["message"] for m in cut if m["type"] == "xviz/error"]
-    assert len(errors) == count and not updates(cut)
+    # A bag's chunks read when it was opened (in a worker process) may still be in that worker's cache: those frames
+    # are served; every other frame is an error.
+    assert len(errors) + len(updates(cut)) == count and (container == "mcap" or not updates(cut))
     for error in errors:
         assert f"of log {name!r}" in error and f"s3://{BUCKET}/fleet/{key}" in error, error
         assert "the connection failed or was cut short" in error, error

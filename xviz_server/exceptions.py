@@ -23,6 +23,7 @@ __all__ = [
     "BuilderError",
     "LogWriteError",
     "DatasetError",
+    "OversizeError",
     "ConfigError",
     "DependencyError",
     "StoreError",
@@ -130,6 +131,27 @@ class DatasetError(XVIZError):
     def __init__(self, message: str, *, path: object = None) -> None:
         super().__init__(message)
         self.path = path
+
+
+class OversizeError(DatasetError):
+    """A recording declares, or unpacks to, more bytes than it may: a damaged file or a decompression bomb.
+
+    ``size`` is what it declared (or the bytes it had unpacked to when
+    refused) and ``limit`` the bound it broke; the message names the file
+    and the part (``FILE: chunk at byte N``).
+    """
+
+    def __init__(self, message: str, *, size: int, limit: int, path: object = None) -> None:
+        super().__init__(message, path=path)
+        self.size = size
+        self.limit = limit
+
+    def __reduce__(self) -> tuple[Any, ...]:  # from a worker process: the fields are keyword-only
+        return _rebuild_oversize_error, (str(self), self.size, self.limit, self.path)
+
+
+def _rebuild_oversize_error(message: str, size: int, limit: int, path: object) -> OversizeError:
+    return OversizeError(message, size=size, limit=limit, path=path)
 
 
 class LogWriteError(XVIZError):

@@ -22,7 +22,7 @@ from ..storepath import StorePath, StoreTree
 
 __all__ = [
     "Dataset", "KINDS", "FILE_KINDS", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "detect", "detect_in_store", "dataset_options", "convert_frame",
+    "open_dataset", "detect", "detect_in_store", "dataset_options", "describe_dataset", "convert_frame", "OPEN_DATASETS",
 ]
 
 
@@ -117,7 +117,28 @@ def detect(path: Path) -> str | None:
     return kind if kind is not None and _member(kind, 2)(path) else None
 
 
+#: The most datasets a worker process keeps open (with what each caches), the least recently used closed first.
+OPEN_DATASETS = 8
+
 _opened: dict[tuple[str, str, tuple[tuple[str, Any], ...]], Dataset] = {}
+
+
+def _dataset(kind: str, path: str | StorePath | StoreTree, options: dict[str, Any]) -> Dataset:
+    """The dataset, opened once in this process and kept among the :data:`OPEN_DATASETS` last used."""
+    key = (kind, str(path), tuple(sorted(options.items())))
+    dataset = _opened.pop(key, None)
+    if dataset is None:
+        dataset = open_dataset(kind, _in_store(path), **options)
+        while len(_opened) >= OPEN_DATASETS:
+            _opened.pop(next(iter(_opened)))
+    _opened[key] = dataset
+    return dataset
+
+
+def describe_dataset(kind: str, path: str | StorePath | StoreTree, options: dict[str, Any]) -> tuple[dict[str, Any], np.ndarray]:
+    """A dataset's metadata and frame times; for worker processes, so that opening it happens there."""
+    dataset = _dataset(kind, path, options)
+    return dataset.metadata(), np.asarray(dataset.times, dtype=np.float64)
 
 
 def convert_frame(
@@ -127,10 +148,7 @@ def convert_frame(
     """Frame ``frame`` of a dataset as an encoded message; for worker processes.
 
     Each process opens a dataset once and keeps it, with what it caches
-    (and its own client of a store).
+    (and its own client of a store), among the :data:`OPEN_DATASETS` last used.
     """
-    key = (kind, str(path), tuple(sorted(options.items())))
-    dataset = _opened.get(key)
-    if dataset is None:
-        dataset = _opened[key] = open_dataset(kind, _in_store(path), **options)
+    dataset = _dataset(kind, path, options)
     return encode(envelope("state_update", dataset.convert(frame, metadata)), fmt)

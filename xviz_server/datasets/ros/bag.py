@@ -15,6 +15,14 @@ ROS 1 and MCAP messages are then read at the offset their index gives,
 through a small cache of decompressed chunks; sqlite3 messages through
 rosbags' query by time.
 
+Every chunk is unpacked with a bound (see :mod:`xviz_server.unpack`):
+one that declares more than :data:`~xviz_server.unpack.MAX_CHUNK_BYTES`
+uncompressed, or unpacks to more than it declares, is an
+:class:`~xviz_server.exceptions.OversizeError` naming the file and the
+chunk; rosbags' own MCAP reader (an MCAP file without a summary, a ROS 2
+bag folder of MCAP files) unpacks through the same bound. At most
+:data:`CHUNK_CACHE_BYTES` of unpacked chunks are kept per bag.
+
 A ROS 1 bag whose recording was cut short has no readable index: it is
 indexed in memory at open, by one read of the whole file (see
 :mod:`.reindex`), and a warning says so.
@@ -31,8 +39,10 @@ from __future__ import annotations
 import logging
 import struct
 import threading
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -40,11 +50,12 @@ import numpy as np
 
 from ...exceptions import DatasetError, StoreError
 from ...storepath import RangedFile, StorePath, data_path
+from ...unpack import check_declared, unpack
 
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
 
-__all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY"]
+__all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY", "CHUNK_CACHE_BYTES"]
 
 logger = logging.getLogger(__name__)
 
@@ -55,7 +66,9 @@ _MESSAGE = 0x05  # MCAP opcodes
 _MESSAGE_INDEX = 0x07
 _ROS1_MESSAGE = 0x02  # ROS 1 record ops
 _ROS1_CONNECTION = 0x07
-_CHUNK_CACHE = 4  # decompressed chunks kept: a frame reads a few neighbouring ones
+#: The most bytes of unpacked chunks a bag keeps: a frame reads a few neighbouring chunks (the last one read is
+#: always kept, even if larger).
+CHUNK_CACHE_BYTES = 32 << 20
 
 
 def is_rosbag(path: Path | StorePath) -> bool:
@@ -109,6 +122,7 @@ def _import_rosbags() -> Any:
         import rosbags.highlevel
     except ImportError:
         raise DatasetError("reading ROS bags needs the rosbags package: pip install 'xviz-server[ros]'") from None
+    _bound_rosbags_mcap()
     return rosbags
 
 
@@ -130,6 +144,8 @@ class Bag:
             if not reader.is2:
                 reader.readers = [MemoryIndexedReader(self.path)]
             reader.open()
+        except (DatasetError, StoreError):  # a chunk refused unread names itself
+            raise
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
             raise DatasetError(f"{self.path}: cannot open the bag: {_reason(exc)}", path=self.path) from None
         self._reader = reader
@@ -242,8 +258,9 @@ class Bag:
         data = self._chunks.pop((storage, chunk), None)
         if data is None:
             data = _read_chunk(owner, chunk)
-            while len(self._chunks) >= _CHUNK_CACHE:
-                self._chunks.pop(next(iter(self._chunks)))
+            kept = sum(map(len, self._chunks.values()))
+            while self._chunks and kept + len(data) > CHUNK_CACHE_BYTES:
+                kept -= len(self._chunks.pop(next(iter(self._chunks))))
         self._chunks[(storage, chunk)] = data
         found = (_ros1_record if isinstance(owner, _ros1_reader()) else _mcap_record)(data, offset)
         if found is None:
@@ -302,19 +319,42 @@ def _read_chunk(owner: Any, key: int) -> bytes:
         if isinstance(owner, _ros1_reader()):
             chunk = owner.chunks[key]
             file.seek(chunk.datapos)
-            return bytes(chunk.decompressor(file.read(chunk.datasize)))
-        from rosbags.rosbag2.storage_mcap import decompress
-
+            return bytes(chunk.decompressor(file.read(chunk.datasize)))  # bounded by MemoryIndexedReader
         info = owner.chunks[key]
+        where = f"{owner.path}: chunk at byte {info.chunk_start_offset}"
+        check_declared(info.uncompressed_size, where)
         # The chunk record in one read: opcode, length, two times, uncompressed size, CRC, compression, records.
         start = 9 + 40 + len(info.compression)
+        end = info.chunk_start_offset + start + info.compressed_size
+        if end > file.seek(0, 2):
+            raise DatasetError(f"{where} is cut short: it needs the file's bytes up to {end}", path=owner.path)
         file.seek(info.chunk_start_offset)
         record = file.read(start + info.compressed_size)
         if len(record) < start + info.compressed_size:
-            raise DatasetError(f"{owner.path}: chunk {key} is cut short", path=owner.path)
+            raise DatasetError(f"{where} is cut short", path=owner.path)
         (crc,) = struct.unpack_from("<I", record, 9 + 24)
-        data = memoryview(record)[start:]  # not copied: rosbags' decompressors take any buffer
-        return bytes(decompress(data, info.compression, info.uncompressed_size, crc))  # type: ignore[arg-type]
+        data = unpack(memoryview(record)[start:], info.compression, info.uncompressed_size, where)
+        if crc and zlib.crc32(data) != crc:
+            raise DatasetError(f"{where}: CRC mismatch: the chunk is damaged", path=owner.path)
+        return data
+
+
+def _bound_rosbags_mcap() -> None:
+    """Make rosbags' own MCAP reader unpack chunks through :func:`~xviz_server.unpack.unpack` too.
+
+    It reads chunks itself where messages are not read by their index here
+    (an MCAP file without a summary, at open; a ROS 2 bag folder), and looks
+    its decompressors up in this table, each called with the chunk's
+    declared size.
+    """
+    from rosbags.rosbag2 import storage_mcap
+
+    for name in ("lz4", "zstd"):
+        storage_mcap.DECOMPRESSORS[name] = partial(_unpack_mcap, name)
+
+
+def _unpack_mcap(compression: str, data: bytes, declared: int) -> bytes:
+    return unpack(data, compression, declared, "an MCAP chunk read by rosbags")
 
 
 def _ros1_reader() -> type[Reader]:

@@ -20,6 +20,14 @@ the index records of its messages. For a bag in an object store
 headers of every chunk in one batch of parallel ranged GETs, and then every
 chunk's index records in another, where rosbags would make two GETs per
 chunk one after another.
+
+Every chunk is unpacked with a bound (see :mod:`xviz_server.unpack`): its
+header's ``size``, which rosbags does not check, must be at most
+:data:`~xviz_server.unpack.MAX_CHUNK_BYTES`, and it must unpack to exactly
+that many bytes. A chunk that declares more is refused when the bag is
+opened, one that unpacks to more after ``size`` bytes, each with an
+:class:`~xviz_server.exceptions.OversizeError` naming the file and the
+chunk's byte offset.
 """
 
 from __future__ import annotations
@@ -27,12 +35,15 @@ from __future__ import annotations
 import io
 import os
 from collections import defaultdict
+from functools import partial
+from typing import Callable
 
 from rosbags.interfaces import Connection
 from rosbags.rosbag1 import Reader, ReaderError
-from rosbags.rosbag1.reader import Chunk, ChunkInfo, Header, IndexData, RecordType, decompressors, read_uint32
+from rosbags.rosbag1.reader import Chunk, ChunkInfo, Header, IndexData, RecordType, read_uint32
 
 from ...storepath import RangedFile
+from ...unpack import check_declared, unpack
 
 __all__ = ["MemoryIndexedReader"]
 
@@ -50,9 +61,10 @@ class MemoryIndexedReader(Reader):
     reindexed = False
     #: Bytes at the end of the file not read: a record cut short.
     lost = 0
+    _size = 0  # of the file, found at open
 
     def open(self) -> None:
-        size = self.path.stat().st_size
+        size = self._size = self.path.stat().st_size
         with self.path.open("rb") as file:
             file.readline()  # the magic line, checked by Reader.open
             try:
@@ -73,7 +85,30 @@ class MemoryIndexedReader(Reader):
     def read_chunk(self) -> Chunk:
         if not self.chunks and isinstance(self.bio, RangedFile):  # the first chunk Reader.open reads
             self._prefetch_index(self.bio)
-        return super().read_chunk()
+        return self._chunk_record()
+
+    def _chunk_record(self) -> Chunk:
+        """The chunk record at the current position, its data skipped, with a bounded decompressor."""
+        bio = self.bio
+        assert bio is not None
+        position = bio.tell()
+        header = Header.read(bio, RecordType.CHUNK)
+        datasize = read_uint32(bio)
+        datapos = bio.tell()
+        if datapos + datasize > self._size:
+            raise ReaderError(f"the chunk at byte {position} needs {datasize} bytes, the file ends {self._size - datapos} after")
+        bio.seek(datasize, os.SEEK_CUR)
+        return Chunk(datasize, datapos, self._unpacker(header, position))
+
+    def _unpacker(self, header: Header, position: int) -> Callable[[bytes], bytes]:
+        """What unpacks the data of the chunk at ``position``: its compression, bounded by its declared size."""
+        compression = header.get_string("compression")
+        if compression not in ("none", "bz2", "lz4"):
+            raise ReaderError(f"Compression {compression!r} is not supported.")
+        where = f"{self.path}: chunk at byte {position}"
+        declared = header.get_uint32("size")
+        check_declared(declared, where)
+        return partial(unpack, compression=compression, declared=declared, where=where)
 
     def _prefetch_index(self, bio: RangedFile) -> None:
         """Fetch the header and the index records of every chunk, in two batches; what is not fetched is read later."""
@@ -82,7 +117,7 @@ class MemoryIndexedReader(Reader):
         ranges = []
         for info in self.chunk_infos:
             bio.seek(info.pos)
-            chunk = super().read_chunk()
+            chunk = self._chunk_record()
             end = chunk.datapos + chunk.datasize
             ranges.append((end, end + sum(_INDEX_HEADER + _INDEX_ENTRY * count for count in info.connection_counts.values())))
         bio.prefetch(ranges)
@@ -110,10 +145,7 @@ class MemoryIndexedReader(Reader):
             if header.get_uint8("op") != RecordType.CHUNK:  # index data, or records of an index cut short
                 bio.seek(length, os.SEEK_CUR)
                 continue
-            compression = header.get_string("compression")
-            if compression not in decompressors:
-                raise ReaderError(f"Compression {compression!r} is not supported.")
-            chunk = Chunk(length, bio.tell(), decompressors[compression])
+            chunk = Chunk(length, bio.tell(), self._unpacker(header, position))
             records = chunk.decompressor(bio.read(length))
             counts, first, last = self._index_chunk(records, position, connections, indexes)
             self.chunks[position] = chunk

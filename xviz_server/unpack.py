@@ -1,0 +1,115 @@
+"""Decompression with a bound: compressed bytes from a recording never unpack to more than they declare, nor
+to more than a documented limit.
+
+A recording says how large each compressed part is once unpacked (a ROS 1
+chunk's ``size`` field, an MCAP chunk's ``uncompressed_size``). That size
+is checked against :data:`MAX_CHUNK_BYTES` before anything is decompressed,
+and the decompressor is then asked for at most one byte more than it: a
+part that unpacks to more than it declares (a decompression bomb whose
+header lies) is refused after that many bytes, never unpacked whole. The
+four compressions recordings use (bz2, lz4 frames, zstd, zlib) are all read
+through their incremental decompressors, which take such a bound.
+
+A refusal is an :class:`~xviz_server.exceptions.OversizeError`; data that
+is not what its compression says, or unpacks to fewer bytes than declared,
+a :class:`~xviz_server.exceptions.DatasetError`. Both name the part.
+"""
+
+from __future__ import annotations
+
+import bz2
+import zlib
+from typing import Any, Callable
+
+from .exceptions import DatasetError, OversizeError
+
+__all__ = ["MAX_CHUNK_BYTES", "COMPRESSIONS", "unpack", "check_declared", "size_text"]
+
+#: The most bytes one compressed part of a recording (a ROS 1 or MCAP chunk) may declare once unpacked.
+#: Recorders write chunks of a few megabytes (rosbag 768 KiB, MCAP 4 MiB by default); a message larger than
+#: that gets a chunk of its own, and a chunk this large holds several uncompressed 8K images.
+MAX_CHUNK_BYTES = 256 << 20
+
+
+def _zstd() -> Any:
+    try:
+        from compression import zstd  # type: ignore[import-not-found]  # Python 3.14
+    except ImportError:
+        from backports import zstd  # installed with rosbags
+    return zstd.ZstdDecompressor()
+
+
+def _lz4() -> Any:
+    import lz4.frame  # type: ignore[import-untyped]
+
+    return lz4.frame.LZ4FrameDecompressor()
+
+
+#: A new incremental decompressor for each compression, by the names ROS 1 and MCAP give them.
+COMPRESSIONS: dict[str, Callable[[], Any]] = {
+    "bz2": bz2.BZ2Decompressor,
+    "lz4": _lz4,
+    "zstd": _zstd,
+    "zlib": zlib.decompressobj,
+}
+
+
+def size_text(size: int) -> str:
+    """``size`` bytes for a person: ``3.0 GiB``, ``256 MiB``, ``812 bytes``."""
+    for unit, shift in (("GiB", 30), ("MiB", 20), ("KiB", 10)):
+        if size >= 1 << shift:
+            value = size / (1 << shift)
+            return f"{value:.0f} {unit}" if value == int(value) else f"{value:.1f} {unit}"
+    return f"{size} bytes"
+
+
+def check_declared(declared: int, where: str, limit: int = MAX_CHUNK_BYTES) -> None:
+    """Refuse a part that declares more than ``limit`` bytes unpacked, before anything is read or unpacked.
+
+    ``where`` names it (``FILE: chunk at byte N``).
+    """
+    if declared > limit:
+        raise OversizeError(
+            f"{where} declares {size_text(declared)} uncompressed, more than the limit of {size_text(limit)}: "
+            "refused unread (a damaged file or a decompression bomb)",
+            size=declared, limit=limit,
+        )
+
+
+def unpack(data: bytes | memoryview, compression: str, declared: int, where: str, limit: int = MAX_CHUNK_BYTES) -> bytes:
+    """``data`` decompressed with ``compression`` (``""`` or ``none``: as it is); it must unpack to exactly
+    ``declared`` bytes, at most ``limit``.
+
+    Several compressed streams one after another (as ``bzip2`` and ``zstd``
+    write them) are read in turn, within the same bound.
+    """
+    check_declared(declared, where, limit)
+    if compression in ("", "none"):
+        out = bytes(data)
+    else:
+        make = COMPRESSIONS.get(compression)
+        if make is None:
+            raise DatasetError(f"{where}: compression {compression!r} is not supported; known: {', '.join(COMPRESSIONS)}")
+        parts: list[bytes] = []
+        room, rest = declared + 1, bytes(data)
+        try:
+            while rest and room > 0:
+                decompressor = make()
+                part = decompressor.decompress(rest, room)
+                parts.append(part)
+                room -= len(part)
+                if not decompressor.eof:  # cut short, or stopped at the bound
+                    break
+                rest = decompressor.unused_data
+        except (OSError, ValueError, EOFError, RuntimeError, zlib.error) as exc:  # what each library raises on bad data
+            raise DatasetError(f"{where}: not {compression} data: {exc}") from None
+        out = b"".join(parts)
+    if len(out) > declared:
+        raise OversizeError(
+            f"{where} unpacks to more than the {size_text(declared)} it declares: refused after "
+            f"{size_text(len(out))} (a decompression bomb)",
+            size=len(out), limit=declared,
+        )
+    if len(out) < declared:
+        raise DatasetError(f"{where} unpacks to {len(out)} bytes, not the {declared} it declares: it is cut short or damaged")
+    return out
