@@ -1,0 +1,324 @@
+"""Hostile recordings played against the real server, run as its own process (issue 35, finding 1).
+
+Real bags written with rosbags' writers from the KITTI excerpt are made into decompression bombs: one chunk's data
+replaced by a bomb that unpacks to hundreds of MiB while its header declares the chunk's true size (the header
+lies), or the header declaring 3 GiB. The server must refuse each with an error naming the file and the chunk, list
+the log with that error in ``GET /api/logs``, send it to a session as ``xviz/error``, keep ``/healthz`` ok and the
+other logs served, and no process of it (the server or a worker) may grow by more than a bound while it does.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import bz2
+import json
+import os
+import re
+import struct
+import sys
+import urllib.error
+import urllib.request
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any, Callable
+
+import lz4.frame
+import pytest
+from websockets.asyncio.client import connect
+
+from helpers import Client
+from rosbag_kitti import RAW, write_bag
+from xviz_server.datasets.kitti import KittiDrive
+from xviz_server.datasets.tfrecord import masked_crc
+from xviz_server.unpack import MAX_CHUNK_BYTES
+
+FRAMES = 4
+BOMB = 512 << 20  # bytes a bomb unpacks to
+LIES = 3 << 30  # bytes a header declares
+GROWTH = 160 << 20  # the most any process of the server may grow by (its peak RSS over its RSS once warm)
+_MiB = 1 << 20
+
+
+# -- bombs ---------------------------------------------------------------------
+
+
+def _zeros(compressor: Any, total: int, step: int = 16 * _MiB) -> bytes:
+    """``total`` zero bytes through a streaming compressor, ``step`` at a time (never all in memory)."""
+    out, zero = [], bytes(step)
+    for _ in range(total // step):
+        out.append(compressor.compress(zero))
+    out.append(compressor.flush())
+    return b"".join(out)
+
+
+def bz2_bomb(total: int = BOMB) -> bytes:
+    """Streams of 16 MiB of zeros one after another, as bzip2 writes them: bz2.decompress reads them all."""
+    stream = bz2.compress(bytes(16 * _MiB), 9)
+    return stream * (total // (16 * _MiB))
+
+
+def lz4_bomb(total: int) -> bytes:
+    compressor = lz4.frame.LZ4FrameCompressor()
+    return compressor.begin() + _zeros(compressor, total)
+
+
+def zstd_bomb(total: int = BOMB) -> bytes:
+    from backports import zstd
+
+    return _zeros(zstd.ZstdCompressor(), total)
+
+
+def ros1_records(data: bytes) -> Iterator[tuple[int, dict[bytes, tuple[int, int]], int, int]]:
+    """Each record of a ROS 1 bag: its offset, its header's fields (where each value is), its data's offset and length."""
+    position = len(b"#ROSBAG V2.0\n")
+    while position < len(data):
+        (header_length,) = struct.unpack_from("<I", data, position)
+        fields, at = {}, position + 4
+        while at < position + 4 + header_length:
+            (size,) = struct.unpack_from("<I", data, at)
+            name, _, _ = data[at + 4 : at + 4 + size].partition(b"=")
+            fields[name] = (at + 4 + len(name) + 1, at + 4 + size)
+            at += 4 + size
+        (data_length,) = struct.unpack_from("<I", data, at)
+        yield position, fields, at + 4, data_length
+        position = at + 4 + data_length
+
+
+def ros1_bomb(bag: Path, bomb: bytes | None) -> tuple[bytes, int]:
+    """``bag`` with its largest chunk's data replaced by ``bomb`` (padded to its length), or, with no bomb, that
+    chunk's header declaring :data:`LIES` bytes; and the chunk's offset."""
+    data = bytearray(bag.read_bytes())
+    chunks = [(length, position, fields, start) for position, fields, start, length in ros1_records(bytes(data))
+              if data[fields[b"op"][0]] == 0x05]
+    length, position, fields, start = max(chunks)
+    if bomb is None:
+        at, end = fields[b"size"]
+        data[at:end] = struct.pack("<I", LIES)
+    else:
+        assert len(bomb) <= length, f"a bomb of {len(bomb)} bytes does not fit in a chunk of {length}"
+        data[start : start + length] = bomb.ljust(length, b"\0")
+    return bytes(data), position
+
+
+def mcap_records(data: bytes) -> Iterator[tuple[int, int, int]]:
+    """Each record of an MCAP file: its opcode, its offset and its content's offset."""
+    position = 8
+    while position + 9 <= len(data) - 8:
+        opcode, length = struct.unpack_from("<BQ", data, position)
+        yield opcode, position, position + 9
+        position += 9 + length
+
+
+def _string(data: bytes, at: int) -> tuple[str, int]:
+    (size,) = struct.unpack_from("<I", data, at)
+    return data[at + 4 : at + 4 + size].decode(), at + 4 + size
+
+
+def mcap_bomb(mcap: Path, bomb: bytes | None, compression: str = "zstd") -> tuple[bytes, int]:
+    """``mcap`` with its largest chunk's data replaced by ``bomb`` compressed with ``compression`` (the chunk and its
+    index say so; the record keeps its length), or, with no bomb, the chunk and its index declaring :data:`LIES`
+    bytes uncompressed; and the chunk's offset."""
+    data = bytearray(mcap.read_bytes())
+    chunks = {position: content for opcode, position, content in mcap_records(bytes(data)) if opcode == 0x06}
+    indexes = [content for opcode, _, content in mcap_records(bytes(data)) if opcode == 0x08]
+    sizes = {position: struct.unpack_from("<Q", data, position + 1)[0] for position in chunks}
+    position = max(sizes, key=sizes.__getitem__)
+    content = chunks[position]
+    index = next(i for i in indexes if struct.unpack_from("<Q", data, i + 16)[0] == position)
+    (offsets_length,) = struct.unpack_from("<I", data, index + 32)
+    after_offsets = index + 36 + offsets_length + 8  # message index offsets, then their length
+    old, at = _string(bytes(data), after_offsets)
+    if bomb is None:
+        struct.pack_into("<Q", data, content + 16, LIES)
+        struct.pack_into("<Q", data, at + 8, LIES)
+        return bytes(data), position
+    # The chunk: times and uncompressed size as they were, no CRC, then the compression, the bomb and padding.
+    record_end = content + sizes[position]
+    name = compression.encode()
+    head = bytes(data[content : content + 24]) + struct.pack("<I", 0) + struct.pack("<I", len(name)) + name
+    body = head + struct.pack("<Q", len(bomb)) + bomb
+    assert len(body) <= record_end - content, f"a bomb of {len(bomb)} bytes does not fit in a chunk of {sizes[position]}"
+    data[content:record_end] = body.ljust(record_end - content, b"\0")
+    # Its index: the same, with the compression and the compressed size changed; a byte of padding where the name is
+    # shorter (readers skip what a record has after its fields).
+    (uncompressed,) = struct.unpack_from("<Q", data, at + 8)
+    tail = struct.pack("<I", len(name)) + name + struct.pack("<QQ", len(bomb), uncompressed)
+    end = at + 16
+    assert len(tail) <= end - after_offsets
+    data[after_offsets:end] = tail.ljust(end - after_offsets, b"\0")
+    assert old == "zstd"
+    return bytes(data), position
+
+
+# -- the server as a process -------------------------------------------------------
+
+
+def _status(pid: int, field: str) -> int:
+    """A ``/proc/PID/status`` field in bytes (``VmRSS``, ``VmHWM``: the peak RSS); 0 for a process gone."""
+    try:
+        text = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return 0
+    match = re.search(rf"^{field}:\s+(\d+) kB", text, re.MULTILINE)
+    return int(match.group(1)) * 1024 if match else 0
+
+
+def _family(pid: int) -> list[int]:
+    """``pid`` and every process below it (the fork server and the worker processes)."""
+    found, queue = [], [pid]
+    while queue:
+        current = queue.pop()
+        found.append(current)
+        for task in Path(f"/proc/{current}/task").glob("*/children"):
+            try:
+                queue += [int(child) for child in task.read_text().split()]
+            except OSError:
+                pass
+    return found
+
+
+class Served:
+    """``xviz-server serve`` run as a process on port 0, and what it uses."""
+
+    def __init__(self, process: asyncio.subprocess.Process, port: int, lines: list[str]) -> None:
+        self.process, self.port, self.lines = process, port, lines
+
+    async def get(self, path: str) -> tuple[int, str]:
+        def fetch() -> tuple[int, str]:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{self.port}{path}", timeout=60) as response:
+                    return response.status, response.read().decode()
+            except urllib.error.HTTPError as error:
+                return error.code, error.read().decode()
+        return await asyncio.to_thread(fetch)
+
+    async def logs(self) -> dict[str, dict[str, Any]]:
+        status, body = await self.get("/api/logs")
+        assert status == 200, body
+        return {log["name"]: log for log in json.loads(body)["logs"]}
+
+    async def session(self, log: str) -> list[dict[str, Any]]:
+        """Every message of a session that opens ``log`` and plays it all: the error, or metadata and frames."""
+        async with connect(f"ws://127.0.0.1:{self.port}/?log={log}", max_size=None, open_timeout=30) as websocket:
+            viewer = Client(websocket)
+            first = await viewer.recv(120)
+            if first["type"] != "xviz/metadata":
+                return [first]
+            await viewer.send("transform_log", {"id": "all"})
+            return [first, *await viewer.until("transform_log_done", "all", timeout=120)]
+
+    def rss(self) -> dict[int, int]:
+        return {pid: _status(pid, "VmRSS") for pid in _family(self.process.pid)}
+
+    def peaks(self) -> dict[int, int]:
+        return {pid: _status(pid, "VmHWM") for pid in _family(self.process.pid)}
+
+
+@asynccontextmanager
+async def served(root: Path, *flags: str) -> AsyncIterator[Served]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root), "--port", "0", *flags,
+        stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE, env=env,
+    )
+    assert process.stderr is not None
+    lines: list[str] = []
+    port = 0
+    while not port:
+        line = (await asyncio.wait_for(process.stderr.readline(), 60)).decode()
+        assert line, "the server exited:\n" + "".join(lines)
+        lines.append(line)
+        if match := re.search(r"listening on ws://127\.0\.0\.1:(\d+)/", line):
+            port = int(match.group(1))
+
+    async def drain() -> None:
+        async for line in process.stderr:  # type: ignore[union-attr]
+            lines.append(line.decode())
+
+    draining = asyncio.ensure_future(drain())
+    try:
+        yield Served(process, port, lines)
+    finally:
+        if process.returncode is None:
+            process.terminate()
+            try:
+                await asyncio.wait_for(process.wait(), 20)
+            except asyncio.TimeoutError:
+                process.kill()
+                await process.wait()
+        draining.cancel()
+
+
+# -- fixtures ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def drive(shared_dir: Path) -> KittiDrive:
+    return KittiDrive(shared_dir / "data" / RAW)
+
+
+@pytest.fixture(scope="module")
+def bags(drive: KittiDrive, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Real bags of the KITTI excerpt: ROS 1 with bz2 and with lz4 chunks, MCAP with zstd chunks."""
+    root = tmp_path_factory.mktemp("bags")
+    return {
+        "bz2": write_bag(root / "bz2.bag", "ros1", drive=drive, frames=FRAMES, compression="bz2"),
+        "lz4": write_bag(root / "lz4.bag", "ros1", drive=drive, frames=FRAMES, compression="lz4"),
+        "zstd": write_bag(root / "zstd.mcap", "mcap", drive=drive, frames=FRAMES, compression="zstd"),
+    }
+
+
+def _bombs() -> dict[str, tuple[str, str, Callable[[dict[str, Path]], tuple[bytes, int]]]]:
+    """Each hostile bag: its suffix, what the error says, and how it is made from the real bags."""
+    return {
+        "ros1-bz2-lies": (".bag", "unpacks to more than", lambda b: ros1_bomb(b["bz2"], bz2_bomb())),
+        "ros1-bz2-declares": (".bag", "declares 3 GiB", lambda b: ros1_bomb(b["bz2"], None)),
+        "ros1-lz4-lies": (".bag", "unpacks to more than", lambda b: ros1_bomb(b["lz4"], lz4_bomb(320 * _MiB))),
+        "mcap-zstd-lies": (".mcap", "unpacks to more than", lambda b: mcap_bomb(b["zstd"], zstd_bomb())),
+        "mcap-zstd-declares": (".mcap", "declares 3 GiB", lambda b: mcap_bomb(b["zstd"], None)),
+        "mcap-lz4-lies": (".mcap", "unpacks to more than", lambda b: mcap_bomb(b["zstd"], lz4_bomb(320 * _MiB), "lz4")),
+    }
+
+
+BOMBS = _bombs()
+
+
+@pytest.mark.parametrize("bomb", sorted(BOMBS))
+async def test_a_bomb_in_a_bag_is_refused_named_and_the_server_stays_small(bomb: str, bags: dict[str, Path], tmp_path: Path):
+    suffix, says, make = BOMBS[bomb]
+    root = tmp_path / "data"
+    root.mkdir()
+    data, chunk = make(bags)
+    (root / f"bomb{suffix}").write_bytes(data)
+    (root / "good.bag").write_bytes(bags["lz4"].read_bytes())
+    async with served(root) as server:
+        good = await server.session("good")  # the workers are up and warm
+        assert [m for m in good if m["type"] == "xviz/state_update"] and not [m for m in good if m["type"] == "xviz/error"]
+        before = server.rss()
+        logs, healthy, again = await asyncio.gather(server.logs(), server.get("/healthz"), server.session("good"))
+        assert healthy == (200, "ok\n")
+        assert not [m for m in again if m["type"] == "xviz/error"]
+        # The chunk is refused where it is first read: opening the bag (listing it) or playing it.
+        errors = [logs["bomb"].get("error", "")] + [m["data"]["message"] for m in await server.session("bomb")
+                                                    if m["type"] == "xviz/error"]
+        named = f"bomb{suffix}: chunk at byte {chunk} {says}"
+        assert any(named in error for error in errors), errors
+        assert await server.get("/healthz") == (200, "ok\n")
+        assert not [m for m in await server.session("good") if m["type"] == "xviz/error"]
+        peaks = server.peaks()
+        grown = {pid: peaks[pid] - rss for pid, rss in before.items() if pid in peaks}
+        assert max(grown.values()) < GROWTH, {pid: f"{g / _MiB:.0f} MiB" for pid, g in grown.items()}
+
+
+async def test_a_chunk_declared_larger_than_the_limit_is_refused_when_the_bag_opens(bags: dict[str, Path], tmp_path: Path):
+    from xviz_server.datasets.ros.bag import Bag
+    from xviz_server.exceptions import OversizeError
+
+    data, chunk = ros1_bomb(bags["bz2"], None)
+    (tmp_path / "x.bag").write_bytes(data)
+    with pytest.raises(OversizeError) as refused:
+        Bag(tmp_path / "x.bag")
+    assert refused.value.size == LIES and refused.value.limit == MAX_CHUNK_BYTES
+    assert str(refused.value).startswith(f"{tmp_path / 'x.bag'}: chunk at byte {chunk} declares 3 GiB uncompressed, "
+                                         "more than the limit of 256 MiB")
