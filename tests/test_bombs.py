@@ -322,3 +322,40 @@ async def test_a_chunk_declared_larger_than_the_limit_is_refused_when_the_bag_op
     assert refused.value.size == LIES and refused.value.limit == MAX_CHUNK_BYTES
     assert str(refused.value).startswith(f"{tmp_path / 'x.bag'}: chunk at byte {chunk} declares 3 GiB uncompressed, "
                                          "more than the limit of 256 MiB")
+
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while value >= 0x80:
+        out.append(value & 0x7F | 0x80)
+        value >>= 7
+    return bytes(out + bytes([value]))
+
+
+def tfrecord_header(length: int) -> bytes:
+    size = struct.pack("<Q", length)
+    return size + struct.pack("<I", masked_crc(size))
+
+
+async def test_tfrecords_with_a_huge_length_or_deep_nesting_are_refused_named(bags: dict[str, Path], tmp_path: Path):
+    root = tmp_path / "data"
+    root.mkdir()
+    stamp = _varint(2 << 3) + _varint(1_500_000_000_000_000)  # Frame.timestamp_micros: the record is a frame
+    with open(root / "huge.tfrecord", "wb") as file:  # declares 3 GiB, and the (sparse) file holds them
+        file.write(tfrecord_header(LIES) + stamp)
+        file.truncate(16 + LIES)
+    deep = stamp + _varint(999 << 3 | 3) * 200_000  # groups in groups, 200 000 deep
+    (root / "deep.tfrecord").write_bytes(tfrecord_header(len(deep)) + deep + struct.pack("<I", masked_crc(deep)))
+    (root / "good.bag").write_bytes(bags["lz4"].read_bytes())
+    async with served(root) as server:
+        await server.session("good")
+        before = server.rss()
+        logs = await server.logs()
+        huge, deep_session, good = await asyncio.gather(server.session("huge"), server.session("deep"), server.session("good"))
+        for log, session, says in (("huge", huge, "declares 3 GiB of data, more than the limit of 256 MiB"),
+                                   ("deep", deep_session, "not a Waymo Frame")):
+            errors = [logs[log]["error"]] + [m["data"]["message"] for m in session if m["type"] == "xviz/error"]
+            assert all(f"{log}.tfrecord: record 0 at offset 0: {says}" in error for error in errors), errors
+        assert not [m for m in good if m["type"] == "xviz/error"] and await server.get("/healthz") == (200, "ok\n")
+        peaks = server.peaks()
+        assert max(peaks[pid] - rss for pid, rss in before.items() if pid in peaks) < GROWTH

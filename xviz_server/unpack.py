@@ -10,6 +10,9 @@ header lies) is refused after that many bytes, never unpacked whole. The
 four compressions recordings use (bz2, lz4 frames, zstd, zlib) are all read
 through their incremental decompressors, which take such a bound.
 
+A part stored uncompressed (a TFRecord record) is read only if its declared
+length fits in the file and in :data:`MAX_RECORD_BYTES`.
+
 A refusal is an :class:`~xviz_server.exceptions.OversizeError`; data that
 is not what its compression says, or unpacks to fewer bytes than declared,
 a :class:`~xviz_server.exceptions.DatasetError`. Both name the part.
@@ -23,12 +26,14 @@ from typing import Any, Callable
 
 from .exceptions import DatasetError, OversizeError
 
-__all__ = ["MAX_CHUNK_BYTES", "COMPRESSIONS", "unpack", "check_declared", "size_text"]
+__all__ = ["MAX_CHUNK_BYTES", "MAX_RECORD_BYTES", "COMPRESSIONS", "unpack", "check_declared", "size_text"]
 
 #: The most bytes one compressed part of a recording (a ROS 1 or MCAP chunk) may declare once unpacked.
 #: Recorders write chunks of a few megabytes (rosbag 768 KiB, MCAP 4 MiB by default); a message larger than
 #: that gets a chunk of its own, and a chunk this large holds several uncompressed 8K images.
 MAX_CHUNK_BYTES = 256 << 20
+#: The most bytes of data one record of a TFRecord file (a Waymo frame, some megabytes) may declare.
+MAX_RECORD_BYTES = 256 << 20
 
 
 def _zstd() -> Any:

@@ -13,7 +13,8 @@ A masked CRC is ``((crc >> 15 | crc << 17) + 0xA282EAD8) mod 2**32``.
 seeking past the data, and checks the length's CRC on the way, since a wrong
 length would lose every record after it. The data's CRC is checked when the
 record is read. The index ends at the first record whose header is corrupt
-or whose data runs past the end of the file: that record stays in the index,
+or whose data runs past the end of the file or declares more than
+:data:`~xviz_server.unpack.MAX_RECORD_BYTES`: that record stays in the index,
 and reading it raises :class:`~xviz_server.exceptions.DatasetError` naming
 the file, the record and its offset, as does reading a record whose data's
 CRC does not match. Every other record reads as usual.
@@ -30,6 +31,7 @@ import google_crc32c
 
 from ..exceptions import DatasetError, StoreError
 from ..storepath import StorePath, data_path
+from ..unpack import MAX_RECORD_BYTES, size_text
 
 __all__ = ["Record", "RecordFile", "is_tfrecord", "masked_crc", "write_records"]
 
@@ -167,6 +169,8 @@ class RecordFile:
         length, crc = _HEADER.unpack(header)
         if masked_crc(header[:8]) != crc:
             return Record(number, offset, 0, "length CRC mismatch: the header is corrupt; records after it cannot be found")
+        if length > MAX_RECORD_BYTES:
+            return Record(number, offset, length, f"declares {size_text(length)} of data, more than the limit of {size_text(MAX_RECORD_BYTES)}")
         end = offset + _HEADER.size + length + _FOOTER.size
         if end > size:
             return Record(number, offset, length, f"truncated: the record needs {end - offset} bytes, the file has {size - offset}")
