@@ -5,7 +5,8 @@ time per connection (as HTTP/1.1 clients send them, without pipelining),
 waits ``delay`` seconds before passing each request on, and counts the
 requests and how many were in flight at once. :meth:`Proxy.fault` makes
 chosen requests answer with an HTTP status, stall, or lose their
-connection part way through the response body.
+connection part way through the response body, or answer with a body
+that says it is 1 TiB long and never ends.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ class Fault:
     status: int | None = None  # answer this status instead of the server
     cut_after: int | None = None  # reset the connection after this many bytes of the response body
     stall: bool = False  # never answer
+    endless: bool = False  # the server's status and headers, but a Content-Length of 1 TiB and zeros that never end
     times: int | None = None
     hits: int = 0
 
@@ -139,6 +141,13 @@ class Proxy:
         await server.drain()
         head = await server_reader.readuntil(b"\r\n\r\n")
         length = 0 if head_only else _length(head)
+        if fault is not None and fault.endless:
+            await server_reader.readexactly(length)
+            client.write(_LENGTH.sub(b"\r\ncontent-length: %d" % (1 << 40), head))
+            zeros = bytes(_CHUNK)
+            while True:  # until the client gives up and the write fails
+                client.write(zeros)
+                await client.drain()
         client.write(head)
         if fault is not None and fault.cut_after is not None:
             client.write(await server_reader.readexactly(min(fault.cut_after, length)))

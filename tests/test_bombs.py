@@ -12,7 +12,6 @@ from __future__ import annotations
 import asyncio
 import bz2
 import json
-import os
 import re
 import struct
 import sys
@@ -28,6 +27,7 @@ import pytest
 from websockets.asyncio.client import connect
 
 from helpers import Client
+from test_exposure import start_serving
 from rosbag_kitti import RAW, write_bag
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.tfrecord import masked_crc
@@ -216,21 +216,10 @@ class Served:
 
 
 @asynccontextmanager
-async def served(root: Path, *flags: str) -> AsyncIterator[Served]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}
-    process = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root), "--port", "0", *flags,
-        stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE, env=env,
-    )
+async def served(root: Path | str, *flags: str, **env: str) -> AsyncIterator[Served]:
+    """``xviz-server serve --data-dir ROOT FLAGS`` as a process with ``env``, its log read as it comes; stopped on exit."""
+    process, port, lines = await start_serving("--data-dir", str(root), *flags, **env)
     assert process.stderr is not None
-    lines: list[str] = []
-    port = 0
-    while not port:
-        line = (await asyncio.wait_for(process.stderr.readline(), 60)).decode()
-        assert line, "the server exited:\n" + "".join(lines)
-        lines.append(line)
-        if match := re.search(r"listening on ws://127\.0\.0\.1:(\d+)/", line):
-            port = int(match.group(1))
 
     async def drain() -> None:
         async for line in process.stderr:  # type: ignore[union-attr]

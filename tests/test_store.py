@@ -18,6 +18,7 @@ import pytest
 from helpers import Client, client, run_xviz_session_async, running_server, ten_hz, write_log, xviz_decode
 from devkit.s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, proxied, store_env
 from devkit.tcpproxy import Proxy
+from test_bombs import GROWTH, served
 from test_exposure import run_cli, start_serving, stop_serving
 from xviz_server.codec import Format
 
@@ -296,3 +297,21 @@ async def test_a_store_that_went_away_ends_the_stream_with_errors_and_the_server
     assert len(errors) == 25 and not updates(messages)
     assert all("the connection failed or was cut short after 1 retry" in error for error in errors), errors[0]
     assert len(updates(local)) == 3
+
+
+async def test_an_answer_that_claims_a_terabyte_and_never_ends_fails_that_frame_alone(proxy: Proxy):
+    """A store that answers a frame's GET with Content-Length 1 TiB and zeros without end: obstore set aside that
+    much for a whole-object GET and the server aborted; the listed range is read, and no more."""
+    proxy.fault("/3-frame.glb", endless=True)
+    env = {**store_env(proxy.url), "XVIZ_STORE_RETRIES": "0", "XVIZ_STORE_TIMEOUT": "2"}
+    async with served(ROOT, **env) as server:
+        await server.session("json/short")
+        before = server.rss()
+        played, health = await asyncio.gather(server.session(KITTI), server.get("/healthz"))
+        errors = [m["data"]["message"] for m in played if m["type"] == "xviz/error"]
+        # The listed size is read, and no more: zeros, which are not a frame.
+        assert len(errors) == 1 and "(3-frame.glb) of log 'kitti/0005' is corrupt: not a GLB" in errors[0], errors
+        assert len(updates(played)) > 1 and health == (200, "ok\n")
+        assert await server.get("/healthz") == (200, "ok\n") and server.process.returncode is None
+        peaks = server.peaks()
+        assert max(peaks[pid] - rss for pid, rss in before.items() if pid in peaks) < GROWTH

@@ -33,7 +33,7 @@ from obstore.exceptions import BaseError
 from .exceptions import ConfigError, StoreError
 from .layout import FRAME_FILE, LOG
 from .readahead import ReadAhead
-from .storeclient import BACKOFF_MAX, CONNECT_TIMEOUT, SCHEME, failure, s3_client, store_config, store_error
+from .storeclient import BACKOFF_MAX, CONNECT_TIMEOUT, SCHEME, failure, get_range_async, s3_client, store_config, store_error
 from .storepath import StorePath, StoreTree
 
 if TYPE_CHECKING:
@@ -241,13 +241,24 @@ class ObjectStore:
         result = await self._guard(listing, prefix)
         return list(result["objects"]), {folder.rstrip("/") for folder in result["common_prefixes"]}
 
-    async def get(self, key: str) -> bytes:
-        """The whole object ``key``; raises :class:`~xviz_server.exceptions.StoreError` after the retries."""
-        return await self._guard(self._fetch(key), key)
+    async def get(self, key: str, size: int | None = None) -> bytes:
+        """The whole object ``key``, of ``size`` bytes as listed (asked for with a HEAD if not given); raises
+        :class:`~xviz_server.exceptions.StoreError` after the retries.
 
-    async def _fetch(self, key: str) -> bytes:
-        response = await obstore.get_async(self._store, key)
-        return bytes(await response.bytes_async())
+        It is read as the range of that size, and no more of the answer
+        (see :func:`~xviz_server.storeclient.get_range`): a GET of a whole
+        object makes obstore set aside as many bytes as the answer's
+        ``Content-Length`` says before reading any, and one that says 1 TiB
+        aborts the process.
+        """
+        return await self._guard(self._fetch(key, size), key)
+
+    async def _fetch(self, key: str, size: int | None) -> bytes:
+        if size is None:
+            size = (await obstore.head_async(self._store, key))["size"]
+        if not size:
+            return b""
+        return await get_range_async(self._store, key, 0, size)
 
     async def _guard(self, request: Any, key: str) -> Any:
         """Await an obstore request within the deadline; its failure as a :class:`StoreError`."""
@@ -280,7 +291,7 @@ class StoreFolder:
         return files
 
     async def read(self, name: str) -> bytes:
-        return await self.store.get(f"{self.prefix}/{name}")
+        return await self.store.get(f"{self.prefix}/{name}", self._sizes.get(name))
 
     def size(self, name: str) -> int | None:
         return self._sizes.get(name)

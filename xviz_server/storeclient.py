@@ -21,6 +21,10 @@ the store behaves, a request with its retries ends within
 seconds. What still fails is a
 :class:`~xviz_server.exceptions.StoreError` naming the object's URL and the
 cause, never a credential.
+
+Bytes are read by range, as a stream that is left once the range is in
+(:func:`get_range`): a store whose answer says it is longer than asked, or
+sends without end, costs no more memory than the range.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from datetime import timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import obstore
 from obstore.exceptions import NotFoundError, PermissionDeniedError, UnauthenticatedError
 from obstore.store import S3Store
 
@@ -42,7 +47,10 @@ from .exceptions import ConfigError, StoreError
 if TYPE_CHECKING:
     from obstore.store import ClientConfig, RetryConfig, S3Config
 
-__all__ = ["SCHEME", "CONNECT_TIMEOUT", "BACKOFF_START", "BACKOFF_MAX", "StoreConfig", "store_config", "s3_client", "failure", "store_error"]
+__all__ = [
+    "SCHEME", "CONNECT_TIMEOUT", "BACKOFF_START", "BACKOFF_MAX", "StoreConfig", "store_config", "s3_client", "failure",
+    "store_error", "get_range", "get_range_async",
+]
 
 SCHEME = "s3://"
 #: Seconds to open a connection to the store.
@@ -52,6 +60,7 @@ BACKOFF_START = 0.1
 #: Most seconds between two tries of a GET.
 BACKOFF_MAX = 2.0
 _STATUS = re.compile(r"status code: (\d{3})")
+_STREAM_CHUNK = 1 << 20  # bytes taken from an answer's body at a time
 
 
 @dataclass(frozen=True)
@@ -91,6 +100,30 @@ def s3_client(store: StoreConfig) -> S3Store:
     }
     config: S3Config = dict(store.settings)  # type: ignore[assignment]  # the keys _aws_settings gives
     return S3Store(store.bucket, config=config, client_options=client, retry_config=retry)
+
+
+def get_range(store: S3Store, key: str, start: int, end: int) -> bytes:
+    """Bytes ``[start, end)`` of object ``key``: no more than that is read, whatever the store sends."""
+    parts: list[bytes] = []
+    wanted = end - start
+    for chunk in obstore.get(store, key, options={"range": (start, end)}).stream(_STREAM_CHUNK):
+        parts.append(bytes(chunk))
+        wanted -= len(parts[-1])
+        if wanted <= 0:
+            break
+    return b"".join(parts)[: end - start]
+
+
+async def get_range_async(store: S3Store, key: str, start: int, end: int) -> bytes:
+    """:func:`get_range` for the event loop."""
+    parts: list[bytes] = []
+    wanted = end - start
+    async for chunk in (await obstore.get_async(store, key, options={"range": (start, end)})).stream(_STREAM_CHUNK):
+        parts.append(bytes(chunk))
+        wanted -= len(parts[-1])
+        if wanted <= 0:
+            break
+    return b"".join(parts)[: end - start]
 
 
 def failure(url: str, exc: Exception, started: float, timeout: float) -> StoreError:

@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO, NamedTuple, TypeVar, cast
 import obstore
 from obstore.exceptions import BaseError
 
-from .storeclient import SCHEME, StoreConfig, failure, s3_client, store_error
+from .storeclient import SCHEME, StoreConfig, failure, get_range, s3_client, store_error
 
 if TYPE_CHECKING:
     from obstore.store import S3Store
@@ -128,15 +128,15 @@ class StorePath:
         return cast(BinaryIO, RangedFile(self))  # typed as open() types a file, for the readers that take one
 
     def read_bytes(self) -> bytes:
-        """The whole object: one GET."""
-        return self._request(lambda store: bytes(obstore.get(store, self.key).bytes()))
+        """The whole object, as listed: one GET of that range (a store that answers more is not read past it)."""
+        return self.read_range(0, self.size) if self.size else b""
 
     def read_text(self, encoding: str | None = None) -> str:
         return self.read_bytes().decode(encoding or "utf-8")
 
     def read_range(self, start: int, end: int) -> bytes:
         """Bytes ``[start, end)``, which must lie within the object: one GET."""
-        return self._request(lambda store: bytes(obstore.get_range(store, self.key, start=start, end=end)))
+        return self._request(lambda store: get_range(store, self.key, start, end))
 
     def read_ranges(self, ranges: Sequence[tuple[int, int]]) -> list[bytes]:
         """Bytes ``[start, end)`` of each range, which must lie within the object: GETs in parallel, one for
