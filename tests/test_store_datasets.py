@@ -24,7 +24,7 @@ import pytest
 
 from helpers import client, run_xviz_session_async, running_server
 from devkit.rosbag_kitti import CLOUD_TOPIC, RAW, write_bag
-from devkit.s3 import SECRET_KEY, MotoS3, moto_process, proxied
+from devkit.s3 import SECRET_KEY, MotoS3, moto_process, proxied, store_env
 from devkit.tcpproxy import Proxy
 from test_waymo_tfrecord import write_scene
 from xviz_server.codec import Format
@@ -283,3 +283,38 @@ async def test_random_reads_return_the_objects_bytes_and_near_ones_share_a_get(p
     got = await asyncio.to_thread(read_all)
     assert got == [data[start : start + size] for start, size in reads]
     assert len(proxy.gets("random/blob")) <= 300
+
+
+@pytest.mark.parametrize("container", ["ros1", "mcap", "waymo"])
+async def test_answers_that_claim_a_terabyte_and_never_end_cost_no_memory(container: str, proxy: Proxy):
+    """Every GET of a recording in the store (its index ranges at once, a chunk, a record) answered with
+    Content-Length 1 TiB and zeros without end: each reads the range it asked for and no more, and the recording
+    is an error naming it (zeros are not a recording); the other recordings are served, memory stays bounded."""
+    from test_bombs import GROWTH, served
+
+    key, name, _ = DATASETS[container]
+    other = "bags/mcap/drive" if container != "mcap" else "bags/ros1/drive"
+    env = {**store_env(proxy.url), "XVIZ_STORE_RETRIES": "0", "XVIZ_STORE_TIMEOUT": "3"}
+    proxy.fault(key, endless=True)
+    async with served(ROOT, **env) as server:
+        assert updates(await server.session(other))
+        before = server.rss()
+        bad, good = await asyncio.gather(server.session(name), server.session(other))
+        errors = [m["data"]["message"] for m in bad if m["type"] == "xviz/error"]
+        assert errors and all(f"log {name!r}" in error for error in errors), errors
+        assert len(updates(good)) == BAG_FRAMES and await server.get("/healthz") == (200, "ok\n")
+        peaks = server.peaks()
+        assert max(peaks[pid] - rss for pid, rss in before.items() if pid in peaks) < GROWTH
+
+
+async def test_ranges_read_at_once_take_no_more_of_an_endless_answer_than_asked(proxy: Proxy, files: Path):
+    key = DATASETS["ros1"][0]
+    size = (files / key).stat().st_size
+    path = StorePath(store_config(BUCKET, timeout=3.0, retries=0), f"fleet/{key}", size)
+    proxy.fault(key, endless=True)
+    Path("/proc/self/clear_refs").write_text("5")  # the peak RSS starts again from the RSS now
+    before = int(re.search(r"VmHWM:\s+(\d+)", Path("/proc/self/status").read_text())[1]) << 10
+    parts = await asyncio.to_thread(path.read_ranges, [(0, 1000), (200_000, 300_000), (250_000, 260_000)])
+    peak = int(re.search(r"VmHWM:\s+(\d+)", Path("/proc/self/status").read_text())[1]) << 10
+    assert [len(part) for part in parts] == [1000, 100_000, 10_000] and not any(b"".join(parts))
+    assert peak - before < 64 << 20, f"{(peak - before) >> 20} MiB"

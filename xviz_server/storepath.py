@@ -41,12 +41,12 @@ import io
 import threading
 import time
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any, BinaryIO, NamedTuple, TypeVar, cast
 
-import obstore
 from obstore.exceptions import BaseError
 
 from .storeclient import SCHEME, StoreConfig, failure, get_range, s3_client, store_error
@@ -60,6 +60,7 @@ __all__ = ["StorePath", "StoreTree", "RangedFile", "data_path", "MIN_FETCH", "CA
 MIN_FETCH = 64 << 10
 #: Most bytes an open :class:`RangedFile` keeps.
 CACHE_BYTES = 8 << 20
+_PARALLEL_GETS = 8  # GETs of one read_ranges at once
 
 _T = TypeVar("_T")
 _clients: dict[StoreConfig, S3Store] = {}
@@ -141,9 +142,20 @@ class StorePath:
     def read_ranges(self, ranges: Sequence[tuple[int, int]]) -> list[bytes]:
         """Bytes ``[start, end)`` of each range, which must lie within the object: GETs in parallel, one for
         ranges less than :data:`MIN_FETCH` apart."""
-        starts, ends = [start for start, _ in ranges], [end for _, end in ranges]
-        parts = self._request(lambda store: obstore.get_ranges(store, self.key, starts=starts, ends=ends, coalesce=MIN_FETCH))
-        return [bytes(part) for part in parts]
+        spans: list[list[int]] = []  # the GETs: [start, end), ranges less than MIN_FETCH apart in one
+        for start, end in sorted(ranges):
+            if spans and start - spans[-1][1] < MIN_FETCH:
+                spans[-1][1] = max(spans[-1][1], end)
+            else:
+                spans.append([start, end])
+        with ThreadPoolExecutor(max_workers=min(len(spans), _PARALLEL_GETS) or 1) as pool:
+            fetched = list(pool.map(lambda span: self.read_range(*span), spans))
+        firsts = [start for start, _ in spans]
+        parts = []
+        for start, end in ranges:
+            index = bisect.bisect_right(firsts, start) - 1
+            parts.append(fetched[index][start - firsts[index] : end - firsts[index]])
+        return parts
 
     def _request(self, call: Callable[[S3Store], _T]) -> _T:
         started = time.monotonic()
