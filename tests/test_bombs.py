@@ -348,3 +348,23 @@ async def test_tfrecords_with_a_huge_length_or_deep_nesting_are_refused_named(ba
         assert not [m for m in good if m["type"] == "xviz/error"] and await server.get("/healthz") == (200, "ok\n")
         peaks = server.peaks()
         assert max(peaks[pid] - rss for pid, rss in before.items() if pid in peaks) < GROWTH
+
+
+async def test_sessions_each_opening_a_different_bag_at_once_keep_the_server_bounded(bags: dict[str, Path], tmp_path: Path):
+    """Six sessions open six different bags at the same moment (scripts/bench/bomb_sessions.py plays 30): every frame
+    is played, /healthz answers meanwhile, and no process grows by more than the bound (the server's frame cache
+    holds the frames played: 24 frames of a few MB)."""
+    root = tmp_path / "data"
+    root.mkdir()
+    for number in range(6):
+        (root / f"drive-{number}.bag").write_bytes(bags["lz4"].read_bytes())
+    async with served(root) as server:
+        await server.session("drive-0")
+        before = server.rss()
+        storm = asyncio.gather(*(server.session(f"drive-{number}") for number in range(6)))
+        assert await server.get("/healthz") == (200, "ok\n")
+        played = await storm
+        assert [sum(m["type"] == "xviz/state_update" for m in messages) for messages in played] == [FRAMES] * 6
+        peaks = server.peaks()
+        grown = {pid: peaks[pid] - rss for pid, rss in before.items() if pid in peaks}
+        assert max(grown.values()) < GROWTH, {pid: f"{g / _MiB:.0f} MiB" for pid, g in grown.items()}
