@@ -14,7 +14,6 @@ import bz2
 import json
 import re
 import struct
-import sys
 import urllib.error
 import urllib.request
 from collections.abc import AsyncIterator, Iterator
@@ -27,8 +26,8 @@ import pytest
 from websockets.asyncio.client import connect
 
 from helpers import Client
-from test_exposure import start_serving
 from rosbag_kitti import RAW, write_bag
+from test_exposure import start_serving
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.tfrecord import masked_crc
 from xviz_server.unpack import MAX_CHUNK_BYTES
@@ -243,14 +242,9 @@ async def served(root: Path | str, *flags: str, **env: str) -> AsyncIterator[Ser
 
 
 @pytest.fixture(scope="module")
-def drive(shared_dir: Path) -> KittiDrive:
-    return KittiDrive(shared_dir / "data" / RAW)
-
-
-@pytest.fixture(scope="module")
-def bags(drive: KittiDrive, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def bags(shared_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """Real bags of the KITTI excerpt: ROS 1 with bz2 and with lz4 chunks, MCAP with zstd chunks."""
-    root = tmp_path_factory.mktemp("bags")
+    root, drive = tmp_path_factory.mktemp("bags"), KittiDrive(shared_dir / "data" / RAW)
     return {
         "bz2": write_bag(root / "bz2.bag", "ros1", drive=drive, frames=FRAMES, compression="bz2"),
         "lz4": write_bag(root / "lz4.bag", "ros1", drive=drive, frames=FRAMES, compression="lz4"),
