@@ -22,12 +22,14 @@ from pathlib import Path
 from typing import Any, Callable
 
 import lz4.frame
+import numpy as np
 import pytest
 from websockets.asyncio.client import connect
 
-from helpers import Client
+from helpers import Client, write_log
 from rosbag_kitti import RAW, write_bag
 from test_exposure import start_serving
+from xviz_server.codec import edit_glb
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.tfrecord import masked_crc
 from xviz_server.unpack import MAX_CHUNK_BYTES
@@ -362,3 +364,35 @@ async def test_sessions_each_opening_a_different_bag_at_once_keep_the_server_bou
         peaks = server.peaks()
         grown = {pid: peaks[pid] - rss for pid, rss in before.items() if pid in peaks}
         assert max(grown.values()) < GROWTH, {pid: f"{g / _MiB:.0f} MiB" for pid, g in grown.items()}
+
+
+async def test_a_static_frame_whose_cloud_is_referenced_many_times_is_refused_named(kitti_log: Path, tmp_path: Path):
+    """A GLB frame of a static log that references one 600 KB cloud 500 times: a few KB more on disk, 290 MiB of
+    arrays (and a JSON text of gigabytes) when re-encoded for a JSON client."""
+    cloud = np.zeros((50_000, 3), dtype=np.float32)
+    data = {"update_type": "SNAPSHOT", "updates": [{"timestamp": 100.0, "primitives": {"/points": {"points": [{"points": cloud}]}}}]}
+
+    def reference_it_500_times(message: Any) -> Any:
+        stream = message["data"]["updates"][0]["primitives"]["/points"]
+        stream["points"] = stream["points"] * 500
+        return message
+
+    root = tmp_path / "data"
+    write_log(root / "amplified", [data, data])
+    frame = root / "amplified" / "2-frame.glb"
+    frame.write_bytes(edit_glb(frame.read_bytes(), reference_it_500_times))
+    (root / "kitti").symlink_to(kitti_log)
+    async with served(root) as server:
+        await server.session("kitti")
+        before = server.rss()
+        async with connect(f"ws://127.0.0.1:{server.port}/?log=amplified&message_format=JSON", max_size=None) as websocket:
+            viewer = Client(websocket)
+            assert (await viewer.recv(60))["type"] == "xviz/metadata"
+            await viewer.send("transform_log", {"id": "all"})
+            played = await viewer.until("transform_log_done", "all", timeout=120)
+        errors = [m["data"]["message"] for m in played if m["type"] == "xviz/error"]
+        assert len(errors) == 1 and "(2-frame.glb) of log 'amplified' is corrupt: state update expands to 286.1 MiB" in errors[0], errors
+        assert len([m for m in played if m["type"] == "xviz/state_update"]) == 1
+        assert await server.get("/healthz") == (200, "ok\n")
+        peaks = server.peaks()
+        assert max(peaks[pid] - rss for pid, rss in before.items() if pid in peaks) < GROWTH

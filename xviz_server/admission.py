@@ -34,7 +34,7 @@ from .exceptions import DecodeError, MessageError
 from .messages import envelope, is_number, unwrap
 from .state import STREAM_MAPS
 
-__all__ = ["MAX_CONTAINERS", "UPDATE_TYPES", "admit"]
+__all__ = ["MAX_CONTAINERS", "UPDATE_TYPES", "admit", "expanded_size"]
 
 #: Most JSON lists and objects one message may hold.
 MAX_CONTAINERS = 2_000_000
@@ -60,7 +60,7 @@ def admit(data: bytes, max_bytes: int) -> tuple[str, bytes]:
         _require(isinstance(content.get("streams", {}), Mapping), "metadata.streams", "must be an object", content.get("streams"))
     elif kind == "xviz/state_update":
         _check_update(content)
-        size = _expanded_size(content)
+        size = expanded_size(content)
         if size > max_bytes:
             raise MessageError(
                 f"state update expands to {size / 2**20:.1f} MB when re-encoded (arrays referenced more than once), "
@@ -122,14 +122,14 @@ def _check_primitives(where: str, state: Mapping[str, Any]) -> None:
                     _require(isinstance(value, (np.ndarray, list)), f"{where}.{kind}[{k}].{key}", "must be an array", value)
 
 
-def _expanded_size(value: Any) -> int:
+def expanded_size(value: Any) -> int:
     """Bytes of the arrays and binary data in ``value``, each counted as often as it is referenced."""
     if isinstance(value, np.ndarray):
         return int(value.nbytes)
     if isinstance(value, (bytes, bytearray, memoryview)):
         return len(value)
     if isinstance(value, Mapping):
-        return sum(_expanded_size(item) for item in value.values())
+        return sum(expanded_size(item) for item in value.values())
     if isinstance(value, list):
-        return sum(_expanded_size(item) for item in value) if value and isinstance(value[0], (dict, list, np.ndarray)) else 8 * len(value)
+        return sum(expanded_size(item) for item in value) if value and isinstance(value[0], (dict, list, np.ndarray)) else 8 * len(value)
     return 0

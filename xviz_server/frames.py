@@ -9,14 +9,16 @@ from __future__ import annotations
 
 from typing import Any, Collection, Sequence
 
+from .admission import expanded_size
 from .codec import Format, decode, detect_format, edit_glb, encode
 from .exceptions import DecodeError
 from .layout import update_span
 from .state import complete_state, downsample_points, filter_streams
+from .unpack import size_text
 from .validation import get_validator
 from .work import Place
 
-__all__ = ["INLINE_BYTES", "HEAVY_JSON_BYTES", "placement", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
+__all__ = ["INLINE_BYTES", "HEAVY_JSON_BYTES", "MAX_EXPANDED_BYTES", "placement", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
 
 
 #: Size up to which a job runs in the event loop (see :func:`placement`).
@@ -24,6 +26,10 @@ INLINE_BYTES = 8 * 1024
 
 #: Size above which a job on JSON runs in a worker process (see :func:`placement`).
 HEAVY_JSON_BYTES = 64 * 1024
+
+#: The most bytes of arrays a stored frame may expand to when re-encoded, each counted as often as it is
+#: referenced (a GLB accessor referenced a thousand times costs a few bytes to store and a thousand copies to send).
+MAX_EXPANDED_BYTES = 256 << 20
 
 
 def placement(size: int, *formats: Format) -> Place:
@@ -71,9 +77,16 @@ def check(data: bytes, schema: bool = False) -> tuple[str, int]:
     Raises :class:`~xviz_server.exceptions.DecodeError` unless ``data`` is a
     readable state update, and with ``schema``
     :class:`~xviz_server.exceptions.SchemaValidationError` unless it matches
-    the XVIZ schema.
+    the XVIZ schema, or one that expands to more than
+    :data:`MAX_EXPANDED_BYTES` when re-encoded.
     """
     message = _decode_update(data)
+    size = expanded_size(message["data"])
+    if size > MAX_EXPANDED_BYTES:
+        raise DecodeError(
+            f"state update expands to {size_text(size)} when re-encoded (arrays referenced more than once), "
+            f"more than the limit of {size_text(MAX_EXPANDED_BYTES)}"
+        )
     if schema:
         validate(message)
     update_type = message["data"].get("update_type")
