@@ -21,9 +21,9 @@ from pathlib import Path
 from collections.abc import Mapping
 from typing import Any
 
-from ..codec import Format
 import numpy as np
 
+from ..codec import Format
 from ..datasets import convert_frame, describe_dataset, detect
 from ..exceptions import DatasetError, FrameError, LogError, StoreError, WorkerError
 from ..index import TimeIndex

@@ -32,6 +32,7 @@ from test_exposure import start_serving
 from xviz_server.codec import edit_glb
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.tfrecord import masked_crc
+from xviz_server.exceptions import DatasetError
 from xviz_server.unpack import MAX_CHUNK_BYTES
 
 FRAMES = 4
@@ -396,3 +397,15 @@ async def test_a_static_frame_whose_cloud_is_referenced_many_times_is_refused_na
         assert await server.get("/healthz") == (200, "ok\n")
         peaks = server.peaks()
         assert max(peaks[pid] - rss for pid, rss in before.items() if pid in peaks) < GROWTH
+
+
+def test_an_mcap_file_without_a_summary_is_read_through_within_the_bound(bags: dict[str, Path], tmp_path: Path):
+    """rosbags reads such a file through at open, unpacking its chunks itself: through the same bound."""
+    from xviz_server.datasets.ros.bag import Bag
+
+    data, _ = mcap_bomb(bags["zstd"], None)
+    (data_end,) = [position for opcode, position, _ in mcap_records(data) if opcode == 0x0F]
+    footer = struct.pack("<BQQQI", 0x02, 20, 0, 0, 0)  # no summary
+    (tmp_path / "x.mcap").write_bytes(data[: data_end + 9 + 4] + footer + b"\x89MCAP0\r\n")
+    with pytest.raises(DatasetError, match=f"^{tmp_path / 'x.mcap'}: an MCAP chunk read by rosbags declares 3 GiB uncompressed, more "):
+        Bag(tmp_path / "x.mcap")

@@ -144,7 +144,11 @@ class Bag:
             if not reader.is2:
                 reader.readers = [MemoryIndexedReader(self.path)]
             reader.open()
-        except (DatasetError, StoreError):  # a chunk refused unread names itself
+        except DatasetError as exc:  # a chunk refused; one that rosbags' reader unpacks does not say whose
+            if not str(exc).startswith(str(self.path)):
+                exc.args, exc.path = (f"{self.path}: {exc}",), self.path
+            raise
+        except StoreError:
             raise
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
             raise DatasetError(f"{self.path}: cannot open the bag: {_reason(exc)}", path=self.path) from None
