@@ -37,7 +37,7 @@ __all__ = [
     "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
     "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
-    "ConfigError", "DependencyError", "StoreError", "BrokerError",
+    "OversizeError", "ConfigError", "DependencyError", "StoreError", "BrokerError",
     "__version__",
 ]
 
@@ -56,6 +56,7 @@ if TYPE_CHECKING:
         LogNotFound,
         LogWriteError,
         MessageError,
+        OversizeError,
         SchemaValidationError,
         StoreError,
         UnknownSchemaError,
