@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 from websockets.asyncio.client import connect
 
+from devkit.rosbag_kitti import RAW, write_bag
 from helpers import Client, write_log
-from rosbag_kitti import RAW, write_bag
 from test_exposure import start_serving
 from xviz_server.codec import edit_glb
 from xviz_server.datasets.kitti import KittiDrive
