@@ -8,7 +8,8 @@ it and returns it as GLB bytes, or raises
   ``xviz/state_update``;
 * JSON may hold at most :data:`MAX_CONTAINERS` lists and objects (counted
   before parsing: a small message of millions of empty lists would
-  otherwise cost gigabytes), nested at most as deep as orjson allows;
+  otherwise cost gigabytes), nested at most
+  :data:`~xviz_server.codec.json.MAX_DEPTH` deep, as in GLB;
 * a state update must have the shape the server and viewers rely on: an
   ``update_type`` the protocol knows, a list of stream sets each with a
   finite ``timestamp``, stream maps of objects, primitive lists of objects,
@@ -30,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from .codec import Format, decode, detect_format, encode
+from .codec.json import MAX_DEPTH, nested_deeper
 from .exceptions import DecodeError, MessageError
 from .messages import envelope, is_number, unwrap
 from .state import STREAM_MAPS
@@ -52,9 +54,12 @@ def admit(data: bytes, max_bytes: int) -> tuple[str, bytes]:
         binary = detect_format(data) is Format.BINARY
         if not binary and data.count(b"[") + data.count(b"{") > MAX_CONTAINERS:
             raise MessageError(f"more than {MAX_CONTAINERS} JSON lists and objects in one message")
-        kind, content = unwrap(decode(data))
+        message = decode(data)
     except DecodeError as exc:
         raise MessageError(f"not a GLB or JSON message: {exc}") from None
+    if not binary and nested_deeper(message):  # GLB's decoder refuses them itself
+        raise MessageError(f"lists and objects nested more than {MAX_DEPTH} deep")
+    kind, content = unwrap(message)
     if kind == "xviz/metadata":
         _require(isinstance(content, Mapping), "metadata", "must be an object", content)
         _require(isinstance(content.get("streams", {}), Mapping), "metadata.streams", "must be an object", content.get("streams"))

@@ -22,6 +22,7 @@ import pydantic
 from pydantic import AliasChoices, ConfigDict, Field, field_validator, model_validator
 
 from .codec import Format
+from .codec.json import MAX_DEPTH, nested_deeper
 from .exceptions import MessageError
 
 __all__ = [
@@ -137,6 +138,13 @@ class Reconfigure(_Message):
     config_update: dict[str, Any]
 
     _case = field_validator("update_type", mode="before")(_upper)
+
+    @field_validator("config_update")
+    @classmethod
+    def _shallow(cls, value: dict[str, Any]) -> dict[str, Any]:
+        if nested_deeper(value):  # merge_patch recurses as deep as the patch
+            raise ValueError(f"nested more than {MAX_DEPTH} lists and objects deep")
+        return value
 
 
 class TransformLogDone(_Message):

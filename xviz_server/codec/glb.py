@@ -68,6 +68,7 @@ from pygltflib import (
 
 from ..exceptions import DecodeError, EncodeError
 from .image import sniff_image
+from .json import MAX_DEPTH
 
 __all__ = ["encode_glb", "decode_glb", "edit_glb", "cut_glb", "is_glb"]
 
@@ -135,17 +136,19 @@ class _Packer:
         self.chunks: list[Any] = []  # buffers and zero padding, in order
         self.length = 0
 
-    def pack(self, value: Any, key: str | None = None) -> Any:
+    def pack(self, value: Any, key: str | None = None, depth: int = 0) -> Any:
+        if isinstance(value, (Mapping, list)) and depth >= MAX_DEPTH:
+            raise EncodeError(f"message nested more than {MAX_DEPTH} lists and objects deep")
         if isinstance(value, Mapping):
-            return {k: self.pack(v, k) for k, v in value.items()}
+            return {k: self.pack(v, k, depth + 1) for k, v in value.items()}
         if isinstance(value, list):
             if key in ("points", "vertices", "colors") and value:
                 array = _array_from_list(value, key)
                 if array is not None:
                     return self._add_array(array, key)
             if key == "images":
-                return [self._pack_image_primitive(v) for v in value]
-            return [self.pack(v) for v in value]
+                return [self._pack_image_primitive(v, depth + 1) for v in value]
+            return [self.pack(v, None, depth + 1) for v in value]
         if isinstance(value, np.ndarray):
             return self._add_array(value, key)
         if isinstance(value, (bytes, bytearray, memoryview)):
@@ -154,7 +157,7 @@ class _Packer:
             return "#" + value
         return value
 
-    def _pack_image_primitive(self, primitive: Any) -> Any:
+    def _pack_image_primitive(self, primitive: Any, depth: int) -> Any:
         if isinstance(primitive, Mapping):
             data = primitive.get("data")
             if isinstance(data, str) and not data.startswith("#/"):
@@ -163,8 +166,8 @@ class _Packer:
                 except binascii.Error:
                     pass
                 else:
-                    return self.pack({**primitive, "data": blob})
-        return self.pack(primitive)
+                    return self.pack({**primitive, "data": blob}, None, depth)
+        return self.pack(primitive, None, depth)
 
     def _add_view(self, buffer: Any, nbytes: int) -> int:
         self.views.append({"buffer": 0, "byteOffset": self.length, "byteLength": nbytes})
@@ -305,11 +308,11 @@ def _write(document: dict[str, Any], body: list[bytes | memoryview], body_length
 # Decoding
 
 
-class _PointerError(Exception):
-    """A JSON pointer that names no accessor or image; carries its path."""
+class _EnvelopeError(Exception):
+    """A JSON pointer that names no accessor or image, or a value nested too deep; carries its path."""
 
-    def __init__(self, pointer: str) -> None:
-        self.pointer = pointer
+    def __init__(self, subject: str, problem: str) -> None:
+        self.subject, self.problem = subject, problem
         self.path: list[str] = []
 
 
@@ -330,9 +333,9 @@ def decode_glb(data: bytes | bytearray | memoryview) -> dict[str, Any]:
     }
     try:
         return _unpack(envelope, resolved)
-    except _PointerError as exc:
+    except _EnvelopeError as exc:
         where = "".join(reversed(exc.path))
-        raise DecodeError(f"JSON pointer {exc.pointer!r} at ${where} names nothing") from None
+        raise DecodeError(f"{exc.subject} at ${where} {exc.problem}") from None
 
 
 def edit_glb(data: bytes | bytearray | memoryview, edit: Callable[[Any], Any]) -> bytes:
@@ -348,7 +351,8 @@ def edit_glb(data: bytes | bytearray | memoryview, edit: Callable[[Any], Any]) -
     """
     document, envelope, binary = _read_document(data)
     document.pop("xviz", None)
-    extensions = document.pop("extensions", None) or {}
+    extensions = document.pop("extensions", None)
+    extensions = extensions if isinstance(extensions, dict) else {}
     extensions.pop(EXTENSION, None)
     if extensions:
         document["extensions"] = extensions
@@ -396,8 +400,9 @@ def _read_document(
     if not isinstance(document, dict):
         raise DecodeError("GLB JSON chunk is not an object", offset=json_offset)
     envelope = document.get("xviz")
-    if envelope is None:
-        envelope = (document.get("extensions") or {}).get(EXTENSION)
+    extensions = document.get("extensions")
+    if envelope is None and isinstance(extensions, dict):
+        envelope = extensions.get(EXTENSION)
     if envelope is None:
         raise DecodeError(
             f"GLB JSON chunk holds no XVIZ message (no 'xviz' key, no extensions.{EXTENSION})",
@@ -429,6 +434,15 @@ def _read_chunks(
     return json_chunk, binary
 
 
+def _list_field(document: dict[str, Any], field: str) -> list[Any]:
+    value = document.get(field)
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise DecodeError(f"GLB {field} must be a list, not {type(value).__name__}")
+    return value
+
+
 def _int_field(item: Any, field: str, where: str, default: int | None = None) -> int:
     value = item.get(field, default) if isinstance(item, dict) else None
     if not isinstance(value, int) or isinstance(value, bool) or value < 0:
@@ -441,7 +455,7 @@ def _read_views(
 ) -> list[memoryview]:
     bin_offset, bin_bytes = binary if binary is not None else (0, memoryview(b""))
     views = []
-    for i, view in enumerate(document.get("bufferViews") or []):
+    for i, view in enumerate(_list_field(document, "bufferViews")):
         where = f"bufferViews[{i}]"
         start = _int_field(view, "byteOffset", where, 0)
         length = _int_field(view, "byteLength", where)
@@ -457,15 +471,17 @@ def _read_views(
 
 def _read_accessors(document: dict[str, Any], views: list[memoryview]) -> list[np.ndarray]:
     arrays = []
-    for i, accessor in enumerate(document.get("accessors") or []):
+    for i, accessor in enumerate(_list_field(document, "accessors")):
         where = f"accessors[{i}]"
         view_index = _int_field(accessor, "bufferView", where)
         if view_index >= len(views):
             raise DecodeError(f"GLB {where}.bufferView {view_index} is out of range ({len(views)} views)")
-        dtype = _DTYPES.get(accessor.get("componentType"))
+        ctype = accessor.get("componentType")
+        dtype = _DTYPES.get(ctype) if isinstance(ctype, int) else None
         if dtype is None:
             raise DecodeError(f"GLB {where}.componentType {accessor.get('componentType')!r} is not supported")
-        width = _TYPES.get(accessor.get("type"))
+        kind = accessor.get("type")
+        width = _TYPES.get(kind) if isinstance(kind, str) else None
         if width is None:
             raise DecodeError(f"GLB {where}.type {accessor.get('type')!r} is not supported")
         count = _int_field(accessor, "count", where)
@@ -484,7 +500,7 @@ def _read_accessors(document: dict[str, Any], views: list[memoryview]) -> list[n
 
 def _read_images(document: dict[str, Any], views: list[memoryview]) -> list[memoryview]:
     images = []
-    for i, image in enumerate(document.get("images") or []):
+    for i, image in enumerate(_list_field(document, "images")):
         view_index = _int_field(image, "bufferView", f"images[{i}]")
         if view_index >= len(views):
             raise DecodeError(f"GLB images[{i}].bufferView {view_index} is out of range ({len(views)} views)")
@@ -492,13 +508,15 @@ def _read_images(document: dict[str, Any], views: list[memoryview]) -> list[memo
     return images
 
 
-def _unpack(value: Any, resolved: dict[str, list[Any]]) -> Any:
+def _unpack(value: Any, resolved: dict[str, list[Any]], depth: int = 0) -> Any:
+    if isinstance(value, (dict, list)) and depth >= MAX_DEPTH:
+        raise _EnvelopeError("a value", f"is nested more than {MAX_DEPTH} lists and objects deep")
     if isinstance(value, dict):
         result = {}
         for key, item in value.items():
             try:
-                result[key] = _unpack(item, resolved)
-            except _PointerError as exc:
+                result[key] = _unpack(item, resolved, depth + 1)
+            except _EnvelopeError as exc:
                 exc.path.append(f".{key}" if key.isidentifier() else f"[{key!r}]")
                 raise
         return result
@@ -506,8 +524,8 @@ def _unpack(value: Any, resolved: dict[str, list[Any]]) -> Any:
         items = []
         for index, item in enumerate(value):
             try:
-                items.append(_unpack(item, resolved))
-            except _PointerError as exc:
+                items.append(_unpack(item, resolved, depth + 1))
+            except _EnvelopeError as exc:
                 exc.path.append(f"[{index}]")
                 raise
         return items
@@ -516,9 +534,8 @@ def _unpack(value: Any, resolved: dict[str, list[Any]]) -> Any:
             return value[1:]
         match = _POINTER.fullmatch(value)
         if match:
-            table = resolved[match.group(1)]
-            index = int(match.group(2))
-            if index >= len(table):
-                raise _PointerError(value)
-            return table[index]
+            table, digits = resolved[match.group(1)], match.group(2)
+            if len(digits) > 9 or int(digits) >= len(table):  # more digits than any table has rows: not read as an int
+                raise _EnvelopeError(f"JSON pointer {value[:40]!r}", "names nothing")
+            return table[int(digits)]
     return value

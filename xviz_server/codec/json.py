@@ -17,7 +17,11 @@ import orjson
 
 from ..exceptions import DecodeError, EncodeError
 
-__all__ = ["encode_json", "decode_json"]
+__all__ = ["encode_json", "decode_json", "MAX_DEPTH", "nested_deeper"]
+
+#: The deepest nesting of lists and objects in a message that the GLB codec reads and writes (XVIZ's own is
+#: about 15 levels; orjson writes at most 254, and Python recursion ends near 1 000).
+MAX_DEPTH = 128
 
 _OPTIONS = orjson.OPT_SERIALIZE_NUMPY
 _JSON_START = re.compile(rb"[ \t\r\n]*[{\[]")  # how JSON text of an object or array starts
@@ -33,6 +37,21 @@ def _default(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError  # orjson reports the type itself
+
+
+def nested_deeper(value: Any, limit: int = MAX_DEPTH) -> bool:
+    """Whether lists and objects in ``value`` nest more than ``limit`` deep (read level by level, without recursion)."""
+    level: list[Any] = [value]
+    for _ in range(limit):
+        level = [
+            item
+            for container in level
+            if isinstance(container, (dict, list))
+            for item in (container.values() if isinstance(container, dict) else container)
+        ]
+        if not level:
+            return False
+    return any(isinstance(item, (dict, list)) for item in level)
 
 
 def encode_json(message: Any) -> bytes:
