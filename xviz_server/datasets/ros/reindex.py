@@ -36,7 +36,8 @@ import io
 import os
 from collections import defaultdict
 from functools import partial
-from typing import Callable
+from pathlib import Path
+from typing import Any, Callable
 
 from rosbags.interfaces import Connection
 from rosbags.rosbag1 import Reader, ReaderError
@@ -53,6 +54,28 @@ _CHUNK_HEADER = 256
 _INDEX_HEADER, _INDEX_ENTRY = 55, 12
 
 
+class _CappedFile(io.BufferedReader):
+    """A file whose reads ask for no more than it holds: rosbags reads a record of the length its header declares
+    in one call, and a read allocates what it asks for before it finds the file shorter (1 GiB for 4 bytes that
+    lie)."""
+
+    def __init__(self, raw: io.FileIO) -> None:
+        super().__init__(raw)
+        self._size = os.fstat(raw.fileno()).st_size
+
+    def read(self, size: int | None = -1) -> bytes:
+        if size is not None and size > 0:
+            size = min(size, max(0, self._size - self.tell()))
+        return super().read(size)
+
+
+class _CappedPath(type(Path())):  # type: ignore[misc]  # Path's concrete class for this system
+    """A local bag whose :meth:`open` gives a :class:`_CappedFile`."""
+
+    def open(self, mode: str = "rb", *args: Any, **kwargs: Any) -> Any:
+        return _CappedFile(io.FileIO(self, mode)) if mode == "rb" else super().open(mode, *args, **kwargs)
+
+
 class MemoryIndexedReader(Reader):
     """rosbags' ROS 1 reader, which also opens a bag without a readable index by indexing it in memory, and reads
     the index of a bag in a store in two batches of GETs."""
@@ -62,6 +85,11 @@ class MemoryIndexedReader(Reader):
     #: Bytes at the end of the file not read: a record cut short.
     lost = 0
     _size = 0  # of the file, found at open
+
+    def __init__(self, path: Any) -> None:
+        super().__init__(path)
+        if isinstance(self.path, Path):  # an object in a store reads only what it has (RangedFile)
+            self.path = _CappedPath(self.path)
 
     def open(self) -> None:
         size = self._size = self.path.stat().st_size
