@@ -34,7 +34,7 @@ TARGETS = {
 def round_of(test: str, examples: int, hang: float) -> tuple[bool, str, float]:
     """One round of ``test`` (one or more, space-separated): whether it passed, the tail of its report, its seconds."""
     env = {**os.environ, "XVIZ_FUZZ": "long", "XVIZ_FUZZ_EXAMPLES": str(examples)}
-    command = [sys.executable, "-m", "pytest", *(f"tests/test_fuzz.py::{name}" for name in test.split()), "-q", "-p", "no:cacheprovider", "-x"]
+    command = [sys.executable, "-m", "pytest", *(f"tests/test_fuzz.py::{name}" for name in test.split()), "-q", "-p", "no:cacheprovider", "-x", "--show-capture=no"]
     started = time.monotonic()
     try:
         done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=hang)

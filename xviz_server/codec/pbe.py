@@ -91,6 +91,8 @@ _REQUIRED = {
     "xviz.v2.TreeTableColumn": ("display_text",),
     "xviz.v2.TreeTableNode": ("id",),
 }
+# How deep the protobuf runtime reads messages within messages (upb's default); google.protobuf.Struct nests.
+_MAX_NESTING = 100
 
 
 def is_pbe(data: bytes | bytearray | memoryview) -> bool:
@@ -332,8 +334,10 @@ def _fields(data: memoryview) -> Iterator[tuple[int, int, int, int]]:
         offset = end
 
 
-def _locate(data: memoryview, descriptor: Descriptor, path: str) -> tuple[int, str] | None:
+def _locate(data: memoryview, descriptor: Descriptor, path: str, depth: int = 0) -> tuple[int, str] | None:
     """The offset and description of the first problem in a message that failed to parse."""
+    if depth > _MAX_NESTING:
+        return 0, f"{path}: messages nested more than {_MAX_NESTING} deep"
     try:
         for number, wire_type, start, end in _fields(data):
             field = descriptor.fields_by_number.get(number)
@@ -341,7 +345,7 @@ def _locate(data: memoryview, descriptor: Descriptor, path: str) -> tuple[int, s
                 continue
             where = f"{path}.{field.name}"
             if field.message_type is not None:
-                found = _locate(data[start:end], field.message_type, where)
+                found = _locate(data[start:end], field.message_type, where, depth + 1)
                 if found is not None:
                     return start + found[0], found[1]
             elif field.type == FieldDescriptor.TYPE_STRING:
