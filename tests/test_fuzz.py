@@ -328,6 +328,20 @@ def test_pbe(pbe_seeds: list[bytes]):
     fuzz()
 
 
+INDEX_SEEDS = [(KITTI_LOG / "0-frame.json").read_bytes()] if KITTI_LOG.is_dir() else []
+
+
+@FUZZ
+@given(json_messages(INDEX_SEEDS))
+@example(b'{"timing":[[0,1,1e300,"2-frame"]]}')  # found: cast to int64 as a negative frame number
+@example(b'{"timing":[[0,1,1180591620717411303424,"2-frame"]]}')
+def test_log_index(data: bytes):
+    # A recorded log's index file (0-frame.json): a value, or a DecodeError naming the row.
+    index = refuses_by_name(lambda: TimeIndex.from_reference(decode_json(data)), len(data), DecodeError)
+    if index is not None:
+        assert (index.frames >= 0).all() and len(index.start) == len(index.end) == len(index.frames)
+
+
 # --------------------------------------------------------------------------
 # Client messages through the session
 

@@ -71,7 +71,7 @@ class TimeIndex:
                 or len(row) < 3
                 or not all(is_number(value) for value in row[:3])
                 or not float(row[2]).is_integer()
-                or row[2] < 0
+                or not 0 <= row[2] < _FRAME_LIMIT
             ):
                 raise DecodeError(f"{where}: timing[{row_number}] is not [t_min, t_max, index, name]: {row!r}")
             spans.append((float(row[0]), float(row[1]), int(row[2])))
@@ -120,6 +120,10 @@ class TimeIndex:
         return position if position >= 0 else None
 
 
+#: Frame numbers are int64: the first that is not.
+_FRAME_LIMIT = 2**63
+
+
 def _well_formed(timing: list[Any]) -> np.ndarray | None:
     """The first three columns of ``timing`` as an (n, 3) float array, or ``None`` unless every row is valid.
 
@@ -136,6 +140,6 @@ def _well_formed(timing: list[Any]) -> np.ndarray | None:
     except OverflowError:  # an integer beyond the float range
         return None
     frames = values[:, 2]
-    if not (np.isfinite(values).all() and (frames >= 0).all() and (frames == np.floor(frames)).all()):
+    if not (np.isfinite(values).all() and (frames >= 0).all() and (frames < _FRAME_LIMIT).all() and (frames == np.floor(frames)).all()):
         return None
     return values
