@@ -31,6 +31,7 @@ import copy
 import itertools
 import json
 import os
+import re
 import shutil
 import struct
 import tempfile
@@ -650,3 +651,46 @@ def test_resp_replies(resp_seeds: list[bytes]):
         assert split == whole  # the same replies, or the same refusal, however the socket splits the bytes
 
     fuzz()
+
+
+def hiredis_replies(data: bytes) -> tuple[list[Any], bool]:
+    """The replies hiredis reads from ``data``, and whether it refused what came after them."""
+    import hiredis
+
+    reader, replies = hiredis.Reader(), []
+    reader.feed(data)
+    try:
+        while (reply := reader.gets()) is not False:
+            replies.append(reply)
+    except hiredis.ProtocolError:
+        return replies, True
+    return replies, False
+
+
+def test_resp_replies_as_hiredis_reads_them(resp_seeds: list[bytes]):
+    # What the RESP reader takes, hiredis takes too, as the same replies; where they part, the reader refuses.
+    @FUZZ
+    @given(mutated(resp_seeds))
+    @example(b":1_0\r\n")  # found: int() takes underscores, spaces, a plus sign, leading zeros, -0, any size
+    @example(b"$ +03\r\nabc\r\n")
+    @example(b":-0\r\n")
+    @example(b":99999999999999999999999\r\n")
+    @example(b"+PONG\r+PONG\r\n")  # found: a lone CR inside a line was taken as part of it
+    @example(b"\x00\x00")  # found: a byte that starts no reply waited for a line's end before it was refused
+    @example(b"$3\r\n\r\n\r\n1-1\r\n")  # hiredis skips the two bytes after a bulk string unread; the reader checks them
+    def fuzz(data: bytes) -> None:
+        from redis.exceptions import InvalidResponse
+
+        theirs, refused = hiredis_replies(data)
+        try:
+            mine, error = parse_replies(data, itertools.repeat(len(data) or 1)), None
+        except InvalidResponse as exc:
+            mine, error = None, exc
+        if error is None:  # the reader took all of it (and may wait for more)
+            assert not refused, f"hiredis refused what the reader took as {mine!r}"
+            assert outcome(lambda: mine) == outcome(lambda: theirs)
+        elif not refused:  # hiredis took it all: the reader refused for a check of its own, which hiredis lacks
+            assert re.search(r"over \d+ bytes|at most \d+|a length of|does not end where its length says", str(error)), error
+
+    fuzz()
+

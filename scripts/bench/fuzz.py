@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[2]
 TARGETS = {
     "glb": "test_glb", "json": "test_json", "pbe": "test_pbe", "index": "test_log_index", "session": "test_session_answers_every_client_message",
     "url": "test_session_answers_every_connection_url", "admission": "test_admission", "waymo": "test_waymo_tfrecord",
-    "bag": "test_ros1_bag", "resp": "test_resp_replies",
+    "bag": "test_ros1_bag", "resp": "test_resp_replies", "hiredis": "test_resp_replies_as_hiredis_reads_them",
 }
 
 

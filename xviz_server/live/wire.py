@@ -37,7 +37,10 @@ MAX_LINE = 64 * 1024
 MAX_BULK = 512 * 1024 * 1024
 #: The largest buffer for large bulk strings kept from one reply to the next.
 KEEP = 32 * 1024 * 1024
+#: The room first given to a large bulk string, doubled as it fills: what a length costs before its bytes come.
+FIRST_ROOM = 1024 * 1024
 
+_KINDS = frozenset(b"$*+-:")  # the first byte of each kind of RESP2 reply
 _MORE = object()  # the bytes so far end inside a value
 _OPENED = object()  # an array was opened
 
@@ -49,7 +52,9 @@ class Replies:
     takes how many came and returns the replies they completed. A bulk
     string longer than :data:`LARGE` is read into a buffer kept for them
     (at most :data:`KEEP` bytes are kept between replies), in as many reads
-    as it takes, and copied out once. Strings come out as :class:`bytes`,
+    as it takes, and copied out once; that buffer grows as the bytes come
+    (from :data:`FIRST_ROOM`, doubled when full), so a length alone costs
+    little. Strings come out as :class:`bytes`,
     integers as :class:`int`, nil as ``None``, arrays as :class:`list` and
     error replies as :class:`~redis.exceptions.ResponseError` instances.
     Bytes that are not RESP2 raise :class:`~redis.exceptions.InvalidResponse`.
@@ -67,6 +72,10 @@ class Replies:
     def buffer(self) -> memoryview:
         """Where the socket puts the next bytes (never empty)."""
         if self._length is not None:
+            if self._filled == len(self._large):  # full, and the string goes on: twice the room, at most what is left
+                grown = bytearray(min(self._length + 2, 2 * len(self._large)))
+                grown[: self._filled] = self._large
+                self._large = grown
             return memoryview(self._large)[self._filled : self._length + 2]
         if self._start == self._end:
             self._start = self._end = 0
@@ -120,7 +129,11 @@ class Replies:
         if eol < 0:
             if end - start > MAX_LINE:
                 raise InvalidResponse(f"a line of over {MAX_LINE} bytes from the broker")
+            if end > start and buffer[start] not in _KINDS:  # refused at once, as hiredis does, not at the line's end
+                raise InvalidResponse(f"not a RESP2 reply from the broker: {bytes(buffer[start : start + 40])!r}")
             return _MORE
+        if buffer.find(b"\r", start, eol) >= 0:  # a CR that is not a line's end, as hiredis refuses it
+            raise InvalidResponse(f"a line from the broker holds a lone CR: {bytes(buffer[start : min(eol, start + 40)])!r}")
         kind, line, after = buffer[start], bytes(buffer[start + 1 : eol]), eol + 2
         if kind == ord("$"):
             length = _length(line)
@@ -132,9 +145,10 @@ class Replies:
                 _check_end(buffer, after + length)
                 value, after = bytes(buffer[after : after + length]), after + length + 2
             elif length > LARGE:  # the rest of it is read into self._large
-                if len(self._large) < length + 2:
-                    self._large = bytearray(length + 2)
                 here = end - after  # less than the string and its CRLF (else the branch above took it)
+                room = min(length + 2, max(here, FIRST_ROOM))
+                if len(self._large) < room:
+                    self._large = bytearray(room)
                 self._large[:here] = memoryview(buffer)[after:end]
                 self._start, self._length, self._filled = end, length, here
                 return _MORE
@@ -166,10 +180,15 @@ def _check_end(data: bytearray, at: int) -> None:
 
 
 def _integer(line: bytes) -> int:
-    try:
-        return int(line)
-    except ValueError:
-        raise InvalidResponse(f"not an integer from the broker: {line[:40]!r}") from None
+    """A RESP integer as hiredis reads one: a signed 64-bit decimal, no leading zero, no ``-0``.
+
+    (``int()`` alone would also take ``b" +0_1"``.)
+    """
+    digits = line[1:] if line[:1] == b"-" else line
+    canonical = digits.isdigit() and len(digits) <= 19 and (digits[:1] != b"0" or line == b"0")
+    if not canonical or not -(2**63) <= (value := int(line)) < 2**63:
+        raise InvalidResponse(f"not an integer from the broker: {line[:40]!r}")
+    return value
 
 
 def _length(line: bytes) -> int:
