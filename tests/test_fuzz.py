@@ -642,6 +642,7 @@ def outcome(parse: Callable[[], list[Any]]) -> Any:
 def test_resp_replies(resp_seeds: list[bytes]):
     @FUZZ
     @given(mutated(resp_seeds), st.lists(st.integers(1, 70_000), min_size=1, max_size=20))
+    @example(b"*1\r\n$536870912\r\n", [1])  # found: 512 MB allocated for a length, before any byte of the string
     def fuzz(data: bytes, sizes: list[int]) -> None:
         from redis.exceptions import InvalidResponse
 
