@@ -137,11 +137,11 @@ class _Packer:
         self.length = 0
 
     def pack(self, value: Any, key: str | None = None, depth: int = 0) -> Any:
-        if isinstance(value, (Mapping, list)) and depth >= MAX_DEPTH:
-            raise EncodeError(f"message nested more than {MAX_DEPTH} lists and objects deep")
         if isinstance(value, Mapping):
+            _deep_enough(depth)
             return {k: self.pack(v, k, depth + 1) for k, v in value.items()}
         if isinstance(value, list):
+            _deep_enough(depth)
             if key in ("points", "vertices", "colors") and value:
                 array = _array_from_list(value, key)
                 if array is not None:
@@ -209,6 +209,11 @@ class _Packer:
             image.update(mimeType=info.mime_type, width=info.width, height=info.height)
         self.images.append(image)
         return f"#/images/{len(self.images) - 1}"
+
+
+def _deep_enough(depth: int) -> None:
+    if depth >= MAX_DEPTH:
+        raise EncodeError(f"message nested more than {MAX_DEPTH} lists and objects deep")
 
 
 def _array_from_list(value: list[Any], key: str) -> np.ndarray | None:
@@ -509,9 +514,9 @@ def _read_images(document: dict[str, Any], views: list[memoryview]) -> list[memo
 
 
 def _unpack(value: Any, resolved: dict[str, list[Any]], depth: int = 0) -> Any:
-    if isinstance(value, (dict, list)) and depth >= MAX_DEPTH:
-        raise _EnvelopeError("a value", f"is nested more than {MAX_DEPTH} lists and objects deep")
     if isinstance(value, dict):
+        if depth >= MAX_DEPTH:
+            raise _EnvelopeError("an object", f"is nested more than {MAX_DEPTH} lists and objects deep")
         result = {}
         for key, item in value.items():
             try:
@@ -521,6 +526,8 @@ def _unpack(value: Any, resolved: dict[str, list[Any]], depth: int = 0) -> Any:
                 raise
         return result
     if isinstance(value, list):
+        if depth >= MAX_DEPTH:
+            raise _EnvelopeError("a list", f"is nested more than {MAX_DEPTH} lists and objects deep")
         items = []
         for index, item in enumerate(value):
             try:
