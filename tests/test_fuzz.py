@@ -45,7 +45,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from conftest import FIXTURES, KITTI_LOG, SHARED_DIR
+from devkit.data import FIXTURES, KITTI_LOG, SCHEMA_EXAMPLES, SHARED_DIR
 from helpers import INTEROP, PNG_2X1, metadata, update, write_log, xviz_write
 from xviz_server.admission import admit
 from xviz_server.codec import Format, decode, decode_glb, decode_json, decode_pbe, encode
@@ -213,7 +213,7 @@ GOLDEN_GLB = sorted(FIXTURES.glob("*.glb")) if FIXTURES.is_dir() else []
 GLB_SEEDS = KITTI_GLB + [path.read_bytes() for path in GOLDEN_GLB]
 GLB_TREES = [glb_parts(seed) for seed in GLB_SEEDS]
 JSON_SEEDS = [path.read_bytes() for path in sorted(FIXTURES.glob("*.json"))] if FIXTURES.is_dir() else []
-ENVELOPES = sorted((SHARED_DIR / "conformance" / "schema-examples" / "valid" / "envelope").glob("*.json"))
+ENVELOPES = sorted((SCHEMA_EXAMPLES / "valid" / "envelope").glob("*.json"))
 CLIENT_SEEDS = [path.read_bytes() for path in ENVELOPES] + [
     b'{"type":"xviz/start","data":{"version":"2.0.0","session_type":"LOG","message_format":"BINARY","log":"drive"}}',
     b'{"type":"xviz/transform_log","data":{"id":"1","start_timestamp":100.5,"end_timestamp":101,"desired_streams":["/points"]}}',
@@ -415,7 +415,7 @@ def _range_image(height: int, width: int, channels: int, rng: np.random.Generato
 def waymo_frames(rng: np.random.Generator, lasers: list[int], cameras: list[int], dims: list[int] | None = None,
                  beams: int = 4, pose_values: int = 16) -> list[bytes]:
     """Two serialized Frames: the TOP laser's range images 4 x 8 with pixel poses, the others plain; a JPEG per camera."""
-    from waymo_frames import calibration, frame, jpeg_image, pose_matrix
+    from devkit.waymo_frames import calibration, frame, jpeg_image, pose_matrix
 
     from xviz_server.datasets import waymo_frame_pb2 as pb
 
@@ -512,7 +512,7 @@ def ros1_bags(directory: Path) -> list[bytes]:
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores
 
-    from rosbag_kitti import Messages
+    from devkit.rosbag_kitti import Messages
 
     m = Messages(Stores.ROS1_NOETIC)
     t0, rng = 1_700_000_000 * 10**9, np.random.default_rng(35)

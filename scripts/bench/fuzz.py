@@ -72,8 +72,8 @@ def main() -> int:
             if not args.quick and time.monotonic() >= deadline:
                 break
     print("\n| parser | rounds | examples | seconds |\n|---|---|---|---|")
-    for test, seconds in runs.items():
-        print(f"| {test} | {len(seconds)} | {len(seconds) * examples} | {sum(seconds):.0f} |")
+    for test, times in runs.items():
+        print(f"| {test} | {len(times)} | {len(times) * examples} | {sum(times):.0f} |")
     return 0
 
 
