@@ -548,6 +548,89 @@ async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_start
             assert c.live.find("sim", exact=True).origin == a.broker.link.id.decode()
 
 
+def poisoned(frame: bytes) -> dict[str, bytes]:
+    """Updates that ingest refuses, each made from the real ``frame``: a stream map that is a number, and the
+    lidar cloud referenced 60 times (a few KB more to send, 104 MB to re-encode, over ingest's 64 MB)."""
+    from xviz_server.codec import edit_glb
+
+    def poses_a_number(message: Any) -> Any:
+        message["data"]["updates"][0]["poses"] = 5
+        return message
+
+    def cloud_sixty_times(message: Any) -> Any:
+        stream = message["data"]["updates"][0]["primitives"]["/lidar/points"]
+        stream["points"] = stream["points"] * 60
+        return message
+
+    return {"poses": edit_glb(frame, poses_a_number), "expands to": edit_glb(frame, cloud_sixty_times)}
+
+
+async def test_entries_that_ingest_would_refuse_are_skipped_and_the_feed_goes_on(tmp_path: Path, broker: Broker):
+    """Entries XADDed into the feed's stream under the owner's id and numbered as its next update (a shape
+    ingest refuses, an expansion bomb, a number 10^15 ahead): each is refused, counted and logged once, and
+    B's viewers get every genuine update after it, the very bytes A's viewer gets."""
+    updates = frames()[:6]
+    async with replicas(tmp_path, broker, 2) as (a, b):
+        async with source(a) as car:
+            await until(lambda: _listed(b, "car"), what="B to list A's feed")
+            here, there = await Viewer.join(a), await Viewer.join(b)
+            await until(lambda: _sessions(b, 1), what="the viewer on B")
+            await push(car, updates[:1])
+            await there.count(1)
+            client = broker.client()
+            owner = await client.hget("xviz:reg:car", "owner")
+            attacks = [*poisoned(updates[1]).items(), ("not the owner's next", updates[1])]
+            for sent, (problem, data) in enumerate(attacks, start=1):
+                number = 10**15 if problem == "not the owner's next" else sent  # the owner's next is `sent`
+                await client.xadd("xviz:updates:car", {"v": "1", "t": "update", "o": owner, "n": str(number), "d": data})
+                await push(car, updates[sent : sent + 1])
+                await there.count(1 + sent)
+                assert len(b.log(r"skipped entry .*" + re.escape(problem))) == 1, b.lines[-5:]
+            await push(car, updates[len(attacks) + 1 :])
+            await here.count(len(updates))
+            await there.count(len(updates))
+            assert there.updates == here.updates == updates and not there.notices
+            assert len(b.log("skipped entry")) == len(attacks)
+            assert await b.metric('xviz_broker_dropped_updates_total{reason="garbage"}') == len(attacks)
+            assert await b.metric('xviz_broker_dropped_updates_total{reason="gap"}') == 0
+            assert await b.metric("xviz_broker_reader_restarts_total") == 0
+            await client.aclose()
+            for viewer in (here, there):
+                await viewer.close()
+
+
+async def test_a_reader_that_fails_is_restarted_and_reported(tmp_path: Path, broker: Broker):
+    """A registration whose newest complete state is no stream id: B's reader fails as it starts, again and
+    again (with backoff; /healthz says so), until A writes the feed's next update; then B's viewer follows."""
+    updates = frames()[:4]
+    async with replicas(tmp_path, broker, 2) as (a, b):
+        async with source(a) as car:
+            await push(car, updates[:1])
+            await until(lambda: _started(b, "car"), what="B to list A's feed, started")
+            client = broker.client()
+            await client.hset("xviz:reg:car", "key", "not-an-id")
+            viewer = await Viewer.join(b)
+
+            async def failing() -> bool:
+                return await b.metric("xviz_broker_reader_restarts_total") >= 3
+
+            await until(failing, what="B's reader to fail three times")
+            status, health = await b.get("/healthz")
+            assert status == 200 and re.search(r"degraded: the reader of live feed 'car' failed \d+ times in a row", health), health
+            assert "b'not-an-id' is not a stream id" in health
+            assert len(b.log(r"live feed 'car': reading it from the broker failed")) == 1  # said once, counted each time
+            await push(car, updates[1:2])  # A writes the registration's key again
+            await viewer.count(1)
+            await push(car, updates[2:])
+            await viewer.count(len(updates) - 1)
+            assert viewer.updates == updates[1:] and not viewer.notices
+            assert len(b.log(r"live feed 'car': reading it from the broker again after \d+ failures")) == 1
+            status, health = await b.get("/healthz")
+            assert "degraded" not in health
+            await client.aclose()
+            await viewer.close()
+
+
 def test_the_broker_url_is_shown_without_its_password():
     env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}
     shown = subprocess.run([sys.executable, "-m", "xviz_server", "config", "--broker", "rediss://app:s3cr3t@cache.example:6380/2"],
@@ -653,3 +736,22 @@ async def test_the_wire_reads_a_frame_from_the_broker_as_written(broker: Broker)
             await wire.send(b"HGET", b"s", b"d")
     finally:
         wire.close()
+
+
+def test_an_update_is_taken_as_the_owner_s_next_within_a_bounded_gap():
+    from xviz_server.exceptions import BrokerError
+    from xviz_server.live.mirror import MAX_GAP, Numbering
+
+    numbering = Numbering()
+    assert numbering.missing(b"a", 41) == 0  # the first one read
+    numbering.take(b"a", 41)
+    assert numbering.missing(b"a", 41) is None  # a keyframe of it
+    assert numbering.missing(b"a", 42) == 0 and numbering.missing(b"a", 45) == 3
+    assert numbering.missing(b"a", 41 + MAX_GAP + 1) == MAX_GAP
+    for number in (41 + MAX_GAP + 2, 10**15, 40, 0):
+        with pytest.raises(BrokerError, match=f"update {number} of replica a is not the owner's next \\(its newest is 41"):
+            numbering.missing(b"a", number)
+    assert numbering.missing(b"a", 42) == 0  # refused ones move nothing
+    assert numbering.missing(b"a", 1) == 0  # follows the one refused last: the owner numbers afresh
+    numbering.take(b"a", 1)
+    assert numbering.missing(b"b", 7) == 0  # another owner

@@ -131,6 +131,7 @@ def test_replies_come_out_whole_however_the_socket_splits_them():
         (b"*x\r\n", "not an integer from the broker: b'x'"),
         (b"$%d\r\n" % (2**40), "a bulk string of 1099511627776 bytes from the broker (at most 536870912)"),
         (b"+" + b"a" * 200_000, "a line of over 65536 bytes"),
+        (b"*1\r\n" * 17 + b":1\r\n", "a reply of arrays nested over 16 deep"),
     ],
 )
 def test_what_is_not_resp_is_refused_by_name(data: bytes, problem: str):

@@ -36,7 +36,7 @@ from .exceptions import DecodeError, MessageError
 from .messages import envelope, is_number, unwrap
 from .state import STREAM_MAPS
 
-__all__ = ["MAX_CONTAINERS", "UPDATE_TYPES", "admit", "expanded_size"]
+__all__ = ["MAX_CONTAINERS", "UPDATE_TYPES", "admit", "check", "expanded_size"]
 
 #: Most JSON lists and objects one message may hold.
 MAX_CONTAINERS = 2_000_000
@@ -60,6 +60,15 @@ def admit(data: bytes, max_bytes: int) -> tuple[str, bytes]:
     if not binary and nested_deeper(message):  # GLB's decoder refuses them itself
         raise MessageError(f"lists and objects nested more than {MAX_DEPTH} deep")
     kind, content = unwrap(message)
+    check(kind, content, max_bytes)
+    if binary:
+        return kind, data
+    return kind, encode(envelope(kind.removeprefix("xviz/"), content), Format.BINARY)
+
+
+def check(kind: str, content: Any, max_bytes: int) -> None:
+    """Raise :class:`~xviz_server.exceptions.MessageError` unless ``content`` (decoded) is an admissible message of
+    type ``kind``: what :func:`admit` checks once the message is decoded."""
     if kind == "xviz/metadata":
         _require(isinstance(content, Mapping), "metadata", "must be an object", content)
         _require(isinstance(content.get("streams", {}), Mapping), "metadata.streams", "must be an object", content.get("streams"))
@@ -73,9 +82,6 @@ def admit(data: bytes, max_bytes: int) -> tuple[str, bytes]:
             )
     else:
         raise MessageError(f"a live source sends xviz/metadata and xviz/state_update, not {kind!r}")
-    if binary:
-        return kind, data
-    return kind, encode(envelope(kind.removeprefix("xviz/"), content), Format.BINARY)
 
 
 def _require(condition: bool, where: str, what: str, value: Any) -> None:

@@ -290,7 +290,10 @@ def _broker(settings: Settings, live: LiveRegistry, metrics: Metrics, workers: W
         from .live.broker import Broker
     except ImportError as exc:
         raise ConfigError(f"--broker needs the redis package ({exc}): pip install 'xviz-server[broker]'") from None
-    return Broker(settings.broker, live, metrics, workers, ttl=settings.broker_ttl, max_bytes=int(settings.broker_max_mb * MB))
+    return Broker(
+        settings.broker, live, metrics, workers, ttl=settings.broker_ttl, max_bytes=int(settings.broker_max_mb * MB),
+        max_update_bytes=int(settings.max_ingest_mb * MB),
+    )
 
 
 def parse_dataset(text: str) -> tuple[str, Path, dict[str, str]]:

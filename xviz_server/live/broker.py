@@ -55,10 +55,14 @@ class Broker:
     """Shares the feeds of ``registry`` with the other replicas using the broker at ``url``.
 
     ``ttl`` (s): how long a feed stays registered unless renewed;
-    ``max_bytes``: most bytes of updates kept per feed.
+    ``max_bytes``: most bytes of updates kept per feed; ``max_update_bytes``:
+    what an update read from the broker may expand to, as a source's at ingest.
     """
 
-    def __init__(self, url: str, registry: LiveRegistry, metrics: Metrics, workers: Workers, *, ttl: float, max_bytes: int) -> None:
+    def __init__(
+        self, url: str, registry: LiveRegistry, metrics: Metrics, workers: Workers, *, ttl: float, max_bytes: int,
+        max_update_bytes: int,
+    ) -> None:
         self.link = Link(url, metrics)
         self.registry = registry
         self.workers = workers
@@ -66,6 +70,7 @@ class Broker:
         #: Seconds between two polls of the broker while it answers, and at most while it does not.
         self.interval, self.backoff = min(1.0, ttl / 4), min(MAX_BACKOFF, ttl / 2)
         self._max_bytes = max_bytes
+        self._max_update_bytes = max_update_bytes
         self._outboxes: dict[str, Outbox] = {}
         self._mirrors: dict[str, Mirror] = {}
         self._departed: dict[str, LiveFeed] = {}  # oldest first
@@ -92,8 +97,9 @@ class Broker:
         await self.link.close()
 
     def health(self) -> str:
-        """One line on the broker's state, for ``/healthz``."""
-        return self.link.health()
+        """Lines on the broker's state, for ``/healthz``: the broker's, then each reader's that keeps failing."""
+        problems = [problem for mirror in self._mirrors.values() if (problem := mirror.problem()) is not None]
+        return "\n".join([self.link.health(), *problems])
 
     # -- hooks of the registry --------------------------------------------------
 
@@ -234,7 +240,7 @@ class Broker:
             await self._forward(name, config_update)
 
         feed.on_reconfigure = forward
-        mirror = self._mirrors[name] = Mirror(self.link, feed)
+        mirror = self._mirrors[name] = Mirror(self.link, feed, self.workers, self._max_update_bytes)
         logger.info("live feed %r of replica %s: following it through the broker", name, owner)
         return mirror
 

@@ -51,8 +51,14 @@ class BrokerMetrics:
         self.drops = Counter(
             "xviz_broker_dropped_updates",
             "Updates lost between replicas, by reason: down, full, behind or error (not written by the owner), "
-            "gap (found missing by a reader), garbage (entries skipped by a reader).",
+            "gap (found missing by a reader), garbage (entries a reader refused: not what an owner writes, or what "
+            "ingest refuses).",
             ["reason"],
+            registry=registry,
+        )
+        self.restarts = Counter(
+            "xviz_broker_reader_restarts",
+            "Readers of feeds of other replicas that failed and started again (see /healthz for one that keeps failing).",
             registry=registry,
         )
         self.readers = Gauge(

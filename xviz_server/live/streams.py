@@ -60,8 +60,13 @@ def control(name: str) -> str:
 
 
 def before(entry_id: bytes) -> bytes:
-    """The stream id just before ``entry_id``, to read from it inclusively with XREAD."""
+    """The stream id just before ``entry_id``, to read from it inclusively with XREAD.
+
+    Raises :class:`~xviz_server.exceptions.BrokerError` if ``entry_id`` is not a stream id (``<ms>-<seq>``).
+    """
     ms, _, seq = entry_id.partition(b"-")
+    if not ms.isdigit() or not (seq or b"0").isdigit():
+        raise BrokerError(f"{entry_id[:40]!r} is not a stream id")
     if int(seq or 0) > 0:
         return b"%d-%d" % (int(ms), int(seq) - 1)
     return b"%d-%d" % (max(0, int(ms) - 1), 2**64 - 1) if int(ms) else b"0-0"

@@ -39,6 +39,8 @@ MAX_BULK = 512 * 1024 * 1024
 KEEP = 32 * 1024 * 1024
 #: The room first given to a large bulk string, doubled as it fills: what a length costs before its bytes come.
 FIRST_ROOM = 1024 * 1024
+#: The deepest nesting of arrays taken from the broker (an XREAD reply is 5 deep).
+MAX_DEPTH = 16
 
 _KINDS = frozenset(b"$*+-:")  # the first byte of each kind of RESP2 reply
 _MORE = object()  # the bytes so far end inside a value
@@ -57,7 +59,8 @@ class Replies:
     little. Strings come out as :class:`bytes`,
     integers as :class:`int`, nil as ``None``, arrays as :class:`list` and
     error replies as :class:`~redis.exceptions.ResponseError` instances.
-    Bytes that are not RESP2 raise :class:`~redis.exceptions.InvalidResponse`.
+    Bytes that are not RESP2, and arrays nested over :data:`MAX_DEPTH` deep,
+    raise :class:`~redis.exceptions.InvalidResponse`.
     """
 
     def __init__(self) -> None:
@@ -158,6 +161,8 @@ class Replies:
             count = _length(line)
             self._start = after
             if count > 0:
+                if len(self._arrays) >= MAX_DEPTH:
+                    raise InvalidResponse(f"a reply of arrays nested over {MAX_DEPTH} deep from the broker")
                 self._arrays.append(([], count))
                 return _OPENED
             return None if count == -1 else []
