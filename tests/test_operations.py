@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import os
 import ssl
 import sys
@@ -129,6 +130,47 @@ async def test_viewer_token(root: Path):
         assert await asyncio.to_thread(status, "/") == 401
         assert await asyncio.to_thread(status, "/?token=letmein") == 200
         assert await asyncio.to_thread(status, "/healthz") == 200  # health checks need no token
+        # A repeated token is none: a proxy in front may read another of its values than the server.
+        for twice in ["/?token=letmein&token=wrong", "/?token=wrong&token=letmein", "/?token=letmein&token=letmein"]:
+            assert await asyncio.to_thread(status, twice) == 401, twice
+        with pytest.raises(InvalidStatus) as refused:
+            async with client(server, "/drive?token=letmein&token=other"):
+                pass
+        assert refused.value.response.status_code == 401
+    async with running_server(root, ingest_token="pushme") as server:
+        with pytest.raises(InvalidStatus) as refused:
+            await connect(f"ws://127.0.0.1:{server.port}/ingest/car?token=pushme&token=pushme")
+        assert refused.value.response.status_code == 403
+
+
+@pytest.mark.parametrize("name", ["viewer_token", "ingest_token", "map_token"])
+@pytest.mark.parametrize("value", ["", "  "])
+def test_an_empty_token_is_refused_at_start(name: str, value: str):
+    result = run_cli("serve", "--port", "0", **{f"XVIZ_{name.upper()}": value})
+    assert result.returncode == 2, result.stderr
+    assert f"--{name.replace('_', '-')}: Value error, is empty (XVIZ_{name.upper()}= or a blank flag)" in result.stderr
+
+
+async def test_a_session_end_says_which_side_closed(root: Path, caplog: pytest.LogCaptureFixture):
+    """A viewer whose own program fails closes with 1011 (websockets' client does): the client's code, not the
+    server's failing; a viewer whose connection drops sent no code at all."""
+    caplog.set_level(logging.INFO, logger="xviz_server")
+    async with running_server(root) as server:
+        async with client(server, "/drive") as c:
+            await c.recv()
+        with pytest.raises(RuntimeError):
+            async with connect(f"ws://127.0.0.1:{server.port}/drive") as websocket:
+                await websocket.recv()
+                raise RuntimeError("the viewer's own bug")
+        websocket = await connect(f"ws://127.0.0.1:{server.port}/drive")
+        await websocket.recv()
+        websocket.transport.abort()
+        for _ in range(100):
+            ends = [record.getMessage() for record in caplog.records if record.getMessage().startswith("session end")]
+            if len(ends) == 3:
+                break
+            await asyncio.sleep(0.05)
+    assert [end.partition(" reason=")[2] for end in ends] == ["1000 closed_by=client", "1011 closed_by=client", "connection lost"]
 
 
 async def test_allowed_origins(root: Path):

@@ -22,11 +22,17 @@ __all__ = ["INGEST_PREFIX", "given_token", "token_matches", "feed_name", "ingest
 
 
 def given_token(request: Request) -> str | None:
-    """The token of a request: ``Authorization: Bearer <token>``, else the ``token`` query parameter."""
+    """The token of a request: ``Authorization: Bearer <token>``, else the ``token`` query parameter.
+
+    A query that repeats ``token`` gives none (a proxy or a log in front of the
+    server may take another of its values than the server would): the request
+    is refused as one without a token.
+    """
     authorization = request.headers.get("Authorization", "")
     if authorization.startswith("Bearer "):
         return authorization.removeprefix("Bearer ")
-    return dict(parse_qsl(urlsplit(request.path).query)).get("token")
+    values = [value for key, value in parse_qsl(urlsplit(request.path).query, keep_blank_values=True) if key == "token"]
+    return values[0] if len(values) == 1 else None
 
 
 def token_matches(request: Request, token: str) -> bool:

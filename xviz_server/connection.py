@@ -102,12 +102,10 @@ class Connection:
                 task.cancel()
             await asyncio.gather(*self._tasks, return_exceptions=True)
             self.metrics.sessions_open.dec()
-            code, reason = self.websocket.close_code, self.websocket.close_reason
-            reason = f"{code} {reason}".strip() if code is not None else "connection lost"
             log = self.session.log.name if self.session.log else None
             duration, fmt = round(time.monotonic() - started, 3), self.session.format.value
             log_event(logger, "session end", remote=remote, log=log, format=fmt, frames=self.frames_sent,
-                      bytes=self.bytes_sent, duration=duration, reason=reason)
+                      bytes=self.bytes_sent, duration=duration, **_ending(self.websocket))
 
     # -- carrying events out ----------------------------------------------
 
@@ -370,6 +368,17 @@ async def _wait(stop: asyncio.Event, seconds: float) -> None:
             await asyncio.wait_for(stop.wait(), seconds)
         except asyncio.TimeoutError:
             pass
+
+
+def _ending(websocket: ServerConnection) -> dict[str, Any]:
+    """How a session's connection ended: ``reason``, the close code and reason of the side that closed first
+    (``connection lost`` if neither did), and ``closed_by`` (``client`` or ``server``), so that a code a client
+    sends (1011 when its own program failed) is never taken for the server's."""
+    protocol = websocket.protocol
+    first = protocol.close_rcvd if protocol.close_rcvd_then_sent else protocol.close_sent
+    if first is None:
+        return {"reason": "connection lost"}
+    return {"reason": f"{first.code} {first.reason}".strip(), "closed_by": "client" if protocol.close_rcvd_then_sent else "server"}
 
 
 def _remote(websocket: ServerConnection) -> str:

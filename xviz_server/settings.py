@@ -12,7 +12,7 @@ from urllib.parse import urlsplit
 from typing import Annotated, Any, Literal
 
 import orjson
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 from .datasets import DEFAULT_IMAGE_WIDTH
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
@@ -151,6 +151,16 @@ class Settings(BaseSettings):
         if isinstance(value, (str, os.PathLike)):
             return [os.fspath(value)]
         return [os.fspath(item) for item in value] if isinstance(value, (list, tuple)) else value
+
+    @field_validator(*SECRETS)
+    @classmethod
+    def _not_empty(cls, value: str | None, info: ValidationInfo) -> str | None:
+        """A token that is set holds something: an empty one would open viewing but close ingest to everyone."""
+        if value is not None and not value.strip():
+            raise ValueError(
+                f"is empty (XVIZ_{str(info.field_name).upper()}= or a blank flag): give a token, or leave it unset for none"
+            )
+        return value
 
     @model_validator(mode="before")
     @classmethod
