@@ -15,7 +15,9 @@
 // server compressed them, and their size), the canvas box in the screenshot, the stream list's
 // text, the error banners, the page errors and console errors, the catalog's text
 // when one was shown, the requests to hosts other than this machine (each refused:
-// the tests use no network), and after a seek what the playback control shows.
+// the tests use no network), after a seek what the playback control shows, the
+// page's address at the end, the URLs of its WebSockets, and what its
+// Content-Security-Policy refused.
 // Each run launches a browser with a fresh profile of its own (playwright's).
 //
 // The canvas is screenshotted (which makes the browser composite a frame, and on a
@@ -80,11 +82,18 @@ try {
   // Count the messages the page's WebSockets receive from inside the page: playwright's
   // own WebSocket events would copy every frame's payload to this process.
   await page.addInitScript(() => {
+    // Whatever the page's Content-Security-Policy refused, as the browser reports it to the page.
+    window.__cspViolations = [];
+    document.addEventListener('securitypolicyviolation', event =>
+      window.__cspViolations.push(`${event.effectiveDirective} refused ${event.blockedURI || 'inline'} (${event.sourceFile}:${event.lineNumber})`)
+    );
     window.__xvizMessages = {count: 0, first: null};
     const NativeWebSocket = window.WebSocket;
+    window.__xvizSocketUrls = [];
     window.WebSocket = class extends NativeWebSocket {
       constructor(...args) {
         super(...args);
+        window.__xvizSocketUrls.push(String(args[0]));
         this.addEventListener('message', () => {
           window.__xvizMessages.count++;
           window.__xvizMessages.first = window.__xvizMessages.first ?? performance.timeOrigin + performance.now();
@@ -154,6 +163,8 @@ try {
   report.streamsText = (await streams.count()) > 0 ? await streams.innerText() : '';
   report.canvasBox = (await page.locator(CANVAS).count()) > 0 ? await page.locator(CANVAS).boundingBox() : null;
   report.url = page.url();
+  report.cspViolations = await page.evaluate(() => window.__cspViolations);
+  report.socketUrls = await page.evaluate(() => window.__xvizSocketUrls);
   if (options.screenshot) {
     await page.screenshot({path: options.screenshot});
   }

@@ -29,7 +29,7 @@ from PIL import Image
 from helpers import metadata, metric, running_server, ten_hz, write_demo, write_log
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
-from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, ViewerPage, accepted_encodings
+from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, STYLE_HASHES, ViewerPage, accepted_encodings
 
 pytestmark = pytest.mark.slow
 
@@ -42,9 +42,9 @@ ASSET = "viewer-ABC123.js"
 SCRIPT = b"console.log('the viewer');\n" * 50
 
 
-def get(server: XVIZServer, path: str, **headers: str) -> tuple[int, dict[str, str], bytes]:
-    """A plain HTTP GET to the server: status, headers, body (as sent, not decoded)."""
-    request = urllib.request.Request(f"http://127.0.0.1:{server.port}{path}", headers=headers)
+def get(server: XVIZServer, path: str, method: str = "GET", **headers: str) -> tuple[int, dict[str, str], bytes]:
+    """A plain HTTP GET (or ``method``) to the server: status, headers, body (as sent, not decoded)."""
+    request = urllib.request.Request(f"http://127.0.0.1:{server.port}{path}", headers=headers, method=method)
     try:
         with urllib.request.urlopen(request, timeout=10) as response:
             return response.status, dict(response.headers), response.read()
@@ -75,6 +75,42 @@ async def test_a_browser_gets_the_page_and_other_clients_the_catalog(tmp_path: P
             status, headers, body = await asyncio.to_thread(get, server, path, Accept=accept)
             assert status == 200 and headers["Content-Type"] == "application/json", (path, accept)
             assert set(json.loads(body)) == {"server", "logs", "live"}
+
+
+def policy(headers: dict[str, str]) -> dict[str, list[str]]:
+    """A Content-Security-Policy header's directives and their sources."""
+    return {name: sources for name, *sources in (part.split() for part in headers["Content-Security-Policy"].split(";"))}
+
+
+async def test_the_page_and_every_answer_carry_the_security_headers(tmp_path: Path, bundle: Path):
+    async with running_server(tmp_path) as server:
+        server.viewer = ViewerPage(bundle, server.workers)
+        _, headers, _ = await asyncio.to_thread(get, server, "/", Accept="text/html")
+        directives = policy(headers)
+        assert directives["default-src"] == ["'none'"] and directives["script-src"] == ["'self'"]
+        assert directives["style-src"] == ["'self'", *STYLE_HASHES] and directives["frame-ancestors"] == ["'none'"]
+        assert "https://api.mapbox.com" in directives["connect-src"] and "'self'" in directives["connect-src"]
+        assert not [source for sources in directives.values() for source in sources if "unsafe" in source]
+        for path, accept in [("/", "text/html"), (f"/{ASSET}", "*/*"), ("/api/logs", "*/*"), ("/healthz", "*/*"), ("/nowhere", "*/*")]:
+            _, headers, _ = await asyncio.to_thread(get, server, path, Accept=accept)
+            assert headers["X-Content-Type-Options"] == "nosniff" and headers["Referrer-Policy"] == "strict-origin", path
+        # HEAD of the page: its headers, no body.
+        status, headers, body = await asyncio.to_thread(get, server, "/", method="HEAD", Accept="text/html")
+        assert status == 200 and body == b"" and policy(headers) == directives and int(headers["Content-Length"]) > 0
+    async with running_server(tmp_path, frame_ancestors=["https://ops.example", "'self'"]) as server:
+        _, headers, _ = await asyncio.to_thread(get, server, "/", Accept="text/html")
+        if (STATIC_DIR / "index.html").is_file():
+            assert policy(headers)["frame-ancestors"] == ["https://ops.example", "'self'"]
+
+
+@pytest.mark.parametrize("origin", ["https://ops.example; script-src *", "https://a.example https://b.example", "*", "javascript:"])
+def test_frame_ancestors_take_origins_only(origin: str):
+    from pydantic import ValidationError
+
+    from xviz_server.settings import Settings
+
+    with pytest.raises(ValidationError, match="is not 'self' or an origin"):
+        Settings(frame_ancestors=[origin])
 
 
 SETTINGS_ELEMENT = b'<script id="xviz-settings" type="application/json">%s</script>'
@@ -171,9 +207,12 @@ async def open_page(server: XVIZServer, path: str, screenshot: str, **options: A
 
 
 def assert_drawn_cleanly(report: dict[str, Any]) -> None:
-    """Frames came, the 3D view shows a picture, and nothing went wrong on the page."""
+    """Frames came, the 3D view shows a picture, and nothing went wrong on the page (nor did its
+    Content-Security-Policy refuse anything); the page's WebSocket URL carries only what it means to."""
     assert report["pageErrors"] == [] and report["consoleErrors"] == [] and report["alerts"] == []
     assert report["failedRequests"] == [] and report["externalRequests"] == []
+    assert report["cspViolations"] == []
+    assert report["socketUrls"] and not any("[object" in url or "bufferAfter" in url for url in report["socketUrls"]), report["socketUrls"]
     assert report["frames"] >= 3 and report["drawn"]
     box = report["canvasBox"]
     image = np.asarray(Image.open(report["screenshot"]).convert("L"), dtype=np.float32)
@@ -303,6 +342,8 @@ async def test_the_page_passes_the_viewer_token_on(tmp_path: Path):
         allowed = await open_page(server, "/?log=demo&token=s3cret", "token")
         refused = await open_page(server, "/?log=demo", "no-token", settle=0)
     assert_drawn_cleanly(allowed)
+    # The token is out of the address bar (and the history) once the page has it.
+    assert allowed["url"].endswith("/?log=demo") and "s3cret" not in allowed["url"]
     assert refused["frames"] == 0 and len(refused["alerts"]) == 1
     assert "401" in refused["alerts"][0] and "viewer token" in refused["alerts"][0]
 

@@ -56,7 +56,7 @@ from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
 from .store import data_roots
 from .tls import server_context
-from .viewer import STATIC_DIR, ViewerPage
+from .viewer import HEADERS, STATIC_DIR, ViewerPage
 from .work import Workers
 
 if TYPE_CHECKING:
@@ -115,7 +115,7 @@ class XVIZServer:
         #: The sessions running now.
         self.sessions: set[Connection] = set()
         #: The built-in viewer's page and assets.
-        self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token)
+        self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors)
 
     @property
     def port(self) -> int:
@@ -156,6 +156,7 @@ class XVIZServer:
                 ssl=tls,
                 origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
                 process_request=self._process_request,
+                process_response=_process_response,
                 compression="deflate" if self.settings.compression else None,
                 max_size=self.settings.max_message_kb * 1024,
                 ping_interval=min(20.0, self.settings.idle_timeout),
@@ -281,6 +282,12 @@ class XVIZServer:
             return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
         return None
 
+
+
+def _process_response(connection: ServerConnection, request: Request, response: Response) -> None:
+    """Every HTTP answer carries the viewer's :data:`~xviz_server.viewer.HEADERS`."""
+    if response.status_code != HTTPStatus.SWITCHING_PROTOCOLS:
+        response.headers.update(HEADERS)
 
 
 def _broker(settings: Settings, live: LiveRegistry, metrics: Metrics, workers: Workers) -> Broker:

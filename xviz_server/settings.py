@@ -7,6 +7,7 @@ The configuration file is TOML with the settings' names as keys
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from urllib.parse import urlsplit
 from typing import Annotated, Any, Literal
@@ -20,6 +21,9 @@ from .exceptions import ConfigError
 from .logfmt import redact_password
 
 __all__ = ["SECRETS", "Settings", "load_settings"]
+
+#: What --frame-ancestors takes: 'self', or an origin (a host may start with ``*.``).
+_FRAME_ANCESTOR = re.compile(r"'self'|https?://(\*\.)?[A-Za-z0-9-]+(\.[A-Za-z0-9-]+)*(:\d{1,5})?")
 
 #: The settings that are secrets: never printed or logged.
 SECRETS = ("ingest_token", "viewer_token", "map_token")
@@ -133,6 +137,11 @@ class Settings(BaseSettings):
         default=10, gt=0, description="a feed whose replica stops renewing it for this long leaves other replicas, s"
     )
     broker_max_mb: float = Field(default=32, gt=0, description="most bytes of updates kept in the broker per feed, MB")
+    frame_ancestors: list[str] = Field(
+        default_factory=list,
+        description="origins whose pages may show the viewer page in a frame, e.g. https://ops.example.com, or 'self'; "
+        "repeat for more (default: none, the page is never framed)",
+    )
     allowed_origins: list[str] = Field(
         default_factory=list,
         description="browser origins allowed to connect, e.g. https://viewer.example.com; repeat for more "
@@ -160,6 +169,15 @@ class Settings(BaseSettings):
             raise ValueError(
                 f"is empty (XVIZ_{str(info.field_name).upper()}= or a blank flag): give a token, or leave it unset for none"
             )
+        return value
+
+    @field_validator("frame_ancestors")
+    @classmethod
+    def _frame_ancestors(cls, value: list[str]) -> list[str]:
+        """Sources of a Content-Security-Policy: nothing that could end the directive or add another."""
+        for origin in value:
+            if not _FRAME_ANCESTOR.fullmatch(origin):
+                raise ValueError(f"{origin!r} is not 'self' or an origin like https://ops.example.com")
         return value
 
     @model_validator(mode="before")

@@ -14,12 +14,18 @@ brotli (``.br``) copy. :class:`ViewerPage` answers:
   as the client's ``Accept-Encoding`` allows.
 
 The page connects its WebSocket to the same host and port, like any viewer.
+It is sent with a Content-Security-Policy (:func:`content_security_policy`):
+scripts, styles and fonts of the bundle only (no inline script, no eval),
+connections to this server and to the base map's origins
+(:data:`MAP_ORIGINS`), and no framing but by the origins the operator
+allows. Every HTTP answer of the server carries :data:`HEADERS`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Sequence
 from http import HTTPStatus
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -31,7 +37,7 @@ from websockets.http11 import Request, Response
 from .auth import token_matches
 from .work import Workers
 
-__all__ = ["STATIC_DIR", "ViewerPage", "wants_html"]
+__all__ = ["STATIC_DIR", "HEADERS", "MAP_ORIGINS", "ViewerPage", "content_security_policy", "wants_html"]
 
 #: Where ``scripts/build-viewer.sh`` writes the bundle.
 STATIC_DIR = Path(__file__).with_name("viewer_static")
@@ -55,7 +61,46 @@ ENCODINGS = (("br", ".br"), ("gzip", ".gz"))
 #: Where ``index.html`` takes the page's settings: a JSON script element the page reads.
 SETTINGS_SLOT = b"<!--settings-->"
 
+#: The origins the base map (mapbox-gl, with a map token) loads its style, tiles, sprites and glyphs from,
+#: and reports to: those Mapbox documents for a Content-Security-Policy.
+MAP_ORIGINS = ("https://api.mapbox.com", "https://*.tiles.mapbox.com", "https://events.mapbox.com")
+
+#: The inline styles the bundle's libraries insert, by the hash of their text (``style-src``): the empty
+#: ``<style>`` element emotion fills through the CSSOM (which no policy restricts), and the rules of
+#: react-virtualized's AutoSizer (``detectElementResize``), which sizes the 3D view. A library that changes
+#: them is refused by the browser, and the browser tests say so.
+STYLE_HASHES = ("'sha256-47DEQpj8HBSa+/TImW+5JCeuQeRkm5NMpJWZG3hSuFU='", "'sha256-deDIoPlRijnpfbTDYsK+8JmDfUBmpwpnb0L/SUV8NeU='")
+
+#: Headers of every HTTP answer: no guessing of content types (a JSON catalog is never run as a script),
+#: and no page address (the viewer token, on the page's first load) sent to other origins.
+HEADERS = {"X-Content-Type-Options": "nosniff", "Referrer-Policy": "strict-origin"}
+
 NOT_BUILT = "the viewer is not built: run scripts/build-viewer.sh (needs node and npm), or open /api/logs for the catalog\n"
+
+
+def content_security_policy(frame_ancestors: Sequence[str] = ()) -> str:
+    """The viewer page's Content-Security-Policy; ``frame_ancestors``: the origins that may show it in a frame
+    (none by default).
+
+    mapbox-gl runs its workers from ``blob:`` URLs and draws images it
+    fetched (``blob:``, ``data:``); the bundle's styles are its CSS file and
+    the few inline ones of :data:`STYLE_HASHES` (React sets element styles
+    through the DOM, which no policy restricts).
+    """
+    maps, ancestors = " ".join(MAP_ORIGINS), " ".join(frame_ancestors) or "'none'"
+    return "; ".join([
+        "default-src 'none'",
+        "script-src 'self'",
+        f"style-src 'self' {' '.join(STYLE_HASHES)}",
+        f"img-src 'self' data: blob: {maps}",
+        "font-src 'self' data:",
+        f"connect-src 'self' {maps}",
+        "worker-src blob:",
+        "child-src blob:",
+        "base-uri 'none'",
+        "form-action 'none'",
+        f"frame-ancestors {ancestors}",
+    ])
 
 
 def wants_html(request: Request) -> bool:
@@ -82,15 +127,18 @@ class ViewerPage:
 
     ``map_token`` (a Mapbox access token) is handed to the page, which then
     draws a base map; with a ``viewer_token``, only to requests that give it.
+    ``frame_ancestors``: the origins that may show the page in a frame.
     """
 
     def __init__(
-        self, directory: Path, workers: Workers, map_token: str | None = None, viewer_token: str | None = None
+        self, directory: Path, workers: Workers, map_token: str | None = None, viewer_token: str | None = None,
+        frame_ancestors: Sequence[str] = (),
     ) -> None:
         self.directory = directory
         self.workers = workers
         self.map_token = map_token
         self.viewer_token = viewer_token
+        self.policy = content_security_policy(frame_ancestors)
 
     def page_settings(self, request: Request) -> dict[str, str]:
         """What the page is told: ``mapToken`` when there is one and the request may have it."""
@@ -108,7 +156,7 @@ class ViewerPage:
             if index is None:
                 return _respond(connection, HTTPStatus.NOT_FOUND, NOT_BUILT.encode(), "text/plain; charset=utf-8", {})
             page = index.replace(SETTINGS_SLOT, _settings_element(self.page_settings(request)))
-            headers = {"Cache-Control": "no-cache", "Vary": "Accept"}
+            headers = {"Cache-Control": "no-cache", "Vary": "Accept", "Content-Security-Policy": self.policy}
             return _respond(connection, HTTPStatus.OK, page, CONTENT_TYPES["html"], headers)
         match = ASSET.fullmatch(path)
         if match is None:

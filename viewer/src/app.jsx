@@ -2,14 +2,14 @@ import React from 'react';
 import Catalog from './catalog';
 import ErrorBanner from './error-banner';
 import Viewer from './viewer';
-import {fetchCatalog, pageParams, pageUrl} from './page';
+import {fetchCatalog, pageParams, pageToken, pageUrl} from './page';
 import {markOnce} from './timing';
 
 /** The catalog, or the log the page's URL names. */
 export default class App extends React.Component {
   constructor(props) {
     super(props);
-    this.state = {...pageParams(), catalog: null, error: null};
+    this.state = {...pageParams(), token: pageToken(), catalog: null, error: null};
   }
 
   componentDidMount() {
@@ -30,7 +30,7 @@ export default class App extends React.Component {
   _onPopState = () => this.setState({log: pageParams().log});
 
   _open = log => {
-    window.history.pushState(null, '', pageUrl(log, this.state.token));
+    window.history.pushState(null, '', pageUrl(log));
     this.setState({log});
   };
 

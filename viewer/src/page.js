@@ -7,23 +7,43 @@ function serverSettings() {
   return element ? JSON.parse(element.textContent) : {};
 }
 
-export function pageParams() {
+// Where the viewer token is kept once it is out of the address bar: this tab's session storage.
+const TOKEN_KEY = 'xviz-server:viewer-token';
+
+/**
+ * The viewer token. One in the page's URL (`?token=`) is moved out of it at once, so that
+ * the address bar, the history and a shared link do not show it, into this tab's session
+ * storage, where a reload finds it.
+ */
+export function pageToken() {
   const query = new URLSearchParams(window.location.search);
+  const token = query.get('token');
+  try {
+    if (token === null) {
+      return window.sessionStorage.getItem(TOKEN_KEY);
+    }
+    window.sessionStorage.setItem(TOKEN_KEY, token);
+  } catch (error) {
+    // Storage refused (a private mode, a policy): the token serves this page until it is left.
+  }
+  query.delete('token');
+  const rest = query.toString();
+  window.history.replaceState(window.history.state, '', `${window.location.pathname}${rest ? `?${rest}` : ''}`);
+  return token;
+}
+
+export function pageParams() {
   return {
-    log: query.get('log'),
-    token: query.get('token'),
+    log: new URLSearchParams(window.location.search).get('log'),
     mapToken: serverSettings().mapToken || ''
   };
 }
 
-/** The page's URL that opens `log` (or the list, for null), keeping the viewer token. */
-export function pageUrl(log, token) {
+/** The page's URL that opens `log` (or the list, for null). */
+export function pageUrl(log) {
   const query = new URLSearchParams();
   if (log) {
     query.set('log', log);
-  }
-  if (token) {
-    query.set('token', token);
   }
   const text = query.toString();
   return text ? `?${text}` : window.location.pathname;
@@ -37,10 +57,10 @@ export function serverUrl() {
 
 /** The catalog of logs and live feeds, from the server's JSON API. */
 export async function fetchCatalog(token) {
-  const url = token ? `/api/logs?token=${encodeURIComponent(token)}` : '/api/logs';
+  const headers = token ? {Accept: 'application/json', Authorization: `Bearer ${token}`} : {Accept: 'application/json'};
   let response;
   try {
-    response = await fetch(url, {headers: {Accept: 'application/json'}});
+    response = await fetch('/api/logs', {headers});
   } catch (error) {
     throw new Error(`the server does not answer (${error.message})`);
   }

@@ -102,14 +102,15 @@ class Requests {
  * A seek to a time not loaded yet first asks for the complete state at that time (one
  * message, drawn as soon as it comes), then, once it came, for the frames around it as
  * XVIZStreamLoader does. The log's first frame is such a seek. Its buffer (the frames
- * around it) is asked for once `options.bufferAfter` (a promise) resolves: the page
- * passes the first frame's drawing, which the buffer's messages, parsed on the page's
- * thread, would otherwise delay. Without that option, it is asked for at once.
+ * around it) is asked for once `bufferAfter` (a promise) resolves: the page passes the
+ * first frame's drawing, which the buffer's messages, parsed on the page's thread, would
+ * otherwise delay. Without it, it is asked for at once. (Not an option: XVIZStreamLoader
+ * puts the options it does not know in the WebSocket's URL.)
  */
 export default class ServerLoader extends XVIZStreamLoader {
-  constructor(options) {
+  constructor(options, bufferAfter = null) {
     super(options);
-    const gate = options.bufferAfter || null;
+    const gate = bufferAfter;
     // XVIZLoaderInterface makes a new frame for every message that arrives; while the current
     // time's data stay the same (the buffer filling up around it), the frame drawn stays.
     const currentFrame = this.getCurrentFrame;

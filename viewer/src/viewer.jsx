@@ -58,10 +58,10 @@ function createLoader({name, live, token, onClose, drawn}) {
     // Messages are parsed on the page's thread: a worker would first have to start and load
     // its own copy of the parser, which costs more than the first frames' parse.
     worker: false,
-    WebSocketClass: watchedSocket(onClose),
-    bufferAfter: drawn
+    WebSocketClass: watchedSocket(onClose)
   };
-  return live ? new XVIZLiveLoader(options) : new ServerLoader(options);
+  // Every other option would be put in the WebSocket's URL: the first drawing is ServerLoader's own.
+  return live ? new XVIZLiveLoader(options) : new ServerLoader(options, drawn);
 }
 
 /**
