@@ -20,7 +20,9 @@ it and returns it as GLB bytes, or raises
   re-encode.
 
 It is a pure function of bytes to bytes, for a worker process when the
-message is large JSON.
+message is large JSON. :func:`check` makes the same checks of a message
+decoded already. Entries read from the broker between replicas pass them
+too (:mod:`xviz_server.live.mirror`).
 """
 
 from __future__ import annotations

@@ -1,14 +1,14 @@
 """The XVIZ server: WebSocket sessions and a few HTTP endpoints on one port.
 
-Only GET is served (see :mod:`xviz_server.gate`); HTTP requests that are not
-WebSocket handshakes get:
+GET and HEAD are served (see :mod:`xviz_server.gate`); HTTP requests that are
+not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer.HEADERS`:
 
 * ``GET /`` from a browser: the viewer page (see :mod:`xviz_server.viewer`);
 * ``GET /api/logs`` (or ``/logs``, or ``/`` from any other client): the
   catalog, JSON: every log with its format, frame count, time range and
   stream names, and the live feeds;
 * ``GET /healthz``: ``ok`` (then, with ``--broker``, a line on the broker's
-  state), or HTTP 503 saying what is broken (a worker process pool that lost
+  state, and one for each reader of a feed that keeps failing), or HTTP 503 saying what is broken (a worker process pool that lost
   a process and is not yet replaced);
 * ``GET /metrics``: the metrics in Prometheus text format.
 
