@@ -204,7 +204,7 @@ class Mirror:
                     continue
                 delay = RETRY
                 if self._failures:
-                    logger.info("live feed %r: reading it from the broker again after %d failures", self.feed.name, self._failures)
+                    logger.info("live feed %r: reading it from the broker again (it failed %d times before)", self.feed.name, self._failures)
                     self._failures = 0
                 for entry_id, fields in _entries(answer):
                     self._last = entry_id  # an entry the reader fails on is not read again
