@@ -295,6 +295,7 @@ async def test_with_a_map_token_the_page_asks_for_the_base_map(tmp_path: Path, k
     assert report["externalRequests"] and all("api.mapbox.com" in url for url in report["externalRequests"])
     assert any("access_token=pk.test-token" in url for url in report["externalRequests"])
     assert report["pageErrors"] == [] and report["drawn"]
+    assert report["cspViolations"] == []  # the map's origins are the policy's
 
 
 @browser
