@@ -6,6 +6,7 @@
 // first); frames (WebSocket frames to wait for, default 3); timeout (ms, default
 // 30000); settle (ms to wait before the report, default 1000); viewport ({width,
 // height}, default 1280x800); draw (false: only load the page, wait for nothing);
+// reload (true: reload the page once its address holds no token, then go on);
 // seek (once drawn, click the timeline at this fraction of its width, then wait for
 // the next message and for the 3D view to show a changed picture).
 // Prints one JSON object: frames received over the page's WebSockets, whether and
@@ -111,6 +112,11 @@ try {
     return {takenMs, stddev: (await page.evaluate(pixelStats, [png.toString('base64')])).stddev};
   };
   await page.goto(options.url);
+  if (options.reload) {
+    // Once the page took what it needs from its address (the viewer token), as a person pressing F5.
+    await page.waitForFunction(() => !window.location.search.includes('token='), null, {timeout: options.timeout});
+    await page.reload();
+  }
   report.loadedMs = Date.now() - start;
   if (options.click) {
     const link = page.locator(`tr.log[data-log="${options.click}"] a`);

@@ -341,10 +341,13 @@ async def test_the_page_passes_the_viewer_token_on(tmp_path: Path):
     write_demo(tmp_path / "demo", duration=1.0)
     async with running_server(tmp_path, viewer_token="s3cret") as server:
         allowed = await open_page(server, "/?log=demo&token=s3cret", "token")
+        reloaded = await open_page(server, "/?log=demo&token=s3cret", "token-reloaded", reload=True)
         refused = await open_page(server, "/?log=demo", "no-token", settle=0)
     assert_drawn_cleanly(allowed)
-    # The token is out of the address bar (and the history) once the page has it.
+    # The token is out of the address bar (and the history) once the page has it; a reload finds it in the tab.
     assert allowed["url"].endswith("/?log=demo") and "s3cret" not in allowed["url"]
+    assert_drawn_cleanly(reloaded)
+    assert reloaded["url"].endswith("/?log=demo")
     assert refused["frames"] == 0 and len(refused["alerts"]) == 1
     assert "401" in refused["alerts"][0] and "viewer token" in refused["alerts"][0]
 
