@@ -8,8 +8,9 @@ not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer
   catalog, JSON: every log with its format, frame count, time range and
   stream names, and the live feeds;
 * ``GET /healthz``: ``ok`` (then, with ``--broker``, a line on the broker's
-  state, and one for each reader of a feed that keeps failing), or HTTP 503 saying what is broken (a worker process pool that lost
-  a process and is not yet replaced);
+  state, and one for each reader of a feed that keeps failing), or HTTP 503
+  saying what is broken (a worker process pool that lost a process and is
+  not yet replaced);
 * ``GET /metrics``: the metrics in Prometheus text format.
 
 A WebSocket connection on ``/ingest/<name>`` is a live source feeding the

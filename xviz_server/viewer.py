@@ -37,7 +37,7 @@ from websockets.http11 import Request, Response
 from .auth import token_matches
 from .work import Workers
 
-__all__ = ["STATIC_DIR", "HEADERS", "MAP_ORIGINS", "ViewerPage", "content_security_policy", "wants_html"]
+__all__ = ["STATIC_DIR", "HEADERS", "MAP_ORIGINS", "STYLE_HASHES", "ViewerPage", "content_security_policy", "wants_html"]
 
 #: Where ``scripts/build-viewer.sh`` writes the bundle.
 STATIC_DIR = Path(__file__).with_name("viewer_static")
