@@ -296,6 +296,11 @@ async def test_with_a_map_token_the_page_asks_for_the_base_map(tmp_path: Path, k
     assert any("access_token=pk.test-token" in url for url in report["externalRequests"])
     assert report["pageErrors"] == [] and report["drawn"]
     assert report["cspViolations"] == []  # the map's origins are the policy's
+    # With a viewer token, a reloaded page (its address holds the token no more) still draws the base map.
+    async with running_server(tmp_path, map_token="pk.test-token", viewer_token="s3cret") as server:
+        reloaded = await open_page(server, f"/?log={kitti_log.name}&token=s3cret", "map-reloaded", reload=True, settle=3000)
+    assert reloaded["drawn"] and reloaded["pageErrors"] == [] and reloaded["cspViolations"] == []
+    assert any("access_token=pk.test-token" in url for url in reloaded["externalRequests"])
 
 
 @browser

@@ -7,8 +7,23 @@ function serverSettings() {
   return element ? JSON.parse(element.textContent) : {};
 }
 
-// Where the viewer token is kept once it is out of the address bar: this tab's session storage.
+// Where the viewer token is kept once it is out of the address bar, and the map token the server
+// gave with it: this tab's session storage.
 const TOKEN_KEY = 'xviz-server:viewer-token';
+const MAP_TOKEN_KEY = 'xviz-server:map-token';
+
+/** `key`'s value in this tab's session storage after storing `value` there (if given). */
+function kept(key, value) {
+  try {
+    if (value === null) {
+      return window.sessionStorage.getItem(key);
+    }
+    window.sessionStorage.setItem(key, value);
+  } catch (error) {
+    // Storage refused (a private mode, a policy): the value serves this page until it is left.
+  }
+  return value;
+}
 
 /**
  * The viewer token. One in the page's URL (`?token=`) is moved out of it at once, so that
@@ -18,24 +33,22 @@ const TOKEN_KEY = 'xviz-server:viewer-token';
 export function pageToken() {
   const query = new URLSearchParams(window.location.search);
   const token = query.get('token');
-  try {
-    if (token === null) {
-      return window.sessionStorage.getItem(TOKEN_KEY);
-    }
-    window.sessionStorage.setItem(TOKEN_KEY, token);
-  } catch (error) {
-    // Storage refused (a private mode, a policy): the token serves this page until it is left.
+  if (token !== null) {
+    query.delete('token');
+    const rest = query.toString();
+    window.history.replaceState(window.history.state, '', `${window.location.pathname}${rest ? `?${rest}` : ''}`);
   }
-  query.delete('token');
-  const rest = query.toString();
-  window.history.replaceState(window.history.state, '', `${window.location.pathname}${rest ? `?${rest}` : ''}`);
-  return token;
+  return kept(TOKEN_KEY, token);
 }
 
+/**
+ * The page's log, and the map token: the server gives it to a page loaded with the viewer
+ * token, which a reloaded page no longer has in its address, so it is kept with the token.
+ */
 export function pageParams() {
   return {
     log: new URLSearchParams(window.location.search).get('log'),
-    mapToken: serverSettings().mapToken || ''
+    mapToken: kept(MAP_TOKEN_KEY, serverSettings().mapToken || null) || ''
   };
 }
 
