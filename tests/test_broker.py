@@ -591,8 +591,8 @@ async def test_entries_that_ingest_would_refuse_are_skipped_and_the_feed_goes_on
             await there.count(len(updates))
             assert there.updates == here.updates == updates and not there.notices
             assert len(b.log("skipped entry")) == len(attacks)
-            assert await b.metric('xviz_broker_dropped_updates_total{reason="garbage"}') == len(attacks)
-            assert await b.metric('xviz_broker_dropped_updates_total{reason="gap"}') == 0
+            assert await b.metric("xviz_broker_dropped_updates_total", reason="garbage") == len(attacks)
+            assert await b.metric("xviz_broker_dropped_updates_total", reason="gap") == 0
             assert await b.metric("xviz_broker_reader_restarts_total") == 0
             await client.aclose()
             for viewer in (here, there):
