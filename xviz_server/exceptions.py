@@ -28,6 +28,7 @@ __all__ = [
     "DependencyError",
     "StoreError",
     "BrokerError",
+    "FoxgloveProtocolError",
 ]
 
 
@@ -198,3 +199,7 @@ def _rebuild_store_error(message: str, key: str) -> StoreError:
 
 class BrokerError(XVIZError):
     """An entry read from the broker (Redis) between replicas is not one that xviz-server writes."""
+
+
+class FoxgloveProtocolError(XVIZError):
+    """A Foxglove client sent a message that the Foxglove WebSocket protocol does not allow."""

@@ -17,7 +17,7 @@ import os
 import stat
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from . import frames
 from .cache import FrameCache
@@ -159,6 +159,24 @@ class Log:
             if detect_format(data) is fmt:
                 return data
         return await self._cache.get((self._key, number, fmt, streams), lambda: self._render(number, fmt, streams))
+
+    async def derived(self, number: int, name: str, job: Callable[..., bytes], *args: Any) -> bytes:
+        """Frame ``number`` made into something else by ``job(data, *args)``, made once and kept in the frame cache.
+
+        ``name`` tells what ``job`` makes (frames of one log made by the same
+        ``name`` are the same bytes); ``job`` runs where a frame job of that
+        size runs (:func:`~xviz_server.frames.placement`). Raises
+        :class:`~xviz_server.exceptions.FrameError` naming the frame.
+        """
+
+        async def make() -> bytes:
+            data = await self._checked(number)
+            try:
+                return await self._workers.run(frames.placement(len(data), detect_format(data)), job, data, *args)
+            except DecodeError as exc:
+                raise self._corrupt(number, exc) from None
+
+        return await self._cache.get((self._key, number, name), make)
 
     async def preload(self) -> int:
         """Load every frame into the frame cache, in frame order, one at a time; how many were read.

@@ -15,7 +15,9 @@ not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer
 
 A WebSocket connection on ``/ingest/<name>`` is a live source feeding the
 live feed ``<name>`` (see :mod:`xviz_server.ingest`); on any other path it
-is an XVIZ session (the path may name the log). Beyond ``max_sessions``
+is a session (the path may name the log): a Foxglove session when the
+handshake offers one of :data:`~xviz_server.foxglove.wire.SUBPROTOCOLS`
+(the first of them it offers is chosen), else an XVIZ session. Beyond ``max_sessions``
 open sessions, handshakes are refused with HTTP 503.
 """
 
@@ -31,13 +33,14 @@ import os
 import signal
 from http import HTTPStatus
 from pathlib import Path
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
 import orjson
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
-from websockets.typing import Origin
+from websockets.typing import Origin, Subprotocol
 
 from . import __version__
 from .auth import feed_name, ingest_refusal, token_matches
@@ -46,6 +49,8 @@ from .layout import LOG
 from .connection import Connection
 from .datasets import GENERATED, KINDS, dataset_options
 from .exceptions import ConfigError, LogError
+from .foxglove.connection import FoxgloveConnection
+from .foxglove.wire import SUBPROTOCOLS
 from .framing import FramingConnection
 from .gate import GatedConnection
 from .live import LiveRegistry
@@ -114,7 +119,7 @@ class XVIZServer:
         if settings.broker is not None:
             self.broker = _broker(settings, self.live, self.metrics, self.workers)
         #: The sessions running now.
-        self.sessions: set[Connection] = set()
+        self.sessions: set[Connection | FoxgloveConnection] = set()
         #: The built-in viewer's page and assets.
         self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors)
 
@@ -158,6 +163,7 @@ class XVIZServer:
                 origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
                 process_request=self._process_request,
                 process_response=_process_response,
+                select_subprotocol=_select_subprotocol,
                 compression="deflate" if self.settings.compression else None,
                 max_size=self.settings.max_message_kb * 1024,
                 ping_interval=min(20.0, self.settings.idle_timeout),
@@ -230,7 +236,11 @@ class XVIZServer:
         if feed_name(websocket.request.path) is not None:
             await run_ingest(websocket, self.live, self.workers, self.settings, self.metrics)
             return
-        connection = Connection(websocket, self.catalog, self.live, self.metrics, self.settings)
+        connection: Connection | FoxgloveConnection
+        if websocket.subprotocol in SUBPROTOCOLS:
+            connection = FoxgloveConnection(websocket, self.catalog, self.metrics, self.settings)
+        else:
+            connection = Connection(websocket, self.catalog, self.live, self.metrics, self.settings)
         self.sessions.add(connection)
         try:
             await connection.run()
@@ -325,6 +335,11 @@ def parse_dataset(text: str) -> tuple[str, Path, dict[str, str]]:
         raise ValueError(f"--dataset {text!r}: {kind} takes no option {', '.join(unknown)}; it takes: "
                          f"{', '.join(sorted(dataset_options(kind))) or 'none'}")
     return kind, Path(path), options
+
+
+def _select_subprotocol(connection: ServerConnection, subprotocols: Sequence[Subprotocol]) -> Subprotocol | None:
+    """The first Foxglove subprotocol the client offers; none (an XVIZ session) if it offers none."""
+    return next((offered for offered in subprotocols if offered in SUBPROTOCOLS), None)
 
 
 def _response(connection: ServerConnection, status: HTTPStatus, body: bytes, content_type: str) -> Response:

@@ -1,0 +1,195 @@
+"""The asyncio side of a Foxglove session: carry out what :class:`~xviz_server.foxglove.session.FoxgloveSession` decides.
+
+One :class:`FoxgloveConnection` per WebSocket connection that chose a
+Foxglove subprotocol. It reads the client's messages into the session,
+opens the log the session names, and runs this connection's player: the
+log's frames from a time on, paced at the session's speed, each frame's
+Foxglove messages (converted once per frame and kept in the frame cache,
+see :meth:`~xviz_server.logs.Log.derived`) sent to the subscriptions that
+want them, then a ``time`` message. ``send`` waits while the socket's
+write buffer is full, so a client that reads slowly slows its own playback
+and nobody else's.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from dataclasses import dataclass
+from functools import cached_property
+from urllib.parse import parse_qsl, unquote, urlsplit
+
+from websockets.asyncio.server import ServerConnection
+from websockets.exceptions import ConnectionClosed
+
+from ..exceptions import XVIZError
+from ..flow import watch_progress
+from ..logfmt import log_event, redact_url
+from ..logs import Catalog, Log
+from ..metrics import Metrics
+from ..session import OpenLog, Send
+from ..settings import Settings
+from .. import __version__
+from .convert import Channel, Plan, convert, nanoseconds, plan, unpack
+from .session import Event, FoxgloveSession, Play, Stop
+from .wire import message_header, time_message
+
+__all__ = ["FoxgloveConnection"]
+
+logger = logging.getLogger("xviz_server.session")
+
+#: The frame cache's name for a frame's Foxglove messages (see :meth:`~xviz_server.logs.Log.derived`).
+CONVERTED = "foxglove"
+
+
+@dataclass
+class _OpenLog:
+    """A log with its Foxglove channels, as the session sees it."""
+
+    log: Log
+
+    @property
+    def name(self) -> str:
+        return self.log.name
+
+    @cached_property
+    def plan(self) -> Plan:
+        return plan(self.log.metadata)
+
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        return self.plan.channels
+
+    @property
+    def start_time(self) -> int:
+        return nanoseconds(self.log.index.start_time or 0.0)
+
+    @property
+    def end_time(self) -> int:
+        return nanoseconds(self.log.index.end_time or self.log.index.start_time or 0.0)
+
+
+class FoxgloveConnection:
+    """One WebSocket connection speaking the Foxglove protocol, with its own playback of one log."""
+
+    def __init__(self, websocket: ServerConnection, catalog: Catalog, metrics: Metrics, settings: Settings) -> None:
+        self.websocket = websocket
+        self.catalog = catalog
+        self.metrics = metrics
+        self.settings = settings
+        self.path = websocket.request.path if websocket.request else "/"
+        url = urlsplit(self.path)
+        self.session = FoxgloveSession(
+            path=unquote(url.path),
+            query=dict(parse_qsl(url.query, keep_blank_values=True)),
+            available=catalog.names(),
+            server_name=f"xviz-server {__version__}",
+        )
+        self._log: _OpenLog | None = None
+        self._player: asyncio.Task[None] | None = None
+        self._watch: asyncio.Task[None] | None = None
+        self.messages_sent = 0
+        self.bytes_sent = 0
+
+    async def run(self) -> None:
+        """Serve the session until the client goes away or the server shuts down."""
+        started = time.monotonic()
+        self.metrics.sessions.inc()
+        self.metrics.sessions_open.inc()
+        remote = _remote(self.websocket)
+        log_event(logger, "session start", remote=remote, path=redact_url(self.path), protocol=self.websocket.subprotocol)
+        self._watch = asyncio.ensure_future(watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
+        try:
+            await self._execute(self.session.connect())
+            async for message in self.websocket:
+                await self._execute(self.session.receive(message))
+        except ConnectionClosed:
+            pass
+        finally:
+            for task in (self._player, self._watch):
+                if task is not None:
+                    task.cancel()
+            await asyncio.gather(*(t for t in (self._player, self._watch) if t is not None), return_exceptions=True)
+            self.metrics.sessions_open.dec()
+            code, reason = self.websocket.close_code, self.websocket.close_reason
+            reason = f"{code} {reason}".strip() if code is not None else "connection lost"
+            log_event(logger, "session end", remote=remote, log=self._log.name if self._log else None, format="foxglove",
+                      messages=self.messages_sent, bytes=self.bytes_sent, duration=round(time.monotonic() - started, 3), reason=reason)
+
+    async def _execute(self, events: list[Event]) -> None:
+        for event in events:
+            if isinstance(event, Send):
+                await self._write(event.data, event.text)
+                if event.error is not None:
+                    self.metrics.errors.labels(event.error).inc()
+                    log_event(logger, "error sent", remote=_remote(self.websocket), kind=event.error, message=event.message)
+            elif isinstance(event, OpenLog):
+                await self._open(event.name)
+            elif isinstance(event, Play):
+                await self._stop()
+                self._player = asyncio.ensure_future(self._play(event))
+            elif isinstance(event, Stop):
+                await self._stop()
+
+    async def _write(self, data: bytes, text: bool) -> None:
+        await self.websocket.send(data, text=text)
+        self.messages_sent += 1
+        self.bytes_sent += len(data)
+
+    async def _open(self, name: str) -> None:
+        try:
+            log = await self.catalog.open(name)
+        except XVIZError as exc:
+            await self._execute(self.session.log_failed(exc))
+            return
+        self._log = _OpenLog(log)
+        await self._execute(self.session.log_opened(self._log))
+
+    async def _stop(self) -> None:
+        if self._player is not None and self._player is not asyncio.current_task():
+            self._player.cancel()
+            await asyncio.gather(self._player, return_exceptions=True)
+        self._player = None
+
+    async def _play(self, request: Play) -> None:
+        """Send the log's frames from ``request.start`` on, at ``request.speed`` times real time."""
+        assert self._log is not None
+        log, index = self._log.log, self._log.log.index
+        start = request.start / 1e9
+        first = index.at(start) if request.seek else None  # a seek shows the state at its time at once
+        if first is None:
+            first = int(index.range(start).min(initial=len(index))) if len(index) else 0
+        loop = asyncio.get_running_loop()
+        clock, origin = loop.time(), start
+        try:
+            for position in range(first, len(index)):
+                at = float(index.start[position])
+                await asyncio.sleep(max(0.0, clock + (at - origin) / request.speed - loop.time()))
+                await self._send_frame(log, int(index.frames[position]))
+                self.session.reached(nanoseconds(at))
+                await self._write(time_message(nanoseconds(at)), text=False)
+                if request.once:
+                    return
+            await self._execute(self.session.ended())
+        except ConnectionClosed:
+            pass
+        except Exception as exc:
+            logger.exception("error playing log %r to %s", log.name, _remote(self.websocket), exc_info=exc)
+
+    async def _send_frame(self, log: Log, number: int) -> None:
+        assert self._log is not None
+        try:
+            packed = await log.derived(number, CONVERTED, convert, self._log.plan)
+        except XVIZError as exc:
+            await self._execute(self.session.frame_failed(exc))
+            return
+        for channel, stamp, payload in unpack(packed):
+            subscription = self.session.subscription(channel)
+            if subscription is not None:
+                await self._write(message_header(subscription, stamp) + payload, text=False)
+
+
+def _remote(websocket: ServerConnection) -> str:
+    address = websocket.remote_address
+    return f"{address[0]}:{address[1]}" if address else "?"

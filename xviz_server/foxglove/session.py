@@ -1,0 +1,274 @@
+"""The Foxglove protocol state of one connection, as a pure state machine (sans-I/O).
+
+Like :class:`xviz_server.session.Session`, a :class:`FoxgloveSession` takes
+what happened (the connection opened, a message came, the log opened, the
+player reached a time) and answers with events for the asyncio side to carry
+out. It owns every decision of the protocol: which log the URL names, what
+``serverInfo`` and ``advertise`` say, which subscription gets which channel,
+what a playback control request does, and the ``status`` message that
+answers anything wrong. Nothing it is sent closes the connection.
+
+Each connection has its own playback: a client that only subscribes gets the
+log from its start at real time, from its first subscription on; play,
+pause, seek and speed (``foxglove.sdk.v1``'s playback control request) change
+this connection's playback only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol, TypeGuard
+
+from ..exceptions import FoxgloveProtocolError, XVIZError
+from ..session import OpenLog, Send
+from .convert import Channel
+from .wire import (
+    CLIENT_MESSAGE_DATA, ENDED, PAUSED, PLAYBACK_CONTROL_REQUEST, PLAYING, SERVICE_CALL_REQUEST, PlaybackControl,
+    parse_playback_control, parse_text, playback_state, text,
+)
+
+__all__ = ["FoxgloveLog", "Play", "Stop", "FoxgloveSession", "CAPABILITIES", "MAX_SPEED"]
+
+#: What ``serverInfo`` says this server does.
+CAPABILITIES = ("time", "playbackControl")
+
+#: The fastest playback a client may ask for, as a factor of real time.
+MAX_SPEED = 100.0
+
+#: Client operations of the protocol that this server does not offer (their capability is not advertised).
+_UNOFFERED = frozenset({
+    "advertise", "unadvertise", "getParameters", "setParameters", "subscribeParameterUpdates",
+    "unsubscribeParameterUpdates", "subscribeConnectionGraph", "unsubscribeConnectionGraph", "fetchAsset",
+})
+
+_UINT32 = 1 << 32
+
+# Status levels.
+INFO, WARNING, ERROR = 0, 1, 2
+
+
+class FoxgloveLog(Protocol):
+    """What the session needs of an open log."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def channels(self) -> Sequence[Channel]: ...
+
+    @property
+    def start_time(self) -> int: ...  # nanoseconds
+
+    @property
+    def end_time(self) -> int: ...  # nanoseconds
+
+
+@dataclass(frozen=True)
+class Play:
+    """Play the log from ``start`` (nanoseconds) at ``speed`` times real time, replacing any playback."""
+
+    start: int
+    speed: float
+    #: The playback follows a seek: the frame at ``start`` is sent at once, even if it began before.
+    seek: bool = False
+    #: Send only that frame, then stop (a seek while paused).
+    once: bool = False
+
+
+@dataclass(frozen=True)
+class Stop:
+    """Stop playing."""
+
+
+Event = Send | OpenLog | Play | Stop
+
+
+@dataclass
+class FoxgloveSession:
+    """The protocol state of one Foxglove connection; ``query`` is its URL's query, ``available`` the logs."""
+
+    path: str
+    query: Mapping[str, str]
+    available: Sequence[str] = ()
+    server_name: str = "xviz-server"
+    log: FoxgloveLog | None = field(init=False, default=None)
+    #: Where playback is (nanoseconds), its speed, and whether it plays.
+    position: int = field(init=False, default=0)
+    speed: float = field(init=False, default=1.0)
+    playing: bool = field(init=False, default=False)
+    _started: bool = field(init=False, default=False)
+    _channels: dict[int, Channel] = field(init=False, default_factory=dict)
+    _subscriptions: dict[int, int] = field(init=False, default_factory=dict)  # subscription id -> channel id
+    _by_channel: dict[int, int] = field(init=False, default_factory=dict)  # channel id -> subscription id
+
+    # -- inputs -------------------------------------------------------------
+
+    def connect(self) -> list[Event]:
+        """The connection opened: open the log its URL names."""
+        if self.query.get("session_type", "").upper() == "LIVE":
+            return [self._server_info(), self._status(
+                ERROR, "live feeds are not served to Foxglove clients yet: connect with ?log=NAME for a recorded log",
+                kind="live",
+            )]
+        name = self.query.get("log") or self.query.get("logGuid") or self.path.strip("/") or None
+        if name is None:
+            if len(self.available) != 1:
+                shown = ", ".join(repr(n) for n in self.available[:20]) or "none"
+                return [self._server_info(), self._status(ERROR, f"no log named: add ?log=NAME to the URL; available: {shown}", kind="log")]
+            name = self.available[0]
+        return [OpenLog(name)]
+
+    def log_opened(self, log: FoxgloveLog) -> list[Event]:
+        """The log is open: say what the server offers, and advertise the log's channels."""
+        self.log = log
+        self.position = log.start_time
+        self._channels = {channel.id: channel for channel in log.channels}
+        advertise = text("advertise", channels=[channel.advertisement() for channel in log.channels])
+        return [self._server_info(), Send(advertise, text=True)]
+
+    def log_failed(self, error: XVIZError) -> list[Event]:
+        """The log cannot be served."""
+        return [self._server_info(), self._status(ERROR, str(error), kind="log")]
+
+    def receive(self, data: bytes | str) -> list[Event]:
+        """A message arrived from the client."""
+        try:
+            if isinstance(data, str):
+                return self._on_text(parse_text(data))
+            return self._on_binary(data)
+        except FoxgloveProtocolError as exc:
+            return [self._status(ERROR, str(exc), kind="invalid")]
+
+    def reached(self, time: int) -> None:
+        """The player sent the messages up to ``time`` (nanoseconds)."""
+        self.position = time
+
+    def ended(self) -> list[Event]:
+        """The player sent the log's last frame."""
+        self.playing = False
+        return [self._state(ENDED, False, None)]
+
+    def frame_failed(self, error: XVIZError) -> list[Event]:
+        """A frame could not be read or converted; playback goes on with the next."""
+        return [self._status(WARNING, str(error), kind="frame")]
+
+    def subscription(self, channel: int) -> int | None:
+        """The subscription that gets the messages of ``channel``, if any."""
+        return self._by_channel.get(channel)
+
+    # -- client messages ------------------------------------------------------
+
+    def _on_text(self, message: dict[str, Any]) -> list[Event]:
+        op = message["op"]
+        if op == "subscribe":
+            return self._on_subscribe(message.get("subscriptions"))
+        if op == "unsubscribe":
+            return self._on_unsubscribe(message.get("subscriptionIds"))
+        if op in _UNOFFERED:
+            raise FoxgloveProtocolError(f"{op!r} is not offered by this server (its capability is not in serverInfo)")
+        raise FoxgloveProtocolError(f"unknown op {op!r}")
+
+    def _on_binary(self, data: bytes) -> list[Event]:
+        if not data:
+            raise FoxgloveProtocolError("an empty binary message")
+        opcode = data[0]
+        if opcode == PLAYBACK_CONTROL_REQUEST:
+            return self._on_playback_control(parse_playback_control(data))
+        if opcode in (CLIENT_MESSAGE_DATA, SERVICE_CALL_REQUEST):
+            what = "client message data" if opcode == CLIENT_MESSAGE_DATA else "service call request"
+            raise FoxgloveProtocolError(f"{what} is not offered by this server (clientPublish and services are not in serverInfo)")
+        raise FoxgloveProtocolError(f"unknown binary opcode 0x{opcode:02x}")
+
+    def _on_subscribe(self, subscriptions: Any) -> list[Event]:
+        if not isinstance(subscriptions, list):
+            raise FoxgloveProtocolError("subscribe: 'subscriptions' must be a list of {id, channelId}")
+        events: list[Event] = []
+        for item in subscriptions:
+            sid = item.get("id") if isinstance(item, dict) else None
+            cid = item.get("channelId") if isinstance(item, dict) else None
+            if not _uint32(sid) or not _uint32(cid):
+                events.append(self._status(ERROR, f"subscribe: {item!r} is not {{id, channelId}} with unsigned 32-bit integers", kind="invalid"))
+            elif cid not in self._channels:
+                events.append(self._status(ERROR, f"subscribe: no channel {cid}{self._where()}", kind="invalid"))
+            elif sid in self._subscriptions:
+                events.append(self._status(ERROR, f"subscribe: subscription id {sid} is in use (channel {self._subscriptions[sid]})", kind="invalid"))
+            elif cid in self._by_channel:
+                events.append(self._status(ERROR, f"subscribe: channel {cid} is subscribed already (subscription {self._by_channel[cid]})", kind="invalid"))
+            else:
+                self._subscriptions[sid] = cid
+                self._by_channel[cid] = sid
+        if self._subscriptions and not self._started and self.log is not None:
+            self._started = self.playing = True
+            events.append(Play(self.position, self.speed))
+        return events
+
+    def _on_unsubscribe(self, ids: Any) -> list[Event]:
+        if not isinstance(ids, list):
+            raise FoxgloveProtocolError("unsubscribe: 'subscriptionIds' must be a list")
+        events: list[Event] = []
+        for sid in ids:
+            cid = self._subscriptions.pop(sid, None) if _uint32(sid) else None
+            if cid is None:
+                events.append(self._status(WARNING, f"unsubscribe: no subscription {sid!r}", kind="invalid"))
+            else:
+                del self._by_channel[cid]
+        return events
+
+    def _on_playback_control(self, request: PlaybackControl) -> list[Event]:
+        if self.log is None:
+            raise FoxgloveProtocolError(f"playback control request {request.request_id!r}: no log is open")
+        if not (math.isfinite(request.speed) and 0 < request.speed <= MAX_SPEED):
+            return [
+                self._status(ERROR, f"playback control request {request.request_id!r}: speed {request.speed} is not in (0, {MAX_SPEED}]", kind="invalid"),
+                self._state(PLAYING if self.playing else PAUSED, False, request.request_id),
+            ]
+        seek = request.seek
+        if seek is not None and not self.log.start_time <= seek <= self.log.end_time:
+            message = (f"playback control request {request.request_id!r}: seek to {seek} ns is outside the log "
+                       f"{self.log.name!r} ({self.log.start_time} to {self.log.end_time} ns)")
+            return [self._status(ERROR, message, kind="invalid"), self._state(PLAYING if self.playing else PAUSED, False, request.request_id)]
+        if seek is not None:
+            self.position = seek
+        changed = seek is not None or request.play != self.playing or request.speed != self.speed
+        self.speed = request.speed
+        self.playing = self._started = request.play
+        events: list[Event] = []
+        if self.playing and changed:
+            events.append(Play(self.position, self.speed, seek=seek is not None))
+        elif not self.playing:
+            # Paused: a seek shows the frame at the new time and stays there.
+            events.append(Play(self.position, self.speed, seek=True, once=True) if seek is not None else Stop())
+        events.append(self._state(PLAYING if self.playing else PAUSED, seek is not None, request.request_id))
+        return events
+
+    # -- helpers ----------------------------------------------------------------
+
+    def _server_info(self) -> Send:
+        info: dict[str, Any] = {"name": self.server_name, "capabilities": list(CAPABILITIES)}
+        if self.log is not None:
+            info["metadata"] = {"log": self.log.name}
+            info["dataStartTime"] = _time(self.log.start_time)
+            info["dataEndTime"] = _time(self.log.end_time)
+        return Send(text("serverInfo", **info), text=True)
+
+    def _state(self, status: int, did_seek: bool, request_id: str | None) -> Send:
+        return Send(playback_state(status, self.position, self.speed, did_seek, request_id), text=False)
+
+    def _status(self, level: int, message: str, *, kind: str) -> Send:
+        data = text("status", level=level, message=message)
+        if level == ERROR:
+            return Send(data, text=True, error=kind, message=message)
+        return Send(data, text=True, notice=kind, message=message)
+
+    def _where(self) -> str:
+        return f" in log {self.log.name!r}" if self.log is not None else ""
+
+
+def _uint32(value: Any) -> TypeGuard[int]:
+    return type(value) is int and 0 <= value < _UINT32
+
+
+def _time(nanoseconds: int) -> dict[str, int]:
+    return {"sec": nanoseconds // 1_000_000_000, "nsec": nanoseconds % 1_000_000_000}
