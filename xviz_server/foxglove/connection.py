@@ -32,7 +32,7 @@ from ..session import OpenLog, Send
 from ..settings import Settings
 from .. import __version__
 from .convert import Channel, Plan, convert, nanoseconds, plan, unpack
-from .session import Event, FoxgloveSession, Play, Stop
+from .session import Event, FoxgloveSession, Play, SendLatest, Stop
 from .wire import message_header, time_message
 
 __all__ = ["FoxgloveConnection"]
@@ -131,6 +131,10 @@ class FoxgloveConnection:
                 self._player = asyncio.ensure_future(self._play(event))
             elif isinstance(event, Stop):
                 await self._stop()
+            elif isinstance(event, SendLatest) and self._log is not None:
+                position = self._log.log.index.at(self.session.position / 1e9)
+                if position is not None:
+                    await self._send_frame(self._log.log, int(self._log.log.index.frames[position]), event.channels)
 
     async def _write(self, data: bytes, text: bool) -> None:
         await self.websocket.send(data, text=text)
@@ -177,7 +181,8 @@ class FoxgloveConnection:
         except Exception as exc:
             logger.exception("error playing log %r to %s", log.name, _remote(self.websocket), exc_info=exc)
 
-    async def _send_frame(self, log: Log, number: int) -> None:
+    async def _send_frame(self, log: Log, number: int, only: frozenset[int] | None = None) -> None:
+        """Send the messages of frame ``number`` to their subscriptions (of ``only`` these channels, if given)."""
         assert self._log is not None
         try:
             packed = await log.derived(number, CONVERTED, convert, self._log.plan)
@@ -186,7 +191,7 @@ class FoxgloveConnection:
             return
         for channel, stamp, payload in unpack(packed):
             subscription = self.session.subscription(channel)
-            if subscription is not None:
+            if subscription is not None and (only is None or channel in only):
                 await self._write(message_header(subscription, stamp) + payload, text=False)
 
 

@@ -29,7 +29,7 @@ from .wire import (
     parse_playback_control, parse_text, playback_state, text,
 )
 
-__all__ = ["FoxgloveLog", "Play", "Stop", "FoxgloveSession", "CAPABILITIES", "MAX_SPEED"]
+__all__ = ["FoxgloveLog", "Play", "Stop", "SendLatest", "FoxgloveSession", "CAPABILITIES", "MAX_SPEED"]
 
 #: What ``serverInfo`` says this server does.
 CAPABILITIES = ("time", "playbackControl")
@@ -82,7 +82,14 @@ class Stop:
     """Stop playing."""
 
 
-Event = Send | OpenLog | Play | Stop
+@dataclass(frozen=True)
+class SendLatest:
+    """Send ``channels``' messages of the frame played last (new subscriptions during playback)."""
+
+    channels: frozenset[int]
+
+
+Event = Send | OpenLog | Play | Stop | SendLatest
 
 
 @dataclass
@@ -99,6 +106,8 @@ class FoxgloveSession:
     speed: float = field(init=False, default=1.0)
     playing: bool = field(init=False, default=False)
     _started: bool = field(init=False, default=False)
+    _controlled: bool = field(init=False, default=False)  # the client sent a playback control request
+    _shown: bool = field(init=False, default=False)  # the player sent a frame at ``position``
     _channels: dict[int, Channel] = field(init=False, default_factory=dict)
     _subscriptions: dict[int, int] = field(init=False, default_factory=dict)  # subscription id -> channel id
     _by_channel: dict[int, int] = field(init=False, default_factory=dict)  # channel id -> subscription id
@@ -142,13 +151,15 @@ class FoxgloveSession:
             return [self._status(ERROR, str(exc), kind="invalid")]
 
     def reached(self, time: int) -> None:
-        """The player sent the messages up to ``time`` (nanoseconds)."""
+        """The player sent the messages of the frame at ``time`` (nanoseconds)."""
         self.position = time
+        self._shown = True
 
     def ended(self) -> list[Event]:
         """The player sent the log's last frame."""
         self.playing = False
-        return [self._state(ENDED, False, None)]
+        # A client that never asked for playback control may not know the playback state message.
+        return [self._state(ENDED, False, None)] if self._controlled else []
 
     def frame_failed(self, error: XVIZError) -> list[Event]:
         """A frame could not be read or converted; playback goes on with the next."""
@@ -185,6 +196,7 @@ class FoxgloveSession:
         if not isinstance(subscriptions, list):
             raise FoxgloveProtocolError("subscribe: 'subscriptions' must be a list of {id, channelId}")
         events: list[Event] = []
+        added: set[int] = set()
         for item in subscriptions:
             sid = item.get("id") if isinstance(item, dict) else None
             cid = item.get("channelId") if isinstance(item, dict) else None
@@ -199,9 +211,13 @@ class FoxgloveSession:
             else:
                 self._subscriptions[sid] = cid
                 self._by_channel[cid] = sid
+                added.add(cid)
         if self._subscriptions and not self._started and self.log is not None:
             self._started = self.playing = True
-            events.append(Play(self.position, self.speed))
+            events.append(self._play(self.position))
+        elif added and self._shown:
+            # Clients subscribe one channel at a time: the later ones get the frame on screen too.
+            events.append(SendLatest(frozenset(added)))
         return events
 
     def _on_unsubscribe(self, ids: Any) -> list[Event]:
@@ -217,6 +233,7 @@ class FoxgloveSession:
         return events
 
     def _on_playback_control(self, request: PlaybackControl) -> list[Event]:
+        self._controlled = True
         if self.log is None:
             raise FoxgloveProtocolError(f"playback control request {request.request_id!r}: no log is open")
         if not (math.isfinite(request.speed) and 0 < request.speed <= MAX_SPEED):
@@ -233,17 +250,22 @@ class FoxgloveSession:
             self.position = seek
         changed = seek is not None or request.play != self.playing or request.speed != self.speed
         self.speed = request.speed
-        self.playing = self._started = request.play
+        self.playing = request.play
+        self._started = True  # the client controls playback: subscribing no longer starts it
         events: list[Event] = []
         if self.playing and changed:
-            events.append(Play(self.position, self.speed, seek=seek is not None))
+            events.append(self._play(self.position, seek=seek is not None))
         elif not self.playing:
             # Paused: a seek shows the frame at the new time and stays there.
-            events.append(Play(self.position, self.speed, seek=True, once=True) if seek is not None else Stop())
+            events.append(self._play(self.position, seek=True, once=True) if seek is not None else Stop())
         events.append(self._state(PLAYING if self.playing else PAUSED, seek is not None, request.request_id))
         return events
 
     # -- helpers ----------------------------------------------------------------
+
+    def _play(self, start: int, *, seek: bool = False, once: bool = False) -> Play:
+        self._shown = False
+        return Play(start, self.speed, seek=seek, once=once)
 
     def _server_info(self) -> Send:
         info: dict[str, Any] = {"name": self.server_name, "capabilities": list(CAPABILITIES)}

@@ -1,0 +1,135 @@
+// Connect to a server with the published Foxglove client (@foxglove/ws-protocol),
+// subscribe to every channel it advertises, decode each message with the schema
+// its channel advertises (protobufjs for protobuf, JSON.parse for json), and
+// print what arrived as one JSON object.
+//
+//   node foxglove-client.js URL SUBPROTOCOL [--idle-ms N] [--timeout-ms N] [--send JSON]...
+//
+// It stops once no message has come for --idle-ms (default 1500) after the
+// first one, or after --timeout-ms (default 30000). Each --send is a text
+// message sent once the channels are advertised and subscribed to.
+//
+// Output: {"subprotocol", "serverInfo", "channels": [{id, topic, encoding,
+// schemaName}], "topics": {TOPIC: {"count", "timestamps": [ns as strings],
+// "summaries": [...]}}, "times": N, "statuses": [...], "errors": [...]}.
+// A summary says what the decoded message holds: for foxglove.PointCloud
+// {"points", "stride", "frame_id", "fields"}; for foxglove.CompressedImage
+// {"format", "magic" (first bytes, hex), "bytes"}; for foxglove.FrameTransform
+// {"parent", "child", "translation"}; for foxglove.SceneUpdate {"entities",
+// "deletions"}; for JSON channels the decoded value; for others the keys.
+'use strict';
+
+const WebSocket = require('ws');
+const {FoxgloveClient} = require('@foxglove/ws-protocol');
+const protobuf = require('protobufjs');
+const descriptor = require('protobufjs/ext/descriptor');
+
+function options(argv) {
+  const out = {idleMs: 1500, timeoutMs: 30000, send: []};
+  const positional = [];
+  for (let i = 0; i < argv.length; i++) {
+    if (argv[i] === '--idle-ms') out.idleMs = Number(argv[++i]);
+    else if (argv[i] === '--timeout-ms') out.timeoutMs = Number(argv[++i]);
+    else if (argv[i] === '--send') out.send.push(argv[++i]);
+    else positional.push(argv[i]);
+  }
+  [out.url, out.subprotocol] = positional;
+  return out;
+}
+
+// The client hands each message's payload over as a DataView.
+function bytesOf(view) {
+  return new Uint8Array(view.buffer, view.byteOffset, view.byteLength);
+}
+
+function decoderFor(channel) {
+  if (channel.encoding === 'json') {
+    const text = new TextDecoder();
+    return data => JSON.parse(text.decode(bytesOf(data)));
+  }
+  if (channel.encoding === 'protobuf') {
+    const bytes = Buffer.from(channel.schema, 'base64');
+    const root = protobuf.Root.fromDescriptor(descriptor.FileDescriptorSet.decode(bytes));
+    const type = root.lookupType(channel.schemaName);
+    return data => type.toObject(type.decode(bytesOf(data)), {longs: String, bytes: Buffer});
+  }
+  throw new Error(`channel ${channel.topic}: no decoder for encoding ${channel.encoding}`);
+}
+
+function summary(schemaName, value) {
+  switch (schemaName) {
+    case 'foxglove.PointCloud':
+      return {points: value.data.length / value.point_stride, stride: value.point_stride, frame_id: value.frame_id,
+        fields: (value.fields || []).map(f => f.name)};
+    case 'foxglove.CompressedImage':
+      return {format: value.format, magic: Buffer.from(value.data.subarray(0, 4)).toString('hex'), bytes: value.data.length};
+    case 'foxglove.FrameTransform':
+      return {parent: value.parent_frame_id, child: value.child_frame_id, translation: value.translation || {}};
+    case 'foxglove.SceneUpdate':
+      return {entities: (value.entities || []).length, deletions: (value.deletions || []).length};
+    default:
+      return Object.keys(value).sort();
+  }
+}
+
+function main() {
+  const opts = options(process.argv.slice(2));
+  const out = {subprotocol: null, serverInfo: null, channels: [], topics: {}, times: 0, statuses: [], errors: []};
+  const ws = new WebSocket(opts.url, [opts.subprotocol]);
+  const client = new FoxgloveClient({ws});
+  const bySubscription = new Map();
+  let idle = null;
+  let finished = false;
+  const finish = () => {
+    if (finished) return;
+    finished = true;
+    clearTimeout(idle);
+    clearTimeout(deadline);
+    process.stdout.write(JSON.stringify(out) + '\n');
+    client.close();
+    setTimeout(() => process.exit(0), 100);
+  };
+  const deadline = setTimeout(() => { out.errors.push('timeout'); finish(); }, opts.timeoutMs);
+  const touch = () => { clearTimeout(idle); idle = setTimeout(finish, opts.idleMs); };
+
+  ws.on('open', () => { out.subprotocol = ws.protocol; });
+  client.on('error', error => out.errors.push(String(error && error.message || error)));
+  client.on('serverInfo', info => { out.serverInfo = info; });
+  client.on('status', status => out.statuses.push(status));
+  client.on('close', () => finish());
+  client.on('advertise', channels => {
+    for (const channel of channels) {
+      out.channels.push({id: channel.id, topic: channel.topic, encoding: channel.encoding, schemaName: channel.schemaName});
+      let decode;
+      try {
+        decode = decoderFor(channel);
+      } catch (error) {
+        out.errors.push(String(error.message));
+        continue;
+      }
+      const id = client.subscribe(channel.id);
+      bySubscription.set(id, {channel, decode});
+      out.topics[channel.topic] = {count: 0, timestamps: [], summaries: []};
+    }
+    for (const text of opts.send) ws.send(text);
+  });
+  client.on('message', ({subscriptionId, timestamp, data}) => {
+    touch();
+    const target = bySubscription.get(subscriptionId);
+    if (!target) {
+      out.errors.push(`message for unknown subscription ${subscriptionId}`);
+      return;
+    }
+    const topic = out.topics[target.channel.topic];
+    topic.count += 1;
+    topic.timestamps.push(String(timestamp));
+    try {
+      topic.summaries.push(summary(target.channel.schemaName, target.decode(data)));
+    } catch (error) {
+      out.errors.push(`${target.channel.topic}: ${error.message}`);
+    }
+  });
+  client.on('time', () => { out.times += 1; touch(); });
+}
+
+main();
