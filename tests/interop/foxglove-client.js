@@ -98,18 +98,19 @@ function main() {
   client.on('status', status => out.statuses.push(status));
   client.on('close', () => finish());
   client.on('advertise', channels => {
+    // Decoders first, then every subscription at once, as Foxglove does.
+    const decodable = [];
     for (const channel of channels) {
       out.channels.push({id: channel.id, topic: channel.topic, encoding: channel.encoding, schemaName: channel.schemaName});
-      let decode;
       try {
-        decode = decoderFor(channel);
+        decodable.push({channel, decode: decoderFor(channel)});
       } catch (error) {
         out.errors.push(String(error.message));
-        continue;
       }
-      const id = client.subscribe(channel.id);
-      bySubscription.set(id, {channel, decode});
-      out.topics[channel.topic] = {count: 0, timestamps: [], summaries: []};
+    }
+    for (const target of decodable) {
+      bySubscription.set(client.subscribe(target.channel.id), target);
+      out.topics[target.channel.topic] = {count: 0, timestamps: [], summaries: []};
     }
     for (const text of opts.send) ws.send(text);
   });

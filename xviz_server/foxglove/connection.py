@@ -16,9 +16,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from urllib.parse import parse_qsl, unquote, urlsplit
+
+import numpy as np
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
@@ -61,13 +64,19 @@ class _OpenLog:
     def channels(self) -> tuple[Channel, ...]:
         return self.plan.channels
 
+    @cached_property
+    def times(self) -> np.ndarray:
+        """When each frame starts, in nanoseconds, in time order: the times the messages carry."""
+        return np.array([nanoseconds(start) for start in self.log.index.start.tolist()], dtype=np.int64)
+
     @property
     def start_time(self) -> int:
-        return nanoseconds(self.log.index.start_time or 0.0)
+        return int(self.times[0]) if len(self.times) else 0
 
     @property
     def end_time(self) -> int:
-        return nanoseconds(self.log.index.end_time or self.log.index.start_time or 0.0)
+        end = self.log.index.end_time
+        return 0 if end is None else nanoseconds(end)
 
 
 class FoxgloveConnection:
@@ -131,10 +140,8 @@ class FoxgloveConnection:
                 self._player = asyncio.ensure_future(self._play(event))
             elif isinstance(event, Stop):
                 await self._stop()
-            elif isinstance(event, SendLatest) and self._log is not None:
-                position = self._log.log.index.at(self.session.position / 1e9)
-                if position is not None:
-                    await self._send_frame(self._log.log, int(self._log.log.index.frames[position]), event.channels)
+            elif isinstance(event, SendLatest):
+                await self._send_frame(event.place, event.targets)
 
     async def _write(self, data: bytes, text: bool) -> None:
         await self.websocket.send(data, text=text)
@@ -159,20 +166,19 @@ class FoxgloveConnection:
     async def _play(self, request: Play) -> None:
         """Send the log's frames from ``request.start`` on, at ``request.speed`` times real time."""
         assert self._log is not None
-        log, index = self._log.log, self._log.log.index
-        start = request.start / 1e9
-        first = index.at(start) if request.seek else None  # a seek shows the state at its time at once
-        if first is None:
-            first = int(index.range(start).min(initial=len(index))) if len(index) else 0
+        log, times = self._log.log, self._log.times
+        if request.seek:  # the state at the new time at once: the last frame starting at or before it
+            first = max(0, int(np.searchsorted(times, request.start, side="right")) - 1)
+        else:
+            first = int(np.searchsorted(times, request.start, side="left"))
         loop = asyncio.get_running_loop()
-        clock, origin = loop.time(), start
+        clock = loop.time()
         try:
-            for position in range(first, len(index)):
-                at = float(index.start[position])
-                await asyncio.sleep(max(0.0, clock + (at - origin) / request.speed - loop.time()))
-                await self._send_frame(log, int(index.frames[position]))
-                self.session.reached(nanoseconds(at))
-                await self._write(time_message(nanoseconds(at)), text=False)
+            for position in range(first, len(times)):
+                at = int(times[position])
+                await asyncio.sleep(max(0.0, clock + (at - request.start) / 1e9 / request.speed - loop.time()))
+                await self._send_frame(position, self.session.frame(at, position))
+                await self._write(time_message(at), text=False)
                 if request.once:
                     return
             await self._execute(self.session.ended())
@@ -181,17 +187,18 @@ class FoxgloveConnection:
         except Exception as exc:
             logger.exception("error playing log %r to %s", log.name, _remote(self.websocket), exc_info=exc)
 
-    async def _send_frame(self, log: Log, number: int, only: frozenset[int] | None = None) -> None:
-        """Send the messages of frame ``number`` to their subscriptions (of ``only`` these channels, if given)."""
+    async def _send_frame(self, position: int, targets: Mapping[int, int]) -> None:
+        """Send the messages of the frame at ``position`` in time order to ``targets``, subscriptions by channel."""
         assert self._log is not None
+        log = self._log.log
         try:
-            packed = await log.derived(number, CONVERTED, convert, self._log.plan)
+            packed = await log.derived(int(log.index.frames[position]), CONVERTED, convert, self._log.plan)
         except XVIZError as exc:
             await self._execute(self.session.frame_failed(exc))
             return
         for channel, stamp, payload in unpack(packed):
-            subscription = self.session.subscription(channel)
-            if subscription is not None and (only is None or channel in only):
+            subscription = targets.get(channel)
+            if subscription is not None:
                 await self._write(message_header(subscription, stamp) + payload, text=False)
 
 

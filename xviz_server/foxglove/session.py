@@ -84,9 +84,14 @@ class Stop:
 
 @dataclass(frozen=True)
 class SendLatest:
-    """Send ``channels``' messages of the frame played last (new subscriptions during playback)."""
+    """Send the messages of the frame the player sends now (``place``, see :meth:`FoxgloveSession.frame`) to ``targets``.
 
-    channels: frozenset[int]
+    ``targets`` are subscriptions by channel: those made during playback,
+    which the frame being played did not go to.
+    """
+
+    place: int
+    targets: Mapping[int, int]
 
 
 Event = Send | OpenLog | Play | Stop | SendLatest
@@ -107,7 +112,7 @@ class FoxgloveSession:
     playing: bool = field(init=False, default=False)
     _started: bool = field(init=False, default=False)
     _controlled: bool = field(init=False, default=False)  # the client sent a playback control request
-    _shown: bool = field(init=False, default=False)  # the player sent a frame at ``position``
+    _shown: int | None = field(init=False, default=None)  # where the frame at ``position`` is, once the player sends it
     _channels: dict[int, Channel] = field(init=False, default_factory=dict)
     _subscriptions: dict[int, int] = field(init=False, default_factory=dict)  # subscription id -> channel id
     _by_channel: dict[int, int] = field(init=False, default_factory=dict)  # channel id -> subscription id
@@ -150,10 +155,16 @@ class FoxgloveSession:
         except FoxgloveProtocolError as exc:
             return [self._status(ERROR, str(exc), kind="invalid")]
 
-    def reached(self, time: int) -> None:
-        """The player sent the messages of the frame at ``time`` (nanoseconds)."""
+    def frame(self, time: int, place: int) -> dict[int, int]:
+        """The player sends the frame at ``time`` (nanoseconds) now: to these subscriptions, by channel.
+
+        ``place`` is where the frame is in the player's order. A subscription
+        made while the frame is sent gets it from :class:`SendLatest`, so
+        that no channel misses it or gets it twice.
+        """
         self.position = time
-        self._shown = True
+        self._shown = place
+        return dict(self._by_channel)
 
     def ended(self) -> list[Event]:
         """The player sent the log's last frame."""
@@ -164,10 +175,6 @@ class FoxgloveSession:
     def frame_failed(self, error: XVIZError) -> list[Event]:
         """A frame could not be read or converted; playback goes on with the next."""
         return [self._status(WARNING, str(error), kind="frame")]
-
-    def subscription(self, channel: int) -> int | None:
-        """The subscription that gets the messages of ``channel``, if any."""
-        return self._by_channel.get(channel)
 
     # -- client messages ------------------------------------------------------
 
@@ -215,9 +222,9 @@ class FoxgloveSession:
         if self._subscriptions and not self._started and self.log is not None:
             self._started = self.playing = True
             events.append(self._play(self.position))
-        elif added and self._shown:
+        elif added and self._shown is not None:
             # Clients subscribe one channel at a time: the later ones get the frame on screen too.
-            events.append(SendLatest(frozenset(added)))
+            events.append(SendLatest(self._shown, {channel: self._by_channel[channel] for channel in added}))
         return events
 
     def _on_unsubscribe(self, ids: Any) -> list[Event]:
@@ -254,7 +261,9 @@ class FoxgloveSession:
         self._started = True  # the client controls playback: subscribing no longer starts it
         events: list[Event] = []
         if self.playing and changed:
-            events.append(self._play(self.position, seek=seek is not None))
+            # Without a seek, playing goes on after the frame on screen.
+            start = self.position + 1 if seek is None and self._shown is not None else self.position
+            events.append(self._play(start, seek=seek is not None))
         elif not self.playing:
             # Paused: a seek shows the frame at the new time and stays there.
             events.append(self._play(self.position, seek=True, once=True) if seek is not None else Stop())
@@ -264,7 +273,7 @@ class FoxgloveSession:
     # -- helpers ----------------------------------------------------------------
 
     def _play(self, start: int, *, seek: bool = False, once: bool = False) -> Play:
-        self._shown = False
+        self._shown = None
         return Play(start, self.speed, seek=seek, once=once)
 
     def _server_info(self) -> Send:
