@@ -14,6 +14,8 @@ import os
 import shutil
 import subprocess
 import sys
+import urllib.error
+import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Sequence
@@ -198,6 +200,16 @@ async def running_server(data_dir: Path | Sequence[Path | str] | None, **setting
     """An XVIZ server on a free loopback port, serving one data directory or several (directories, ``s3://`` URLs)."""
     async with XVIZServer(Settings(host="127.0.0.1", port=0, data_dir=data_dir, **settings)) as server:
         yield server
+
+
+def http_get(port: int, path: str, method: str = "GET", **headers: str) -> tuple[int, dict[str, str], bytes]:
+    """A plain HTTP GET (or ``method``) to a server on loopback: status, headers, body (as sent, not decoded); blocking."""
+    request = urllib.request.Request(f"http://127.0.0.1:{port}{path}", headers=headers, method=method)
+    try:
+        with urllib.request.urlopen(request, timeout=30) as response:
+            return response.status, dict(response.headers), response.read()
+    except urllib.error.HTTPError as error:
+        return error.code, dict(error.headers), error.read()
 
 
 class Client:

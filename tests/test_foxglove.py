@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import io
 import json
 import shutil
 import struct
@@ -12,12 +13,14 @@ from typing import Any
 
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from mcap.reader import make_reader
 from websockets.exceptions import InvalidStatus
 
 from xviz_server.codec import decode
 from xviz_server.foxglove.wire import SUBPROTOCOLS
 
-from helpers import INTEROP, client, running_server
+from helpers import INTEROP, client, http_get, running_server
 
 DRIVER = INTEROP / "foxglove-client.js"
 
@@ -213,3 +216,53 @@ async def test_an_xviz_session_and_a_foxglove_session_share_a_log(kitti_root: Pa
             updates = [m for m in await xviz.until("transform_log_done") if m["type"] == "xviz/state_update"]
             assert len(updates) == 25
             assert (await next_of(websocket, "message"))[0] in range(len(channels))
+
+
+# ----------------------------------------------------------------- clips as MCAP files
+
+
+async def export(server: Any, query: str, name: str = "kitti") -> tuple[int, dict[str, str], bytes]:
+    return await asyncio.to_thread(http_get, server.port, f"/api/logs/{name}/export{query}")
+
+
+def read_mcap(data: bytes) -> tuple[Any, list[tuple[str, str, int, bytes]]]:
+    """The summary of an MCAP file, and its messages as (topic, schema name, log time, payload), read by the published reader."""
+    reader = make_reader(io.BytesIO(data))
+    summary = reader.get_summary()
+    messages = [(channel.topic, schema.name, message.log_time, message.data) for schema, channel, message in reader.iter_messages()]
+    return summary, messages
+
+
+async def test_a_clip_exports_as_an_indexed_mcap_file_with_the_same_channels(kitti_root: Path, kitti_log: Path) -> None:
+    updates = kitti_frames(kitti_log)
+    start, end = updates[5]["timestamp"], updates[10]["timestamp"]
+    async with running_server(kitti_root) as server:
+        status, headers, body = await export(server, f"?start={start}&end={end}&format=mcap")
+        async with await foxglove(server) as websocket:
+            _, channels = await opened(websocket)
+    assert status == 200, body
+    assert headers["Content-Disposition"] == 'attachment; filename="kitti.mcap"'
+    summary, messages = read_mcap(body)
+    assert summary.chunk_indexes and summary.statistics.message_count == len(messages)
+    assert sorted(channel.topic for channel in summary.channels.values()) == sorted(channel["topic"] for channel in channels)
+    clouds = [(time, PointCloud.FromString(data)) for topic, schema, time, data in messages if topic == "/lidar/points"]
+    assert [time for time, _ in clouds] == [nanoseconds(update["timestamp"]) for update in updates[5:11]]
+    assert [len(cloud.data) // cloud.point_stride for _, cloud in clouds] == [
+        len(update["primitives"]["/lidar/points"]["points"][0]["points"]) for update in updates[5:11]
+    ]
+    assert {schema for topic, schema, _, _ in messages if topic == "/camera/image_00"} == {"foxglove.CompressedImage"}
+
+
+async def test_a_bad_export_request_is_refused_naming_the_problem(kitti_root: Path) -> None:
+    async with running_server(kitti_root, export_max_mb=1) as server:
+        for query, name, expected in [
+            ("?format=zip", "kitti", (400, "format='zip'")),
+            ("?start=soon", "kitti", (400, "start='soon' is not a number")),
+            ("?start=nan", "kitti", (400, "not a finite number")),
+            ("?start=10&end=5", "kitti", (400, "start=10.0 is after end=5.0")),
+            ("", "nowhere", (404, "nowhere")),
+            ("", "..%2Fetc", (404, "not allowed")),
+            ("", "kitti", (413, "export_max_mb")),
+        ]:
+            status, _, body = await export(server, query, name)
+            assert (status, expected[1] in body.decode()) == (expected[0], True), (query, name, body)

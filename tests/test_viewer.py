@@ -16,8 +16,6 @@ import re
 import shutil
 import subprocess
 import sys
-import urllib.error
-import urllib.request
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -26,7 +24,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import metadata, metric, running_server, ten_hz, write_demo, write_log
+from helpers import http_get, metadata, metric, running_server, ten_hz, write_demo, write_log
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
 from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, STYLE_HASHES, ViewerPage, accepted_encodings
@@ -44,12 +42,7 @@ SCRIPT = b"console.log('the viewer');\n" * 50
 
 def get(server: XVIZServer, path: str, method: str = "GET", **headers: str) -> tuple[int, dict[str, str], bytes]:
     """A plain HTTP GET (or ``method``) to the server: status, headers, body (as sent, not decoded)."""
-    request = urllib.request.Request(f"http://127.0.0.1:{server.port}{path}", headers=headers, method=method)
-    try:
-        with urllib.request.urlopen(request, timeout=10) as response:
-            return response.status, dict(response.headers), response.read()
-    except urllib.error.HTTPError as error:
-        return error.code, dict(error.headers), error.read()
+    return http_get(server.port, path, method, **headers)
 
 
 @pytest.fixture

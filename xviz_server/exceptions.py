@@ -29,6 +29,7 @@ __all__ = [
     "StoreError",
     "BrokerError",
     "FoxgloveProtocolError",
+    "ExportError",
 ]
 
 
@@ -203,3 +204,11 @@ class BrokerError(XVIZError):
 
 class FoxgloveProtocolError(XVIZError):
     """A Foxglove client sent a message that the Foxglove WebSocket protocol does not allow."""
+
+
+class ExportError(XVIZError):
+    """A clip of a log cannot be exported as asked; ``too_large`` when it passes the size limit."""
+
+    def __init__(self, message: str, *, too_large: bool = False) -> None:
+        super().__init__(message)
+        self.too_large = too_large

@@ -48,8 +48,10 @@ from .cache import FrameCache
 from .layout import LOG
 from .connection import Connection
 from .datasets import GENERATED, KINDS, dataset_options
-from .exceptions import ConfigError, LogError
+from .exceptions import ConfigError, ExportError, LogError, LogNotFound, XVIZError
 from .foxglove.connection import FoxgloveConnection
+from .foxglove.convert import plan
+from .foxglove.export import export, export_path, parse_range
 from .foxglove.wire import SUBPROTOCOLS
 from .framing import FramingConnection
 from .gate import GatedConnection
@@ -276,6 +278,10 @@ class XVIZServer:
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
         if (page := await self.viewer.respond(connection, request)) is not None:
             return page
+        if (name := export_path(path)) is not None:
+            if (refused := self._viewer_refusal(connection, request)) is not None:
+                return refused
+            return await self._export(connection, name, dict(urllib.parse.parse_qsl(urlsplit(request.path).query)))
         if path in ("/", "/logs", "/api/logs"):
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
@@ -286,6 +292,24 @@ class XVIZServer:
             HTTPStatus.NOT_FOUND,
             "not found: open a WebSocket for an XVIZ session, or GET /, /api/logs, /healthz or /metrics\n",
         )
+
+    async def _export(self, connection: ServerConnection, name: str, query: dict[str, str]) -> Response:
+        """A clip of log ``name`` as an MCAP file (see :mod:`xviz_server.foxglove.export`)."""
+        try:
+            span = parse_range(query)
+            log = await self.catalog.open(name, preload=False)
+            body = await export(log, plan(log.metadata), span, self.workers, int(self.settings.export_max_mb * MB))
+        except LogNotFound as exc:
+            return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
+        except ExportError as exc:
+            status = HTTPStatus.REQUEST_ENTITY_TOO_LARGE if exc.too_large else HTTPStatus.BAD_REQUEST
+            return connection.respond(status, f"{exc}\n")
+        except XVIZError as exc:
+            return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
+        response = _response(connection, HTTPStatus.OK, body, "application/octet-stream")
+        filename = name.replace("/", "_") + ".mcap"
+        response.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
+        return response
 
     def _viewer_refusal(self, connection: ServerConnection, request: Request) -> Response | None:
         """HTTP 401 when a viewer token is configured and the request does not give it."""

@@ -34,17 +34,13 @@ from ..metrics import Metrics
 from ..session import OpenLog, Send
 from ..settings import Settings
 from .. import __version__
-from .convert import Channel, Plan, convert, nanoseconds, plan, unpack
+from .convert import CONVERTED, Channel, Plan, convert, nanoseconds, plan, unpack
 from .session import Event, FoxgloveSession, Play, SendLatest, Stop
 from .wire import message_header, time_message
 
 __all__ = ["FoxgloveConnection"]
 
 logger = logging.getLogger("xviz_server.session")
-
-#: The frame cache's name for a frame's Foxglove messages (see :meth:`~xviz_server.logs.Log.derived`).
-CONVERTED = "foxglove"
-
 
 @dataclass
 class _OpenLog:

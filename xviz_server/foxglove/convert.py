@@ -64,7 +64,10 @@ from ..codec.image import sniff_image
 from ..exceptions import DecodeError
 from .schemas import Schema, json_schema, protobuf_schema
 
-__all__ = ["Channel", "Plan", "plan", "convert", "pack", "unpack", "nanoseconds", "ROOT_FRAME"]
+__all__ = ["CONVERTED", "Channel", "Plan", "plan", "convert", "pack", "unpack", "nanoseconds", "ROOT_FRAME"]
+
+#: The frame cache's name for a frame's Foxglove messages (see :meth:`~xviz_server.logs.Log.derived`).
+CONVERTED = "foxglove"
 
 #: The fixed frame every pose is given in.
 ROOT_FRAME = "map"
