@@ -17,8 +17,6 @@
    sending the request to the first message of the frame sought, p50 and p99
    over every seek of every client.
 
-The KITTI data is read from ``$XVIZ_SHARED_DIR/data`` (default ``../shared``
-beside the repository).
 """
 
 from __future__ import annotations
@@ -26,32 +24,23 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
 import random
-import socket
 import statistics
 import struct
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 from websockets.asyncio.client import connect
+from websockets.typing import Subprotocol
 
+from kit import KITTI, parse, percentile
+from kit.proc import start_server
 from xviz_server.codec import decode
 from xviz_server.foxglove.convert import convert, plan
 from xviz_server.foxglove.session import MAX_SPEED
 
-REPO = Path(__file__).resolve().parents[2]
-SHARED = Path(os.environ.get("XVIZ_SHARED_DIR") or REPO.parent / "shared")
-KITTI = SHARED / "data" / "kitti-2011_09_26_drive_0001-head"
 MB = 1e6
-
-
-def percentile(values: list[float], share: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, round(share * (len(ordered) - 1)))]
 
 
 def converting(repeats: int) -> None:
@@ -69,8 +58,8 @@ def converting(repeats: int) -> None:
             decoded.append((time.perf_counter() - began) * 1e3)
     print("| converting a KITTI frame (2.2 MB GLB) | median ms | p95 ms |")
     print("|---|---|---|")
-    print(f"| into Foxglove messages | {statistics.median(converted):.2f} | {percentile(converted, 0.95):.2f} |")
-    print(f"| decoding it alone (the codec's share) | {statistics.median(decoded):.2f} | {percentile(decoded, 0.95):.2f} |")
+    print(f"| into Foxglove messages | {statistics.median(converted):.2f} | {percentile(converted, 95):.2f} |")
+    print(f"| decoding it alone (the codec's share) | {statistics.median(decoded):.2f} | {percentile(decoded, 95):.2f} |")
 
 
 async def xviz_log(port: int) -> tuple[int, float]:
@@ -88,7 +77,7 @@ async def xviz_log(port: int) -> tuple[int, float]:
 
 async def foxglove_log(port: int) -> tuple[int, float]:
     """Bytes of the whole log as a Foxglove client playing it at the fastest speed gets it, and the seconds it took."""
-    async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=["foxglove.sdk.v1"], max_size=None) as websocket:
+    async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None) as websocket:
         json.loads(await websocket.recv())
         channels = json.loads(await websocket.recv())["channels"]
         await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 0, 0, 0))  # take control: paused
@@ -107,7 +96,7 @@ async def foxglove_log(port: int) -> tuple[int, float]:
 async def seeker(port: int, seeks: int, seed: int) -> list[float]:
     """Seconds from each seek request to the first message at the frame sought."""
     rng = random.Random(seed)
-    async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=["foxglove.sdk.v1"], max_size=None) as websocket:
+    async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None) as websocket:
         info = json.loads(await websocket.recv())
         channels = json.loads(await websocket.recv())["channels"]
         await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 0, 0, 0))  # paused
@@ -133,27 +122,11 @@ async def seeker(port: int, seeks: int, seed: int) -> list[float]:
         return waits
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 async def streaming(repeats: int, clients: int, seeks: int) -> None:
     with tempfile.TemporaryDirectory() as data:
         (Path(data) / "kitti").symlink_to(KITTI)
-        port = free_port()
-        server = subprocess.Popen(
-            [sys.executable, "-m", "xviz_server", "serve", "--data-dir", data, "--port", str(port)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )
-        try:
-            for _ in range(100):
-                try:
-                    socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                    break
-                except OSError:
-                    await asyncio.sleep(0.1)
+        with start_server(data) as server:
+            port = server.port
             await xviz_log(port)  # warm the cache, both ways
             await foxglove_log(port)
             rates: dict[str, list[float]] = {"xviz": [], "foxglove": []}
@@ -162,9 +135,6 @@ async def streaming(repeats: int, clients: int, seeks: int) -> None:
                     size, seconds = await run(port)
                     rates[name].append(size / seconds / MB)
             waits = [wait for each in await asyncio.gather(*(seeker(port, seeks, seed) for seed in range(clients))) for wait in each]
-        finally:
-            server.terminate()
-            server.wait(10)
     ratios = [f / x for f, x in zip(rates["foxglove"], rates["xviz"])]
     print()
     print("| streaming the cached KITTI log to one client | MB/s (median) |")
@@ -175,7 +145,7 @@ async def streaming(repeats: int, clients: int, seeks: int) -> None:
     print()
     print(f"| {clients} Foxglove clients seeking in one log, {len(waits)} seeks | p50 ms | p99 ms |")
     print("|---|---|---|")
-    print(f"| request to the first message at the new time | {statistics.median(waits) * 1e3:.1f} | {percentile(waits, 0.99) * 1e3:.1f} |")
+    print(f"| request to the first message at the new time | {statistics.median(waits) * 1e3:.1f} | {percentile(waits, 99) * 1e3:.1f} |")
 
 
 def main() -> None:
@@ -183,11 +153,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--clients", type=int, default=20, help="Foxglove clients seeking at once")
     parser.add_argument("--seeks", type=int, default=20, help="seeks per client")
-    parser.add_argument("--quick", action="store_true", help="one repeat, 2 clients, 3 seeks each: proves it runs")
-    args = parser.parse_args()
-    repeats = 1 if args.quick else args.repeats
-    converting(repeats)
-    asyncio.run(streaming(repeats, 2 if args.quick else args.clients, 3 if args.quick else args.seeks))
+    args = parse(parser, {"repeats": 1, "clients": 2, "seeks": 3})
+    converting(args.repeats)
+    asyncio.run(streaming(args.repeats, args.clients, args.seeks))
 
 
 if __name__ == "__main__":
