@@ -37,7 +37,7 @@ __all__ = [
     "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
     "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
-    "OversizeError", "ConfigError", "DependencyError", "StoreError", "BrokerError",
+    "OversizeError", "ConfigError", "DependencyError", "StoreError", "BrokerError", "FoxgloveProtocolError", "ExportError",
     "__version__",
 ]
 
@@ -51,6 +51,8 @@ if TYPE_CHECKING:
         DatasetError,
         DecodeError,
         EncodeError,
+        ExportError,
+        FoxgloveProtocolError,
         FrameError,
         LogError,
         LogNotFound,
