@@ -91,9 +91,9 @@ class CatalogDB:
     def __init__(self, path: Path | None) -> None:
         self.path = path
         self._lock = threading.Lock()
-        self._connection = self._open()
         #: Whether the catalog is in memory although a file was asked for.
         self.fell_back = False
+        self._connection = self._open()
 
     # -- opening ------------------------------------------------------------
 
@@ -172,14 +172,14 @@ class CatalogDB:
     # -- discovery ----------------------------------------------------------
 
     def versions(self, names: Sequence[str]) -> dict[str, tuple[str, str]]:
-        """Version and state of each of ``names`` the catalog holds."""
+        """Root and version of each of ``names`` the catalog holds."""
         result: dict[str, tuple[str, str]] = {}
         with self._lock:
             for start in range(0, len(names), 500):
                 chunk = names[start:start + 500]
                 marks = ",".join("?" * len(chunk))
-                for name, version, state in self._connection.execute(f"SELECT name, version, state FROM logs WHERE name IN ({marks})", chunk):
-                    result[name] = (version, state)
+                for name, root, version in self._connection.execute(f"SELECT name, root, version FROM logs WHERE name IN ({marks})", chunk):
+                    result[name] = (root, version)
         return result
 
     def places(self, root: str, after: str = "", limit: int = 1000) -> list[tuple[str, str, str, str]]:

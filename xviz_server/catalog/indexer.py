@@ -111,6 +111,8 @@ class Indexer:
         self._scans = [LocalScan(Path(root), detect) for root in roots if not isinstance(root, ObjectStore)]
         self._stores = [root for root in roots if isinstance(root, ObjectStore)]
         self._local_roots = {scan.root for scan in self._scans}
+        # Where a name is in several roots, the first of these serves it.
+        self._rank = {root: rank for rank, root in enumerate([*(scan.root for scan in self._scans), DATASETS, *(store.url for store in self._stores)])}
         self._catalog = catalog
         self._workers = workers
         self._path = None if state_dir is None else Path(state_dir) / FILE_NAME
@@ -250,8 +252,7 @@ class Indexer:
                 self._idle.set()
 
     async def _first_look(self) -> None:
-        roots = [scan.root for scan in self._scans] + [store.url for store in self._stores] + [DATASETS]
-        removed = await self._workers.io(self._db.keep_roots, roots)
+        removed = await self._workers.io(self._db.keep_roots, list(self._rank))
         if removed:
             logger.info("catalog: %d logs of data roots no longer served left the catalog", removed)
         datasets = await self._catalog.find_datasets()
@@ -274,13 +275,22 @@ class Indexer:
         if not rows:
             return
         known = await self._workers.io(self._db.versions, [row.name for row in rows])
-        changed = [row for row in rows if known.get(row.name, ("",))[0] != row.version]
+        changed = [row for row in rows if self._takes(row, known.get(row.name))]
         if changed:
             await self._workers.io(self._db.found, changed)
             await self._counted()
             self._work.set()
         if any(row.kind not in (LOG,) for row in changed):
             asyncio.ensure_future(self._workers.warm())  # datasets convert in the process pool
+
+    def _takes(self, row: Row, known: tuple[str, str] | None) -> bool:
+        """Whether ``row`` is new or changed, and not a name that a root served first holds (see :class:`~xviz_server.logs.Catalog`)."""
+        if known is None:
+            return True
+        root, version = known
+        if root != row.root:
+            return self._rank.get(row.root, len(self._rank)) < self._rank.get(root, len(self._rank))
+        return version != row.version
 
     async def _keep_only(self, root: str, names: set[str]) -> None:
         """Remove the logs of ``root`` not among ``names``."""
@@ -374,7 +384,7 @@ class Indexer:
             rows.append(Row(entry.name, store.url, store.key_url(key), version, source_kind(entry.kind, key)))
         known = await self._workers.io(self._db.versions, [row.name for row in rows])
         for entry, row in zip(entries, rows):
-            if known.get(row.name, ("",))[0] != row.version:
+            if self._takes(row, known.get(row.name)):
                 self._stored[row.name] = entry
                 if isinstance(entry, StoredLog):
                     entry.folder.take(by_folder.get(entry.folder.prefix, []))

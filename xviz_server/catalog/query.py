@@ -172,6 +172,8 @@ def _read_cursor(text: str, sort: str) -> tuple[Any, str]:
         and (decoded[1] is None or (isinstance(decoded[1], (int, float)) and not isinstance(decoded[1], bool)))
     ):
         raise QueryError("cursor", "not a cursor this server gave: pass the 'next' of the page before, as it was")
+    if decoded[0] == "name" and decoded[1] is not None:
+        raise QueryError("cursor", "not a cursor this server gave: pass the 'next' of the page before, as it was")
     if decoded[0] != sort:
         raise QueryError("cursor", f"this cursor pages a listing sorted by {str(decoded[0])[:50]!r}, not {sort[:50]!r}: give the same sort")
     return decoded[1], decoded[2]
