@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import metadata, metric, running_server, ten_hz, write_demo, write_log
+from helpers import metadata, metric, running_server, ten_hz, write_demo, write_fleet, write_log
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
 from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, STYLE_HASHES, ViewerPage, accepted_encodings
@@ -329,6 +329,32 @@ async def test_a_click_in_the_catalog_opens_the_log(tmp_path: Path):
     assert report["url"].endswith("/?log=demo")
     assert_drawn_cleanly(report)
     assert_stream_list_shows(report, summary["streams"])
+
+
+@browser
+async def test_the_catalog_searches_and_pages(tmp_path: Path):
+    fleet = sorted(log.name for log in write_fleet(tmp_path, 230))
+    write_demo(tmp_path / "demo", duration=1.0)
+    async with running_server(tmp_path) as server:
+        paged = await open_page(server, "/", "catalog-pages", draw=False, settle=0, more=2)
+        searched = await open_page(server, "/", "catalog-search", draw=False, settle=0, search="SEG-00012")
+    assert paged["catalogRows"] == sorted([*fleet, "demo"]) and not paged["moreOffered"]
+    assert paged["catalogCount"] == "231 logs" and paged["pageErrors"] == [] and paged["failedRequests"] == []
+    assert searched["catalogRows"] == [name for name in fleet if "seg-00012" in name] and len(searched["catalogRows"]) == 10
+
+
+@browser
+async def test_a_deep_link_opens_the_log_at_its_time_and_the_page_links_the_time_shown(tmp_path: Path):
+    write_demo(tmp_path / "demo", duration=20.0)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=demo&t=12", "deep-link", settle=2000)
+        start = (await server.indexer.one("demo"))["start_time"]
+    assert_drawn_cleanly(report)
+    assert report["timeLink"] == "?log=demo&t=12.0"
+    # The playback control shows the time of day: 12 s after the log's start (to the frame shown).
+    shown = datetime.strptime(re.findall(r"\d\d:\d\d:\d\d\.\d{3}", report["playbackText"])[-1], "%H:%M:%S.%f")
+    wanted = datetime.strptime(datetime.utcfromtimestamp(start + 12).strftime("%H:%M:%S.%f"), "%H:%M:%S.%f")
+    assert abs((shown - wanted).total_seconds()) < 1, (shown, wanted)
 
 
 @browser

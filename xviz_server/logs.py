@@ -300,8 +300,8 @@ class Known(Protocol):
         """The names of the logs, in order."""
         ...
 
-    def locate(self, name: str) -> Found | None:
-        """Where the log ``name`` is on disk, if known (without waiting for I/O)."""
+    def locate(self, name: str) -> Found | StoredDataset | None:
+        """Where the log or dataset ``name`` is, if known (without waiting for I/O)."""
         ...
 
     def notice(self, name: str) -> None:

@@ -123,6 +123,7 @@ class Indexer:
         self._count = 0
         self._datasets: dict[str, Found] = {}
         self._stored: dict[str, StoredLog | StoredDataset] = {}  # store entries found, until indexed
+        self._store_datasets: dict[str, StoredDataset] = {}  # the datasets of the stores' last listings (few)
         self._noticed: set[str] = set()
         self._looking = False  # a look for changes is under way
         self._wake = asyncio.Event()
@@ -176,11 +177,13 @@ class Indexer:
         """The names of the catalog in order, each read when asked for."""
         return Names(self._db, self._count)
 
-    def locate(self, name: str) -> Found | None:
-        """Where the log ``name`` is, when it is a log or dataset under a directory root."""
+    def locate(self, name: str) -> Found | StoredDataset | None:
+        """Where the log ``name`` is, when it is a log or dataset under a directory root, or a dataset in a store."""
         where = self._db.place(name)
-        if where is None or where[0] not in self._local_roots:
+        if where is None:
             return None
+        if where[0] not in self._local_roots:
+            return self._store_datasets.get(name)
         rows = self._db.select("name = ?", [name], "name", 1)
         kind = rows[0]["kind"] if rows else LOG
         return Found(name, Path(where[1]), _DISCOVERY_KINDS.get(kind, kind))
@@ -382,6 +385,9 @@ class Indexer:
                 key = entry.path.key
                 version = _digest(f"{meta['path']}\0{_etag(meta)}" for meta in objects if meta["path"] == key or meta["path"].startswith(f"{key}/"))
             rows.append(Row(entry.name, store.url, store.key_url(key), version, source_kind(entry.kind, key)))
+        for entry in entries:
+            if isinstance(entry, StoredDataset):
+                self._store_datasets[entry.name] = entry
         known = await self._workers.io(self._db.versions, [row.name for row in rows])
         for entry, row in zip(entries, rows):
             if self._takes(row, known.get(row.name)):
