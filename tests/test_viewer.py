@@ -74,7 +74,7 @@ async def test_a_browser_gets_the_page_and_other_clients_the_catalog(tmp_path: P
         for path, accept in [("/", "application/json"), ("/", "*/*"), ("/api/logs", "text/html"), ("/logs", "")]:
             status, headers, body = await asyncio.to_thread(get, server, path, Accept=accept)
             assert status == 200 and headers["Content-Type"] == "application/json", (path, accept)
-            assert set(json.loads(body)) == {"server", "logs", "live"}
+            assert set(json.loads(body)) == {"server", "logs", "live", "next", "indexed", "found"}
 
 
 def policy(headers: dict[str, str]) -> dict[str, list[str]]:

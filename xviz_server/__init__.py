@@ -37,7 +37,7 @@ __all__ = [
     "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
     "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
-    "OversizeError", "ConfigError", "DependencyError", "StoreError", "BrokerError",
+    "OversizeError", "ConfigError", "DependencyError", "StoreError", "BrokerError", "QueryError",
     "__version__",
 ]
 
@@ -57,6 +57,7 @@ if TYPE_CHECKING:
         LogWriteError,
         MessageError,
         OversizeError,
+        QueryError,
         SchemaValidationError,
         StoreError,
         UnknownSchemaError,

@@ -35,7 +35,7 @@ from .readahead import ReadAhead
 from .store import ObjectStore, StoredDataset, StoredLog
 from .work import Place, Workers
 
-__all__ = ["Catalog", "Known", "Log", "check_log_name", "complete_metadata", "stamp_of"]
+__all__ = ["Catalog", "Known", "Log", "check_log_name", "complete_metadata", "stamp_of", "stamp_from"]
 
 logger = logging.getLogger(__name__)
 
@@ -270,14 +270,19 @@ def stamp_of(path: str | os.PathLike[str]) -> tuple[int, ...] | None:
         own = os.stat(path)
     except OSError:
         return None
-    stamp: tuple[int, ...] = (own.st_mtime_ns, own.st_size)
-    if stat.S_ISDIR(own.st_mode):
-        try:
-            index = os.stat(os.path.join(path, INDEX_FILE))
-        except OSError:
-            return stamp
-        stamp += (index.st_mtime_ns, index.st_size)
-    return stamp
+    if not stat.S_ISDIR(own.st_mode):
+        return stamp_from(own, None)
+    try:
+        return stamp_from(own, os.stat(os.path.join(path, INDEX_FILE)))
+    except OSError:
+        return stamp_from(own, None)
+
+
+def stamp_from(own: os.stat_result, index: os.stat_result | None) -> tuple[int, ...]:
+    """The stamp (see :func:`stamp_of`) of a folder or file whose ``stat`` is ``own``, with its index file's if any."""
+    if index is None:
+        return (own.st_mtime_ns, own.st_size)
+    return (own.st_mtime_ns, own.st_size, index.st_mtime_ns, index.st_size)
 
 
 def complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, Any]:
@@ -304,8 +309,8 @@ class Known(Protocol):
         """Where the log or dataset ``name`` is, if known (without waiting for I/O)."""
         ...
 
-    def notice(self, name: str) -> None:
-        """A session found the log ``name`` new, changed or gone."""
+    def notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
+        """A session found the log ``name`` new (``found``: where), changed or gone."""
         ...
 
 
@@ -432,7 +437,7 @@ class Catalog:
                 found = found or await store.lookup(name, FILE_KINDS, detect_in_store)
             if found is not None:
                 self._found[name] = found
-                self._notice(name)
+                self._notice(name, found)
         if found is None:
             available = list(self.available()[:20])
             shown = ", ".join(repr(n) for n in available) or "none"
@@ -461,9 +466,9 @@ class Catalog:
             self._preloads[name] = asyncio.ensure_future(self._preload(log, found.path))
         return log
 
-    def _notice(self, name: str) -> None:
+    def _notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
         if self.known is not None:
-            self.known.notice(name)
+            self.known.notice(name, found)
 
     async def load(self, found: Found | StoredLog | StoredDataset) -> Log:
         """A new :class:`Log` of what ``found`` names, shared with no one; raises :class:`~xviz_server.exceptions.XVIZError`."""

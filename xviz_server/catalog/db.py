@@ -94,6 +94,7 @@ class CatalogDB:
         #: Whether the catalog is in memory although a file was asked for.
         self.fell_back = False
         self._connection = self._open()
+        self._stream_ids: dict[str, int] = dict(self._connection.execute("SELECT name, id FROM stream_names").fetchall())
 
     # -- opening ------------------------------------------------------------
 
@@ -150,6 +151,7 @@ class CatalogDB:
             memory = self._create(sqlite3.connect(":memory:", check_same_thread=False))
         self._connection.close()
         self._connection = memory
+        self._stream_ids = dict(memory.execute("SELECT name, id FROM stream_names").fetchall())
         self.fell_back = True
 
     def _write(self, statements: Any, *args: Any) -> Any:
@@ -266,22 +268,33 @@ class CatalogDB:
         """
 
         def store(connection: sqlite3.Connection, results: list[tuple[str, str, dict[str, Any]]]) -> None:
-            for name, version, facts in results:
-                row = connection.execute("SELECT id FROM logs WHERE name = ? AND version = ?", (name, version)).fetchone()
-                if row is None:
-                    continue  # changed or removed meanwhile: indexed again, or not at all
-                (log,) = row
-                values = [_column(key, facts.get(key)) for key in FACTS if key != "kind"]
-                assignments = ", ".join(f"{key} = ?" for key in FACTS if key != "kind")
-                state = FAILED if facts.get("error") else INDEXED
-                connection.execute(f"UPDATE logs SET state = ?, {assignments} WHERE id = ?", (state, *values, log))
-                connection.execute("DELETE FROM log_streams WHERE log = ?", (log,))
-                streams = facts.get("streams") or []
-                connection.executemany("INSERT OR IGNORE INTO stream_names (name) VALUES (?)", [(s,) for s in streams])
-                connection.executemany(
-                    "INSERT OR IGNORE INTO log_streams (stream, log) SELECT id, ? FROM stream_names WHERE name = ?",
-                    [(log, s) for s in streams],
-                )
+            ids: dict[tuple[str, str], int] = {}
+            for start in range(0, len(results), 400):
+                chunk = results[start:start + 400]
+                marks = ",".join(["(?, ?)"] * len(chunk))
+                query = f"SELECT name, version, id FROM logs WHERE (name, version) IN (VALUES {marks})"
+                for name, version, log in connection.execute(query, [value for name, version, _ in chunk for value in (name, version)]):
+                    ids[name, version] = log
+            # Those changed or removed meanwhile are indexed again, or not at all.
+            stored = [(ids[name, version], facts) for name, version, facts in results if (name, version) in ids]
+            assignments = ", ".join(f"{key} = ?" for key in FACTS if key != "kind")
+            connection.executemany(
+                f"UPDATE logs SET state = ?, {assignments} WHERE id = ?",
+                [(FAILED if facts.get("error") else INDEXED, *(_column(key, facts.get(key)) for key in FACTS if key != "kind"), log)
+                 for log, facts in stored],
+            )
+            connection.executemany("DELETE FROM log_streams WHERE log = ?", [(log,) for log, _ in stored])
+            names = {stream for _, facts in stored for stream in facts.get("streams") or ()}
+            unknown = [stream for stream in names if stream not in self._stream_ids]
+            connection.executemany("INSERT OR IGNORE INTO stream_names (name) VALUES (?)", [(stream,) for stream in unknown])
+            for start in range(0, len(unknown), 500):
+                chunk = unknown[start:start + 500]
+                query = f"SELECT name, id FROM stream_names WHERE name IN ({','.join('?' * len(chunk))})"
+                self._stream_ids.update(connection.execute(query, chunk).fetchall())
+            connection.executemany(
+                "INSERT OR IGNORE INTO log_streams (stream, log) VALUES (?, ?)",
+                [(self._stream_ids[stream], log) for log, facts in stored for stream in facts.get("streams") or ()],
+            )
 
         self._write(store, list(results))
 

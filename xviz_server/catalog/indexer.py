@@ -59,6 +59,8 @@ SETTLE = 10.0
 CONCURRENCY = 8
 #: Logs taken from the database at a time to index.
 BATCH = 256
+#: The version of a log in a store that a session found before the store's next listing told its version.
+NOTICED = "noticed"
 #: The root of the datasets named by ``--dataset``.
 DATASETS = "--dataset"
 #: Catalog kinds of the discovery kinds they come from.
@@ -124,7 +126,7 @@ class Indexer:
         self._datasets: dict[str, Found] = {}
         self._stored: dict[str, StoredLog | StoredDataset] = {}  # store entries found, until indexed
         self._store_datasets: dict[str, StoredDataset] = {}  # the datasets of the stores' last listings (few)
-        self._noticed: set[str] = set()
+        self._noticed: dict[str, Found | StoredLog | StoredDataset | None] = {}
         self._looking = False  # a look for changes is under way
         self._wake = asyncio.Event()
         self._work = asyncio.Event()
@@ -188,9 +190,9 @@ class Indexer:
         kind = rows[0]["kind"] if rows else LOG
         return Found(name, Path(where[1]), _DISCOVERY_KINDS.get(kind, kind))
 
-    def notice(self, name: str) -> None:
-        """A session found ``name`` new, changed or gone: look at it soon."""
-        self._noticed.add(name)
+    def notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
+        """A session found ``name`` new (``found``: where), changed or gone: look at it soon."""
+        self._noticed[name] = found
         self._wake.set()
 
     # -- questions ----------------------------------------------------------
@@ -233,6 +235,13 @@ class Indexer:
             logger.exception("catalog: looking for logs failed")
         indexed, found = await self._counted()
         logger.info("catalog: %d logs found in %.1f s, %d of them indexed", found, time.perf_counter() - started, indexed)
+        roots = [*(scan.root for scan in self._scans), *(store.url for store in self._stores)]
+        if roots and not found:
+            logger.warning(
+                "no logs under %s yet: put logs in the reference layout or datasets there (mounted, in a container); "
+                "one added later is listed within seconds, and served on the first request that names it",
+                ", ".join(roots),
+            )
         self.looked.set()
         last_sweep = last_list = time.monotonic()
         while True:
@@ -318,9 +327,12 @@ class Indexer:
         if waiting:
             await self._workers.io(self._recheck, waiting)
             self._work.set()
-        noticed, self._noticed = self._noticed, set()
-        for name in noticed:
-            await self._recheck_one(name)
+        noticed, self._noticed = self._noticed, {}
+        for name, found in noticed.items():
+            if isinstance(found, (StoredLog, StoredDataset)):
+                await self._found_in_store(found)
+            else:
+                await self._recheck_one(name)
         if sweep:
             for scan in self._scans:
                 await self._sweep_root(scan.root)
@@ -350,6 +362,14 @@ class Indexer:
         elif now != version:
             kind = (await self._workers.io(self._db.select, "name = ?", [name], "name", 1))[0]["kind"]
             await self._found([Row(name, root, place, now, kind)])
+
+    async def _found_in_store(self, entry: StoredLog | StoredDataset) -> None:
+        """A log or dataset a session found in a store before its next listing: indexed now, its version told by that listing."""
+        key = entry.folder.prefix if isinstance(entry, StoredLog) else entry.path.key
+        store = next((store for store in self._stores if store.key_url(key).startswith(f"{store.url}/")), None)
+        if store is not None:
+            self._stored[entry.name] = entry
+            await self._found([Row(entry.name, store.url, store.key_url(key), NOTICED, source_kind(entry.kind, key))])
 
     async def _sweep_root(self, root: str) -> None:
         """Compare every log's version on disk with the catalog's (two ``stat`` calls a log), a page at a time."""
@@ -419,7 +439,7 @@ class Indexer:
         local_roots = self._local_roots
         on_disk = [(name, place, version) for name, root, place, version, kind in batch if root in local_roots and kind == LOG]
         others = [row for row in batch if not (row[1] in local_roots and row[4] == LOG)]
-        results, slow, waiting = await self._workers.io(_read_local, on_disk)
+        results, slow, waiting = await self._workers.cpu(_read_local, on_disk, time.time())
         if waiting:
             await self._workers.io(self._db.mark, waiting, WAITING)
         gate = asyncio.Semaphore(CONCURRENCY)
@@ -463,8 +483,10 @@ class Indexer:
         return facts(kind, opened.format, opened.metadata, opened.index, size, modified)
 
 
-def _read_local(logs: list[tuple[str, str, str]]) -> tuple[list[tuple[str, str, dict[str, Any]]], list[tuple[str, str, str]], list[str]]:
-    """Facts of log folders on disk (blocks): those read, those to open as sessions do, and those waiting for their index."""
+def _read_local(
+    logs: list[tuple[str, str, str]], now: float
+) -> tuple[list[tuple[str, str, dict[str, Any]]], list[tuple[str, str, str]], list[str]]:
+    """Facts of log folders on disk, at ``now``, for a worker process: those read, those to open as sessions do, and those waiting for their index."""
     results: list[tuple[str, str, dict[str, Any]]] = []
     slow: list[tuple[str, str, str]] = []
     waiting: list[str] = []
@@ -479,7 +501,7 @@ def _read_local(logs: list[tuple[str, str, str]]) -> tuple[list[tuple[str, str, 
             continue
         if found is not None:
             results.append((name, version, found))
-        elif time.time() - int(version.split(",")[0]) / 1e9 < SETTLE:
+        elif now - int(version.split(",")[0]) / 1e9 < SETTLE:
             waiting.append(name)
         else:
             slow.append((name, place, version))

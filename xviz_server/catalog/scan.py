@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..datasets import FILE_KINDS
-from ..layout import FRAME_FILE, LOG
-from ..logs import stamp_of
+from ..layout import FRAME_FILE, INDEX_FILE, LOG
+from ..logs import stamp_from, stamp_of
 from .db import Row
 from .facts import source_kind
 
@@ -37,6 +37,11 @@ def version_of(path: str) -> str | None:
     """A log's or dataset's version on disk (see :func:`~xviz_server.logs.stamp_of`), ``None`` when it is gone."""
     stamp = stamp_of(path)
     return None if stamp is None else ",".join(map(str, stamp))
+
+
+def _version(own: os.stat_result, index: os.stat_result | None) -> str:
+    """:func:`version_of` from the ``stat`` of a folder and of its index file, taken already."""
+    return ",".join(map(str, stamp_from(own, index)))
 
 
 @dataclass
@@ -113,26 +118,30 @@ class LocalScan:
 
     def _look(self, relative: str, known: set[str] = frozenset()) -> Iterator[Row]:  # type: ignore[assignment]
         """The rows of the folder ``relative`` and of the folders below it not in ``known`` (looked at before)."""
-        stack = [relative]
+        stack: list[tuple[str, str | None]] = [(relative, None)]
         while stack:
-            current = stack.pop()
+            current, real = stack.pop()
             path = self._path(current)
             try:
-                real = os.path.realpath(path)
+                # A link (or the first folder) is resolved; a folder's other folders are at its real path.
+                real = real or os.path.realpath(path)
                 if self._real.get(real, current) != current:
-                    continue  # a link back to a folder searched already
-                mtime = os.stat(path).st_mtime_ns
+                    continue
+                own = os.stat(path)
                 with os.scandir(path) as listing:
                     entries = sorted((entry for entry in listing if not entry.name.startswith(".")), key=lambda e: e.name)
             except OSError:
                 continue
             name = current or self._name
-            files = [entry for entry in entries if not _is_dir(entry)]
-            folders = [entry for entry in entries if _is_dir(entry)]
+            kinds = [(entry, _is_dir(entry)) for entry in entries]
+            files = [entry for entry, is_dir in kinds if not is_dir]
+            folders = [entry for entry, is_dir in kinds if is_dir]
             if any(FRAME_FILE.fullmatch(entry.name) for entry in files):
-                version = version_of(path)
-                if version is not None:
-                    yield Row(name, self.root, path, version, LOG)
+                index = next((entry for entry in files if entry.name == INDEX_FILE), None)
+                try:
+                    yield Row(name, self.root, path, _version(own, index.stat() if index is not None else None), LOG)
+                except OSError:
+                    pass  # gone meanwhile
                 files = []  # a log's files are its frames: no dataset among them
                 if not folders:
                     continue
@@ -143,14 +152,14 @@ class LocalScan:
                     if version is not None:
                         yield Row(name, self.root, path, version, source_kind(kind, path))
                     continue
-            folder = _Folder(mtime)
+            folder = _Folder(own.st_mtime_ns)
             self._folders[current] = folder
             self._real[real] = current
             for entry in folders:
                 folder.children.add(entry.name)
                 child = self._join(current, entry.name)
                 if child not in known:
-                    stack.append(child)
+                    stack.append((child, None if entry.is_symlink() else os.path.join(real, entry.name)))
             for entry in files:
                 stem, suffix = os.path.splitext(entry.name)
                 if suffix not in FILE_KINDS:
