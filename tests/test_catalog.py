@@ -25,8 +25,9 @@ from typing import Any, Callable
 
 import pytest
 
-from helpers import FLEET_START, FleetLog, client, running_server, ten_hz, write_fleet, write_log
+from helpers import FLEET_START, FleetLog, client, metadata, running_server, ten_hz, write_fleet, write_log
 from xviz_server.catalog.db import FILE_NAME, SCHEMA
+from xviz_server.codec import Format, encode
 from xviz_server.server import XVIZServer
 
 KITTI_START = 1317042145.964
@@ -329,3 +330,79 @@ async def test_a_state_directory_that_cannot_be_made_keeps_the_catalog_in_memory
         assert server.indexer.db is not None and server.indexer.db.fell_back
     assert page["indexed"] == 3
     assert any("in memory" in r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
+
+
+# ------------------------------------------------------------------ an object store
+
+
+STORE_LOGS = 250
+STORE_FRAMES = 38  # with the index and the metadata: 40 keys a log, 10 000 in all
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """moto's S3 server holding 250 logs of 38 frames each under ``fleet/``: 10 000 keys."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from s3 import moto_process
+
+    source = write_log(tmp_path_factory.mktemp("frames"), ten_hz(STORE_FRAMES), fmt=Format.JSON)
+    files = {path.name: path.read_bytes() for path in source.iterdir()}
+    with moto_process() as s3:
+        s3.bucket(BUCKET)
+        puts = [(f"fleet/car-{i % 10}/seg-{i:04d}/{name}", data) for i in range(STORE_LOGS) for name, data in files.items()]
+        with ThreadPoolExecutor(10) as pool:  # botocore's pool of connections
+            list(pool.map(lambda put: s3.put(BUCKET, *put), puts))
+        yield s3, files
+
+
+BUCKET = "xviz-catalog"
+
+
+async def test_a_store_of_ten_thousand_keys_is_listed_from_one_listing_and_two_gets_a_log(
+    store: Any, monkeypatch: pytest.MonkeyPatch
+):
+    from s3 import proxied
+
+    s3, files = store
+    async with proxied(s3, monkeypatch) as proxy:
+        async with running_server([f"s3://{BUCKET}/fleet"], catalog_store_poll=0.5) as server:
+            page = await listing(server, limit=1000)
+            built = list(proxy.requests)
+            listings = [r for r in built if "list-type" in r]
+            assert page["found"] == page["indexed"] == STORE_LOGS and len(page["logs"]) == STORE_LOGS
+            assert {log["frames"] for log in page["logs"]} == {STORE_FRAMES}
+            # Listings of the prefix, a page of 1000 keys a request; the index and metadata of each log once, no frame.
+            assert listings and len(listings) % 10 == 0 and len(proxy.gets()) == 2 * STORE_LOGS
+            assert all(r.endswith(("/0-frame.json", "/1-frame.json")) for r in proxy.gets())
+
+            # Listed again and again: nothing read again.
+            await eventually(lambda: _listed_since(proxy, len(built), 10), timeout=60)
+            assert len(proxy.gets()) == 2 * STORE_LOGS
+
+            # A log added, one changed (its metadata written again, with a description), one removed.
+            for name, data in files.items():
+                s3.put(BUCKET, f"fleet/car-x/new/{name}", data)
+            described = metadata(start_time=100.0, end_time=103.7, description="rewritten")
+            s3.put(BUCKET, "fleet/car-1/seg-0001/1-frame.json", encode({"type": "xviz/metadata", "data": described}, Format.JSON))
+            for name in files:
+                s3.delete(BUCKET, f"fleet/car-2/seg-0002/{name}")
+            before = len(proxy.gets())
+
+            async def changed() -> bool:
+                logs = {log["name"]: log for log in await every_page(server, limit=1000)}
+                return (
+                    logs.get("car-x/new", {}).get("frames") == STORE_FRAMES
+                    and logs["car-1/seg-0001"].get("description") == "rewritten"
+                    and "car-2/seg-0002" not in logs
+                )
+
+            await eventually(changed, timeout=60)
+            assert len(proxy.gets()) - before == 2 * 2  # the new log's and the changed log's index and metadata
+            page = await listing(server)
+            assert page["found"] == page["indexed"] == STORE_LOGS
+
+
+async def _listed_since(proxy: Any, start: int, count: int) -> bool:
+    """Whether ``count`` listing requests came after the first ``start`` requests."""
+    return sum("list-type" in request for request in proxy.requests[start:]) >= count
