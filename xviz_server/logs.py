@@ -137,18 +137,6 @@ class Log:
         """The ``xviz/metadata`` message, encoded in ``fmt``."""
         return self._metadata_messages[fmt]
 
-    def describe(self) -> dict[str, Any]:
-        """A summary for the catalog: format, frames, time range, streams."""
-        info = self.metadata.get("log_info") or {}
-        return {
-            "name": self.name,
-            "format": self.format.value,
-            "frames": len(self.index),
-            "start_time": info.get("start_time"),
-            "end_time": info.get("end_time"),
-            "streams": self.streams,
-        }
-
     async def frame(self, number: int, fmt: Format, streams: frozenset[str] | None = None) -> bytes:
         """Frame ``number`` encoded in ``fmt``, with only ``streams`` if given.
 
@@ -512,14 +500,3 @@ class Catalog:
         """Stop reading logs into the frame cache."""
         for name in list(self._preloads):
             self._stop_preload(name)
-
-    async def describe(self) -> list[dict[str, Any]]:
-        """A summary of every log, opening those not yet open; a log that fails shows its error."""
-        await self.scan()
-        summaries = []
-        for name in self.names():
-            try:
-                summaries.append((await self.open(name, preload=False)).describe())
-            except XVIZError as exc:
-                summaries.append({"name": name, "error": str(exc)})
-        return summaries

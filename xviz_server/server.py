@@ -4,9 +4,11 @@ GET and HEAD are served (see :mod:`xviz_server.gate`); HTTP requests that are
 not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer.HEADERS`:
 
 * ``GET /`` from a browser: the viewer page (see :mod:`xviz_server.viewer`);
-* ``GET /api/logs`` (or ``/logs``, or ``/`` from any other client): the
-  catalog, JSON: every log with its format, frame count, time range and
-  stream names, and the live feeds;
+* ``GET /api/logs`` (or ``/logs``, or ``/`` from any other client): a page
+  of the catalog (see :mod:`xviz_server.catalog`), JSON: logs with their
+  format, frame count, time range and stream names, searched and paged by
+  the query's parameters, and on the first page the live feeds;
+  ``GET /api/logs/NAME``: every fact the catalog has of one log;
 * ``GET /healthz``: ``ok`` (then, with ``--broker``, a line on the broker's
   state, and one for each reader of a feed that keeps failing), or HTTP 503
   saying what is broken (a worker process pool that lost a process and is
