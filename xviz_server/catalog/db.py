@@ -243,7 +243,7 @@ class CatalogDB:
         """Up to ``limit`` logs found and not yet indexed: name, root, place, version, kind."""
         with self._lock:
             return self._connection.execute(
-                "SELECT name, root, place, version, kind FROM logs WHERE state = ? ORDER BY name LIMIT ?", (FOUND, limit)
+                "SELECT name, root, place, version, kind FROM logs WHERE state = ? LIMIT ?", (FOUND, limit)
             ).fetchall()
 
     def mark(self, names: Iterable[str], state: str) -> None:

@@ -17,7 +17,7 @@ Every method blocks (for a thread).
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -116,7 +116,7 @@ class LocalScan:
             del self._folders[other]
         self._real = {real: key for real, key in self._real.items() if key in self._folders}
 
-    def _look(self, relative: str, known: set[str] = frozenset()) -> Iterator[Row]:  # type: ignore[assignment]
+    def _look(self, relative: str, known: Collection[str] = frozenset()) -> Iterator[Row]:
         """The rows of the folder ``relative`` and of the folders below it not in ``known`` (looked at before)."""
         stack: list[tuple[str, str | None]] = [(relative, None)]
         while stack:
