@@ -293,8 +293,8 @@ class Known(Protocol):
         """The names of the logs, in order."""
         ...
 
-    def locate(self, name: str) -> Found | StoredDataset | None:
-        """Where the log or dataset ``name`` is, if known (without waiting for I/O)."""
+    async def locate(self, name: str) -> Found | StoredDataset | None:
+        """Where the log or dataset ``name`` is, if known."""
         ...
 
     def notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
@@ -418,7 +418,7 @@ class Catalog:
         check_log_name(name)
         found = self._found.get(name)
         if found is None and self.known is not None:
-            found = self.known.locate(name)
+            found = await self.known.locate(name)
         if found is None:
             found = await self._workers.io(self._lookup, name)
             for store in self._stores:

@@ -46,18 +46,23 @@ from helpers import FLEET_START, write_fleet  # noqa: E402
 
 
 def make_fleet(directory: Path, count: int) -> None:
-    """``count`` logs in ``directory``, made once (a marker file says the fleet is whole)."""
+    """``count`` logs in ``directory``, made once (a marker file says the fleet is whole; an interrupted one is finished)."""
     marker = directory / ".complete"
     if marker.exists():
         return
-    shutil.rmtree(directory, ignore_errors=True)
-    directory.mkdir(parents=True)
     started = time.perf_counter()
-    (first,) = write_fleet(directory / ".frames", 1, cars=1)
-    frames = directory / ".frames" / first.name
-    step = 5000
+    step = 5000  # each step's frames link to a log of its own: a file system allows some 65 000 links to a file
     for start in range(0, count, step):
-        write_fleet(directory, min(step, count - start), cars=100, first=start, frames_from=frames)
+        size = min(step, count - start)
+        names = [f"car-{i % 100:02d}/seg-{i:06d}" for i in range(start, start + size)]
+        if (directory / names[-1] / "0-frame.json").exists():
+            continue
+        for name in names:
+            shutil.rmtree(directory / name, ignore_errors=True)
+        source = directory / ".frames" / str(start)
+        shutil.rmtree(source, ignore_errors=True)
+        (first,) = write_fleet(source, 1, cars=1)
+        write_fleet(directory, size, cars=100, first=start, frames_from=source / first.name)
     marker.write_text(str(count))
     print(f"made {count} logs in {directory} in {time.perf_counter() - started:.0f} s", flush=True)
 

@@ -179,8 +179,11 @@ class Indexer:
         """The names of the catalog in order, each read when asked for."""
         return Names(self._db, self._count)
 
-    def locate(self, name: str) -> Found | StoredDataset | None:
+    async def locate(self, name: str) -> Found | StoredDataset | None:
         """Where the log ``name`` is, when it is a log or dataset under a directory root, or a dataset in a store."""
+        return await self._workers.io(self._locate, name)
+
+    def _locate(self, name: str) -> Found | StoredDataset | None:
         where = self._db.place(name)
         if where is None:
             return None
