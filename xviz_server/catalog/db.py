@@ -60,12 +60,12 @@ CREATE TABLE logs (
     bytes INTEGER, modified REAL, description TEXT, vehicle TEXT, tags TEXT,
     streams TEXT, error TEXT, detail TEXT
 );
-CREATE INDEX logs_start ON logs (start_time IS NULL, start_time, name);
-CREATE INDEX logs_end ON logs (end_time IS NULL, end_time, name);
-CREATE INDEX logs_duration ON logs (duration IS NULL, duration, name);
-CREATE INDEX logs_frames ON logs (frames IS NULL, frames, name);
-CREATE INDEX logs_bytes ON logs (bytes IS NULL, bytes, name);
-CREATE INDEX logs_modified ON logs (modified IS NULL, modified, name);
+CREATE INDEX logs_start ON logs (start_time, name);
+CREATE INDEX logs_end ON logs (end_time, name);
+CREATE INDEX logs_duration ON logs (duration, name);
+CREATE INDEX logs_frames ON logs (frames, name);
+CREATE INDEX logs_bytes ON logs (bytes, name);
+CREATE INDEX logs_modified ON logs (modified, name);
 CREATE INDEX logs_state ON logs (state);
 CREATE TABLE stream_names (id INTEGER PRIMARY KEY, name TEXT NOT NULL UNIQUE);
 CREATE TABLE log_streams (stream INTEGER NOT NULL, log INTEGER NOT NULL, PRIMARY KEY (stream, log)) WITHOUT ROWID;
@@ -269,11 +269,10 @@ class CatalogDB:
 
         def store(connection: sqlite3.Connection, results: list[tuple[str, str, dict[str, Any]]]) -> None:
             ids: dict[tuple[str, str], int] = {}
-            for start in range(0, len(results), 400):
-                chunk = results[start:start + 400]
-                marks = ",".join(["(?, ?)"] * len(chunk))
-                query = f"SELECT name, version, id FROM logs WHERE (name, version) IN (VALUES {marks})"
-                for name, version, log in connection.execute(query, [value for name, version, _ in chunk for value in (name, version)]):
+            for start in range(0, len(results), 500):
+                chunk = [name for name, _, _ in results[start:start + 500]]
+                query = f"SELECT name, version, id FROM logs WHERE name IN ({','.join('?' * len(chunk))})"
+                for name, version, log in connection.execute(query, chunk):
                     ids[name, version] = log
             # Those changed or removed meanwhile are indexed again, or not at all.
             stored = [(ids[name, version], facts) for name, version, facts in results if (name, version) in ids]
@@ -321,6 +320,11 @@ class CatalogDB:
             columns = [column[0] for column in cursor.description]
             rows = cursor.fetchall()
         return [_decoded(dict(zip(columns, row))) for row in rows]
+
+    def longest(self) -> float | None:
+        """The longest duration of a log (from its index: no scan)."""
+        with self._lock:
+            return self._connection.execute("SELECT max(duration) FROM logs").fetchone()[0]
 
     def stream_id(self, stream: str) -> int | None:
         """The id of a stream name, if any log has it."""

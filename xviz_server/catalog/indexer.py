@@ -207,7 +207,7 @@ class Indexer:
     def _page(self, query: Query) -> dict[str, Any]:
         db = self._db
         stream_id = db.stream_id(query.stream) if query.stream is not None else None
-        where, parameters = query.where(stream_id)
+        where, parameters = query.where(stream_id, db.longest() if query.start is not None else None)
         rows = db.select(where, parameters, query.order(), query.limit + 1)
         indexed, found = db.counts()
         self._count = found

@@ -8,7 +8,7 @@ Parameters (each at most once; others, like ``token``, are left alone):
 * ``from``, ``to``: seconds; the log's time range overlaps them;
 * ``min_duration``: seconds;
 * ``sort``: :data:`SORTS`, ``-`` first for the reverse (``-start_time``);
-  logs not yet indexed come last, first in reverse;
+  logs not yet indexed come first, last in reverse;
 * ``limit``: logs a page, 1 to :data:`MAX_LIMIT` (default :data:`LIMIT`);
 * ``cursor``: the ``next`` of the page before, as it was given.
 
@@ -62,8 +62,14 @@ class Query:
     def first_page(self) -> bool:
         return self.after is None
 
-    def where(self, stream_id: int | None) -> tuple[str, list[Any]]:
-        """The SQL condition and its parameters; ``stream_id`` is the id of :attr:`stream`, if any log has it."""
+    def where(self, stream_id: int | None, longest: float | None) -> tuple[str, list[Any]]:
+        """The SQL condition and its parameters.
+
+        ``stream_id`` is the id of :attr:`stream`, if any log has it;
+        ``longest`` the longest duration of a log, which bounds where a log
+        that overlaps ``from`` can start (so that the start times' index
+        finds the candidates of a time range).
+        """
         conditions: list[str] = []
         parameters: list[Any] = []
         if self.q is not None:
@@ -77,8 +83,8 @@ class Query:
             conditions.append(f"kind IN ({','.join('?' * len(self.kinds))})")
             parameters += self.kinds
         if self.start is not None:
-            conditions.append("end_time >= ?")
-            parameters.append(self.start)
+            conditions.append("end_time >= ? AND start_time >= ?")
+            parameters += [self.start, self.start - (longest or 0.0)]
         if self.end is not None:
             conditions.append("start_time <= ?")
             parameters.append(self.end)
@@ -95,21 +101,19 @@ class Query:
         key, name = self.after  # type: ignore[misc]
         if self.sort == "name":
             return ("name < ?" if self.descending else "name > ?"), [name]
-        column = self.sort
+        column = self.sort  # SQL sorts NULL (a log not yet indexed) first
         if not self.descending:
             if key is None:
-                return f"({column} IS NULL AND name > ?)", [name]
-            return f"({column} IS NULL OR ({column}, name) > (?, ?))", [key, name]
+                return f"(({column} IS NULL AND name > ?) OR {column} IS NOT NULL)", [name]
+            return f"({column}, name) > (?, ?)", [key, name]
         if key is None:
-            return f"(({column} IS NULL AND name < ?) OR {column} IS NOT NULL)", [name]
-        return f"({column} IS NOT NULL AND ({column}, name) < (?, ?))", [key, name]
+            return f"({column} IS NULL AND name < ?)", [name]
+        return f"(({column}, name) < (?, ?) OR {column} IS NULL)", [key, name]
 
     def order(self) -> str:
         """The SQL ordering: the reverse of the ascending one when descending (an index serves both)."""
         direction = " DESC" if self.descending else ""
-        if self.sort == "name":
-            return f"name{direction}"
-        return f"{self.sort} IS NULL{direction}, {self.sort}{direction}, name{direction}"
+        return f"name{direction}" if self.sort == "name" else f"{self.sort}{direction}, name{direction}"
 
     def cursor(self, last: dict[str, Any]) -> str:
         """The cursor of the page after the one that ends with the log ``last``."""
