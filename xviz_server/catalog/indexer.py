@@ -58,7 +58,7 @@ SETTLE = 10.0
 #: Logs read at once from a store or as datasets.
 CONCURRENCY = 8
 #: Logs taken from the database at a time to index.
-BATCH = 256
+BATCH = 1024
 #: The version of a log in a store that a session found before the store's next listing told its version.
 NOTICED = "noticed"
 #: The root of the datasets named by ``--dataset``.
