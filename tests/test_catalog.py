@@ -344,7 +344,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
     """moto's S3 server holding 250 logs of 38 frames each under ``fleet/``: 10 000 keys."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from s3 import moto_process
+    from devkit.s3 import moto_process
 
     source = write_log(tmp_path_factory.mktemp("frames"), ten_hz(STORE_FRAMES), fmt=Format.JSON)
     files = {path.name: path.read_bytes() for path in source.iterdir()}
@@ -362,7 +362,7 @@ BUCKET = "xviz-catalog"
 async def test_a_store_of_ten_thousand_keys_is_listed_from_one_listing_and_two_gets_a_log(
     store: Any, monkeypatch: pytest.MonkeyPatch
 ):
-    from s3 import proxied
+    from devkit.s3 import proxied
 
     s3, files = store
     async with proxied(s3, monkeypatch) as proxy:
