@@ -168,57 +168,6 @@ def write_log(
     return directory
 
 
-@dataclass(frozen=True)
-class FleetLog:
-    """One log of :func:`write_fleet`: its name, time range, vehicle and description."""
-
-    name: str
-    start: float
-    end: float
-    vehicle: str
-    description: str
-
-
-#: When the first log of :func:`write_fleet` starts (UNIX seconds): 2020-09-13.
-FLEET_START = 1_600_000_000.0
-
-
-def write_fleet(root: Path, count: int, *, cars: int = 10, first: int = 0, frames_from: Path | None = None) -> list[FleetLog]:
-    """``count`` small logs in the reference layout under ``root``, as a fleet cuts its drives: ``car-NN/seg-NNNNNN``.
-
-    Log ``i`` starts a minute after log ``i - 1`` and lasts 10 to 59 s; its metadata's ``log_info`` gives its
-    ``description`` ("segment i of car-NN, city|highway"), ``vehicle`` and ``tags``, and its streams are three
-    of the four of :func:`metadata`'s kind (``/camera`` only on every third log). Each has an index document,
-    JSON metadata and two JSON frames, written; with ``frames_from`` (a log made by an earlier call), its
-    frames are hard links of that log's (the catalog reads no frame: a fleet of 100 000 costs less to make).
-    """
-    logs = []
-    for i in range(first, first + count):
-        car = f"car-{i % cars:02d}"
-        start = FLEET_START + 60 * i
-        end = start + 10 + i % 50
-        road = "highway" if i % 4 == 0 else "city"
-        name = f"{car}/seg-{i:06d}"
-        description = f"segment {i} of {car}, {road}"
-        streams = {"/vehicle_pose": {"category": "POSE"}, "/points": {"category": "PRIMITIVE", "primitive_type": "POINT"}}
-        if i % 3 == 0:
-            streams["/camera"] = {"category": "PRIMITIVE", "primitive_type": "IMAGE"}
-        meta = {"version": "2.0.0", "streams": streams,
-                "log_info": {"start_time": start, "end_time": end, "description": description, "vehicle": car, "tags": [road]}}
-        directory = root / name
-        directory.mkdir(parents=True)
-        (directory / "1-frame.json").write_bytes(encode({"type": "xviz/metadata", "data": meta}, Format.JSON))
-        for frame, t in enumerate((start, end)):
-            target = directory / f"{file_number(frame)}-frame.json"
-            if frames_from is not None:
-                os.link(frames_from / target.name, target)
-            else:
-                target.write_bytes(encode({"type": "xviz/state_update", "data": update(t, points=2, streams=("/vehicle_pose",))}, Format.JSON))
-        (directory / INDEX_FILE).write_text(json.dumps(index_document([(start, start), (end, end)])))
-        logs.append(FleetLog(name, start, end, car, description))
-    return logs
-
-
 def write_demo(directory: Path, duration: float = 0.5, fmt: Format = Format.BINARY) -> Path:
     """The built-in demo drive, ``duration`` seconds of it, written as a static log by ``convert``."""
     import io

@@ -25,7 +25,8 @@ from typing import Any, Callable
 
 import pytest
 
-from helpers import FLEET_START, FleetLog, client, metadata, running_server, ten_hz, write_fleet, write_log
+from devkit.fleet import FLEET_START, FleetLog, write_fleet
+from helpers import client, metadata, running_server, ten_hz, write_log
 from xviz_server.catalog.db import FILE_NAME, SCHEMA
 from xviz_server.codec import Format, encode
 from xviz_server.server import XVIZServer

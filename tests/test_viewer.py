@@ -26,7 +26,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import metadata, metric, running_server, ten_hz, write_demo, write_fleet, write_log
+from devkit.fleet import write_fleet
+from helpers import metadata, metric, running_server, ten_hz, write_demo, write_log
 from xviz_server.catalog import parse_query
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer

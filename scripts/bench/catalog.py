@@ -2,7 +2,7 @@
 
     python scripts/bench/catalog.py [--logs 100000] [--quick] [--requests 200]
 
-Makes a fleet of small logs in the reference layout (``tests/helpers.py``'s
+Makes a fleet of small logs in the reference layout (``devkit/fleet.py``'s
 ``write_fleet``: an index document, JSON metadata, and two frames hard-linked
 from one log) once, in ``--fleet-dir`` (kept for the next run), then runs the
 server (``xviz-server serve``, a process of its own, on loopback) over it and
@@ -39,10 +39,9 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "tests"))
+from devkit.fleet import FLEET_START, write_fleet
 
-from helpers import FLEET_START, write_fleet  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 
 def make_fleet(directory: Path, count: int) -> None:
