@@ -370,7 +370,7 @@ class Indexer:
         """A log or dataset a session found in a store before its next listing: indexed now, its version told by that listing."""
         key = entry.folder.prefix if isinstance(entry, StoredLog) else entry.path.key
         store = next((store for store in self._stores if store.key_url(key).startswith(f"{store.url}/")), None)
-        if store is not None:
+        if store is not None and not await self._workers.io(self._db.versions, [entry.name]):  # unknown to the listings so far
             self._stored[entry.name] = entry
             await self._found([Row(entry.name, store.url, store.key_url(key), NOTICED, source_kind(entry.kind, key))])
 
