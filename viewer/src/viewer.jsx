@@ -154,7 +154,7 @@ export default class Viewer extends React.Component {
   };
 
   render() {
-    const {name, live, token, mapToken, onClose} = this.props;
+    const {name, live, mapToken, onClose} = this.props;
     const {error, panels, drawn, linkTime} = this.state;
     return (
       <div style={{display: 'flex', flexDirection: 'column', height: '100%'}}>
