@@ -28,11 +28,33 @@ from ..messages import unwrap
 from ..readahead import ReadAhead
 from ..work import Workers
 
-__all__ = ["StaticLogProvider", "StaticLog"]
+__all__ = ["StaticLogProvider", "StaticLog", "FORMATS", "read_metadata", "index_problem"]
 
 logger = logging.getLogger(__name__)
 
-_FORMATS = {"json": Format.JSON, "glb": Format.BINARY, "pbe": Format.BINARY}
+#: The format a log is served in, by the suffix of its metadata file.
+FORMATS = {"json": Format.JSON, "glb": Format.BINARY, "pbe": Format.BINARY}
+
+
+def read_metadata(name: str, file: str, data: bytes) -> dict[str, Any]:
+    """The content of the metadata message ``data`` (the file ``file`` of log ``name``); raises :class:`LogError`."""
+    try:
+        kind, content = unwrap(decode(data))
+    except (DecodeError, MessageError) as exc:
+        raise LogError(f"log {name!r}: {file} is not a readable XVIZ message: {exc}", log=name) from None
+    if kind != "xviz/metadata" or not isinstance(content, dict):
+        raise LogError(f"log {name!r}: {file} holds {kind!r}, not xviz/metadata", log=name)
+    return content
+
+
+def index_problem(index: TimeIndex, files: dict[int, str]) -> str | None:
+    """Why a log's stored index cannot serve with the message files ``files`` (by file number), or ``None``."""
+    frames = set(frame_numbers(files))
+    if set(index.frames.tolist()) != frames:
+        return f"{INDEX_FILE} names {len(index)} frames but the directory has {len(frames)}"
+    if not index.in_frame_order:
+        return f"the times of {INDEX_FILE} are not in frame order"
+    return None
 
 
 class StaticLogProvider:
@@ -67,7 +89,7 @@ class StaticLog:
                 f"log {name!r} has no metadata file (1-frame.glb, 1-frame.json or 1-frame.pbe) in {folder.location}",
                 log=name,
             )
-        self.format = _FORMATS[metadata_file.rpartition(".")[2]]
+        self.format = FORMATS[metadata_file.rpartition(".")[2]]
 
     @property
     def read_ahead(self) -> ReadAhead | None:
@@ -89,14 +111,9 @@ class StaticLog:
         file = self._files[METADATA_NUMBER]
         try:
             data = await self._read(METADATA_NUMBER)
-            kind, content = await self._workers.io(lambda: unwrap(decode(data)))
         except OSError as exc:
             raise LogError(f"log {self.name!r}: cannot read {file}: {exc.strerror or exc}", log=self.name) from None
-        except (DecodeError, MessageError) as exc:
-            raise LogError(f"log {self.name!r}: {file} is not a readable XVIZ message: {exc}", log=self.name) from None
-        if kind != "xviz/metadata" or not isinstance(content, dict):
-            raise LogError(f"log {self.name!r}: {file} holds {kind!r}, not xviz/metadata", log=self.name)
-        return content
+        return await self._workers.io(read_metadata, self.name, file, data)
 
     async def index(self) -> TimeIndex:
         index = await self._stored_index()
@@ -114,15 +131,9 @@ class StaticLog:
         except (OSError, orjson.JSONDecodeError, DecodeError) as exc:
             logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
             return None
-        frames = set(frame_numbers(self._files))
-        if set(index.frames.tolist()) != frames:
-            logger.warning(
-                "log %r: %s names %d frames but the directory has %d; rebuilding it from the frames",
-                self.name, INDEX_FILE, len(index), len(frames),
-            )
-            return None
-        if not index.in_frame_order:
-            logger.warning("log %r: the times of %s are not in frame order; rebuilding it from the frames", self.name, INDEX_FILE)
+        problem = index_problem(index, self._files)
+        if problem is not None:
+            logger.warning("log %r: %s; rebuilding it from the frames", self.name, problem)
             return None
         return index
 

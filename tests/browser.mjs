@@ -2,8 +2,9 @@
 //
 //   node tests/browser.mjs '{"url": "http://127.0.0.1:PORT/?log=NAME", "screenshot": "out.png"}'
 //
-// Options: url; screenshot (PNG path); click (a log name to click in the catalog
-// first); frames (WebSocket frames to wait for, default 3); timeout (ms, default
+// Options: url; screenshot (PNG path); search (text to type in the catalog's search
+// box, then wait for the list to change); more (times to click "More logs" after it);
+// click (a log name to click in the catalog first); frames (WebSocket frames to wait for, default 3); timeout (ms, default
 // 30000); settle (ms to wait before the report, default 1000); viewport ({width,
 // height}, default 1280x800); draw (false: only load the page, wait for nothing);
 // reload (true: reload the page once its address holds no token, then go on);
@@ -17,8 +18,9 @@
 // text, the error banners, the page errors and console errors, the catalog's text
 // when one was shown, the requests to hosts other than this machine (each refused:
 // the tests use no network), after a seek what the playback control shows, the
-// page's address at the end, the URLs of its WebSockets, and what its
-// Content-Security-Policy refused.
+// page's address at the end, the URLs of its WebSockets, what its
+// Content-Security-Policy refused, the catalog's rows and count after a search,
+// and the link the page offers to the time shown.
 // Each run launches a browser with a fresh profile of its own (playwright's).
 //
 // The canvas is screenshotted (which makes the browser composite a frame, and on a
@@ -118,6 +120,9 @@ try {
     await page.reload();
   }
   report.loadedMs = Date.now() - start;
+  if (options.search !== undefined || options.more) {
+    await searchCatalog(page);
+  }
   if (options.click) {
     const link = page.locator(`tr.log[data-log="${options.click}"] a`);
     await link.waitFor({timeout: options.timeout});
@@ -171,6 +176,10 @@ try {
   report.url = page.url();
   report.cspViolations = await page.evaluate(() => window.__cspViolations);
   report.socketUrls = await page.evaluate(() => window.__xvizSocketUrls);
+  const playback = page.locator('.playback');
+  report.playbackText = (await playback.count()) > 0 ? await playback.innerText() : '';
+  const timeLink = page.locator('a.time-link');
+  report.timeLink = (await timeLink.count()) > 0 ? await timeLink.getAttribute('href') : null;
   if (options.screenshot) {
     await page.screenshot({path: options.screenshot});
   }
@@ -178,6 +187,29 @@ try {
   await browser.close();
 }
 console.log(JSON.stringify(report));
+
+/** Type `options.search` in the catalog's search box, then click "More logs" `options.more` times; report the rows. */
+async function searchCatalog(page) {
+  const rows = () => page.evaluate(() => [...document.querySelectorAll('tr.log')].map(row => row.dataset.log));
+  await page.locator('table.catalog').waitFor({timeout: options.timeout});
+  if (options.search !== undefined) {
+    const before = JSON.stringify(await rows());
+    await page.locator('input.catalog-search').fill(options.search);
+    await page.waitForFunction(
+      shown => JSON.stringify([...document.querySelectorAll('tr.log')].map(row => row.dataset.log)) !== shown,
+      before,
+      {timeout: options.timeout}
+    );
+  }
+  for (let i = 0; i < (options.more || 0); i++) {
+    const count = (await rows()).length;
+    await page.locator('button.catalog-more').click();
+    await page.waitForFunction(n => document.querySelectorAll('tr.log').length > n, count, {timeout: options.timeout});
+  }
+  report.catalogRows = await rows();
+  report.catalogCount = await page.locator('.catalog-count').innerText();
+  report.moreOffered = (await page.locator('button.catalog-more').count()) > 0;
+}
 
 /** Click the timeline at `fraction`; what the playback control shows before and after, and the pictures' difference. */
 async function seek(page, fraction) {

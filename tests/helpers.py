@@ -197,8 +197,14 @@ def run_cli(*args: str, **env: str) -> subprocess.CompletedProcess[str]:
 
 @contextlib.asynccontextmanager
 async def running_server(data_dir: Path | Sequence[Path | str] | None, **settings: Any) -> AsyncIterator[XVIZServer]:
-    """An XVIZ server on a free loopback port, serving one data directory or several (directories, ``s3://`` URLs)."""
+    """An XVIZ server on a free loopback port, serving one data directory or several (directories, ``s3://`` URLs).
+
+    It is handed over once its catalog has found and indexed every log there is (unless ``settled=False``).
+    """
+    settled = settings.pop("settled", True)
     async with XVIZServer(Settings(host="127.0.0.1", port=0, data_dir=data_dir, **settings)) as server:
+        if settled:
+            await asyncio.wait_for(server.indexer.settled(), 60)
         yield server
 
 

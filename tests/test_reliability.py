@@ -209,11 +209,12 @@ async def test_a_log_copied_in_while_served_is_read_again_and_a_removed_one_goes
     # The copy has reached the metadata and four frames; the index comes last.
     for file in ["1-frame.glb", "2-frame.glb", "3-frame.glb", "4-frame.glb", "5-frame.glb"]:
         shutil.copy(complete / file, growing / file)
-    async with running_server(tmp_path / "logs") as server:
+    async with running_server(tmp_path / "logs", settled=False) as server:
         assert await transform(server, "/growing") == [100.0, 100.1, 100.2, 100.3]
         for file in sorted(complete.iterdir()):
             shutil.copy(file, growing / file.name)
         assert await transform(server, "/growing") == [round(100 + i / 10, 3) for i in range(10)]
+        await server.indexer.settled()  # the catalog reads again what the session found changed
         status, body = await get(server.port, "/")
         assert [(log["name"], log["frames"]) for log in json.loads(body)["logs"]] == [("growing", 10)]
 
@@ -221,5 +222,6 @@ async def test_a_log_copied_in_while_served_is_read_again_and_a_removed_one_goes
         async with client(server, "/growing") as c:
             error = await c.recv()
             assert error["type"] == "xviz/error" and "'growing' is gone" in error["data"]["message"], error
+        await server.indexer.settled()
         status, body = await get(server.port, "/")
         assert json.loads(body)["logs"] == []

@@ -24,7 +24,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from devkit.fleet import write_fleet
 from helpers import http_get, metadata, metric, running_server, ten_hz, write_demo, write_log
+from xviz_server.catalog import parse_query
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
 from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, STYLE_HASHES, ViewerPage, accepted_encodings
@@ -67,7 +69,7 @@ async def test_a_browser_gets_the_page_and_other_clients_the_catalog(tmp_path: P
         for path, accept in [("/", "application/json"), ("/", "*/*"), ("/api/logs", "text/html"), ("/logs", "")]:
             status, headers, body = await asyncio.to_thread(get, server, path, Accept=accept)
             assert status == 200 and headers["Content-Type"] == "application/json", (path, accept)
-            assert set(json.loads(body)) == {"server", "logs", "live"}
+            assert set(json.loads(body)) == {"server", "logs", "live", "next", "indexed", "found"}
 
 
 def policy(headers: dict[str, str]) -> dict[str, list[str]]:
@@ -221,6 +223,11 @@ def assert_stream_list_shows(report: dict[str, Any], streams: list[str]) -> None
         assert f"/{group}" in shown and (not rest or f"/{rest}" in shown), stream
 
 
+async def listed(server: XVIZServer) -> list[dict[str, Any]]:
+    """The first page of the server's catalog, as ``GET /api/logs`` lists it."""
+    return (await server.indexer.page(parse_query({})))["logs"]
+
+
 def counted(server: XVIZServer, name: str, **labels: str) -> int:
     """The value of one sample of the server's metrics (0 when it has none yet)."""
     _, _, body = get(server, "/metrics")
@@ -257,7 +264,7 @@ async def test_a_seek_beyond_the_buffer_asks_for_that_point_in_time(tmp_path: Pa
     async with running_server(tmp_path) as server:
         report = await open_page(server, "/?log=demo", "seek", seek=0.9)
         queries = await asyncio.to_thread(point_in_time_requests, server)
-        (summary,) = await server.catalog.describe()
+        (summary,) = await listed(server)
     assert_drawn_cleanly(report)
     # One for the first frame, one (or, while the frames around it arrive, a few) for the seek.
     assert queries >= 2
@@ -301,7 +308,7 @@ async def test_json_logs_and_converted_datasets_open(tmp_path: Path, shared_dir:
     write_demo(tmp_path / "demo-json", duration=2.0, fmt=Format.JSON)
     drive = shared_dir / "data" / "kitti-raw-2011_09_26_drive_0001-head" / "2011_09_26" / "2011_09_26_drive_0001_sync"
     async with running_server(tmp_path, dataset=[f"kitti:{drive}"]) as server:
-        names = {summary["name"]: summary for summary in await server.catalog.describe()}
+        names = {summary["name"]: summary for summary in await listed(server)}
         (dataset,) = set(names) - {"demo-json"}
         assert names["demo-json"]["format"] == "JSON"
         reports = {name: await open_page(server, f"/?log={name}", name.replace("/", "_")) for name in names}
@@ -315,13 +322,39 @@ async def test_a_click_in_the_catalog_opens_the_log(tmp_path: Path):
     write_demo(tmp_path / "demo", duration=3.0)
     async with running_server(tmp_path) as server:
         report = await open_page(server, "/", "catalog-click", click="demo")
-        (summary,) = await server.catalog.describe()
+        (summary,) = await listed(server)
     rows = [line.split("\t") for line in report["catalogText"].split("\n")]
     assert rows[0] == ["name", "format", "frames", "duration", "streams"]
     assert rows[1] == ["demo", summary["format"], str(summary["frames"]), f"{summary['end_time'] - summary['start_time']:.1f} s", str(len(summary["streams"]))]
     assert report["url"].endswith("/?log=demo")
     assert_drawn_cleanly(report)
     assert_stream_list_shows(report, summary["streams"])
+
+
+@browser
+async def test_the_catalog_searches_and_pages(tmp_path: Path):
+    fleet = sorted(log.name for log in write_fleet(tmp_path, 230))
+    write_demo(tmp_path / "demo", duration=1.0)
+    async with running_server(tmp_path) as server:
+        paged = await open_page(server, "/", "catalog-pages", draw=False, settle=0, more=2)
+        searched = await open_page(server, "/", "catalog-search", draw=False, settle=0, search="SEG-00012")
+    assert paged["catalogRows"] == sorted([*fleet, "demo"]) and not paged["moreOffered"]
+    assert paged["catalogCount"] == "231 logs" and paged["pageErrors"] == [] and paged["failedRequests"] == []
+    assert searched["catalogRows"] == [name for name in fleet if "seg-00012" in name] and len(searched["catalogRows"]) == 10
+
+
+@browser
+async def test_a_deep_link_opens_the_log_at_its_time_and_the_page_links_the_time_shown(tmp_path: Path):
+    write_demo(tmp_path / "demo", duration=20.0)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=demo&t=12", "deep-link", settle=2000)
+        start = (await server.indexer.one("demo"))["start_time"]
+    assert_drawn_cleanly(report)
+    assert report["timeLink"] == "?log=demo&t=12.0"
+    # The playback control shows the time of day: 12 s after the log's start (to the frame shown).
+    shown = datetime.strptime(re.findall(r"\d\d:\d\d:\d\d\.\d{3}", report["playbackText"])[-1], "%H:%M:%S.%f")
+    wanted = datetime.strptime(datetime.utcfromtimestamp(start + 12).strftime("%H:%M:%S.%f"), "%H:%M:%S.%f")
+    assert abs((shown - wanted).total_seconds()) < 1, (shown, wanted)
 
 
 @browser

@@ -37,7 +37,8 @@ __all__ = [
     "XVIZServer", "Settings", "LiveFeed", "MetadataBuilder", "FrameBuilder", "LogWriter", "ProbeReport",
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
     "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
-    "OversizeError", "ConfigError", "DependencyError", "StoreError", "BrokerError", "FoxgloveProtocolError", "ExportError",
+    "OversizeError", "ConfigError", "DependencyError", "StoreError", "BrokerError", "QueryError", "FoxgloveProtocolError",
+    "ExportError",
     "__version__",
 ]
 
@@ -59,6 +60,7 @@ if TYPE_CHECKING:
         LogWriteError,
         MessageError,
         OversizeError,
+        QueryError,
         SchemaValidationError,
         StoreError,
         UnknownSchemaError,

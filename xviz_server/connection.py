@@ -67,7 +67,7 @@ class Connection:
         self.session = Session(
             path=unquote(url.path),
             query=dict(parse_qsl(url.query, keep_blank_values=True)),
-            available=catalog.names(),
+            available=catalog.available(),
             live=live.names(),
             lag_timeout=settings.live_lag_timeout,
         )

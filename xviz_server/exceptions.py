@@ -28,6 +28,7 @@ __all__ = [
     "DependencyError",
     "StoreError",
     "BrokerError",
+    "QueryError",
     "FoxgloveProtocolError",
     "ExportError",
 ]
@@ -200,6 +201,14 @@ def _rebuild_store_error(message: str, key: str) -> StoreError:
 
 class BrokerError(XVIZError):
     """An entry read from the broker (Redis) between replicas is not one that xviz-server writes."""
+
+
+class QueryError(XVIZError, ValueError):
+    """A parameter of a catalog query (``GET /api/logs``) cannot be used; ``parameter`` names it."""
+
+    def __init__(self, parameter: str, message: str) -> None:
+        super().__init__(f"{parameter}: {message}")
+        self.parameter = parameter
 
 
 class FoxgloveProtocolError(XVIZError):

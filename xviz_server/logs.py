@@ -17,7 +17,7 @@ import os
 import stat
 import time
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 from . import frames
 from .cache import FrameCache
@@ -35,7 +35,7 @@ from .readahead import ReadAhead
 from .store import ObjectStore, StoredDataset, StoredLog
 from .work import Place, Workers
 
-__all__ = ["Catalog", "Log", "check_log_name"]
+__all__ = ["Catalog", "Known", "Log", "check_log_name", "complete_metadata", "stamp_of", "stamp_from"]
 
 logger = logging.getLogger(__name__)
 
@@ -91,7 +91,7 @@ class Log:
         # on disk never gets the frames of the log it replaces.
         self._key = (source.name, next(_openings))
         self.index = index
-        self.metadata = _complete_metadata(metadata, index)
+        self.metadata = complete_metadata(metadata, index)
         self._source = source
         self._cache = cache
         self._workers = workers
@@ -136,18 +136,6 @@ class Log:
     def metadata_message(self, fmt: Format) -> bytes:
         """The ``xviz/metadata`` message, encoded in ``fmt``."""
         return self._metadata_messages[fmt]
-
-    def describe(self) -> dict[str, Any]:
-        """A summary for the catalog: format, frames, time range, streams."""
-        info = self.metadata.get("log_info") or {}
-        return {
-            "name": self.name,
-            "format": self.format.value,
-            "frames": len(self.index),
-            "start_time": info.get("start_time"),
-            "end_time": info.get("end_time"),
-            "streams": self.streams,
-        }
 
     async def frame(self, number: int, fmt: Format, streams: frozenset[str] | None = None) -> bytes:
         """Frame ``number`` encoded in ``fmt``, with only ``streams`` if given.
@@ -276,7 +264,7 @@ class Log:
         return FrameError(f"frame {number} ({where}) of log {self.name!r} is corrupt: {exc}", log=self.name, frame=number)
 
 
-def _stamp(path: Path) -> tuple[int, ...] | None:
+def stamp_of(path: str | os.PathLike[str]) -> tuple[int, ...] | None:
     """What tells that a log or dataset changed on disk, or ``None`` when it is gone.
 
     For a folder, its modification time (a file added, removed or renamed in
@@ -288,17 +276,22 @@ def _stamp(path: Path) -> tuple[int, ...] | None:
         own = os.stat(path)
     except OSError:
         return None
-    stamp: tuple[int, ...] = (own.st_mtime_ns, own.st_size)
-    if stat.S_ISDIR(own.st_mode):
-        try:
-            index = os.stat(os.path.join(path, INDEX_FILE))
-        except OSError:
-            return stamp
-        stamp += (index.st_mtime_ns, index.st_size)
-    return stamp
+    if not stat.S_ISDIR(own.st_mode):
+        return stamp_from(own, None)
+    try:
+        return stamp_from(own, os.stat(os.path.join(path, INDEX_FILE)))
+    except OSError:
+        return stamp_from(own, None)
 
 
-def _complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, Any]:
+def stamp_from(own: os.stat_result, index: os.stat_result | None) -> tuple[int, ...]:
+    """The stamp (see :func:`stamp_of`) of a folder or file whose ``stat`` is ``own``, with its index file's if any."""
+    if index is None:
+        return (own.st_mtime_ns, own.st_size)
+    return (own.st_mtime_ns, own.st_size, index.st_mtime_ns, index.st_size)
+
+
+def complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, Any]:
     """Metadata with what clients need: ``version``, and ``log_info`` times from the index if missing."""
     result = dict(metadata)
     result.setdefault("version", XVIZ_VERSION)
@@ -309,6 +302,22 @@ def _complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, 
             info[key] = value
     result["log_info"] = info
     return result
+
+
+class Known(Protocol):
+    """What knows every log served, when a :class:`Catalog` does not scan for them itself."""
+
+    def available(self) -> Sequence[str]:
+        """The names of the logs, in order."""
+        ...
+
+    async def locate(self, name: str) -> Found | StoredDataset | None:
+        """Where the log or dataset ``name`` is, if known."""
+        ...
+
+    def notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
+        """A session found the log ``name`` new (``found``: where), changed or gone."""
+        ...
 
 
 class Catalog:
@@ -349,14 +358,27 @@ class Catalog:
         self._validate = validate
         self._found: dict[str, Found | StoredLog | StoredDataset] = {}
         self._open: dict[str, asyncio.Task[Log]] = {}
-        self._stamps: dict[str, tuple[int, ...]] = {}  # what _stamp() said when each was opened
+        self._stamps: dict[str, tuple[int, ...]] = {}  # what stamp_of() said when each was opened
         self._preload_bytes = preload_bytes
         self._preloads: dict[str, asyncio.Task[None]] = {}
         self._preloading = asyncio.Lock()  # one log read in at a time, however many sessions open
+        #: What knows the logs when :meth:`scan` is not used: the persistent catalog.
+        self.known: Known | None = None
 
     def names(self) -> list[str]:
-        """Names of the logs known since the last scan."""
-        return sorted(self._found)
+        """Names of every log known, in order (read all at once: see :meth:`available`)."""
+        return list(self.available())
+
+    def available(self) -> Sequence[str]:
+        """Names of the logs known, in order: those :attr:`known` gives when set, else those of the last scan."""
+        return self.known.available() if self.known is not None else sorted(self._found)
+
+    async def find_datasets(self) -> list[Found]:
+        """Find the datasets named on the command line (``--dataset``), for :meth:`open`; what they are."""
+        found = await self._workers.io(self._named_datasets)
+        for entry in found:
+            self._found.setdefault(entry.name, entry)
+        return found
 
     def kinds(self) -> set[str]:
         """The kinds of what the last scan found (:data:`~xviz_server.layout.LOG`, dataset kinds)."""
@@ -380,10 +402,12 @@ class Catalog:
         for root in self._roots:
             for entry in discover(root, detect):
                 found.setdefault(entry.name, entry)
-        for kind, path, given in self._datasets:
-            for entry in explicit_datasets(kind, path, given):
-                found.setdefault(entry.name, entry)
+        for entry in self._named_datasets():
+            found.setdefault(entry.name, entry)
         return found
+
+    def _named_datasets(self) -> list[Found]:
+        return [entry for kind, path, given in self._datasets for entry in explicit_datasets(kind, path, given)]
 
     def _lookup(self, name: str) -> Found | None:
         """Look for the log or dataset ``name`` under each root, without a whole scan."""
@@ -407,35 +431,40 @@ class Catalog:
         for a log that cannot be served. A failed open is tried again next time.
 
         An open log is read again when its folder or file has changed since
-        (see :func:`_stamp`); sessions that have it keep the one they have.
+        (see :func:`stamp_of`); sessions that have it keep the one they have.
         """
         check_log_name(name)
         found = self._found.get(name)
+        if found is None and self.known is not None:
+            found = await self.known.locate(name)
         if found is None:
             found = await self._workers.io(self._lookup, name)
             for store in self._stores:
                 found = found or await store.lookup(name, FILE_KINDS, detect_in_store)
             if found is not None:
                 self._found[name] = found
+                self._notice(name, found)
         if found is None:
-            available = self.names()
-            shown = ", ".join(repr(n) for n in available[:20]) or "none"
+            available = list(self.available()[:20])
+            shown = ", ".join(repr(n) for n in available) or "none"
             raise LogNotFound(f"no log named {name!r}; available: {shown}", name=name, available=available)
         # A log in a store is read once; a scan finds the logs added or removed since.
         where = None if isinstance(found, (StoredLog, StoredDataset)) or found.kind in GENERATED else found.path
-        stamp = () if where is None else await self._workers.io(_stamp, where)
+        stamp = () if where is None else await self._workers.io(stamp_of, where)
         if stamp is None:
             self._found.pop(name, None)
             self._open.pop(name, None)
             self._stamps.pop(name, None)
-            raise LogNotFound(f"log {name!r} is gone: {where} was removed", name=name, available=self.names())
+            self._notice(name)
+            raise LogNotFound(f"log {name!r} is gone: {where} was removed", name=name, available=list(self.available()[:20]))
         task = self._open.get(name)
         if task is not None and self._stamps.get(name) != stamp:
             logger.info("log %r changed on disk; reading it again", name)
             self._stop_preload(name)
+            self._notice(name)
             task = None
         if task is None or (task.done() and (task.cancelled() or task.exception() is not None)):
-            task = asyncio.ensure_future(self._open_log(found))
+            task = asyncio.ensure_future(self.load(found))
             self._open[name] = task
             self._stamps[name] = stamp
         log = await asyncio.shield(task)
@@ -443,7 +472,12 @@ class Catalog:
             self._preloads[name] = asyncio.ensure_future(self._preload(log, found.path))
         return log
 
-    async def _open_log(self, found: Found | StoredLog | StoredDataset) -> Log:
+    def _notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
+        if self.known is not None:
+            self.known.notice(name, found)
+
+    async def load(self, found: Found | StoredLog | StoredDataset) -> Log:
+        """A new :class:`Log` of what ``found`` names, shared with no one; raises :class:`~xviz_server.exceptions.XVIZError`."""
         started = time.perf_counter()
         source: LogSource
         if isinstance(found, StoredLog):
@@ -484,14 +518,3 @@ class Catalog:
         """Stop reading logs into the frame cache."""
         for name in list(self._preloads):
             self._stop_preload(name)
-
-    async def describe(self) -> list[dict[str, Any]]:
-        """A summary of every log, opening those not yet open; a log that fails shows its error."""
-        await self.scan()
-        summaries = []
-        for name in self.names():
-            try:
-                summaries.append((await self.open(name, preload=False)).describe())
-            except XVIZError as exc:
-                summaries.append({"name": name, "error": str(exc)})
-        return summaries

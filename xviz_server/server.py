@@ -4,9 +4,11 @@ GET and HEAD are served (see :mod:`xviz_server.gate`); HTTP requests that are
 not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer.HEADERS`:
 
 * ``GET /`` from a browser: the viewer page (see :mod:`xviz_server.viewer`);
-* ``GET /api/logs`` (or ``/logs``, or ``/`` from any other client): the
-  catalog, JSON: every log with its format, frame count, time range and
-  stream names, and the live feeds;
+* ``GET /api/logs`` (or ``/logs``, or ``/`` from any other client): a page
+  of the catalog (see :mod:`xviz_server.catalog`), JSON: logs with their
+  format, frame count, time range and stream names, searched and paged by
+  the query's parameters, and on the first page the live feeds;
+  ``GET /api/logs/NAME``: every fact the catalog has of one log;
 * ``GET /healthz``: ``ok`` (then, with ``--broker``, a line on the broker's
   state, and one for each reader of a feed that keeps failing), or HTTP 503
   saying what is broken (a worker process pool that lost a process and is
@@ -48,7 +50,8 @@ from .cache import FrameCache
 from .layout import LOG
 from .connection import Connection
 from .datasets import GENERATED, KINDS, dataset_options
-from .exceptions import ConfigError, ExportError, LogError, LogNotFound, XVIZError
+from .catalog import Indexer, parse_query
+from .exceptions import ConfigError, ExportError, LogError, LogNotFound, QueryError, XVIZError
 from .foxglove.connection import FoxgloveConnection
 from .foxglove.convert import plan
 from .foxglove.export import export, export_path, parse_range
@@ -59,7 +62,7 @@ from .live import LiveRegistry
 from .live.ingest import run_ingest
 from .live.record import Recorder
 from .live.replay import replay
-from .logs import Catalog
+from .logs import Catalog, check_log_name
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
 from .store import data_roots
@@ -75,6 +78,10 @@ __all__ = ["XVIZServer", "run"]
 logger = logging.getLogger(__name__)
 
 MB = 1 << 20
+#: Where one log's facts are asked for: ``/api/logs/NAME``.
+LOG_PATH = "/api/logs/"
+#: Every log's version on disk is compared with the catalog's once in this many looks for changes.
+SWEEP_LOOKS = 15
 #: Seconds that closing the server may take before the connections still open are aborted.
 SHUTDOWN_TIMEOUT = 10.0
 
@@ -97,14 +104,20 @@ class XVIZServer:
         self.metrics = Metrics()
         self.workers = Workers()
         self.cache = FrameCache(int(settings.cache_mb * MB), self.metrics)
+        roots = data_roots(settings)
         self.catalog = Catalog(
-            data_roots(settings),
+            roots,
             self.cache,
             self.workers,
             datasets=[parse_dataset(text) for text in settings.dataset],
             options={"image_max_width": settings.image_max_width},
             validate=settings.validate_frames,
             preload_bytes=int(min(settings.preload_mb, settings.cache_mb / 2) * MB),
+        )
+        #: The persistent catalog: what ``GET /api/logs`` lists, kept current in the background.
+        self.indexer = Indexer(
+            roots, self.catalog, self.workers, state_dir=settings.state_dir, poll=settings.catalog_poll,
+            store_poll=settings.catalog_store_poll, sweep=SWEEP_LOOKS * settings.catalog_poll,
         )
         #: The live feeds; programs embedding the server publish with ``server.live.feed(name)``.
         self.live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
@@ -141,15 +154,8 @@ class XVIZServer:
         tls = server_context(self.settings.certfile, self.settings.keyfile) if self.settings.certfile else None
         if self._recorder is not None:
             await self.workers.io(self._recorder.check)
-        names = await self.catalog.scan()
-        roots = ", ".join(self.settings.data_dir)
-        logger.info("serving %d logs from %s", len(names), roots or "datasets given on the command line")
-        if self.settings.data_dir and not names:
-            logger.warning(
-                "no logs under %s yet: put logs in the reference layout or datasets there "
-                "(mounted, in a container); one added later is served on the first request that names it",
-                roots,
-            )
+        await self.catalog.find_datasets()
+        await self.indexer.start()
         if self.catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
         if self.broker is not None:
@@ -216,6 +222,7 @@ class XVIZServer:
                 await server.wait_closed()
             self._server = None
         self.catalog.close()
+        await self.indexer.close()
         if self.broker is not None:
             await self.broker.close()
         if self._recorder is not None:
@@ -282,12 +289,11 @@ class XVIZServer:
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
             return await self._export(connection, name, dict(urllib.parse.parse_qsl(urlsplit(request.path).query)))
-        if path in ("/", "/logs", "/api/logs"):
+        if path in ("/", "/logs", "/api/logs") or path.startswith(LOG_PATH):
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
-            live = [{"name": feed.name, "connected": feed.connected} for feed in self.live]
-            body = {"server": f"xviz-server {__version__}", "logs": await self.catalog.describe(), "live": live}
-            return _response(connection, HTTPStatus.OK, orjson.dumps(body, option=orjson.OPT_INDENT_2), "application/json")
+            status, body = await self._listing(path, request.path)
+            return _response(connection, status, orjson.dumps(body, option=orjson.OPT_INDENT_2), "application/json")
         return connection.respond(
             HTTPStatus.NOT_FOUND,
             "not found: open a WebSocket for an XVIZ session, or GET /, /api/logs, /healthz or /metrics\n",
@@ -310,6 +316,27 @@ class XVIZServer:
         filename = name.replace("/", "_") + ".mcap"
         response.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
         return response
+
+    async def _listing(self, path: str, target: str) -> tuple[HTTPStatus, dict[str, Any]]:
+        """The answer to ``GET /api/logs?...`` (a page of the catalog) or ``GET /api/logs/NAME`` (one log)."""
+        if path.startswith(LOG_PATH):
+            name = urllib.parse.unquote(path[len(LOG_PATH):])
+            try:
+                check_log_name(name)
+            except LogNotFound as exc:
+                return HTTPStatus.NOT_FOUND, {"error": str(exc)}
+            found = await self.indexer.one(name)
+            if found is None:
+                return HTTPStatus.NOT_FOUND, {"error": f"the catalog has no log named {name!r}"}
+            return HTTPStatus.OK, found
+        try:
+            query = parse_query(urllib.parse.parse_qs(urlsplit(target).query, keep_blank_values=True))
+        except QueryError as exc:
+            return HTTPStatus.BAD_REQUEST, {"error": str(exc), "parameter": exc.parameter}
+        body: dict[str, Any] = {"server": f"xviz-server {__version__}", **await self.indexer.page(query)}
+        if query.first_page:
+            body["live"] = [{"name": feed.name, "connected": feed.connected} for feed in self.live]
+        return HTTPStatus.OK, body
 
     def _viewer_refusal(self, connection: ServerConnection, request: Request) -> Response | None:
         """HTTP 401 when a viewer token is configured and the request does not give it."""

@@ -57,6 +57,16 @@ class Settings(BaseSettings):
         description="serve a raw dataset, KIND:PATH (e.g. kitti:/data/2011_09_26_drive_0001_sync), converted on "
         "demand; repeat for more (env: a JSON list)",
     )
+    state_dir: Path | None = Field(
+        default=None,
+        description="directory where the server keeps its state: the catalog of logs (catalog.sqlite3), so that a "
+        "restart lists every log at once; default: none, the catalog is kept in memory and built again at each start",
+    )
+    catalog_poll: float = Field(
+        default=2, gt=0, description="seconds between looks for logs added, changed or removed under a --data-dir directory "
+        "(folders whose modification time changed); every log's own version is compared every 15 looks",
+    )
+    catalog_store_poll: float = Field(default=60, gt=0, description="seconds between listings of an s3:// --data-dir for logs added, changed or removed")
     image_max_width: int = Field(default=DEFAULT_IMAGE_WIDTH, ge=16, description="camera images of raw datasets are scaled down to this width")
     host: str = Field(default="127.0.0.1", description="address to listen on (0.0.0.0 for every interface)")
     port: int = Field(default=3000, ge=0, le=65535, description="TCP port for WebSocket and HTTP")

@@ -133,12 +133,26 @@ class ObjectStore:
         (a :class:`~xviz_server.storepath.StoreTree` of the listing) is, if
         any; a dataset's folders are not searched further.
         """
-        base = self._key("")
         try:
-            objects = await self._guard(obstore.list(self._store, base or None, chunk_size=1000).collect_async(), base)
+            objects = await self.list_all()
         except StoreError as exc:
             logger.warning("cannot list %s: %s", self.url, exc)
             return []
+        return self.found_in(objects, kinds, refused, detect)
+
+    async def list_all(self) -> list[ObjectMeta]:
+        """Every object under the prefix (with its size, ETag and time): one listing, in pages of 1000.
+
+        Raises :class:`~xviz_server.exceptions.StoreError`.
+        """
+        base = self._key("")
+        return list(await self._guard(obstore.list(self._store, base or None, chunk_size=1000).collect_async(), base))
+
+    def found_in(
+        self, objects: list[ObjectMeta], kinds: Mapping[str, str], refused: Mapping[str, str], detect: Callable[[StoreTree], str | None]
+    ) -> list[StoredLog | StoredDataset]:
+        """The logs and datasets that the listing ``objects`` of the prefix holds, as :meth:`discover` finds them."""
+        base = self._key("")
         folders: set[str] = set()
         files: list[tuple[str, int]] = []
         sizes: dict[str, int] = {}
@@ -282,13 +296,25 @@ class StoreFolder:
         self._sizes: dict[str, int] = {}
 
     async def files(self) -> dict[int, str]:
+        return self.take(await self.store.list_folder(self.prefix))
+
+    def take(self, objects: list[ObjectMeta]) -> dict[int, str]:
+        """The message files among ``objects`` (a listing of the folder), by file number, with their sizes kept."""
         files = {}
-        for meta in await self.store.list_folder(self.prefix):
+        for meta in objects:
             name = meta["path"].rpartition("/")[2]
             if match := FRAME_FILE.fullmatch(name):
                 files[int(match.group(1))] = name
                 self._sizes[name] = meta["size"]
         return files
+
+    def listed(self) -> dict[int, str]:
+        """The message files :meth:`take` or :meth:`files` last found, by file number."""
+        return {int(match.group(1)): name for name in self._sizes if (match := FRAME_FILE.fullmatch(name))}
+
+    def listed_bytes(self) -> int:
+        """The bytes of the message files :meth:`take` or :meth:`files` last found."""
+        return sum(self._sizes.values())
 
     async def read(self, name: str) -> bytes:
         return await self.store.get(f"{self.prefix}/{name}", self._sizes.get(name))

@@ -1,4 +1,10 @@
 import React from 'react';
+import {fetchCatalog} from './page';
+
+/** Logs asked for a page. */
+const PAGE = 100;
+/** Milliseconds of typing quiet before a search is asked for. */
+const SEARCH_DELAY = 250;
 
 function duration(log) {
   if (!Number.isFinite(log.start_time) || !Number.isFinite(log.end_time)) {
@@ -26,52 +32,121 @@ function Row({name, cells, onOpen}) {
   );
 }
 
-/** The list of logs and live feeds; a click on a name opens it. */
-export default function Catalog({catalog, onOpen}) {
-  const logs = catalog.logs || [];
-  const live = catalog.live || [];
-  return (
-    <div style={{padding: 24, maxWidth: 1100, margin: '0 auto'}}>
-      <h1 style={{fontSize: 22}}>{catalog.server}</h1>
-      <table className="catalog" style={{borderCollapse: 'collapse', width: '100%', background: '#fff'}}>
-        <thead>
-          <tr style={{textAlign: 'left'}}>
-            {['name', 'format', 'frames', 'duration', 'streams'].map(title => (
-              <th key={title} style={{padding: '6px 10px', borderBottom: '1px solid #ccc'}}>
-                {title}
-              </th>
-            ))}
-          </tr>
-        </thead>
-        <tbody>
-          {live.map(feed => (
-            <Row
-              key={`live:${feed.name}`}
-              name={feed.name}
-              cells={['live', '', feed.connected ? 'source connected' : 'waiting for a source', '']}
-              onOpen={onOpen}
-            />
-          ))}
-          {logs.map(log =>
-            log.error ? (
-              <Row key={log.name} name={log.name} cells={[`unreadable: ${log.error}`, '', '', '']} onOpen={onOpen} />
-            ) : (
+function cells(log) {
+  if (log.error) {
+    return [`unreadable: ${log.error}`, '', '', ''];
+  }
+  if (log.indexed === false) {
+    return [`${log.kind}, not indexed yet`, '', '', ''];
+  }
+  return [
+    log.format,
+    log.frames,
+    duration(log),
+    <span title={(log.streams || []).join('\n')}>{(log.streams || []).length}</span>
+  ];
+}
+
+/**
+ * The list of logs and live feeds, a page at a time; a click on a name opens it. `catalog` is
+ * the first page, fetched by the page; a search (of names and descriptions) asks the server
+ * for its own pages.
+ */
+export default class Catalog extends React.Component {
+  constructor(props) {
+    super(props);
+    const {catalog} = props;
+    this.state = {q: '', logs: catalog.logs || [], next: catalog.next || null, counts: catalog, loading: false, error: null};
+    this.asked = 0; // answers to older questions are dropped
+  }
+
+  componentWillUnmount() {
+    clearTimeout(this.timer);
+    this.asked++;
+  }
+
+  _ask(params, append) {
+    const asked = ++this.asked;
+    this.setState({loading: true, error: null});
+    fetchCatalog(this.props.token, {limit: PAGE, ...params}).then(
+      page => {
+        if (asked === this.asked) {
+          const logs = append ? this.state.logs.concat(page.logs) : page.logs;
+          this.setState({logs, next: page.next, counts: page, loading: false});
+        }
+      },
+      error => asked === this.asked && this.setState({error: error.message, loading: false})
+    );
+  }
+
+  _onSearch = event => {
+    const q = event.target.value;
+    this.setState({q});
+    clearTimeout(this.timer);
+    this.timer = setTimeout(() => this._ask(q.trim() ? {q: q.trim()} : {}, false), SEARCH_DELAY);
+  };
+
+  _onMore = () => {
+    const q = this.state.q.trim();
+    this._ask({...(q ? {q} : {}), cursor: this.state.next}, true);
+  };
+
+  render() {
+    const {catalog, onOpen} = this.props;
+    const {q, logs, next, counts, loading, error} = this.state;
+    const live = q.trim() ? [] : catalog.live || [];
+    const indexing = Number.isFinite(counts.found) && counts.indexed < counts.found;
+    return (
+      <div style={{padding: 24, maxWidth: 1100, margin: '0 auto'}}>
+        <h1 style={{fontSize: 22}}>{catalog.server}</h1>
+        <div style={{display: 'flex', gap: 16, alignItems: 'center', marginBottom: 12}}>
+          <input
+            className="catalog-search"
+            type="search"
+            placeholder="Search names and descriptions"
+            value={q}
+            onChange={this._onSearch}
+            style={{flex: 1, padding: '6px 10px', fontSize: 15}}
+          />
+          <span className="catalog-count">
+            {Number.isFinite(counts.found) &&
+              (indexing ? `${counts.indexed} of ${counts.found} logs indexed` : `${counts.found} logs`)}
+          </span>
+        </div>
+        {error && <p role="alert">{error}</p>}
+        <table className="catalog" style={{borderCollapse: 'collapse', width: '100%', background: '#fff'}}>
+          <thead>
+            <tr style={{textAlign: 'left'}}>
+              {['name', 'format', 'frames', 'duration', 'streams'].map(title => (
+                <th key={title} style={{padding: '6px 10px', borderBottom: '1px solid #ccc'}}>
+                  {title}
+                </th>
+              ))}
+            </tr>
+          </thead>
+          <tbody>
+            {live.map(feed => (
               <Row
-                key={log.name}
-                name={log.name}
-                cells={[
-                  log.format,
-                  log.frames,
-                  duration(log),
-                  <span title={(log.streams || []).join('\n')}>{(log.streams || []).length}</span>
-                ]}
+                key={`live:${feed.name}`}
+                name={feed.name}
+                cells={['live', '', feed.connected ? 'source connected' : 'waiting for a source', '']}
                 onOpen={onOpen}
               />
-            )
-          )}
-        </tbody>
-      </table>
-      {logs.length + live.length === 0 && <p>This server has no logs and no live feeds.</p>}
-    </div>
-  );
+            ))}
+            {logs.map(log => (
+              <Row key={log.name} name={log.name} cells={cells(log)} onOpen={onOpen} />
+            ))}
+          </tbody>
+        </table>
+        {next && (
+          <button className="catalog-more" type="button" disabled={loading} onClick={this._onMore} style={{marginTop: 12}}>
+            More logs
+          </button>
+        )}
+        {logs.length + live.length === 0 && !loading && (
+          <p>{q.trim() ? 'No log matches this search.' : 'This server has no logs and no live feeds.'}</p>
+        )}
+      </div>
+    );
+  }
 }

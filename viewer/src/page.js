@@ -46,17 +46,28 @@ export function pageToken() {
  * token, which a reloaded page no longer has in its address, so it is kept with the token.
  */
 export function pageParams() {
+  const query = new URLSearchParams(window.location.search);
   return {
-    log: new URLSearchParams(window.location.search).get('log'),
+    log: query.get('log'),
+    time: seconds(query.get('t')),
     mapToken: kept(MAP_TOKEN_KEY, serverSettings().mapToken || null) || ''
   };
 }
 
-/** The page's URL that opens `log` (or the list, for null). */
-export function pageUrl(log) {
+/** Seconds into the log that `t` asks for (`?t=12.5`), or null. */
+function seconds(text) {
+  const value = Number(text);
+  return text !== null && text !== '' && Number.isFinite(value) && value >= 0 ? value : null;
+}
+
+/** The page's URL that opens `log` (or the list, for null), at `time` seconds from its start if given. */
+export function pageUrl(log, time = null) {
   const query = new URLSearchParams();
   if (log) {
     query.set('log', log);
+  }
+  if (log && Number.isFinite(time)) {
+    query.set('t', time.toFixed(1));
   }
   const text = query.toString();
   return text ? `?${text}` : window.location.pathname;
@@ -68,18 +79,30 @@ export function serverUrl() {
   return `${scheme}://${window.location.host}/`;
 }
 
-/** The catalog of logs and live feeds, from the server's JSON API. */
-export async function fetchCatalog(token) {
+async function getJSON(path, token, params = {}) {
   const headers = token ? {Accept: 'application/json', Authorization: `Bearer ${token}`} : {Accept: 'application/json'};
-  let response;
+  const text = new URLSearchParams(params).toString();
   try {
-    response = await fetch('/api/logs', {headers});
+    return await fetch(text ? `${path}?${text}` : path, {headers});
   } catch (error) {
     throw new Error(`the server does not answer (${error.message})`);
   }
+}
+
+/**
+ * A page of the catalog of logs, and on the first page the live feeds, from the server's JSON
+ * API: `params` are its query (q, limit, cursor: see docs/catalog.md).
+ */
+export async function fetchCatalog(token, params = {}) {
+  const response = await getJSON('/api/logs', token, params);
   if (!response.ok) {
     const text = (await response.text()).trim();
     throw new Error(`the server refused the catalog: ${response.status} ${text}`);
   }
   return response.json();
+}
+
+/** Whether the server's catalog has the log `name`. */
+export async function hasLog(name, token) {
+  return (await getJSON(`/api/logs/${name.split('/').map(encodeURIComponent).join('/')}`, token)).ok;
 }

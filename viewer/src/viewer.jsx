@@ -10,11 +10,13 @@ import ErrorBanner from './error-banner';
 import {firstDraw} from './first-draw';
 import {POINT_STREAMS} from './point-layer';
 import ServerLoader from './server-loader';
-import {serverUrl} from './page';
+import {pageUrl, serverUrl} from './page';
 import {markOnce} from './timing';
 
 const MAP_STYLE = 'mapbox://styles/mapbox/light-v9';
 const CUSTOM_XVIZ_LAYERS = [POINT_STREAMS];
+/** Milliseconds between updates of the link to the time shown. */
+const LINK_INTERVAL = 500;
 
 /** A WebSocket class that also reports every close to `onClose(event, opened)`. */
 function watchedSocket(onClose) {
@@ -73,7 +75,7 @@ function createLoader({name, live, token, onClose, drawn}) {
 export default class Viewer extends React.Component {
   constructor(props) {
     super(props);
-    this.state = {error: null, panels: [], drawn: false};
+    this.state = {error: null, panels: [], drawn: false, linkTime: null};
     const drawn = new Promise(resolve => {
       this._onDeckLoad = deck => firstDraw(deck).then(resolve);
     });
@@ -81,6 +83,7 @@ export default class Viewer extends React.Component {
       markOnce('first-draw');
       if (!this.closed) {
         this.setState({drawn: true});
+        this._seekToLinkedTime();
       }
     });
     this.log = createLoader({...props, drawn, onClose: this._onSocketClose});
@@ -107,8 +110,32 @@ export default class Viewer extends React.Component {
 
   componentWillUnmount() {
     this.closed = true;
+    clearInterval(this.linkTimer);
     this.log.close();
   }
+
+  /** Once the log's start is drawn, go to the time the page's link asks for (`?t=`, seconds from the start). */
+  _seekToLinkedTime() {
+    const {time, live} = this.props;
+    if (!live) {
+      if (Number.isFinite(time) && Number.isFinite(this.log.getLogStartTime())) {
+        this.log.seek(this.log.getLogStartTime() + time);
+      }
+      this.linkTimer = setInterval(this._updateLink, LINK_INTERVAL);
+    }
+  }
+
+  /** The link to the time shown now, in seconds from the log's start. */
+  _updateLink = () => {
+    const now = this.log.getCurrentTime();
+    const start = this.log.getLogStartTime();
+    if (Number.isFinite(now) && Number.isFinite(start)) {
+      const linkTime = Math.round(Math.max(0, now - start) * 10) / 10;
+      if (linkTime !== this.state.linkTime) {
+        this.setState({linkTime});
+      }
+    }
+  };
 
   _onSocketClose = (event, opened) => {
     if (this.closed) {
@@ -128,7 +155,7 @@ export default class Viewer extends React.Component {
 
   render() {
     const {name, live, mapToken, onClose} = this.props;
-    const {error, panels, drawn} = this.state;
+    const {error, panels, drawn, linkTime} = this.state;
     return (
       <div style={{display: 'flex', flexDirection: 'column', height: '100%'}}>
         <header style={{display: 'flex', gap: 16, alignItems: 'center', padding: '8px 16px', background: '#fff'}}>
@@ -143,6 +170,11 @@ export default class Viewer extends React.Component {
           </a>
           <strong className="log-name">{name}</strong>
           {live && <span className="live-badge">live</span>}
+          {Number.isFinite(linkTime) && (
+            <a className="time-link" href={pageUrl(name, linkTime)} title="A link that opens this log at this time">
+              link at {linkTime.toFixed(1)} s
+            </a>
+          )}
         </header>
         {error && <ErrorBanner message={error} />}
         <div style={{display: 'flex', flex: 1, minHeight: 0}}>

@@ -88,7 +88,7 @@ class FoxgloveConnection:
         self.session = FoxgloveSession(
             path=unquote(url.path),
             query=dict(parse_qsl(url.query, keep_blank_values=True)),
-            available=catalog.names(),
+            available=catalog.available(),
             server_name=f"xviz-server {__version__}",
         )
         self._log: _OpenLog | None = None

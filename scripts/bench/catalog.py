@@ -1,0 +1,187 @@
+"""The catalog at fleet scale: 100 000 logs listed, searched and restarted (issue 31).
+
+    python scripts/bench/catalog.py [--logs 100000] [--quick] [--requests 200]
+
+Makes a fleet of small logs in the reference layout (``devkit/fleet.py``'s
+``write_fleet``: an index document, JSON metadata, and two frames hard-linked
+from one log) once, in ``--fleet-dir`` (kept for the next run), then runs the
+server (``xviz-server serve``, a process of its own, on loopback) over it and
+measures:
+
+* the first build of the catalog: from the start of the process to every log
+  indexed (``indexed == found`` in ``GET /api/logs``);
+* the first page (``GET /api/logs``, 100 logs) and a filtered search (a name
+  substring and a one-hour time range, different each request), p50 and p95
+  over ``--requests`` sequential requests, against ``GET /healthz`` on the same
+  server (the reference: HTTP on the same port, no catalog);
+* a restart with its catalog: from the start of the process to listening, and
+  to the first page answered;
+* the server's RSS with the catalog built and the requests served, against the
+  same server over an empty data directory.
+
+``--quick`` is 2 000 logs and 50 requests: a few seconds once the fleet exists.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import shutil
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+from devkit.fleet import FLEET_START, write_fleet
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def make_fleet(directory: Path, count: int) -> None:
+    """``count`` logs in ``directory``, made once (a marker file says the fleet is whole; an interrupted one is finished)."""
+    marker = directory / ".complete"
+    if marker.exists():
+        return
+    started = time.perf_counter()
+    step = 5000  # each step's frames link to a log of its own: a file system allows some 65 000 links to a file
+    for start in range(0, count, step):
+        size = min(step, count - start)
+        names = [f"car-{i % 100:02d}/seg-{i:06d}" for i in range(start, start + size)]
+        if (directory / names[-1] / "0-frame.json").exists():
+            continue
+        for name in names:
+            shutil.rmtree(directory / name, ignore_errors=True)
+        source = directory / ".frames" / str(start)
+        shutil.rmtree(source, ignore_errors=True)
+        (first,) = write_fleet(source, 1, cars=1)
+        write_fleet(directory, size, cars=100, first=start, frames_from=source / first.name)
+    marker.write_text(str(count))
+    print(f"made {count} logs in {directory} in {time.perf_counter() - started:.0f} s", flush=True)
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+class Server:
+    """``xviz-server serve`` in a process of its own."""
+
+    def __init__(self, data: Path, state: Path) -> None:
+        self.port = free_port()
+        self.started = time.perf_counter()
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(data), "--state-dir", str(state),
+             "--port", str(self.port), "--host", "127.0.0.1"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO,
+        )
+
+    def wait_listening(self) -> float:
+        """Seconds from the start of the process to a TCP connection accepted."""
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=1).close()
+                return time.perf_counter() - self.started
+            except OSError:
+                if self.process.poll() is not None:
+                    raise RuntimeError("the server exited") from None
+                time.sleep(0.005)
+
+    def get(self, path: str) -> Any:
+        with urllib.request.urlopen(f"http://127.0.0.1:{self.port}{path}", timeout=60) as response:
+            body = response.read()
+        return json.loads(body) if response.headers["Content-Type"] == "application/json" else body
+
+    def rss_mb(self) -> float:
+        for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+        raise RuntimeError("no VmRSS")
+
+    def stop(self) -> None:
+        self.process.terminate()
+        self.process.wait(30)
+
+
+def timed(server: Server, paths: list[str]) -> list[float]:
+    """Milliseconds of each request, one after the other."""
+    times = []
+    for path in paths:
+        started = time.perf_counter()
+        server.get(path)
+        times.append((time.perf_counter() - started) * 1000)
+    return times
+
+
+def p95(values: list[float]) -> float:
+    return statistics.quantiles(values, n=20)[-1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--logs", type=int, default=100_000)
+    parser.add_argument("--requests", type=int, default=200)
+    parser.add_argument("--quick", action="store_true", help="2 000 logs, 50 requests")
+    parser.add_argument("--fleet-dir", type=Path, default=None, help="where the fleet is made and kept (default: /tmp/xviz-bench-fleet-N)")
+    args = parser.parse_args()
+    if args.quick:
+        args.logs, args.requests = 2000, 50
+    fleet = args.fleet_dir or Path(tempfile.gettempdir()) / f"xviz-bench-fleet-{args.logs}"
+    make_fleet(fleet, args.logs)
+    with tempfile.TemporaryDirectory() as scratch:
+        empty, state = Path(scratch) / "empty", Path(scratch) / "state"
+        empty.mkdir()
+        reference = Server(empty, Path(scratch) / "empty-state")
+        reference_listening = reference.wait_listening()
+        reference.get("/api/logs")
+        empty_rss = reference.rss_mb()
+        reference.stop()
+
+        server = Server(fleet, state)
+        listening = server.wait_listening()
+        while True:
+            page = server.get("/api/logs?limit=1")
+            if page["found"] == page["indexed"] == args.logs:
+                break
+            time.sleep(0.05)
+        build = time.perf_counter() - server.started
+        print(f"{args.logs} logs; first build: listening after {listening:.2f} s, every log indexed after {build:.1f} s", flush=True)
+
+        rng = random.Random(31)
+        healthz = timed(server, ["/healthz"] * args.requests)
+        first = timed(server, ["/api/logs"] * args.requests)
+        searches = []
+        for _ in range(args.requests):
+            start = FLEET_START + rng.randrange(args.logs) * 60
+            searches.append(f"/api/logs?q=seg-0{rng.randrange(100):02d}&from={start:.0f}&to={start + 3600:.0f}")
+        searched = timed(server, searches)
+        rss = server.rss_mb()
+        server.stop()
+
+        again = Server(fleet, state)
+        relisten = again.wait_listening()
+        page = again.get("/api/logs")
+        first_page = time.perf_counter() - again.started
+        assert page["found"] == args.logs, page["found"]
+        again.stop()
+
+    print(f"reference GET /healthz: p50 {statistics.median(healthz):.1f} ms, p95 {p95(healthz):.1f} ms")
+    print(f"first page GET /api/logs: p50 {statistics.median(first):.1f} ms, p95 {p95(first):.1f} ms "
+          f"(x{p95(first) / p95(healthz):.1f} the reference at p95)")
+    print(f"search (q + from/to): p50 {statistics.median(searched):.1f} ms, p95 {p95(searched):.1f} ms "
+          f"(x{p95(searched) / p95(healthz):.1f} the reference at p95)")
+    print(f"restart with its catalog: listening after {relisten:.2f} s, first page ({page['indexed']} of {page['found']} indexed) "
+          f"after {first_page:.2f} s; the server over an empty data directory listened after {reference_listening:.2f} s")
+    print(f"RSS: {rss:.0f} MB with the catalog, {empty_rss:.0f} MB over an empty data directory: +{rss - empty_rss:.0f} MB")
+
+
+if __name__ == "__main__":
+    main()
