@@ -27,11 +27,11 @@ from urllib.parse import parse_qsl, unquote, urlsplit
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
-from websockets.protocol import State
 
 from .codec import Format
 from .exceptions import XVIZError
 from .flow import close, watch_progress
+from .framing import ready_to_write, write_message
 from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription
 from .logfmt import log_event, redact_url
 from .logs import Catalog, Log
@@ -297,16 +297,13 @@ class Connection:
 
         Nothing does when the live task waits for the next update (so that
         every message before this one has been written), the connection is
-        open with its write buffer at most at its high-water mark, and the
+        ready to write (:func:`~xviz_server.framing.ready_to_write`), and the
         update's bytes for this viewer are made. The session decides as for
         a queued update. Otherwise the update is queued and the live task
         sends it, waiting for the buffer to drain like any other send.
         """
         websocket = self.websocket
-        if not self._live_idle or websocket.protocol.state is not State.OPEN or websocket.send_in_progress is not None:
-            return False
-        transport = websocket.transport
-        if transport.get_write_buffer_size() > transport.get_write_buffer_limits()[1]:
+        if not self._live_idle or not ready_to_write(websocket):
             return False
         variant = self.session.variant
         data = update.ready(variant)
@@ -317,11 +314,7 @@ class Connection:
             return False  # the live task carries out anything else (asking the session again gives the same answer)
         for _ in events:
             try:
-                if variant.fmt is Format.JSON:
-                    websocket.protocol.send_text(data)
-                else:
-                    websocket.protocol.send_binary(data)
-                websocket.send_data()
+                write_message(websocket, data, text=variant.fmt is Format.JSON)
             except Exception as exc:  # the connection broke: its reader ends the session
                 logger.debug("live update to %s not sent: %s", _remote(websocket), exc)
                 return True

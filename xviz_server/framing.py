@@ -26,11 +26,21 @@ does the standard library's transport from Python 3.12; before 3.12 it joins
 them, which is the copy websockets made anyway. TLS transports encrypt from
 the buffers they are given.
 
-Use it with ``serve(..., create_connection=FramingConnection)``.
+Use it with ``serve(..., create_connection=FramingConnection)``. What it
+saves is in the send benchmark's table (`docs/performance.md#sending-frames`,
+xviz-server against bare websockets and raw TCP).
 
-This module overrides a private method of websockets (``send_frame``) and
+:func:`ready_to_write` and :func:`write_message` write one message to a
+connection at once, from a live feed's publish, the way
+``websockets.broadcast`` does, so that a fan-out to viewers who keep up does
+not go through a coroutine per viewer (`docs/performance.md#live-fan-out`,
+this server against ``websockets.broadcast`` and raw writes).
+
+This module overrides a private method of websockets (``send_frame``),
 relies on how the protocol queues outgoing data (``writes``,
-``data_to_send``); importing it raises
+``data_to_send``), and writes as ``websockets.broadcast`` does (the
+protocol's ``state``, ``send_text``/``send_binary``, the connection's
+``send_in_progress`` and ``send_data``); importing it raises
 :exc:`~xviz_server.exceptions.DependencyError` unless the installed
 websockets is a version it was tested with (:data:`TESTED_WEBSOCKETS`).
 """
@@ -43,12 +53,16 @@ from typing import Any
 
 from websockets.asyncio.server import Server, ServerConnection
 from websockets.frames import DATA_OPCODES, Frame
+from websockets.protocol import State
 from websockets.server import ServerProtocol
 from websockets.version import version as websockets_version
 
 from .exceptions import DependencyError
 
-__all__ = ["TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "frame_header", "FramingProtocol", "FramingConnection"]
+__all__ = [
+    "TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "frame_header", "FramingProtocol", "FramingConnection", "ready_to_write",
+    "write_message",
+]
 
 #: The websockets releases (major, minor) this module was tested with.
 TESTED_WEBSOCKETS = frozenset({(17, 4)})
@@ -112,3 +126,32 @@ class FramingConnection(ServerConnection):
         else:  # one buffer, or an end of stream among them: websockets' own way
             self.protocol.writes[:0] = writes
             super().send_data()
+
+
+def ready_to_write(connection: ServerConnection) -> bool:
+    """Whether a message written to ``connection`` now goes out without waiting.
+
+    It does when the connection is open, is not in the middle of a fragmented
+    message (as ``websockets.broadcast`` checks), and its transport's write
+    buffer is at most at its high-water mark (so that a viewer who fell
+    behind is not sent more than a send that waits for the buffer would).
+    """
+    transport = connection.transport
+    return (
+        connection.protocol.state is State.OPEN
+        and connection.send_in_progress is None
+        and transport.get_write_buffer_size() <= transport.get_write_buffer_limits()[1]
+    )
+
+
+def write_message(connection: ServerConnection, data: bytes, text: bool) -> None:
+    """Write ``data`` to ``connection`` as one text or binary message, at once, as ``websockets.broadcast`` does.
+
+    Check :func:`ready_to_write` first. Raises what the write raises when the
+    connection broke (its reader then ends it).
+    """
+    if text:
+        connection.protocol.send_text(data)
+    else:
+        connection.protocol.send_binary(data)
+    connection.send_data()
