@@ -18,9 +18,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
-
 from . import exceptions as _exceptions
+from .version import __version__
 
 _HOMES = {
     "XVIZServer": "server",

@@ -16,7 +16,7 @@ from typing import Any, Callable, Coroutine, Sequence
 import orjson
 import pydantic
 
-from . import __version__
+from .version import __version__
 from .exceptions import ConfigError
 from .logfmt import configure_logging, redact_password
 from .settings import SECRETS, Settings, load_settings

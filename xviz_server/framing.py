@@ -47,7 +47,6 @@ websockets is a version it was tested with (:data:`TESTED_WEBSOCKETS`).
 
 from __future__ import annotations
 
-import re
 import struct
 from typing import Any
 
@@ -57,7 +56,7 @@ from websockets.protocol import State
 from websockets.server import ServerProtocol
 from websockets.version import version as websockets_version
 
-from .exceptions import DependencyError
+from .version import require_tested
 
 __all__ = [
     "TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "frame_header", "FramingProtocol", "FramingConnection", "ready_to_write",
@@ -72,13 +71,7 @@ TESTED_WEBSOCKETS = frozenset({(17, 4)})
 SEPARATE_PAYLOAD = 16 * 1024
 
 
-_release = re.match(r"(\d+)\.(\d+)", websockets_version)
-if _release is None or (int(_release[1]), int(_release[2])) not in TESTED_WEBSOCKETS:
-    raise DependencyError(
-        f"xviz_server.framing was tested with websockets "
-        f"{', '.join(f'{a}.{b}' for a, b in sorted(TESTED_WEBSOCKETS))}, not {websockets_version}: "
-        "install a tested version (pip install -e .) or test this module with the new one and add it"
-    )
+require_tested(__name__, "websockets", websockets_version, TESTED_WEBSOCKETS, "pip install -e .")
 
 
 def frame_header(frame: Frame) -> bytes:

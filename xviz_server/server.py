@@ -41,7 +41,7 @@ from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 from websockets.typing import Origin
 
-from . import __version__
+from .version import __version__
 from .auth import feed_name, ingest_refusal, token_matches
 from .cache import FrameCache
 from .layout import LOG
