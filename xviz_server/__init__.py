@@ -19,7 +19,6 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from . import exceptions as _exceptions
-from .version import __version__
 
 _HOMES = {
     "XVIZServer": "server",
@@ -29,6 +28,7 @@ _HOMES = {
     "FrameBuilder": "builder",
     "LogWriter": "writer",
     "ProbeReport": "probe",
+    "__version__": "version",
     **dict.fromkeys(_exceptions.__all__, "exceptions"),
 }
 
@@ -67,6 +67,7 @@ if TYPE_CHECKING:
     from .probe import ProbeReport
     from .server import XVIZServer
     from .settings import Settings
+    from .version import __version__
     from .writer import LogWriter
 
 
