@@ -16,7 +16,7 @@ not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer
 * ``GET /metrics``: the metrics in Prometheus text format.
 
 A WebSocket connection on ``/ingest/<name>`` is a live source feeding the
-live feed ``<name>`` (see :mod:`xviz_server.ingest`); on any other path it
+live feed ``<name>`` (see :mod:`xviz_server.live.ingest`); on any other path it
 is an XVIZ session (the path may name the log). Beyond ``max_sessions``
 open sessions, handshakes are refused with HTTP 503.
 """
