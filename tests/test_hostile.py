@@ -19,7 +19,7 @@ from helpers import client, metadata, running_server, ten_hz, update, write_log
 
 META = metadata()
 from xviz_server import server as server_module
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
 
 def stalled_socket(port: int) -> socket.socket:

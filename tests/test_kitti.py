@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import decode
 from xviz_server.datasets import detect
 from xviz_server.datasets.kitti import (

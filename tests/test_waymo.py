@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps, xviz_decode
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
 from xviz_server.convert import convert
 from xviz_server.datasets import detect, open_dataset

@@ -15,7 +15,7 @@ import pytest
 
 from helpers import client, running_server, timestamps, xviz_decode
 from devkit.waymo_frames import calibration, frame, jpeg_image, pose_matrix, write_segment
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
 from xviz_server.datasets import detect, open_dataset
 from xviz_server.datasets.tfrecord import RecordFile, masked_crc, write_records
