@@ -42,7 +42,7 @@ from ..version import require_tested
 __all__ = ["TESTED_REDIS", "Wire", "Replies"]
 
 #: The redis-py releases (major, minor) this module was tested with.
-TESTED_REDIS = frozenset({(8, 1)})
+TESTED_REDIS = frozenset({(7, 4), (8, 0), (8, 1)})
 
 require_tested(__name__, "redis", redis.__version__, TESTED_REDIS, "pip install 'xviz-server[broker]'")
 
