@@ -4,8 +4,9 @@ The wheel carries the built-in viewer (setup.py runs scripts/build-viewer.sh
 where npm is), and the installed server works from any working directory,
 its worker processes included: started at the root of this checkout, whose
 ``xviz_server/`` folder is not the installed package, it serves the demo's
-frames (made in the process pool) and the viewer's page. Without npm the
-wheel still builds, and says it has no viewer.
+frames (made in the process pool) and the viewer's page. Without running npm
+(none, or XVIZ_BUILD_VIEWER=0, or a bundle newer than its sources) the wheel
+still builds and says what it packaged.
 """
 
 from __future__ import annotations
@@ -41,11 +42,11 @@ def copy_sources(target: Path) -> Path:
     return target
 
 
-def pip_wheel(source: Path, into: Path, path: str) -> subprocess.CompletedProcess[str]:
+def pip_wheel(source: Path, into: Path, path: str, **variables: str) -> subprocess.CompletedProcess[str]:
     """``pip wheel`` of ``source`` (a folder or an sdist) with PATH set to ``path``; the build's output is in stderr."""
     return subprocess.run([sys.executable, "-m", "pip", "wheel", "-v", "--no-deps", "--disable-pip-version-check",
                            "-w", str(into), str(source)],
-                          capture_output=True, text=True, env=clean_env(PATH=path), timeout=900)
+                          capture_output=True, text=True, env=clean_env(PATH=path, **variables), timeout=900)
 
 
 def viewer_files(wheel: Path) -> list[str]:
@@ -114,11 +115,23 @@ def test_installed_server_started_in_the_checkout_serves_the_demo_and_the_viewer
     assert "ModuleNotFoundError" not in "".join(log) + rest
 
 
-def test_a_wheel_builds_without_npm_and_says_it_has_no_viewer(tmp_path: Path):
+@pytest.mark.parametrize(("npm", "variables", "bundle", "said", "packaged"), [
+    (False, {}, False, "WARNING npm not found: building without the viewer page", False),
+    (False, {}, True, "npm not found: packaging the viewer bundle already in", True),
+    (True, {"XVIZ_BUILD_VIEWER": "0"}, False, "WARNING XVIZ_BUILD_VIEWER=0: building without the viewer page", False),
+    (True, {}, True, "is newer than its sources: packaging it as it is", True),
+], ids=["no npm", "no npm, a bundle", "XVIZ_BUILD_VIEWER=0", "a bundle newer than its sources"])
+def test_a_wheel_builds_without_running_npm_and_says_what_it_packaged(
+    tmp_path: Path, npm: bool, variables: dict[str, str], bundle: bool, said: str, packaged: bool
+):
     source = copy_sources(tmp_path / "source")
-    # Only this Python's folder on PATH: no npm, no node.
-    result = pip_wheel(source, tmp_path / "dist", str(Path(sys.executable).parent))
+    if bundle:  # made after the sources were copied: newer than each of them
+        (source / "xviz_server" / "viewer_static").mkdir()
+        (source / "xviz_server" / "viewer_static" / "index.html").write_text("<!doctype html>\n")
+    # Without npm: only this Python's folder on PATH.
+    path = clean_env()["PATH"] if npm else str(Path(sys.executable).parent)
+    result = pip_wheel(source, tmp_path / "dist", path, **variables)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "WARNING npm not found: building without the viewer page" in result.stderr
+    assert said in result.stderr
     (wheel,) = (tmp_path / "dist").glob("xviz_server-*.whl")
-    assert viewer_files(wheel) == []
+    assert viewer_files(wheel) == (["xviz_server/viewer_static/index.html"] if packaged else [])
