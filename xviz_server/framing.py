@@ -26,14 +26,12 @@ does the standard library's transport from Python 3.12; before 3.12 it joins
 them, which is the copy websockets made anyway. TLS transports encrypt from
 the buffers they are given.
 
-Use it with ``serve(..., create_connection=FramingConnection)``. What it
-saves is in the send benchmark's table (`docs/performance.md#sending-frames`,
-xviz-server against bare websockets and raw TCP).
+Use it with ``serve(..., create_connection=FramingConnection)``.
 
 :func:`ready_to_write` and :func:`write_message` write one message to a
 connection at once, from a live feed's publish, the way
 ``websockets.broadcast`` does, so that a fan-out to viewers who keep up does
-not go through a coroutine per viewer (`docs/performance.md#live-fan-out`,
+not go through a coroutine per viewer (see docs/performance.md#live-fan-out:
 this server against ``websockets.broadcast`` and raw writes).
 
 This module overrides a private method of websockets (``send_frame``),

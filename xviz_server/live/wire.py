@@ -15,9 +15,7 @@ Replies come back in order: :meth:`Wire.send` returns a future for its
 reply. An error reply is a :class:`redis.exceptions.ResponseError`
 (:class:`~redis.exceptions.OutOfMemoryError` for ``OOM``); a connection that
 closes, or that carries what is not RESP, fails every pending reply with a
-:class:`redis.exceptions.ConnectionError`. What the hand-written paths save
-against redis-py with hiredis, and how far they are from a raw socket, is in
-the wire benchmark's table (`docs/performance.md#the-hop-through-redis`).
+:class:`redis.exceptions.ConnectionError`.
 
 To read a broker URL as :mod:`redis` does, :meth:`Wire.open` uses
 ``parse_url``, the connection classes it names and ``SSLConnection``'s
