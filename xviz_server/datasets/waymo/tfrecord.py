@@ -38,9 +38,9 @@ from typing import Iterable
 
 import google_crc32c
 
-from ..exceptions import DatasetError, StoreError
-from ..storepath import StorePath, data_path
-from ..unpack import MAX_RECORD_BYTES, size_text
+from ...exceptions import DatasetError, StoreError
+from ...storepath import StorePath, data_path
+from ...unpack import MAX_RECORD_BYTES, size_text
 
 __all__ = ["Record", "RecordFile", "is_tfrecord", "masked_crc", "write_records"]
 
