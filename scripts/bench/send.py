@@ -205,7 +205,7 @@ def main() -> None:
             from xviz_server import cli, framing
 
             # websockets' own protocol and writes: each frame serialized into one new bytes, as the bare library sends.
-            framing.FramingConnection.__init__ = ServerConnection.__init__  # type: ignore[method-assign]
+            framing.FramingConnection.__init__ = ServerConnection.__init__  # type: ignore[method-assign, assignment]
             framing.FramingConnection.send_data = ServerConnection.send_data  # type: ignore[method-assign]
             sys.exit(cli.main(["serve", "--data-dir", rest[0], "--cache-mb", rest[1], "--host", "127.0.0.1", "--port", "0"]))
         frames = [Path(p).read_bytes() for p in json.loads(Path(rest[0]).read_text())]
