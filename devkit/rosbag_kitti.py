@@ -36,7 +36,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from xviz_server.datasets.kitti import EARTH_RADIUS, KittiDrive
+from xviz_server.datasets.kitti import KittiDrive
+from xviz_server.datasets.shared import EARTH_RADIUS
 
 RAW = "kitti-raw-2011_09_26_drive_0001-head"
 CLOUD_TOPIC = "/kitti/velo/pointcloud"

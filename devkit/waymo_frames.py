@@ -14,8 +14,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from xviz_server.datasets import waymo_frame_pb2 as pb
-from xviz_server.datasets.tfrecord import write_records
+from xviz_server.datasets.waymo import frame_pb2 as pb
+from xviz_server.datasets.waymo.tfrecord import write_records
 
 
 def matrix(array: np.ndarray, level: int = 6) -> bytes:

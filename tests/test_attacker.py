@@ -24,7 +24,7 @@ async def push_metadata(server, name: str, **kwargs):
     source = await connect(f"ws://127.0.0.1:{server.port}/ingest/{name}", max_size=None, **kwargs)
     await source.send(json.dumps({"type": "xviz/metadata", "data": META}))
     for _ in range(200):
-        feed = server.live.find(name, exact=True)
+        feed = server.live.get(name)
         if feed is not None and feed.metadata is not None and feed.connected:
             return source
         await asyncio.sleep(0.025)
@@ -91,7 +91,7 @@ async def test_the_state_of_a_feed_whose_source_left_is_freed_after_the_grace_pe
         source = await push_metadata(server, "car")
         await source.send(encode({"type": "xviz/state_update", "data": update(1.0, points=100_000)}, Format.BINARY))
         await asyncio.sleep(0.2)
-        feed = server.live.find("car", exact=True)
+        feed = server.live.get("car")
         assert feed is not None and feed.state() is not None
         await source.close()
         await asyncio.sleep(0.6)

@@ -31,7 +31,7 @@ from helpers import Client, write_log
 from test_exposure import start_serving
 from xviz_server.codec import edit_glb
 from xviz_server.datasets.kitti import KittiDrive
-from xviz_server.datasets.tfrecord import masked_crc
+from xviz_server.datasets.waymo.tfrecord import masked_crc
 from xviz_server.exceptions import DatasetError
 from xviz_server.unpack import MAX_CHUNK_BYTES
 

@@ -531,11 +531,11 @@ async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_start
         await until(all_written, what="A to write the feed")
         async with running_server(tmp_path, **settings) as c:
             async def listed() -> bool:
-                found = c.live.find("sim", exact=True)
+                found = c.live.get("sim")
                 return found is not None and found.metadata is not None
 
             await until(listed, what="C to list the feed")
-            assert c.live.find("sim", exact=True).state() is None  # not read: no viewer on C yet
+            assert c.live.get("sim").state() is None  # not read: no viewer on C yet
             async with client(c, "/?log=sim&session_type=live") as viewer:
                 assert (await viewer.recv())["type"] == "xviz/metadata"
                 state = await viewer.recv()
@@ -545,7 +545,7 @@ async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_start
                 while poses[-1] != 2.2:  # then the updates after it, up to the newest
                     poses.append((await asyncio.wait_for(viewer.recv(), 10))["data"]["updates"][0]["poses"]["/vehicle_pose"]["position"][0])
             assert poses == sorted(poses) and poses[0] >= 1.9, poses
-            assert c.live.find("sim", exact=True).origin == a.broker.link.id.decode()
+            assert c.live.get("sim").origin == a.broker.link.id.decode()
 
 
 def poisoned(frame: bytes) -> dict[str, bytes]:

@@ -27,7 +27,7 @@ from websockets.server import ServerProtocol
 
 from helpers import paused_viewer, running_server
 from xviz_server.codec import Format, decode, encode
-from xviz_server.framing import SEPARATE_PAYLOAD, FramingConnection, FramingProtocol, frame_header
+from xviz_server.framing import SEPARATE_PAYLOAD, FramingConnection, FramingProtocol, frame_header, ready_to_write, write_message
 from xviz_server.session import Variant
 
 OP_TEXT, OP_BINARY, OP_CONT = Opcode.TEXT, Opcode.BINARY, Opcode.CONT
@@ -205,6 +205,39 @@ def test_bytes_on_the_wire_are_websockets_bytes(loop: str, deflate: bool, tls: b
 
 
 # ------------------------------------------------------------------ the server
+
+
+def test_a_message_written_at_once_arrives_whole_and_only_while_the_connection_keeps_up(kitti_frame: bytes):
+    # As a live feed's publish writes to a viewer who keeps up: no coroutine, no wait.
+    async def main() -> dict[str, Any]:
+        seen: dict[str, Any] = {}
+
+        async def handler(connection: ServerConnection) -> None:
+            seen["open"] = ready_to_write(connection)
+            write_message(connection, kitti_frame, text=False)
+            write_message(connection, b'{"type": "xviz/state_update"}', text=True)
+            writes = 2
+            while ready_to_write(connection) and writes < 40:  # the client stops reading: the buffer fills
+                write_message(connection, kitti_frame, text=False)
+                writes += 1
+            seen["writes before the buffer is full"] = writes
+            await connection.wait_closed()
+            seen["closed"] = ready_to_write(connection)
+
+        async with serve(handler, "127.0.0.1", 0, create_connection=FramingConnection, max_size=None) as server:
+            port = server.sockets[0].getsockname()[1]
+            async with connect(f"ws://127.0.0.1:{port}/", max_size=None, max_queue=1) as client:
+                assert await client.recv() == kitti_frame
+                assert await client.recv() == '{"type": "xviz/state_update"}'
+                while "writes before the buffer is full" not in seen:
+                    await asyncio.sleep(0.01)
+                for _ in range(seen["writes before the buffer is full"] - 2):  # the rest: the close is not held up behind it
+                    assert await client.recv() == kitti_frame
+        return seen
+
+    seen = uvloop.run(main())
+    assert seen["open"] and not seen["closed"]
+    assert 2 < seen["writes before the buffer is full"] < 40
 
 
 def transform_log(request_id: str) -> str:

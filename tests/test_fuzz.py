@@ -417,7 +417,7 @@ def waymo_frames(rng: np.random.Generator, lasers: list[int], cameras: list[int]
     """Two serialized Frames: the TOP laser's range images 4 x 8 with pixel poses, the others plain; a JPEG per camera."""
     from devkit.waymo_frames import calibration, frame, jpeg_image, pose_matrix
 
-    from xviz_server.datasets import waymo_frame_pb2 as pb
+    from xviz_server.datasets.waymo import frame_pb2 as pb
 
     records = []
     for i in range(2):
@@ -441,7 +441,7 @@ def waymo_frames(rng: np.random.Generator, lasers: list[int], cameras: list[int]
 def _matrix(array: np.ndarray, dims: list[int] | None) -> bytes:
     import zlib
 
-    from xviz_server.datasets import waymo_frame_pb2 as pb
+    from xviz_server.datasets.waymo import frame_pb2 as pb
 
     message = pb.MatrixFloat(data=array.astype("<f4").tobytes())
     message.shape.dims.extend(array.shape if dims is None else dims)
@@ -449,7 +449,7 @@ def _matrix(array: np.ndarray, dims: list[int] | None) -> bytes:
 
 
 def tfrecord(records: list[bytes]) -> bytes:
-    from xviz_server.datasets.tfrecord import masked_crc
+    from xviz_server.datasets.waymo.tfrecord import masked_crc
 
     return b"".join(struct.pack("<Q", len(r)) + struct.pack("<I", masked_crc(struct.pack("<Q", len(r)))) + r
                     + struct.pack("<I", masked_crc(r)) for r in records)
@@ -479,7 +479,7 @@ def scratch(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def read_waymo(path: Path) -> None:
-    from xviz_server.datasets.waymo_tfrecord import WaymoRecordSegment
+    from xviz_server.datasets.waymo.segment import WaymoRecordSegment
 
     segment = WaymoRecordSegment(path)
     for index in range(len(segment.times)):

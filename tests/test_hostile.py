@@ -19,7 +19,7 @@ from helpers import client, metadata, running_server, ten_hz, update, write_log
 
 META = metadata()
 from xviz_server import server as server_module
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
 
 def stalled_socket(port: int) -> socket.socket:
@@ -132,7 +132,7 @@ async def test_poisoned_updates_are_refused_at_the_door_and_the_source_stays(tmp
     async with running_server(None, record=tmp_path / "record") as server:
         async with connect(f"ws://127.0.0.1:{server.port}/ingest/car", max_size=None) as source:
             await source.send(json.dumps({"type": "xviz/metadata", "data": META}))
-            await until(lambda: server.live.find("car", exact=True) is not None and server.live.find("car", exact=True).metadata, 5)
+            await until(lambda: server.live.get("car") is not None and server.live.get("car").metadata, 5)
             async with client(server, "/?log=car&session_type=live") as viewer:
                 assert (await viewer.recv())["type"] == "xviz/metadata"
                 for data, field in POISON:
@@ -167,7 +167,7 @@ async def test_a_large_json_update_is_parsed_off_the_event_loop(tmp_path: Path):
         ticker = asyncio.ensure_future(tick())
         async with connect(f"ws://127.0.0.1:{server.port}/ingest/car", max_size=None) as source:
             await source.send(json.dumps({"type": "xviz/metadata", "data": META}))
-            await until(lambda: server.live.find("car", exact=True) is not None and server.live.find("car", exact=True).metadata, 5)
+            await until(lambda: server.live.get("car") is not None and server.live.get("car").metadata, 5)
             async with client(server, "/?log=car&session_type=live") as viewer:
                 await viewer.recv()
                 await source.send(big)

@@ -16,17 +16,11 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import decode
 from xviz_server.datasets import detect
-from xviz_server.datasets.kitti import (
-    KittiDrive,
-    footprints,
-    is_kitti_drive,
-    read_timestamps,
-    read_tracklets,
-    reflectance_colors,
-)
+from xviz_server.datasets.kitti import KittiDrive, is_kitti_drive, read_timestamps, read_tracklets
+from xviz_server.datasets.shared import footprints, reflectance_colors
 from xviz_server.exceptions import DatasetError
 
 # A tracklet_labels.xml in the devkit's format (boost serialisation XML, tabs,

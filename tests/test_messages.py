@@ -7,7 +7,6 @@ import pytest
 from xviz_server.codec import Format
 from xviz_server.exceptions import MessageError
 from xviz_server.messages import (
-    Metadata,
     Reconfigure,
     SessionType,
     Start,
@@ -83,13 +82,3 @@ def test_bare_messages_are_recognised_like_clients_do():
 def test_sent_messages_are_envelopes_without_unset_fields():
     assert TransformLogDone(id="4").to_envelope() == {"type": "xviz/transform_log_done", "data": {"id": "4"}}
     assert Start(session_type=SessionType.LIVE).to_envelope() == {"type": "xviz/start", "data": {"session_type": "LIVE"}}
-
-
-def test_metadata_keeps_every_field_and_reads_the_ones_the_server_needs():
-    metadata = Metadata.model_validate(
-        {"version": "2.0.0", "log_info": {"start_time": 1.5, "end_time": 3}, "streams": {"/p": {"category": "POSE"}},
-         "ui_config": {"panel": 1}}
-    )
-    assert metadata.log_info.start_time == 1.5 and metadata.log_info.end_time == 3.0
-    assert metadata.streams["/p"].category == "POSE"
-    assert metadata.to_envelope()["data"]["ui_config"] == {"panel": 1}

@@ -22,7 +22,7 @@ import pytest
 from helpers import PNG_2X1, assert_same_message, client, run_xviz_session_async, running_server, timestamps, write_log
 from helpers import xviz_decode, xviz_write
 from xviz_server import frames
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, decode, decode_pbe
 from xviz_server.codec.xviz_v2_pb2 import Envelope, StateUpdate
 from xviz_server.exceptions import DecodeError

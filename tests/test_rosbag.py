@@ -25,7 +25,8 @@ from helpers import client, run_xviz_session_async, running_server, sha, timesta
 from xviz_server.cli import main
 from xviz_server.convert import convert
 from xviz_server.datasets import detect, open_dataset
-from xviz_server.datasets.kitti import EARTH_RADIUS, KittiDrive
+from xviz_server.datasets.kitti import KittiDrive
+from xviz_server.datasets.shared import EARTH_RADIUS
 from xviz_server.datasets.ros import RosBag, is_rosbag
 from xviz_server.datasets.ros.bag import ROS1_MAGIC
 from xviz_server.datasets.ros.sensors import cloud_points, compressed_image_bytes, image_bytes

@@ -16,6 +16,8 @@ from xviz_server.session import (
     CancelStream,
     Close,
     ConfigureLive,
+    LiveFacts,
+    LookUpLive,
     OpenLog,
     QueryInstant,
     Send,
@@ -162,7 +164,7 @@ def test_start_again_resends_metadata_or_opens_another_log():
 
 def test_live_sessions_and_why_transform_requests_fail():
     session = Session(path="/", query={"log": "drive", "session_type": "live"}, available=["drive"])
-    assert session.connect() == [SubscribeLive("drive", exact=True)]
+    assert session.connect() == [LookUpLive("drive")]
     anonymous = Session(path="/", query={"session_type": "LIVE"}, available=[])
     assert "no live feeds" in sent(anonymous.connect()[0])["data"]["message"]
     [error] = session.receive(message("transform_log", {"id": "r"}))
@@ -178,9 +180,7 @@ def test_a_logguid_is_a_recorded_log_if_one_opens_else_a_live_feed():
     assert sent(metadata)["type"] == "xviz/metadata" and not recorded.is_live
     live = Session(path="/", query={"logGuid": "car", "worker": "true"}, available=["drive"])
     assert live.connect() == [OpenLog("car")]
-    assert live.log_failed(LogNotFound("no log named 'car'", name="car", available=["drive"])) == [
-        SubscribeLive("car", exact=False)
-    ]
+    assert live.log_failed(LogNotFound("no log named 'car'", name="car", available=["drive"])) == [LookUpLive("car")]
     assert live.is_live and live.format is Format.BINARY
     named = Session(path="/", query={"log": "car"}, available=["drive"])  # named as a log: an error, not live
     named.connect()
@@ -240,10 +240,38 @@ def test_live_reconfigure_changes_the_variant_and_is_forwarded():
     assert send == SendLiveUpdate(1, Variant(Format.JSON, frozenset({"/points"}), 100))
 
 
-def test_a_feed_named_explicitly_is_never_substituted_but_a_logguid_may_be():
-    assert live_session().connect() == [SubscribeLive("car", exact=True)]
+def facts(exists: bool = False, started: bool = False, running: tuple[str, ...] = (), allowed: bool = True) -> LiveFacts:
+    return LiveFacts(allowed=allowed, exists=exists, started=started, running=running)
+
+
+def test_a_feed_named_explicitly_is_followed_or_waited_for_never_substituted():
+    assert live_session().connect() == [LookUpLive("car")]
+    assert live_session().live_found(facts(exists=True, started=True, running=("car", "bus"))) == [SubscribeLive("car")]
+    assert live_session().live_found(facts(exists=True, running=("bus",))) == [SubscribeLive("car")]
+    waiting, subscribe = live_session().live_found(facts(running=("bus",)))
+    assert waiting.notice == "waiting" and "'car' has not started yet" in sent(waiting)["data"]["message"]
+    assert subscribe == SubscribeLive("car")
+    [error] = live_session().live_found(facts(allowed=False))
+    assert error.error == "live" and "no live feed named 'car'" in sent(error)["data"]["message"]
+
+
+def test_a_feed_named_by_logguid_or_not_named_may_be_the_only_running_one():
+    def by_guid(found: LiveFacts) -> list:
+        session = Session(path="/", query={"logGuid": "mock"})
+        session.connect()
+        assert session.log_failed(LogNotFound("no log named 'mock'", name="mock", available=[])) == [LookUpLive("mock")]
+        return session.live_found(found)
+
+    assert by_guid(facts(exists=True, started=True, running=("mock", "car"))) == [SubscribeLive("mock")]
+    assert by_guid(facts(exists=True, running=("car",))) == [SubscribeLive("car")]  # not started: the running one
+    assert by_guid(facts(running=("car",))) == [SubscribeLive("car")]
+    waiting, subscribe = by_guid(facts(running=("car", "bus")))  # two run: wait for the one asked for
+    assert waiting.notice == "waiting" and subscribe == SubscribeLive("mock")
     anonymous = Session(path="/", query={"session_type": "live"}, live=["a"])
-    assert anonymous.connect() == [SubscribeLive(None, exact=False)]
+    assert anonymous.connect() == [LookUpLive(None)]
+    assert anonymous.live_found(facts(running=("a",))) == [SubscribeLive("a")]
+    [error] = anonymous.live_found(facts(running=("a", "b")))
+    assert "no live feed to serve (several are running; name one); live feeds: 'a'" in sent(error)["data"]["message"]
 
 
 def test_errors_name_request_and_log():

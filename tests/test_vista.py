@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.convert import convert
 from xviz_server.datasets import detect
 from xviz_server.datasets.vista import VistaTrace, _require_extra, integrate_pose, linear_function

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps, xviz_decode
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
 from xviz_server.convert import convert
 from xviz_server.datasets import detect, open_dataset
-from xviz_server.datasets.waymo import WaymoSegment, pose_angles
+from xviz_server.datasets.shared import pose_angles
+from xviz_server.datasets.waymo import WaymoSegment
 from xviz_server.exceptions import DatasetError
 from xviz_server.messages import envelope
 from xviz_server.validation import get_validator

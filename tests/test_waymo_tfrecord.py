@@ -15,13 +15,13 @@ import pytest
 
 from helpers import client, running_server, timestamps, xviz_decode
 from devkit.waymo_frames import calibration, frame, jpeg_image, pose_matrix, write_segment
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
 from xviz_server.datasets import detect, open_dataset
-from xviz_server.datasets.tfrecord import RecordFile, masked_crc, write_records
+from xviz_server.datasets.waymo.tfrecord import RecordFile, masked_crc, write_records
 from xviz_server.datasets.waymo import WaymoSegment
 from xviz_server.datasets.images import scale_jpegs
-from xviz_server.datasets.waymo_tfrecord import WaymoRecordSegment
+from xviz_server.datasets.waymo.segment import WaymoRecordSegment
 from xviz_server.exceptions import DatasetError
 from xviz_server.messages import envelope
 
@@ -163,7 +163,7 @@ def test_masked_crc_of_the_crc32c_check_value():
 def test_matrix_data_as_bytes_reads_waymos_packed_floats():
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-    from xviz_server.datasets import waymo_frame_pb2 as pb
+    from xviz_server.datasets.waymo import frame_pb2 as pb
 
     # Waymo's own definition: proto2, `repeated float data = 1 [packed = true]; optional MatrixShape shape = 2;`
     file = descriptor_pb2.FileDescriptorProto(name="waymo_test.proto", package="waymo_test", syntax="proto2")
@@ -352,7 +352,7 @@ def test_a_bad_frame_or_range_image_is_named(tmp_path: Path, monkeypatch):
         segment.read(3)
     with pytest.raises(DatasetError, match="record 4 at offset .*: not a Waymo Frame"):
         segment.read(4)
-    monkeypatch.setattr("xviz_server.datasets.waymo_tfrecord.MAX_MATRIX_BYTES", 100)  # a 2 x 4 x 4 matrix is 140 bytes
+    monkeypatch.setattr("xviz_server.datasets.waymo.segment.MAX_MATRIX_BYTES", 100)  # a 2 x 4 x 4 matrix is 140 bytes
     with pytest.raises(DatasetError, match="record 0 at offset 0: laser FRONT return 1: more than 100 bytes decompressed"):
         segment.read(0)
 

@@ -5,10 +5,14 @@ from __future__ import annotations
 import asyncio
 import os
 import threading
+from pathlib import Path
 
+import pytest
+
+import xviz_server
 from xviz_server import frames
 from xviz_server.codec import Format
-from xviz_server.work import Place, Workers
+from xviz_server.work import Place, Workers, _fork_server_finds_this_package
 
 
 def test_heavy_work_runs_in_threads_until_the_worker_processes_are_up():
@@ -56,3 +60,15 @@ def test_frames_run_in_the_loop_when_small_and_in_a_process_only_when_large_json
     assert frames.placement(frames.HEAVY_JSON_BYTES, Format.BINARY, Format.JSON) is Place.THREAD
     assert frames.placement(large, Format.BINARY) is Place.THREAD
     assert frames.placement(large, Format.BINARY, Format.JSON) is Place.PROCESS
+
+
+def test_the_fork_server_preloads_only_where_the_working_directory_holds_no_other_copy(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    # It imports with the working directory first on sys.path (see work.py): another xviz_server/ there would win.
+    monkeypatch.chdir(tmp_path)
+    assert _fork_server_finds_this_package()
+    monkeypatch.chdir(Path(xviz_server.__file__).parents[1])  # where this package's own folder is
+    assert _fork_server_finds_this_package()
+    (tmp_path / "xviz_server").mkdir()
+    (tmp_path / "xviz_server" / "__init__.py").write_text("")
+    monkeypatch.chdir(tmp_path)
+    assert not _fork_server_finds_this_package()

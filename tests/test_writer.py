@@ -14,7 +14,7 @@ import pytest
 
 from helpers import client, metadata, running_server, ten_hz, timestamps, xviz_decode
 from xviz_server.builder import FrameBuilder, MetadataBuilder
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, decode, encode
 from xviz_server.exceptions import LogWriteError
 from xviz_server.writer import LogWriter, write_atomically

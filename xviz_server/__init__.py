@@ -18,8 +18,6 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
-
 from . import exceptions as _exceptions
 
 _HOMES = {
@@ -30,6 +28,7 @@ _HOMES = {
     "FrameBuilder": "builder",
     "LogWriter": "writer",
     "ProbeReport": "probe",
+    "__version__": "version",
     **dict.fromkeys(_exceptions.__all__, "exceptions"),
 }
 
@@ -71,6 +70,7 @@ if TYPE_CHECKING:
     from .probe import ProbeReport
     from .server import XVIZServer
     from .settings import Settings
+    from .version import __version__
     from .writer import LogWriter
 
 

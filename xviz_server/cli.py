@@ -16,7 +16,7 @@ from typing import Any, Callable, Coroutine, Sequence
 import orjson
 import pydantic
 
-from . import __version__
+from .version import __version__
 from .exceptions import ConfigError
 from .logfmt import configure_logging, redact_password
 from .settings import SECRETS, Settings, load_settings
@@ -169,7 +169,7 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from .check import check_paths
+    from .validate import check_paths
 
     report = check_paths(args.paths)
     print(orjson.dumps(report.as_dict(), option=orjson.OPT_INDENT_2).decode() if args.json else report.render())

@@ -27,17 +27,17 @@ from urllib.parse import parse_qsl, unquote, urlsplit
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
-from websockets.protocol import State
 
 from .codec import Format
 from .exceptions import XVIZError
 from .flow import close, watch_progress
-from .live import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription
+from .framing import ready_to_write, write_message
+from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription
 from .logfmt import log_event, redact_url
-from .logs import Catalog, Log, check_log_name
+from .logs import Catalog, Log
 from .metrics import Metrics
 from .readahead import ReadAhead, Window
-from .session import Close, ConfigureLive, Event, OpenLog, QueryInstant, Send, Session, SubscribeLive
+from .session import Close, ConfigureLive, Event, LookUpLive, OpenLog, QueryInstant, Send, Session, SubscribeLive
 from .session import CancelStream, SendLiveMetadata, SendLiveUpdate, StreamFrames
 from .settings import Settings
 
@@ -147,6 +147,8 @@ class Connection:
                     self._stream[1].set()
             elif isinstance(event, QueryInstant):
                 self._spawn(f"transform_point_in_time {event.request_id!r}", self._run_query(event))
+            elif isinstance(event, LookUpLive):
+                await self._execute(self.session.live_found(self.live.facts(event.name)))
             elif isinstance(event, SubscribeLive):
                 self._spawn("the live feed", self._run_live(event), fatal=True)
             elif isinstance(event, ConfigureLive):
@@ -260,12 +262,16 @@ class Connection:
     # -- live feeds ---------------------------------------------------------
 
     async def _run_live(self, event: SubscribeLive) -> None:
-        """Follow a feed: tell the session what it does, send what the session says."""
-        feed = await self._find_feed(event)
-        if feed is None:
+        """Follow a feed (once a source creates it): tell the session what it does, send what the session says."""
+        asked = self.session.start.log
+        if asked is not None and asked != event.name:
+            logger.info("live session asked for %r; serving the only live feed %r", asked, event.name)
+        try:
+            feed = await self.live.wait_for(event.name)
+        except XVIZError:  # too many names waited for
+            await self._execute(self.session.live_failed(event.name))
             return
-        self._subscription = subscription = feed.subscribe(self.settings.live_queue, self.session.decimate)
-        subscription.deliver = self._deliver
+        self._subscription = subscription = feed.subscribe(self.settings.live_queue, self.session.decimate, self._deliver)
         self._spawn("a slow live viewer", self._watch_lag(subscription))
         state = self._hold(feed.state())
         await self._execute(self.session.live_joined(feed.name, state, feed.metadata is not None))
@@ -291,16 +297,13 @@ class Connection:
 
         Nothing does when the live task waits for the next update (so that
         every message before this one has been written), the connection is
-        open with its write buffer at most at its high-water mark, and the
+        ready to write (:func:`~xviz_server.framing.ready_to_write`), and the
         update's bytes for this viewer are made. The session decides as for
         a queued update. Otherwise the update is queued and the live task
         sends it, waiting for the buffer to drain like any other send.
         """
         websocket = self.websocket
-        if not self._live_idle or websocket.protocol.state is not State.OPEN or websocket.send_in_progress is not None:
-            return False
-        transport = websocket.transport
-        if transport.get_write_buffer_size() > transport.get_write_buffer_limits()[1]:
+        if not self._live_idle or not ready_to_write(websocket):
             return False
         variant = self.session.variant
         data = update.ready(variant)
@@ -311,32 +314,13 @@ class Connection:
             return False  # the live task carries out anything else (asking the session again gives the same answer)
         for _ in events:
             try:
-                if variant.fmt is Format.JSON:
-                    websocket.protocol.send_text(data)
-                else:
-                    websocket.protocol.send_binary(data)
-                websocket.send_data()
+                write_message(websocket, data, text=variant.fmt is Format.JSON)
             except Exception as exc:  # the connection broke: its reader ends the session
                 logger.debug("live update to %s not sent: %s", _remote(websocket), exc)
                 return True
             self.messages_sent += 1
             self._count_update(data, variant.fmt)
         return True
-
-    async def _find_feed(self, event: SubscribeLive) -> LiveFeed | None:
-        """The feed to follow (waiting for it if it has not started), or ``None`` after telling the client why not."""
-        try:
-            if event.name is not None:
-                check_log_name(event.name)
-            feed = self.live.find(event.name, event.exact)
-            if feed is None and event.name is not None:
-                await self._execute(self.session.live_joined(event.name, None, started=False))
-                feed = await self.live.wait_for(event.name)
-        except XVIZError:
-            feed = None
-        if feed is None:
-            await self._execute(self.session.live_failed(event.name))
-        return feed
 
     def _hold(self, update: LiveUpdate | None) -> int | None:
         """Keep ``update`` at hand while the session decides about it; its number."""

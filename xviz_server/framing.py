@@ -28,27 +28,38 @@ the buffers they are given.
 
 Use it with ``serve(..., create_connection=FramingConnection)``.
 
-This module overrides a private method of websockets (``send_frame``) and
+:func:`ready_to_write` and :func:`write_message` write one message to a
+connection at once, from a live feed's publish, the way
+``websockets.broadcast`` does, so that a fan-out to viewers who keep up does
+not go through a coroutine per viewer (see docs/performance.md#live-fan-out:
+this server against ``websockets.broadcast`` and raw writes).
+
+This module overrides a private method of websockets (``send_frame``),
 relies on how the protocol queues outgoing data (``writes``,
-``data_to_send``); importing it raises
+``data_to_send``), and writes as ``websockets.broadcast`` does (the
+protocol's ``state``, ``send_text``/``send_binary``, the connection's
+``send_in_progress`` and ``send_data``); importing it raises
 :exc:`~xviz_server.exceptions.DependencyError` unless the installed
 websockets is a version it was tested with (:data:`TESTED_WEBSOCKETS`).
 """
 
 from __future__ import annotations
 
-import re
 import struct
 from typing import Any
 
 from websockets.asyncio.server import Server, ServerConnection
 from websockets.frames import DATA_OPCODES, Frame
+from websockets.protocol import State
 from websockets.server import ServerProtocol
 from websockets.version import version as websockets_version
 
-from .exceptions import DependencyError
+from .version import require_tested
 
-__all__ = ["TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "frame_header", "FramingProtocol", "FramingConnection"]
+__all__ = [
+    "TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "frame_header", "FramingProtocol", "FramingConnection", "ready_to_write",
+    "write_message",
+]
 
 #: The websockets releases (major, minor) this module was tested with.
 TESTED_WEBSOCKETS = frozenset({(17, 4)})
@@ -58,13 +69,7 @@ TESTED_WEBSOCKETS = frozenset({(17, 4)})
 SEPARATE_PAYLOAD = 16 * 1024
 
 
-_release = re.match(r"(\d+)\.(\d+)", websockets_version)
-if _release is None or (int(_release[1]), int(_release[2])) not in TESTED_WEBSOCKETS:
-    raise DependencyError(
-        f"xviz_server.framing was tested with websockets "
-        f"{', '.join(f'{a}.{b}' for a, b in sorted(TESTED_WEBSOCKETS))}, not {websockets_version}: "
-        "install a tested version (pip install -e .) or test this module with the new one and add it"
-    )
+require_tested(__name__, "websockets", websockets_version, TESTED_WEBSOCKETS, "pip install -e .")
 
 
 def frame_header(frame: Frame) -> bytes:
@@ -112,3 +117,32 @@ class FramingConnection(ServerConnection):
         else:  # one buffer, or an end of stream among them: websockets' own way
             self.protocol.writes[:0] = writes
             super().send_data()
+
+
+def ready_to_write(connection: ServerConnection) -> bool:
+    """Whether a message written to ``connection`` now goes out without waiting.
+
+    It does when the connection is open, is not in the middle of a fragmented
+    message (as ``websockets.broadcast`` checks), and its transport's write
+    buffer is at most at its high-water mark (so that a viewer who fell
+    behind is not sent more than a send that waits for the buffer would).
+    """
+    transport = connection.transport
+    return (
+        connection.protocol.state is State.OPEN
+        and connection.send_in_progress is None
+        and transport.get_write_buffer_size() <= transport.get_write_buffer_limits()[1]
+    )
+
+
+def write_message(connection: ServerConnection, data: bytes, text: bool) -> None:
+    """Write ``data`` to ``connection`` as one text or binary message, at once, as ``websockets.broadcast`` does.
+
+    Check :func:`ready_to_write` first. Raises what the write raises when the
+    connection broke (its reader then ends it).
+    """
+    if text:
+        connection.protocol.send_text(data)
+    else:
+        connection.protocol.send_binary(data)
+    connection.send_data()

@@ -36,9 +36,6 @@ __all__ = [
     "stream_filter",
     "TransformLogDone",
     "Error",
-    "LogInfo",
-    "StreamMetadata",
-    "Metadata",
     "ClientMessage",
     "unwrap",
     "envelope",
@@ -159,36 +156,6 @@ class Error(_Message):
 
     TYPE = "error"
     message: str
-
-
-class LogInfo(pydantic.BaseModel):
-    """``log_info`` of a metadata message; times are in seconds."""
-
-    model_config = ConfigDict(extra="allow")
-    start_time: float | None = None
-    end_time: float | None = None
-
-
-class StreamMetadata(pydantic.BaseModel):
-    """The description of one stream in a metadata message."""
-
-    model_config = ConfigDict(extra="allow")
-    category: str | None = None
-    primitive_type: str | None = None
-    scalar_type: str | None = None
-
-
-class Metadata(_Message):
-    """``xviz/metadata``: the fields of a log's metadata that the server itself reads.
-
-    Every other field is kept, so that the message can be sent on as it came.
-    """
-
-    TYPE = "metadata"
-    model_config = ConfigDict(frozen=True, extra="allow")
-    version: str | None = None
-    log_info: LogInfo | None = None
-    streams: dict[str, StreamMetadata] = Field(default_factory=dict)
 
 
 class SessionConfig(pydantic.BaseModel):

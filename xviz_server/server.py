@@ -16,7 +16,7 @@ not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer
 * ``GET /metrics``: the metrics in Prometheus text format.
 
 A WebSocket connection on ``/ingest/<name>`` is a live source feeding the
-live feed ``<name>`` (see :mod:`xviz_server.ingest`); on any other path it
+live feed ``<name>`` (see :mod:`xviz_server.live.ingest`); on any other path it
 is a session (the path may name the log): a Foxglove session when the
 handshake offers one of :data:`~xviz_server.foxglove.wire.SUBPROTOCOLS`
 (the first of them it offers is chosen), else an XVIZ session. Beyond ``max_sessions``
@@ -44,7 +44,7 @@ from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 from websockets.typing import Origin, Subprotocol
 
-from . import __version__
+from .version import __version__
 from .auth import feed_name, ingest_refusal, token_matches
 from .cache import FrameCache
 from .layout import LOG

@@ -17,7 +17,9 @@ frames. A ``transform_point_in_time`` becomes :class:`QueryInstant`.
 
 Live feeds: a session is LIVE when the client says so (``session_type=live``),
 or when it names its log only by ``logGuid`` (as streetscape.gl's
-``XVIZLiveLoader`` does) and no recorded log of that name can be opened. A
+``XVIZLiveLoader`` does) and no recorded log of that name can be opened.
+Which feed it follows, or waits for, the session decides from what the feed
+registry reports (:meth:`Session.live_found`). A
 live viewer gets the feed's metadata, then its latest complete state, then
 every update that state does not already hold; it is told when it fell
 behind (once per run of dropped updates) and when the source went away, and
@@ -42,7 +44,7 @@ from .messages import SessionConfig, describe_validation_error, merge_patch, par
 
 __all__ = [
     "Session", "LogView", "Variant", "Event", "Send", "Close", "OpenLog", "StreamFrames", "CancelStream", "QueryInstant",
-    "SubscribeLive", "ConfigureLive", "SendLiveMetadata", "SendLiveUpdate",
+    "LookUpLive", "LiveFacts", "SubscribeLive", "ConfigureLive", "SendLiveMetadata", "SendLiveUpdate",
 ]
 
 
@@ -136,16 +138,28 @@ class QueryInstant:
 
 
 @dataclass(frozen=True)
-class SubscribeLive:
-    """Join live feed ``name``, then call :meth:`Session.live_joined` (or :meth:`Session.live_failed`).
-
-    ``exact``: only the feed of that name will do, waited for if it has not
-    started. Otherwise (a client that named no feed, or named one only by
-    ``logGuid``) the only running feed may stand in for it.
-    """
+class LookUpLive:
+    """Tell :meth:`Session.live_found` what the live feed registry knows of feed ``name`` (``None``: none named)."""
 
     name: str | None
-    exact: bool
+
+
+@dataclass(frozen=True)
+class LiveFacts:
+    """What the live feed registry knows when a viewer asks for a feed: facts, for the session to decide on."""
+
+    allowed: bool  #: the name asked for could be a feed's (none asked for is allowed)
+    exists: bool  #: a source created the feed of that name (it may not have sent its metadata yet)
+    started: bool  #: that feed has its metadata
+    running: tuple[str, ...]  #: every feed whose source is connected and has sent its metadata
+
+
+@dataclass(frozen=True)
+class SubscribeLive:
+    """Follow live feed ``name``, waiting for a source to create it if none has; then call
+    :meth:`Session.live_joined` (or :meth:`Session.live_failed` if it cannot be waited for)."""
+
+    name: str
 
 
 @dataclass(frozen=True)
@@ -172,7 +186,8 @@ class SendLiveUpdate:
 
 
 Event = Union[
-    Send, Close, OpenLog, StreamFrames, CancelStream, QueryInstant, SubscribeLive, ConfigureLive, SendLiveMetadata, SendLiveUpdate
+    Send, Close, OpenLog, StreamFrames, CancelStream, QueryInstant, LookUpLive, SubscribeLive, ConfigureLive,
+    SendLiveMetadata, SendLiveUpdate,
 ]
 
 
@@ -204,6 +219,7 @@ class Session:
     _streaming: StreamFrames | None = field(init=False, default=None)
     _waiting: list[StreamFrames] = field(init=False, default_factory=list)
     _feed: str | None = field(init=False, default=None)
+    _exact_feed: bool = field(init=False, default=False)
     _covered: int = field(init=False, default=-1)
     _behind: bool = field(init=False, default=False)
 
@@ -293,6 +309,27 @@ class Session:
 
     # -- inputs: live feeds ----------------------------------------------
 
+    def live_found(self, facts: LiveFacts) -> list[Event]:
+        """What the registry knows of the feed asked for (see :class:`LookUpLive`): follow a feed, wait, or fail.
+
+        A feed named in the URL's ``log`` (or a ``start`` message) is that
+        feed only, waited for if no source has created it yet. A client that
+        named none, or named one only by ``logGuid``, gets that feed if it has
+        started, else the only running feed if there is just one
+        (streetscape.gl's live loader example asks for ``mock``, whatever the
+        feed is called), else that feed, waited for.
+        """
+        name = self.start.log
+        if not facts.allowed:
+            return self.live_failed(name)
+        if not self._exact_feed and not facts.started and len(facts.running) == 1:
+            return [SubscribeLive(facts.running[0])]
+        if name is None:
+            return self.live_failed(None)
+        if facts.exists:
+            return [SubscribeLive(name)]
+        return [self._waiting_notice(name), SubscribeLive(name)]
+
     def live_failed(self, name: str | None) -> list[Event]:
         """No live feed answers to what the client asked for."""
         shown = ", ".join(repr(n) for n in self.live) or "none"
@@ -303,7 +340,7 @@ class Session:
         """The session subscribed to ``feed``; ``state`` is the number of the update its latest complete state ends at."""
         self._feed = feed
         if not started:
-            return [self._error("waiting", f"live feed {feed!r} has not started yet; waiting for it", notice=True)]
+            return [self._waiting_notice(feed)]
         return self.live_started(state)
 
     def live_started(self, state: int | None) -> list[Event]:
@@ -392,7 +429,11 @@ class Session:
 
     def _go_live(self, exact: bool) -> list[Event]:
         self.start = self.start.model_copy(update={"session_type": SessionType.LIVE})
-        return [SubscribeLive(self.start.log, exact)]
+        self._exact_feed = exact
+        return [LookUpLive(self.start.log)]
+
+    def _waiting_notice(self, feed: str) -> Send:
+        return self._error("waiting", f"live feed {feed!r} has not started yet; waiting for it", notice=True)
 
     def _choose_a_log(self) -> str:
         if not self.available:

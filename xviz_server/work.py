@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import asyncio
 import enum
+import importlib.machinery
 import logging
 import multiprocessing
 import os
+import sys
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -142,7 +144,7 @@ class Workers:
         context: BaseContext
         if "forkserver" in multiprocessing.get_all_start_methods():
             context = multiprocessing.get_context("forkserver")
-            context.set_forkserver_preload(_JOB_MODULES)
+            context.set_forkserver_preload(_JOB_MODULES if _fork_server_finds_this_package() else [])
         else:
             context = multiprocessing.get_context("spawn")
         with self._lock:
@@ -169,6 +171,27 @@ def _name(function: Callable[..., Any]) -> str:
 
 def _nothing() -> None:
     pass
+
+
+def _fork_server_finds_this_package() -> bool:
+    """Whether the fork server's imports would find this package, not another copy of it.
+
+    The fork server is started as ``python -c``, so it imports with the
+    working directory first on ``sys.path``; Python before 3.12.8 and 3.13.1
+    does not give it the parent's ``sys.path`` (CPython issue gh-117378).
+    Where the working directory holds another copy of the package (an
+    installed server started at the root of a checkout, whose ``xviz_server/``
+    lacks the subpackages mapped in from ``providers/`` and ``schema/``), a
+    preloading fork server would hand that copy to every worker. Then it
+    preloads nothing, and each worker imports the job modules itself, with the
+    parent's ``sys.path``: a slower start, the same jobs.
+    """
+    package = __name__.rpartition(".")[0]
+    found = importlib.machinery.PathFinder.find_spec(package, [os.getcwd()])
+    if found is None or found.origin is None:
+        return True
+    ours = sys.modules[package].__file__
+    return ours is not None and os.path.exists(found.origin) and os.path.samefile(found.origin, ours)
 
 
 def _import_job_modules() -> None:

@@ -28,7 +28,8 @@ from kit import KITTI_RAW, parse
 from kit.gen import served
 from xviz_server.codec import Format, encode
 from xviz_server.datasets import convert_frame
-from xviz_server.datasets.kitti import KittiDrive, reflectance_colors
+from xviz_server.datasets.kitti import KittiDrive
+from xviz_server.datasets.shared import reflectance_colors
 from xviz_server.messages import envelope
 
 

@@ -10,7 +10,10 @@ uvloop, send it whole, ``--repeats`` times per reader and measurement:
 * raw TCP: ``transport.write(frame)`` per frame, no framing, flow control
   like websockets' (the reference: what the machine moves);
 * bare websockets (asyncio API, no compression): ``await websocket.send(frame)``;
-* xviz-server: ``xviz/transform_log`` of the whole log, from a warm cache.
+* xviz-server: ``xviz/transform_log`` of the whole log, from a warm cache;
+* xviz-server with framing off: the same, each frame copied behind its header
+  by websockets as the bare library does (``xviz_server.framing`` undone in
+  that process), to show what sending payloads by reference saves.
 
 Readers are separate processes (``--clients`` of them at once) that read with
 ``recv_into`` a reused buffer, parsing only the WebSocket headers, so that
@@ -196,6 +199,15 @@ def main() -> None:
             return
         import uvloop
 
+        if role == "unframed":
+            from websockets.asyncio.server import ServerConnection
+
+            from xviz_server import cli, framing
+
+            # websockets' own protocol and writes: each frame serialized into one new bytes, as the bare library sends.
+            framing.FramingConnection.__init__ = ServerConnection.__init__  # type: ignore[method-assign, assignment]
+            framing.FramingConnection.send_data = ServerConnection.send_data  # type: ignore[method-assign]
+            sys.exit(cli.main(["serve", "--data-dir", rest[0], "--cache-mb", rest[1], "--host", "127.0.0.1", "--port", "0"]))
         frames = [Path(p).read_bytes() for p in json.loads(Path(rest[0]).read_text())]
         uvloop.run(raw_server(frames) if role == "raw" else websockets_server(frames))
         return
@@ -211,9 +223,13 @@ def main() -> None:
         cache_mb = str(int(log_mb * 1.2 + 64))
         with (Process([sys.executable, __file__, "--role", "raw", str(listing)], r"ws://127\.0\.0\.1:(\d+)/", "raw") as raw,
               Process([sys.executable, __file__, "--role", "websockets", str(listing)], r"ws://127\.0\.0\.1:(\d+)/", "websockets") as bare,
-              start_server(root, "--cache-mb", cache_mb) as ours):
-            servers = {"raw TCP": ("raw", raw), "websockets": ("websockets", bare), "xviz-server": ("xviz-server", ours)}
-            measure("xviz-server", ours, 1, 1)  # warm the cache
+              start_server(root, "--cache-mb", cache_mb) as ours,
+              Process([sys.executable, __file__, "--role", "unframed", str(root), cache_mb],
+                      r"listening on ws://127\.0\.0\.1:(\d+)/", "framing off") as unframed):
+            servers = {"raw TCP": ("raw", raw), "websockets": ("websockets", bare), "xviz-server": ("xviz-server", ours),
+                       "framing off": ("xviz-server", unframed)}
+            measure("xviz-server", ours, 1, 1)  # warm the caches
+            measure("xviz-server", unframed, 1, 1)
             runs: dict[tuple[str, int], list[dict[str, float]]] = {(name, n): [] for name in servers for n in args.clients}
             for trial in range(args.trials):
                 for clients in args.clients:

@@ -17,7 +17,8 @@ Conventions, found by reproducing the official converter's output
   ``position`` is zero and ``orientation`` the OXTS roll, pitch and yaw.
 * **Lidar colour**: a point of reflectance ``r`` is coloured
   ``(80 + 80 r, 80 r, 60 r)``, computed in double precision from the float32
-  reflectance and truncated to uint8 (see :func:`reflectance_colors`).
+  reflectance and truncated to uint8 (see
+  :func:`~xviz_server.datasets.shared.reflectance_colors`).
 * **Lidar placement**: the stream is ``VEHICLE_RELATIVE`` with a translation
   only, (0.81, -0.32, 1.73) for every 2011_09_26 drive. The official
   converter typed in the numbers of the KITTI set-up page; they follow from
@@ -58,6 +59,7 @@ from ..exceptions import DatasetError
 from ..storepath import StoreTree
 from . import DEFAULT_IMAGE_WIDTH
 from .images import encode_like, fit_width
+from .shared import EARTH_RADIUS, footprints, reflectance_colors
 
 __all__ = [
     "FrameObjects",
@@ -65,19 +67,16 @@ __all__ = [
     "Oxts",
     "Tracklet",
     "find_drive",
-    "footprints",
     "is_kitti_drive",
     "read_calibration",
     "read_timestamps",
     "read_tracklets",
-    "reflectance_colors",
     "visible_objects",
 ]
 
 CAMERAS = ("image_00", "image_01", "image_02", "image_03")
 CALIBRATION = "calib_imu_to_velo.txt"  # the one calibration file the conversion reads
 IMU_HEIGHT = 0.93  # metres above the ground, from the KITTI set-up page
-EARTH_RADIUS = 6378137.0
 TRAJECTORY_LENGTH = 50
 CLASS_COLORS = {
     "Car": "#50B3FF",
@@ -86,7 +85,6 @@ CLASS_COLORS = {
     "Van": "#5B91F4",
     "Unknown": "#E2E2E2",
 }
-_COLOR_CHANNELS = ((80.0, 80.0), (80.0, 0.0), (60.0, 0.0))  # red, green, blue: (scale, offset)
 
 
 def is_kitti_drive(path: Path | StoreTree) -> bool:
@@ -182,22 +180,6 @@ def read_calibration(path: Path | StoreTree) -> dict[str, np.ndarray]:
             raise DatasetError(f"{path}: {key.strip()!r} is not a list of numbers", path=path) from None
         entries[key.strip()] = numbers.reshape({9: (3, 3), 12: (3, 4)}.get(len(numbers), -1))
     return entries
-
-
-def reflectance_colors(reflectance: np.ndarray) -> np.ndarray:
-    """The official converter's colour of each point, uint8 (N, 3), from its reflectance.
-
-    ``(80 + 80 r, 80 r, 60 r)`` with ``r = min(reflectance, 3)``, in double
-    precision from the float32 values, stored as a JavaScript ``Uint8Array``
-    stores numbers (truncated, modulo 256): bit for bit what the converter
-    wrote. KITTI reflectances are hundredths in float32, so the double
-    arithmetic matters: ``float32(0.35) * 80`` is 27.9999995, green 27.
-    """
-    r = np.minimum(reflectance.astype(np.float64), 3.0)
-    colors = np.empty((len(r), 3), dtype=np.uint8)
-    for channel, (scale, offset) in enumerate(_COLOR_CHANNELS):  # a channel at a time: faster than broadcasting over all three
-        colors[:, channel] = (r * scale + offset).astype(np.int32)  # truncated; uint8 keeps it modulo 256
-    return colors
 
 
 @dataclass(frozen=True, slots=True)
@@ -350,22 +332,6 @@ def visible_objects(tracklets: list[Tracklet], frame: int) -> FrameObjects:
         positions=poses[:, :3],
         yaws=poses[:, 3],
     )
-
-
-def footprints(centers: np.ndarray, yaws: np.ndarray, lengths: np.ndarray, widths: np.ndarray) -> np.ndarray:
-    """The four ground corners of each box, (N, 4, 3), rotated by its yaw about its centre.
-
-    ``centers`` are (N, 3) box bottoms; the length lies along x before
-    rotation. Corners run counter-clockwise from front left.
-    """
-    half = np.stack([lengths / 2, widths / 2], axis=1)
-    signs = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=np.float64)
-    local = signs[None, :, :] * half[:, None, :]  # (N, 4, 2)
-    cos, sin = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
-    x = cos * local[..., 0] - sin * local[..., 1] + centers[:, None, 0]
-    y = sin * local[..., 0] + cos * local[..., 1] + centers[:, None, 1]
-    z = np.broadcast_to(centers[:, None, 2], x.shape)
-    return np.stack([x, y, z], axis=-1)
 
 
 @dataclass

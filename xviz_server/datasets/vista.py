@@ -42,7 +42,7 @@ from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..exceptions import DatasetError
 from . import DEFAULT_IMAGE_WIDTH
 from .images import jpeg
-from .waymo import intensity_colors
+from .shared import intensity_colors
 
 __all__ = ["VistaTrace", "is_vista_trace", "integrate_pose", "linear_function"]
 

@@ -33,7 +33,7 @@ from ..logs import Catalog, Log
 from ..metrics import Metrics
 from ..session import OpenLog, Send
 from ..settings import Settings
-from .. import __version__
+from ..version import __version__
 from .convert import CONVERTED, Channel, Plan, convert, nanoseconds, plan, unpack
 from .session import Event, FoxgloveSession, Play, SendLatest, Stop
 from .wire import message_header, time_message

@@ -225,7 +225,7 @@ class Broker:
                 logger.warning("broker %s: ignored a feed registered as %r: %s", self.link.url, name, exc)
                 self._conflicts.add(name)
             return None
-        feed = self.registry.find(name, exact=True)
+        feed = self.registry.get(name)
         if feed is not None and feed.origin is None and (feed.connected or name in self._outboxes):
             if name not in self._conflicts:  # this replica's source (or one within its grace period), or one claiming it
                 logger.error("live feed %r has a source here and on replica %s: each replica serves its own", name, owner)

@@ -6,7 +6,8 @@ time) calls :meth:`LiveFeed.set_metadata` and :meth:`LiveFeed.publish`.
 Each viewer holds a :class:`Subscription`: a bounded queue that drops its
 oldest updates when the viewer falls behind, so that neither the source nor
 the other viewers ever wait for it. A viewer that keeps up takes each update
-as it is published instead, without a queue (:attr:`Subscription.deliver`):
+as it is published instead, without a queue (the ``deliver`` callback given
+to :meth:`LiveFeed.subscribe`):
 one publish then writes the update to every such viewer's connection in one
 pass, as ``websockets.broadcast`` does.
 
@@ -31,7 +32,8 @@ from typing import Any, Awaitable, Callable, Iterator, Mapping
 from ..codec import Format, decode, detect_format, encode
 from ..exceptions import XVIZError
 from ..messages import XVIZ_VERSION, envelope, unwrap
-from ..session import Variant
+from ..logs import check_log_name
+from ..session import LiveFacts, Variant
 from ..frames import render, render_message
 from ..state import COMPLETE_TYPES, complete_state
 from ..work import Workers
@@ -92,12 +94,14 @@ class Subscription:
     when the current run of drops began, for disconnecting a viewer that
     stays hopelessly behind.
 
-    :attr:`deliver`, when set, is offered each update while the queue is
+    ``deliver``, when given, is offered each update while the queue is
     empty and nothing was dropped; it returns whether it took the update
     (sent it at once), else the update is queued as usual.
     """
 
-    def __init__(self, feed: LiveFeed, size: int, decimate: int = 1) -> None:
+    def __init__(
+        self, feed: LiveFeed, size: int, decimate: int = 1, deliver: Callable[[LiveUpdate], bool] | None = None
+    ) -> None:
         self.feed = feed
         self.decimate = decimate
         self._queue: deque[LiveUpdate | FeedEvent] = deque()
@@ -106,7 +110,7 @@ class Subscription:
         self._seen = 0
         self.dropped = 0
         self.lagging_since: float | None = None
-        self.deliver: Callable[[LiveUpdate], bool] | None = None
+        self._deliver = deliver
 
     def offer(self, item: LiveUpdate | FeedEvent) -> None:
         """Queue an update (every ``decimate``-th) or a feed event; never waits."""
@@ -114,7 +118,7 @@ class Subscription:
             self._seen += 1
             if (self._seen - 1) % self.decimate:
                 return
-            if not self._queue and not self.dropped and self.deliver is not None and self.deliver(item):
+            if not self._queue and not self.dropped and self._deliver is not None and self._deliver(item):
                 return
             updates = sum(isinstance(i, LiveUpdate) for i in self._queue)
             if updates >= self._size:
@@ -287,8 +291,11 @@ class LiveFeed:
         """How many viewers follow the feed."""
         return len(self._subscribers)
 
-    def subscribe(self, size: int, decimate: int = 1) -> Subscription:
-        subscription = Subscription(self, size, decimate)
+    def subscribe(
+        self, size: int, decimate: int = 1, deliver: Callable[[LiveUpdate], bool] | None = None
+    ) -> Subscription:
+        """A new viewer's :class:`Subscription` (``deliver`` as described there)."""
+        subscription = Subscription(self, size, decimate, deliver)
         self._subscribers.add(subscription)
         if self.on_viewers is not None:
             self.on_viewers(len(self._subscribers))
@@ -394,19 +401,19 @@ class LiveRegistry:
         if self._feeds.get(feed.name) is feed:
             del self._feeds[feed.name]
 
-    def find(self, name: str | None, exact: bool) -> LiveFeed | None:
-        """The feed a viewer asking for ``name`` gets now, if any: with ``exact``, only the feed of that name;
-        else that feed if it is running, or the only feed whose source is connected (streetscape.gl's live
-        loader example asks for ``mock``, whatever the feed is called)."""
-        found = self._feeds.get(name) if name is not None else None
-        if exact or (found is not None and found.metadata is not None):
-            return found
-        connected = [feed for feed in self._feeds.values() if feed.connected and feed.metadata is not None]
-        if len(connected) == 1:
-            if name is not None:
-                logger.info("live session asked for %r; serving the only live feed %r", name, connected[0].name)
-            return connected[0]
-        return found
+    def get(self, name: str) -> LiveFeed | None:
+        """The feed called ``name``, if a source created it."""
+        return self._feeds.get(name)
+
+    def facts(self, name: str | None) -> LiveFacts:
+        """What is known now of the feed ``name`` and of the running feeds, for a viewer's session to decide on."""
+        named = self._feeds.get(name) if name is not None else None
+        return LiveFacts(
+            allowed=name is None or _allowed(name),
+            exists=named is not None,
+            started=named is not None and named.metadata is not None,
+            running=tuple(feed.name for feed in self._feeds.values() if feed.connected and feed.metadata is not None),
+        )
 
     async def wait_for(self, name: str) -> LiveFeed:
         """The feed ``name`` once a source creates it.
@@ -430,3 +437,12 @@ class LiveRegistry:
             waited.viewers -= 1
             if not waited.viewers and self._waited.get(name) is waited:
                 del self._waited[name]
+
+
+def _allowed(name: str) -> bool:
+    """Whether a feed may be called ``name`` (as a log may, see :func:`~xviz_server.logs.check_log_name`)."""
+    try:
+        check_log_name(name)
+    except XVIZError:
+        return False
+    return True

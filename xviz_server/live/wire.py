@@ -16,6 +16,13 @@ reply. An error reply is a :class:`redis.exceptions.ResponseError`
 (:class:`~redis.exceptions.OutOfMemoryError` for ``OOM``); a connection that
 closes, or that carries what is not RESP, fails every pending reply with a
 :class:`redis.exceptions.ConnectionError`.
+
+To read a broker URL as :mod:`redis` does, :meth:`Wire.open` uses
+``parse_url``, the connection classes it names and ``SSLConnection``'s
+``ssl_context``, from ``redis.asyncio.connection``, which redis-py does not
+document; importing this module raises
+:exc:`~xviz_server.exceptions.DependencyError` unless the installed redis-py
+is a release it was tested with (:data:`TESTED_REDIS`).
 """
 
 from __future__ import annotations
@@ -24,10 +31,18 @@ import asyncio
 from collections import deque
 from typing import Any, cast
 
+import redis
 from redis.asyncio.connection import SSLConnection, UnixDomainSocketConnection, parse_url
 from redis.exceptions import ConnectionError, InvalidResponse, OutOfMemoryError, ResponseError
 
-__all__ = ["Wire", "Replies"]
+from ..version import require_tested
+
+__all__ = ["TESTED_REDIS", "Wire", "Replies"]
+
+#: The redis-py releases (major, minor) this module was tested with.
+TESTED_REDIS = frozenset({(7, 4), (8, 0), (8, 1)})
+
+require_tested(__name__, "redis", redis.__version__, TESTED_REDIS, "pip install 'xviz-server[broker]'")
 
 #: Arguments and bulk strings longer than this go between the socket and their own buffer, not through a shared one.
 LARGE = 64 * 1024

@@ -10,7 +10,7 @@ default mapping applies::
     clock = "/velodyne_points"     # one frame per message of this topic (default: the densest cloud)
     rate = 10.0                    # or frames at this rate, Hz, over the bag's span
     staleness = 1.0                # seconds a message stays current after it was recorded
-    image_max_width = 400          # camera images are scaled down to this width
+    image_max_width = 640          # camera images are scaled down to this width (default: --image-max-width)
     intensity_scale = 0.01         # multiplies point intensities before colouring
 
     [streams."/velodyne_points"]

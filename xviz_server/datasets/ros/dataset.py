@@ -37,6 +37,7 @@ import numpy as np
 from ...builder import FrameBuilder, MetadataBuilder, ui
 from ...exceptions import DatasetError
 from ...storepath import StorePath, data_path
+from .. import DEFAULT_IMAGE_WIDTH
 from .bag import Bag, is_rosbag
 from .config import RosConfig, load_config
 from .geometry import IDENTITY, apply, enu, from_pose, from_quaternion, interpolate, rpy
@@ -97,7 +98,7 @@ class RosBag:
     """
 
     path: Path | StorePath
-    image_max_width: int = 400
+    image_max_width: int = DEFAULT_IMAGE_WIDTH
     config: str | None = None
     name: str = field(init=False)
 

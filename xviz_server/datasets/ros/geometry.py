@@ -7,8 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..kitti import EARTH_RADIUS
-from ..waymo import pose_angles
+from ..shared import EARTH_RADIUS, pose_angles
 
 __all__ = ["IDENTITY", "matrix", "from_quaternion", "from_pose", "from_transform", "interpolate", "rpy", "quaternion", "enu", "apply"]
 

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ...builder import FrameBuilder
-from ..kitti import footprints
+from ..shared import footprints
 from .geometry import apply, from_pose
 
 __all__ = ["live_markers", "draw_marker", "path_vertices"]

@@ -9,7 +9,7 @@ import numpy as np
 from ...codec.image import sniff_image
 from ...exceptions import DatasetError
 from ..images import encode_like, fit_width
-from ..kitti import reflectance_colors
+from ..shared import reflectance_colors
 
 __all__ = ["cloud_points", "image_bytes", "compressed_image_bytes", "IMAGE_ENCODINGS"]
 

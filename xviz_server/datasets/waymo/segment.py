@@ -1,8 +1,8 @@
 """Waymo Open Dataset segments as shipped: a ``.tfrecord`` file of ``Frame`` protocol buffers.
 
-Each record of the file is one ``Frame`` (see ``waymo_frame.proto`` for the
+Each record of the file is one ``Frame`` (see ``frame.proto`` for the
 fields read). Opening a segment indexes its records (see
-:mod:`xviz_server.datasets.tfrecord`) and peeks at each record's
+:mod:`xviz_server.datasets.waymo.tfrecord`) and peeks at each record's
 ``timestamp_micros``, found in its first bytes, so that the frame times are
 known without reading the frames. A frame is read and its checksum checked
 when it is converted:
@@ -11,7 +11,7 @@ when it is converted:
   ``MatrixFloat`` [H, W, 4]: range, intensity, elongation, in no-label zone)
   become points in the vehicle frame with the laser's calibration from the
   frame's context, and, where the first return carries a per-pixel pose
-  (the TOP laser), that pose (see :mod:`xviz_server.datasets.range_images`);
+  (the TOP laser), that pose (see :mod:`xviz_server.datasets.waymo.range_images`);
   returns with range <= 0 are left out. A frame whose lasers carry no range
   images has no points, and the rest of it is served;
 * cameras: the JPEG images, as they are if at most ``image_max_width``
@@ -41,15 +41,14 @@ import numpy as np
 from google.protobuf.message import DecodeError
 from zlib_ng import zlib_ng
 
-from ..exceptions import DatasetError
-from ..storepath import StorePath, data_path
-from . import DEFAULT_IMAGE_WIDTH
-from . import waymo_frame_pb2 as pb
-from . import threads
-from .images import scale_jpegs
+from ...exceptions import DatasetError
+from ...storepath import StorePath, data_path
+from .. import DEFAULT_IMAGE_WIDTH, threads
+from ..images import scale_jpegs
+from . import frame_pb2 as pb
+from .log import LIDARS, SUFFIX, WaymoFrame, WaymoLog
 from .range_images import column_azimuths, frame_rays, ray_directions, row_inclinations
 from .tfrecord import RecordFile, is_tfrecord
-from .waymo import LIDARS, SUFFIX, WaymoFrame, WaymoLog
 
 __all__ = ["WaymoRecordSegment", "MAX_MATRIX_BYTES"]
 
@@ -225,7 +224,7 @@ class WaymoRecordSegment(WaymoLog):
         return np.concatenate(points), np.concatenate(intensity), np.concatenate(zones)
 
     def _inflate_all(self, frame: pb.Frame, where: str) -> dict[tuple[int, str], Future[np.ndarray]]:
-        """Start decoding every range image and pixel pose of ``frame``, side by side (see :mod:`.threads`)."""
+        """Start decoding every range image and pixel pose of ``frame``, side by side (see :mod:`xviz_server.datasets.threads`)."""
         matrices: dict[tuple[int, str], Future[np.ndarray]] = {}
         for laser in frame.lasers:
             lidar = pb.LaserName.Name.Name(laser.name)

@@ -18,6 +18,15 @@ or whose data runs past the end of the file or declares more than
 and reading it raises :class:`~xviz_server.exceptions.DatasetError` naming
 the file, the record and its offset, as does reading a record whose data's
 CRC does not match. Every other record reads as usual.
+
+The framing is read here, not with TensorFlow's ``tf.data.TFRecordDataset``
+(which the Waymo Open Dataset's own tools use): TensorFlow is a dependency of
+hundreds of megabytes, with wheels for few platforms and Python releases,
+for a format of four fields; and its reader goes through a file from the
+start, where serving needs any record at once by its offset, from a file or
+an object store (:class:`~xviz_server.storepath.StorePath`), and an error
+that names the bad record while the others are served. The CRC32C is
+google-crc32c's (C, with the processor's CRC instructions).
 """
 
 from __future__ import annotations
@@ -29,9 +38,9 @@ from typing import Iterable
 
 import google_crc32c
 
-from ..exceptions import DatasetError, StoreError
-from ..storepath import StorePath, data_path
-from ..unpack import MAX_RECORD_BYTES, size_text
+from ...exceptions import DatasetError, StoreError
+from ...storepath import StorePath, data_path
+from ...unpack import MAX_RECORD_BYTES, size_text
 
 __all__ = ["Record", "RecordFile", "is_tfrecord", "masked_crc", "write_records"]
 

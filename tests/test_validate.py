@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from helpers import ten_hz, update, write_log
-from xviz_server.check import check_paths
+from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
 
 
