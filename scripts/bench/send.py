@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import math
 import os
 import shutil
 import statistics
@@ -247,7 +248,10 @@ def main() -> None:
             "mb_s": statistics.median(r["mb_s"] for r in results),
             "cpu_s_per_gb": statistics.median(r["cpu_s_per_gb"] for r in results),
             "speed_ratio": statistics.median(r["mb_s"] / ref["mb_s"] for r, ref in zip(results, reference)),
-            "cpu_ratio": statistics.median(r["cpu_s_per_gb"] / ref["cpu_s_per_gb"] for r, ref in zip(results, reference)),
+            # A run too short for the reference's CPU time to register (--quick) has no CPU ratio.
+            "cpu_ratio": statistics.median(
+                r["cpu_s_per_gb"] / ref["cpu_s_per_gb"] if ref["cpu_s_per_gb"] else math.nan for r, ref in zip(results, reference)
+            ),
             "trials": results,
         }
         table[f"{name} x{clients}"] = row
