@@ -105,6 +105,11 @@ class Settings(BaseSettings):
         description="read --ingest-token from this file (unlike a flag, it is not shown to other users by ps)",
     )
     max_ingest_mb: float = Field(default=64, gt=0, description="largest message a live source may push, MB")
+    detail: Literal["auto", "off"] = Field(
+        default="auto",
+        description="auto: each session gets the level of detail its link carries (thinned point clouds, smaller "
+        "images), measured as it goes; off: every session gets every byte",
+    )
     live_queue: int = Field(default=32, ge=1, description="updates a live viewer may fall behind before the oldest are dropped")
     live_lag_timeout: float = Field(
         default=30, gt=0, description="disconnect a live viewer that keeps dropping updates for this long, s"
