@@ -1,4 +1,4 @@
-"""A loopback TCP proxy for HTTP/1.1 that adds latency and faults, for tests and benchmarks.
+"""Loopback TCP proxies for tests and benchmarks: one for HTTP/1.1 that adds latency and faults, and a shaped link.
 
 Between a client and a server on this machine, it forwards one request at a
 time per connection (as HTTP/1.1 clients send them, without pipelining),
@@ -7,6 +7,13 @@ requests and how many were in flight at once. :meth:`Proxy.fault` makes
 chosen requests answer with an HTTP status, stall, or lose their
 connection part way through the response body, or answer with a body
 that says it is 1 TiB long and never ends.
+
+:class:`ShapedLink` carries any TCP connection (a WebSocket session) as a
+slow network link would: bytes from the server reach the client at most at
+:attr:`ShapedLink.mbps` (a token bucket, like ``tc tbf``; changed at any
+time), the other way unshaped. Its socket to the server takes only a small
+receive buffer, so that, as on a real link, what the link cannot carry yet
+waits in the server's send queue, where the server can see it.
 """
 
 from __future__ import annotations
@@ -14,10 +21,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import re
+import socket
+import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
-__all__ = ["Fault", "Proxy", "running_proxy"]
+__all__ = ["Fault", "Proxy", "running_proxy", "ShapedLink", "shaped_link"]
 
 _LENGTH = re.compile(rb"\r\ncontent-length:\s*(\d+)", re.IGNORECASE)
 _CHUNK = 1 << 20
@@ -184,3 +193,92 @@ async def running_proxy(target_port: int, delay: float = 0.0) -> AsyncIterator[P
         yield proxy
     finally:
         await proxy.close()
+
+
+class ShapedLink:
+    """Forwards connections to ``target_port`` on 127.0.0.1 from its own :attr:`port`, the server's bytes at
+    :attr:`mbps` Mbit/s at most (``None``: unshaped), with bursts of at most ``burst`` bytes."""
+
+    #: Receive buffer of the socket to the server, bytes: how much the link holds in flight.
+    RECEIVE_BUFFER = 16 * 1024
+
+    def __init__(self, target_port: int, mbps: float | None, burst: int = 64 * 1024) -> None:
+        self.target_port = target_port
+        self.mbps = mbps
+        self.burst = burst
+        #: Bytes carried from the server to clients, in all.
+        self.carried = 0
+        self._server: asyncio.Server | None = None
+        self._tasks: set[asyncio.Task[None]] = set()
+
+    @property
+    def port(self) -> int:
+        assert self._server is not None
+        return self._server.sockets[0].getsockname()[1]
+
+    async def start(self) -> None:
+        self._server = await asyncio.start_server(self._handle, "127.0.0.1", 0)
+
+    async def close(self) -> None:
+        assert self._server is not None
+        self._server.close()
+        for task in list(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        await self._server.wait_closed()
+
+    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        loop = asyncio.get_running_loop()
+        upstream = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        upstream.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.RECEIVE_BUFFER)
+        upstream.setblocking(False)
+        try:
+            await loop.sock_connect(upstream, ("127.0.0.1", self.target_port))
+        except OSError:
+            upstream.close()
+            writer.transport.abort()
+            return
+        server_reader, server_writer = await asyncio.open_connection(sock=upstream, limit=self.RECEIVE_BUFFER)
+        pumps = [
+            asyncio.ensure_future(self._pump(reader, server_writer, shaped=False)),
+            asyncio.ensure_future(self._pump(server_reader, writer, shaped=True)),
+        ]
+        self._tasks.update(pumps)
+        try:
+            await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for pump in pumps:
+                pump.cancel()
+                self._tasks.discard(pump)
+            writer.transport.abort()
+            server_writer.transport.abort()
+
+    async def _pump(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, shaped: bool) -> None:
+        due = time.monotonic()  # when the bytes sent so far have gone through the link
+        try:
+            while True:
+                chunk = await reader.read(self.burst if shaped else 1 << 16)
+                if not chunk:
+                    return
+                if shaped and self.mbps is not None:
+                    now = time.monotonic()
+                    due = max(due, now - self.burst / (self.mbps * 125_000)) + len(chunk) / (self.mbps * 125_000)
+                    if due > now:
+                        await asyncio.sleep(due - now)
+                writer.write(chunk)
+                await writer.drain()
+                if shaped:
+                    self.carried += len(chunk)
+        except (ConnectionError, asyncio.IncompleteReadError):
+            return
+
+
+@contextlib.asynccontextmanager
+async def shaped_link(target_port: int, mbps: float | None) -> AsyncIterator[ShapedLink]:
+    """A started :class:`ShapedLink`, closed on exit."""
+    link = ShapedLink(target_port, mbps)
+    await link.start()
+    try:
+        yield link
+    finally:
+        await link.close()

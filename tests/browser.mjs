@@ -9,7 +9,9 @@
 // height}, default 1280x800); draw (false: only load the page, wait for nothing);
 // reload (true: reload the page once its address holds no token, then go on);
 // seek (once drawn, click the timeline at this fraction of its width, then wait for
-// the next message and for the 3D view to show a changed picture).
+// the next message and for the 3D view to show a changed picture); detail (once drawn,
+// pick this level of detail in the header's list and wait for the page to show it in use);
+// hosts (more host names, besides this machine's loopback ones, that the page may reach).
 // Prints one JSON object: frames received over the page's WebSockets, whether and
 // when (ms after navigation, as the screenshot was taken) the 3D canvas first showed a
 // picture, the page's own timings (ms after navigation: the script bundle received, and the User Timing
@@ -75,8 +77,9 @@ try {
       report.failedRequests.push(`${response.status()} ${response.url()}`);
     }
   });
+  const local = ['127.0.0.1', 'localhost', '[::1]', ...(options.hosts || [])];
   await page.route(
-    url => !['127.0.0.1', 'localhost', '[::1]'].includes(url.hostname) && url.protocol !== 'data:',
+    url => !local.includes(url.hostname) && url.protocol !== 'data:',
     route => {
       report.externalRequests.push(route.request().url());
       return route.abort('blockedbyclient');
@@ -163,6 +166,18 @@ try {
   );
   if (options.seek !== undefined && report.drawn) {
     report.seek = await seek(page, options.seek);
+  }
+  if (options.detail !== undefined && report.drawn) {
+    const shown = page.locator('.detail-level');
+    await shown.waitFor({timeout: options.timeout});
+    report.detailBefore = await shown.innerText();
+    await page.locator('.detail select').selectOption(options.detail);
+    await page.waitForFunction(
+      level => document.querySelector('.detail-level').innerText.startsWith(level),
+      options.detail,
+      {timeout: options.timeout}
+    );
+    report.detailAfter = await shown.innerText();
   }
   // Let the stream list and a few more frames arrive before the picture is kept.
   await page.waitForTimeout(options.settle ?? 1000);

@@ -25,10 +25,12 @@ import pytest
 from PIL import Image
 
 from devkit.fleet import write_fleet
-from helpers import http_get, metadata, metric, running_server, ten_hz, write_demo, write_log
+from devkit.tcpproxy import shaped_link
+from helpers import can_shape_links, http_get, metadata, metric, running_server, tc_link, ten_hz, write_demo, write_log
 from xviz_server.catalog import parse_query
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
+from xviz_server.settings import Settings
 from xviz_server.viewer import SETTINGS_SLOT, STATIC_DIR, STYLE_HASHES, ViewerPage, accepted_encodings
 
 pytestmark = pytest.mark.slow
@@ -185,13 +187,25 @@ browser = pytest.mark.skipif(
 )
 
 
-async def open_page(server: XVIZServer, path: str, screenshot: str, **options: Any) -> dict[str, Any]:
-    """Open ``path`` of the server in headless Chromium with tests/browser.mjs; its report."""
+async def open_page(
+    server: XVIZServer, path: str, screenshot: str, port: int | None = None, namespace: str | None = None, **options: Any
+) -> dict[str, Any]:
+    """Open ``path`` of the server in headless Chromium with tests/browser.mjs; its report.
+
+    ``port``: of what listens there instead (a proxy on 127.0.0.1); ``namespace``: run the browser in
+    that network namespace, which reaches the server at its own host address.
+    """
     ARTIFACTS.mkdir(exist_ok=True)
     shot = ARTIFACTS / f"viewer-{screenshot}.png"
-    arguments = {"url": f"http://127.0.0.1:{server.port}{path}", "screenshot": str(shot), "timeout": BROWSER_TIMEOUT_MS}
+    host = server.settings.host if namespace else "127.0.0.1"
+    arguments = {
+        "url": f"http://{host}:{port or server.port}{path}", "screenshot": str(shot), "timeout": BROWSER_TIMEOUT_MS,
+        "hosts": [host],
+    }
+    prefix = ["ip", "netns", "exec", namespace] if namespace else []
     process = await asyncio.create_subprocess_exec(
-        "node", str(DRIVER), json.dumps({**arguments, **options}), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE
+        *prefix, "node", str(DRIVER), json.dumps({**arguments, **options}), stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
     )
     stdout, stderr = await process.communicate()
     assert process.returncode == 0, stderr.decode()
@@ -399,3 +413,41 @@ async def test_an_unknown_log_is_shown_to_the_person(tmp_path: Path):
         report = await open_page(server, "/?log=nowhere", "unknown", settle=0)
     assert report["alerts"] == ['This server has no log or live feed named "nowhere".']
     assert report["pageErrors"] == []
+
+
+@browser
+async def test_the_page_shows_the_level_of_detail_and_lets_the_person_pick_one(tmp_path: Path, kitti_log: Path):
+    (tmp_path / kitti_log.name).symlink_to(kitti_log)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, f"/?log={kitti_log.name}", "detail", frames=27, detail="low")
+        text = await asyncio.to_thread(lambda: get(server, "/metrics")[2])
+    assert_drawn_cleanly(report)
+    # Before: the level chosen for what the page reads (a page that parses slower than real time is sent less).
+    assert report["detailBefore"].split()[0] in ("full", "high", "medium") and report["detailAfter"].startswith("low")
+    assert b'xviz_sessions_by_detail{level="low"} 0.0' in text  # the session ended at low
+    assert b'xviz_sessions_by_detail{level="full"} 0.0' in text
+
+
+@browser
+async def test_the_log_plays_behind_a_20_mbps_link(tmp_path: Path, kitti_log: Path):
+    # The page, its bundle and the frames come through a TCP proxy that carries 20 Mbit/s.
+    (tmp_path / kitti_log.name).symlink_to(kitti_log)
+    async with running_server(tmp_path) as server, shaped_link(server.port, 20) as link:
+        report = await open_page(server, f"/?log={kitti_log.name}", "20mbps", port=link.port, frames=5, settle=2000)
+    assert_drawn_cleanly(report)
+
+
+@browser
+@pytest.mark.skipif(not can_shape_links(), reason="shaping a link with tc needs root, ip and tc")
+async def test_the_drive_plays_behind_a_20_mbps_link_at_the_level_it_carries(tmp_path: Path, kitti_log: Path):
+    # The browser in a network namespace of its own, the link to it shaped with tc: thinned points, JPEG images.
+    (tmp_path / kitti_log.name).symlink_to(kitti_log)
+    with tc_link(20) as link:
+        async with XVIZServer(Settings(host=link.host, port=0, data_dir=tmp_path)) as server:
+            report = await open_page(server, f"/?log={kitti_log.name}", "tc-20mbps", namespace=link.namespace,
+                                     frames=27, detail="low")
+            text = await asyncio.to_thread(lambda: urllib.request.urlopen(f"http://{link.host}:{server.port}/metrics").read())
+    assert_drawn_cleanly(report)
+    assert report["detailBefore"].split()[0] in ("medium", "low", "minimal"), report["detailBefore"]  # chosen for the link
+    assert report["detailAfter"].startswith("low (link ")
+    assert b'xviz_sessions_by_detail{level="full"} 0.0' in text

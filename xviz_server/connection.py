@@ -18,7 +18,9 @@ subscription's bounded queue, and the socket's write buffer.
 from __future__ import annotations
 
 import asyncio
+import ipaddress
 import logging
+import random
 import time
 from collections.abc import Callable, Coroutine
 from typing import Any
@@ -30,15 +32,17 @@ from websockets.frames import CloseCode
 
 from .codec import Format
 from .exceptions import XVIZError
-from .flow import close, watch_progress
+from .detail import SAMPLE_INTERVAL
+from .flow import backlog, close, limit_unsent, receiver_limited, watch_progress
 from .framing import ready_to_write, write_message
+from .levels import LEVELS, Level
 from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription
 from .logfmt import log_event, redact_url
 from .logs import Catalog, Log
 from .metrics import Metrics
 from .readahead import ReadAhead, Window
 from .session import Close, ConfigureLive, Event, LookUpLive, OpenLog, QueryInstant, Send, Session, SubscribeLive
-from .session import CancelStream, SendLiveMetadata, SendLiveUpdate, StreamFrames
+from .session import CancelStream, DetailChanged, SendLiveMetadata, SendLiveUpdate, StreamFrames
 from .settings import Settings
 
 __all__ = ["Connection"]
@@ -70,6 +74,8 @@ class Connection:
             available=catalog.available(),
             live=live.names(),
             lag_timeout=settings.live_lag_timeout,
+            detail=settings.detail == "auto",
+            local=_is_loopback(websocket),
         )
         self._logs: dict[str, Log] = {}
         self._stream: tuple[StreamFrames, asyncio.Event] | None = None
@@ -80,16 +86,21 @@ class Connection:
         self.frames_sent = 0
         self.bytes_sent = 0
         self.messages_sent = 0
+        self.bytes_written = 0  # every message's bytes, as handed to the connection
 
     async def run(self) -> None:
         """Serve the session until the client goes away or the server shuts down."""
         started = time.monotonic()
         self.metrics.sessions.inc()
         self.metrics.sessions_open.inc()
+        self.metrics.sessions_by_detail.labels(self.session.level.name).inc()
         remote = _remote(self.websocket)
         log_event(logger, "session start", remote=remote, path=redact_url(self.path))
         try:
             self._spawn("a stalled send", watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
+            if self.session.chooser.enabled:
+                limit_unsent(self.websocket.transport)
+                self._spawn("measuring the link", self._measure())
             await self._step("the connection", self.session.connect)
             async for message in self.websocket:
                 await self._step("a message", self.session.receive, message)
@@ -102,6 +113,7 @@ class Connection:
                 task.cancel()
             await asyncio.gather(*self._tasks, return_exceptions=True)
             self.metrics.sessions_open.dec()
+            self.metrics.sessions_by_detail.labels(self.session.level.name).dec()
             log = self.session.log.name if self.session.log else None
             duration, fmt = round(time.monotonic() - started, 3), self.session.format.value
             log_event(logger, "session end", remote=remote, log=log, format=fmt, frames=self.frames_sent,
@@ -130,7 +142,9 @@ class Connection:
                 update = self._held
                 assert update is not None and update.number == event.number
                 assert self._subscription is not None
-                await self._send_update(await update.encoded(event.variant, self.live.workers), event.variant.fmt)
+                data = await update.encoded(event.variant, self.live.workers)
+                self.session.update_made(event.variant.level, len(data))
+                await self._send_update(data, event.variant.fmt)
             elif isinstance(event, SendLiveMetadata):
                 assert self._subscription is not None
                 metadata = self._subscription.feed.metadata_message(event.fmt)
@@ -153,6 +167,8 @@ class Connection:
                 self._spawn("the live feed", self._run_live(event), fatal=True)
             elif isinstance(event, ConfigureLive):
                 await self._configure_live(event)
+            elif isinstance(event, DetailChanged):
+                self._detail_changed(event)
             elif isinstance(event, Close):
                 await close(self.websocket, event.code, event.reason)
 
@@ -174,6 +190,7 @@ class Connection:
         task.add_done_callback(self._tasks.discard)
 
     async def _write(self, data: bytes, text: bool) -> None:
+        self.bytes_written += len(data)  # before: the bytes are in the transport while send waits
         await self.websocket.send(data, text=text)
         self.messages_sent += 1
 
@@ -220,7 +237,17 @@ class Connection:
         clock_start = loop.time()
         numbers = request.frames.tolist()
         limits = log.read_ahead or ReadAhead(self.settings.read_ahead)
-        ahead = Window(numbers, lambda number: log.frame(number, request.fmt, request.streams), limits, log.stored_size)
+
+        made_at: dict[int, Level] = {}
+
+        async def load(number: int, level: Level | None = None) -> bytes:
+            level = level or self.session.level  # the level when the frame is read ahead
+            data = await log.frame(number, request.fmt, request.streams, level)
+            self.session.update_made(level, len(data))
+            made_at[number] = level
+            return data
+
+        ahead = Window(numbers, load, limits, log.stored_size)
         try:
             for position in range(len(numbers)):
                 loading = ahead.next()
@@ -232,6 +259,8 @@ class Connection:
                     break
                 try:
                     data = await loading
+                    if LEVELS.index(made_at[numbers[position]]) < LEVELS.index(level := self.session.level):
+                        data = await load(numbers[position], level)  # read ahead before the level went down
                 except XVIZError as exc:
                     await self._execute(self.session.frame_failed(request.request_id, exc))
                     continue
@@ -319,6 +348,8 @@ class Connection:
                 logger.debug("live update to %s not sent: %s", _remote(websocket), exc)
                 return True
             self.messages_sent += 1
+            self.bytes_written += len(data)
+            self.session.update_made(variant.level, len(data))
             self._count_update(data, variant.fmt)
         return True
 
@@ -334,6 +365,29 @@ class Connection:
             subscription.decimate = event.decimate
             if event.forward and not await subscription.feed.reconfigure(event.forward):
                 logger.info("live feed %r does not accept configuration", subscription.feed.name)
+
+    # -- the level of detail --------------------------------------------------
+
+    async def _measure(self) -> None:
+        """Sample the connection's delivery for the session, which chooses the level of detail from it."""
+        transport = self.websocket.transport
+        before, waited = time.monotonic(), receiver_limited(transport)
+        while not transport.is_closing():
+            # at jittered times, so as never to keep step with a feed's updates
+            await asyncio.sleep(SAMPLE_INTERVAL * random.uniform(0.5, 1.5))
+            now, limited = time.monotonic(), receiver_limited(transport)
+            reader = limited is not None and waited is not None and (limited - waited) / 1e6 >= (now - before) / 2
+            before, waited = now, limited
+            offered = None if self._subscription is None else self._subscription.offered
+            events = self.session.link_sampled(now, self.bytes_written, backlog(transport), reader, offered)
+            await self._execute(events)
+
+    def _detail_changed(self, event: DetailChanged) -> None:
+        self.metrics.sessions_by_detail.labels(event.previous.name).dec()
+        self.metrics.sessions_by_detail.labels(event.level.name).inc()
+        mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
+        log_event(logger, "detail changed", remote=_remote(self.websocket), detail=event.level.name,
+                  previous=event.previous.name, auto=event.auto, link_mbps=mbps)
 
     async def _watch_lag(self, subscription: Subscription) -> None:
         """Tell the session how long the viewer has been dropping updates."""
@@ -363,6 +417,15 @@ def _ending(websocket: ServerConnection) -> dict[str, Any]:
     if first is None:
         return {"reason": "connection lost"}
     return {"reason": f"{first.code} {first.reason}".strip(), "closed_by": "client" if protocol.close_rcvd_then_sent else "server"}
+
+
+def _is_loopback(websocket: ServerConnection) -> bool:
+    """Whether the client is on this host (a loopback address)."""
+    address = websocket.remote_address
+    try:
+        return bool(address) and ipaddress.ip_address(address[0]).is_loopback
+    except ValueError:  # a Unix socket's path
+        return False
 
 
 def _remote(websocket: ServerConnection) -> str:

@@ -5,18 +5,25 @@ its connection waits, and so does the keepalive ping queued behind them and
 the closing handshake. :func:`watch_progress` ends such a connection when its
 write buffer has not shrunk for ``timeout`` seconds; :func:`close` closes
 with a code and reason, and aborts the transport when the closing frame
-cannot be written within the time given.
+cannot be written within the time given. :func:`backlog` tells how many
+bytes written are not delivered yet, :func:`receiver_limited` whether they
+waited for the peer to read rather than for the link; :func:`limit_unsent`
+keeps most of them where the server sees them.
 """
 
 from __future__ import annotations
 
 import asyncio
+import fcntl
 import logging
+import socket
+import struct
+import termios
 from collections.abc import Callable
 
 from websockets.asyncio.connection import Connection
 
-__all__ = ["watch_progress", "close"]
+__all__ = ["watch_progress", "close", "backlog", "limit_unsent", "receiver_limited"]
 
 logger = logging.getLogger(__name__)
 
@@ -59,3 +66,63 @@ async def close(websocket: Connection, code: int, reason: str, timeout: float | 
         task = asyncio.current_task()
         if task is not None and getattr(task, "cancelling", lambda: 0)():
             raise asyncio.CancelledError from None  # the timeout was the cancellation of this task
+
+
+def backlog(transport: asyncio.WriteTransport) -> int:
+    """Bytes written to ``transport`` and not yet delivered: those in its write buffer and in the kernel's
+    send queue (not sent, or not acknowledged by the peer: ``TIOCOUTQ``; 0 where the system does not tell)."""
+    queued = transport.get_write_buffer_size()
+    sock = transport.get_extra_info("socket")
+    if sock is None:
+        return queued
+    try:
+        answer = fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0")
+    except (OSError, ValueError):  # closed, or not a stream socket
+        return queued
+    return queued + struct.unpack("i", answer)[0]
+
+
+#: Most bytes a connection's kernel send queue holds that are not yet sent (see :func:`limit_unsent`).
+UNSENT_LIMIT = 256 * 1024
+
+
+def limit_unsent(transport: asyncio.WriteTransport, limit: int = UNSENT_LIMIT) -> None:
+    """Let the kernel hold at most ``limit`` bytes of ``transport``'s not yet sent (``TCP_NOTSENT_LOWAT``).
+
+    The bytes in flight on the link are not limited: throughput stays what
+    the link carries. Over a slow link the rest wait in the transport's
+    write buffer, so that sending waits, frames are not made far ahead of
+    the link, and a change of level of detail reaches the link within
+    about ``limit`` bytes. Nothing is done where the system has no such
+    option.
+    """
+    option = getattr(socket, "TCP_NOTSENT_LOWAT", None)
+    sock = transport.get_extra_info("socket")
+    if option is None or sock is None:
+        return
+    try:
+        sock.setsockopt(socket.IPPROTO_TCP, option, limit)
+    except OSError:  # closed already, or not TCP
+        pass
+
+
+# struct tcp_info (linux/tcp.h): the u64 tcpi_rwnd_limited, microseconds, since Linux 4.10
+_RWND_LIMITED = struct.Struct("Q")
+_RWND_LIMITED_OFFSET = 176
+
+
+def receiver_limited(transport: asyncio.WriteTransport) -> int | None:
+    """Microseconds so far that ``transport``'s connection could not send because the peer's receive
+    window was full (a peer that reads slower than the link carries), from ``TCP_INFO``; ``None`` where
+    the system does not tell."""
+    option = getattr(socket, "TCP_INFO", None)
+    sock = transport.get_extra_info("socket")
+    if option is None or sock is None:
+        return None
+    try:
+        info = sock.getsockopt(socket.IPPROTO_TCP, option, _RWND_LIMITED_OFFSET + _RWND_LIMITED.size)
+    except OSError:
+        return None
+    if len(info) < _RWND_LIMITED_OFFSET + _RWND_LIMITED.size:
+        return None
+    return int(_RWND_LIMITED.unpack_from(info, _RWND_LIMITED_OFFSET)[0])

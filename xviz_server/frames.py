@@ -13,6 +13,7 @@ from .admission import expanded_size
 from .codec import Format, decode, detect_format, edit_glb, encode
 from .exceptions import DecodeError
 from .layout import update_span
+from .levels import FULL, Level, reduce_message
 from .state import complete_state, downsample_points, filter_streams
 from .unpack import size_text
 from .validation import get_validator
@@ -103,20 +104,27 @@ def span(data: bytes) -> tuple[float, float]:
     return result
 
 
-def render(data: bytes, fmt: Format, streams: Collection[str] | None, max_points: int | None = None) -> bytes:
-    """Re-encode a frame in ``fmt``, keeping only ``streams`` and at most ``max_points`` points a cloud when given."""
-    return render_message(_decode_update(data), fmt, streams, max_points)
+def render(
+    data: bytes, fmt: Format, streams: Collection[str] | None, max_points: int | None = None, level: Level = FULL
+) -> bytes:
+    """Re-encode a frame in ``fmt``, keeping only ``streams`` and at most ``max_points`` points a cloud when given,
+    at ``level`` of detail (see :mod:`~xviz_server.levels`)."""
+    return render_message(_decode_update(data), fmt, streams, max_points, level)
 
 
 def render_message(
-    message: dict[str, Any], fmt: Format, streams: Collection[str] | None, max_points: int | None = None
+    message: dict[str, Any],
+    fmt: Format,
+    streams: Collection[str] | None,
+    max_points: int | None = None,
+    level: Level = FULL,
 ) -> bytes:
     """:func:`render` for a decoded state update."""
     if streams is not None:
         message = filter_streams(message, streams)
     if max_points is not None:
         message = downsample_points(message, max_points)
-    return encode(message, fmt)
+    return encode(reduce_message(message, level), fmt)
 
 
 def merge(frames: Sequence[bytes], fmt: Format, streams: Collection[str] | None) -> tuple[bytes, bool]:

@@ -24,6 +24,7 @@ from .cache import FrameCache
 from .codec import Format, cut_glb, detect_format, encode
 from .exceptions import DecodeError, FrameError, LogError, LogNotFound, SchemaValidationError, XVIZError
 from .index import TimeIndex
+from .levels import FULL, Level
 from .messages import XVIZ_VERSION, envelope, is_number
 from .state import COMPLETE_TYPES
 from .layout import INDEX_FILE, LOG, Found, discover, frame_bytes, is_log_directory
@@ -137,11 +138,17 @@ class Log:
         """The ``xviz/metadata`` message, encoded in ``fmt``."""
         return self._metadata_messages[fmt]
 
-    async def frame(self, number: int, fmt: Format, streams: frozenset[str] | None = None) -> bytes:
-        """Frame ``number`` encoded in ``fmt``, with only ``streams`` if given.
+    async def frame(self, number: int, fmt: Format, streams: frozenset[str] | None = None, level: Level = FULL) -> bytes:
+        """Frame ``number`` encoded in ``fmt``, with only ``streams`` if given, at ``level`` of detail.
 
-        Raises :class:`~xviz_server.exceptions.FrameError` naming the frame.
+        A level below full is made once, by the first request for it, and
+        kept in the frame cache. Raises
+        :class:`~xviz_server.exceptions.FrameError` naming the frame.
         """
+        if level is not FULL:
+            return await self._cache.get(
+                (self._key, number, fmt, streams, level.name), lambda: self._render_level(number, fmt, streams, level)
+            )
         if streams is None and fmt is self.format:
             data = await self._checked(number)
             if detect_format(data) is fmt:
@@ -208,6 +215,14 @@ class Log:
         try:
             place = frames.placement(len(data), detect_format(data), fmt)
             return await self._workers.run(place, frames.render, data, fmt, streams)
+        except DecodeError as exc:
+            raise self._corrupt(number, exc) from None
+
+    async def _render_level(self, number: int, fmt: Format, streams: frozenset[str] | None, level: Level) -> bytes:
+        data = await self._checked(number)
+        try:
+            place = Place.PROCESS if len(data) > frames.HEAVY_JSON_BYTES else Place.THREAD  # numpy and Pillow: CPU-heavy
+            return await self._workers.run(place, frames.render, data, fmt, streams, None, level)
         except DecodeError as exc:
             raise self._corrupt(number, exc) from None
 

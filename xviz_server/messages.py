@@ -24,6 +24,7 @@ from pydantic import AliasChoices, ConfigDict, Field, field_validator, model_val
 from .codec import Format
 from .codec.json import MAX_DEPTH, nested_deeper
 from .exceptions import MessageError
+from .levels import profile_level
 
 __all__ = [
     "SessionType",
@@ -166,7 +167,9 @@ class SessionConfig(pydantic.BaseModel):
     messages (``None``: the session's start format). ``speed``: pace streams
     at this multiple of the log's rate (``None``: as fast as the client reads).
     Live sessions only: ``decimate``, send every n-th update; ``max_points``,
-    thin every point cloud to at most this many points.
+    thin every point cloud to at most this many points. ``profile``: the
+    level of detail (a level's name, or ``auto``), in place of the start's;
+    ``max_mbps``: the most Mbit/s the session may take, in place of the URL's.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -175,8 +178,17 @@ class SessionConfig(pydantic.BaseModel):
     speed: float | None = Field(default=None, gt=0, allow_inf_nan=False)
     decimate: int | None = Field(default=None, ge=1)
     max_points: int | None = Field(default=None, ge=1)
+    profile: str | None = None
+    max_mbps: float | None = Field(default=None, gt=0, allow_inf_nan=False)
 
     _case = field_validator("message_format", mode="before")(_upper)
+
+    @field_validator("profile")
+    @classmethod
+    def _known_profile(cls, value: str | None) -> str | None:
+        if value is not None:
+            profile_level(value)
+        return value
 
 
 def merge_patch(target: Any, patch: Any) -> Any:

@@ -22,6 +22,10 @@ class Metrics:
         self.registry = registry = CollectorRegistry()
         self.sessions_open = Gauge("xviz_sessions_open", "Sessions now open.", registry=registry)
         self.sessions = Counter("xviz_sessions", "Sessions opened.", registry=registry)
+        self.sessions_by_detail = Gauge(
+            "xviz_sessions_by_detail", "Sessions now open, by the level of detail they are sent.", ["level"],
+            registry=registry,
+        )
         self.frames_sent = Counter(
             "xviz_frames_sent", "State updates sent, by message format.", ["format"], registry=registry
         )

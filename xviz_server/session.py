@@ -24,6 +24,20 @@ live viewer gets the feed's metadata, then its latest complete state, then
 every update that state does not already hold; it is told when it fell
 behind (once per run of dropped updates) and when the source went away, and
 it is closed once it has been dropping updates for ``lag_timeout`` seconds.
+
+Level of detail: the session owns a
+:class:`~xviz_server.detail.DetailChooser`. The asyncio layer reports the
+samples of the connection's delivery (:meth:`Session.link_sampled`) and the
+size of each update made for it (:meth:`Session.update_made`); frames and
+live updates go out at :attr:`Session.level`. The client fixes a level, or
+asks for ``auto``, with ``profile`` (URL, ``xviz/start``, ``xviz/reconfigure``;
+streetscape.gl's ``default`` is ``auto``) and caps the session with
+``max_mbps`` (URL, ``xviz/reconfigure``). A change of level is a
+:class:`DetailChanged`. A client that asks with ``?detail_notices=1`` (the
+built-in viewer) is also told the level, when the session starts and
+whenever it changes or the client chooses, in a text message of its own
+type, ``xviz-server/detail`` (``{"level", "auto", "levels", "link_mbps"}``):
+standard XVIZ clients, which do not ask, never get one.
 """
 
 from __future__ import annotations
@@ -37,14 +51,16 @@ import pydantic
 from websockets.frames import CloseCode
 
 from .codec import Format, decode, encode
+from .detail import DetailChooser, Sample
 from .exceptions import DecodeError, LogNotFound, MessageError, XVIZError
+from .levels import FULL, Level, profile_level
 from .index import TimeIndex
 from .messages import Error, Reconfigure, SessionType, Start, TransformLog, TransformLogDone, TransformPointInTime
 from .messages import SessionConfig, describe_validation_error, merge_patch, parse_client_message, stream_filter
 
 __all__ = [
     "Session", "LogView", "Variant", "Event", "Send", "Close", "OpenLog", "StreamFrames", "CancelStream", "QueryInstant",
-    "LookUpLive", "LiveFacts", "SubscribeLive", "ConfigureLive", "SendLiveMetadata", "SendLiveUpdate",
+    "LookUpLive", "LiveFacts", "SubscribeLive", "ConfigureLive", "SendLiveMetadata", "SendLiveUpdate", "DetailChanged",
 ]
 
 
@@ -60,11 +76,12 @@ class LogView(Protocol):
 
 @dataclass(frozen=True)
 class Variant:
-    """How a live viewer wants updates: format, streams (``None``: all), most points per cloud."""
+    """How a live viewer wants updates: format, streams (``None``: all), most points per cloud, level of detail."""
 
     fmt: Format
     streams: frozenset[str] | None = None
     max_points: int | None = None
+    level: Level = FULL
 
 
 # ----------------------------------------------------------------- events
@@ -185,15 +202,35 @@ class SendLiveUpdate:
     variant: Variant
 
 
+@dataclass(frozen=True)
+class DetailChanged:
+    """The session's level of detail changed from ``previous`` to ``level``.
+
+    ``auto``: chosen from the link (else by the user); ``capacity``: what the
+    link was measured to carry, bytes a second (``None``: not measured).
+    """
+
+    level: Level
+    previous: Level
+    auto: bool
+    capacity: float | None
+
+
 Event = Union[
     Send, Close, OpenLog, StreamFrames, CancelStream, QueryInstant, LookUpLive, SubscribeLive, ConfigureLive,
-    SendLiveMetadata, SendLiveUpdate,
+    SendLiveMetadata, SendLiveUpdate, DetailChanged,
 ]
 
 
 # ----------------------------------------------------------------- session
 
 URL_START_KEYS = ("version", "profile", "session_type", "message_format", "log")
+#: The type of the message that tells a client that asked for it (``?detail_notices=1``) its level of detail.
+DETAIL_NOTICE = "xviz-server/detail"
+#: Seconds over which a live feed's rate of updates is measured.
+RATE_WINDOW = 4.0
+#: Configuration keys about the level of detail: the session's own, never passed on to a live source.
+DETAIL_KEYS = ("profile", "max_mbps")
 
 
 @dataclass
@@ -204,7 +241,9 @@ class Session:
     ``available`` lists the recorded logs (to pick the only one when the
     client names none, and to list them when it must choose); ``live`` lists
     the live feeds; ``lag_timeout`` is how long a live viewer may keep
-    dropping updates before it is closed.
+    dropping updates before it is closed; ``detail`` false keeps the
+    session at full detail whatever its link or its client asks; ``local``:
+    the client is on this host (a loopback address), with no link to fit.
     """
 
     path: str
@@ -212,6 +251,8 @@ class Session:
     available: Sequence[str] = ()
     live: Sequence[str] = ()
     lag_timeout: float = 30.0
+    detail: bool = True
+    local: bool = False
     start: Start = field(init=False, default_factory=Start)
     config: SessionConfig = field(init=False, default_factory=SessionConfig)
     log: LogView | None = field(init=False, default=None)
@@ -222,6 +263,13 @@ class Session:
     _exact_feed: bool = field(init=False, default=False)
     _covered: int = field(init=False, default=-1)
     _behind: bool = field(init=False, default=False)
+    chooser: DetailChooser = field(init=False)
+    _url_cap: float | None = field(init=False, default=None)
+    _clock: float = field(init=False, default=0.0)  # time of the latest sample
+    _offered: list[tuple[float, int]] = field(init=False, default_factory=list)  # (time, updates a feed offered)
+
+    def __post_init__(self) -> None:
+        self.chooser = DetailChooser(enabled=self.detail, local=self.local)
 
     # -- inputs: the connection and its messages -----------------------
 
@@ -241,7 +289,15 @@ class Session:
         except pydantic.ValidationError as exc:
             problem = describe_validation_error(exc.errors()[0])
             events.append(self._error("start", f"bad connection URL parameter: {problem}"))
-            self.start = Start(log=params.get("log"))
+            self.start = Start(log=params.get("log"), profile=params.get("profile"))
+        cap = self.query.get("max_mbps")
+        if cap is not None:
+            try:
+                self._url_cap = SessionConfig.model_validate({"max_mbps": cap}).max_mbps
+            except pydantic.ValidationError:
+                text = f"bad connection URL parameter 'max_mbps': {cap[:60]!r} is not a positive number of Mbit/s; no cap"
+                events.append(self._error("start", text))
+        events += self._apply_detail()
         return events + self._begin()
 
     def receive(self, data: bytes | str) -> list[Event]:
@@ -261,6 +317,28 @@ class Session:
             return self._on_point_in_time(request)
         return self._on_reconfigure(request)
 
+    def link_sampled(
+        self, time: float, written: int, backlog: int, reader: bool = False, offered: int | None = None
+    ) -> list[Event]:
+        """A sample of the connection's delivery at ``time`` (monotonic seconds): bytes ``written`` so far,
+        ``backlog`` of them not yet delivered, ``reader`` whether they waited for the client to read (see
+        :class:`xviz_server.detail.Sample`); for a live session, the updates its feed ``offered`` it so far
+        (for the feed's rate)."""
+        self._clock = time
+        if offered is not None:
+            self._offered.append((time, offered))
+            while len(self._offered) > 2 and time - self._offered[1][0] >= RATE_WINDOW:
+                del self._offered[0]
+            (t0, n0), (t1, n1) = self._offered[0], self._offered[-1]
+            if t1 - t0 >= RATE_WINDOW / 2 and n1 > n0:
+                self.chooser.rate = (n1 - n0) / (t1 - t0) / (self.config.decimate or 1)
+        previous = self.chooser.level
+        return self._detail_changed(previous, self.chooser.sample(Sample(time, written, backlog, reader)))
+
+    def update_made(self, level: Level, size: int) -> None:
+        """An update of ``size`` bytes was made at ``level`` for this session."""
+        self.chooser.made(level, size)
+
     def internal_error(self, what: str, error: BaseException) -> list[Event]:
         """Something unexpected failed while handling ``what``; the session goes on."""
         return [self._error("internal", f"internal server error while handling {what}: {error!r}")]
@@ -270,6 +348,9 @@ class Session:
     def log_opened(self, log: LogView) -> list[Event]:
         """The log asked for with :class:`OpenLog` is open: send its metadata."""
         self.log = log
+        index = log.index
+        if len(index) > 1 and index.end_time is not None and index.start_time is not None and index.end_time > index.start_time:
+            self.chooser.rate = (len(index) - 1) / (index.end_time - index.start_time) * (self.config.speed or 1.0)
         return [Send(log.metadata_message(self.format), text=self.format is Format.JSON)]
 
     def log_failed(self, error: XVIZError) -> list[Event]:
@@ -403,11 +484,17 @@ class Session:
     @property
     def variant(self) -> Variant:
         """How this live viewer wants updates now."""
-        return Variant(self.format, stream_filter(self.config.desired_streams), self.config.max_points)
+        return Variant(self.format, stream_filter(self.config.desired_streams), self.config.max_points, self.level)
 
     @property
     def decimate(self) -> int:
-        return self.config.decimate or 1
+        """A live viewer gets every ``decimate``-th update: its own choice times its level's."""
+        return (self.config.decimate or 1) * self.level.every
+
+    @property
+    def level(self) -> Level:
+        """The level of detail of what is sent now."""
+        return self.chooser.level
 
     # -- handlers -------------------------------------------------------
 
@@ -430,6 +517,7 @@ class Session:
     def _go_live(self, exact: bool) -> list[Event]:
         self.start = self.start.model_copy(update={"session_type": SessionType.LIVE})
         self._exact_feed = exact
+        self.chooser.live = True
         return [LookUpLive(self.start.log)]
 
     def _waiting_notice(self, feed: str) -> Send:
@@ -445,10 +533,11 @@ class Session:
     def _on_start(self, start: Start) -> list[Event]:
         # What the message leaves out keeps its value from the URL.
         self.start = self.start.model_copy(update=start.model_dump(exclude_unset=True))
+        events = self._apply_detail() if "profile" in start.model_fields_set else []
         if self.log is not None and self.start.log in (None, self._requested_log):
-            return self.log_opened(self.log)  # same log, maybe a new format: metadata again
+            return events + self.log_opened(self.log)  # same log, maybe a new format: metadata again
         self.log = None
-        return self._begin()
+        return events + self._begin()
 
     def _on_transform_log(self, request: TransformLog) -> list[Event]:
         log = self._require_log("xviz/transform_log", request.id)
@@ -493,11 +582,52 @@ class Session:
         except pydantic.ValidationError as exc:
             problem, known = describe_validation_error(exc.errors()[0]), ", ".join(SessionConfig.model_fields)
             return [self._error("reconfigure", f"xviz/reconfigure: {problem} (supported keys: {known}); configuration unchanged")]
+        events = self._apply_detail()
         if self.is_live:
-            return [ConfigureLive(self.decimate, request.config_update)]
-        return []
+            forward = {key: value for key, value in request.config_update.items() if key not in DETAIL_KEYS}
+            events.append(ConfigureLive(self.decimate, forward))
+        return events
 
     # -- helpers --------------------------------------------------------
+
+    def _apply_detail(self) -> list[Event]:
+        """Give the chooser what the client asked: a level or auto (``profile``), a cap (``max_mbps``)."""
+        profile = self.config.profile or self.start.profile
+        events: list[Event] = []
+        fixed: Level | None = None
+        if profile is not None:
+            try:
+                fixed = profile_level(profile)
+            except ValueError as exc:  # only the start's can be wrong: reconfigure checks its own
+                events.append(self._error("profile", f"profile: {exc}; the level of detail is chosen from the link"))
+                self.start = self.start.model_copy(update={"profile": None})
+        cap = self.config.max_mbps or self._url_cap
+        previous = self.chooser.level
+        changed = self.chooser.choose(fixed, None if cap is None else cap * 125_000, self._clock)
+        events += self._detail_changed(previous, changed)
+        if changed is None and self.query.get("detail_notices") == "1":
+            events.append(self._detail_notice())
+        return events
+
+    def _detail_changed(self, previous: Level, level: Level | None) -> list[Event]:
+        if level is None:
+            return []
+        events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.meter.capacity)]
+        if self.is_live and level.every != previous.every:
+            events.append(ConfigureLive(self.decimate, {}))
+        if self.query.get("detail_notices") == "1":
+            events.append(self._detail_notice())
+        return events
+
+    def _detail_notice(self) -> Send:
+        capacity = self.chooser.meter.capacity
+        data = {
+            "level": self.level.name,
+            "auto": self.chooser.auto,
+            "levels": [level.name for level in self.chooser.levels] if self.chooser.enabled else [FULL.name],
+            "link_mbps": None if capacity is None else round(capacity * 8 / 1e6, 1),
+        }
+        return Send(encode({"type": DETAIL_NOTICE, "data": data}, Format.JSON), text=True)
 
     def _require_log(self, kind: str, request_id: str) -> LogView | Send:
         if self.is_live:

@@ -108,6 +108,11 @@ class Settings(BaseSettings):
     export_max_mb: float = Field(
         default=512, gt=0, description="largest clip GET /api/logs/NAME/export makes, MB of messages (it is made whole before it is sent)"
     )
+    detail: Literal["auto", "off"] = Field(
+        default="auto",
+        description="auto: each session gets the level of detail its link carries (thinned point clouds, smaller "
+        "images), measured as it goes; off: every session gets every byte",
+    )
     live_queue: int = Field(default=32, ge=1, description="updates a live viewer may fall behind before the oldest are dropped")
     live_lag_timeout: float = Field(
         default=30, gt=0, description="disconnect a live viewer that keeps dropping updates for this long, s"

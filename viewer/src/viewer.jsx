@@ -18,8 +18,15 @@ const CUSTOM_XVIZ_LAYERS = [POINT_STREAMS];
 /** Milliseconds between updates of the link to the time shown. */
 const LINK_INTERVAL = 500;
 
-/** A WebSocket class that also reports every close to `onClose(event, opened)`. */
-function watchedSocket(onClose) {
+// The server's own message telling this page the session's level of detail (asked for with
+// ?detail_notices=1); it is not XVIZ, so the loader's parser never sees it.
+const DETAIL_NOTICE = '{"type":"xviz-server/detail"';
+
+/**
+ * A WebSocket class that also reports every close to `onClose(event, opened)`, and hands the
+ * server's level-of-detail notices to `onDetail(data)` instead of the loader.
+ */
+function watchedSocket(onClose, onDetail) {
   return class WatchedSocket extends WebSocket {
     constructor(url, protocols) {
       super(url, protocols);
@@ -29,6 +36,20 @@ function watchedSocket(onClose) {
         markOnce('socket-open');
       });
       this.addEventListener('close', event => onClose(event, opened));
+    }
+
+    set onmessage(handler) {
+      super.onmessage = event => {
+        if (typeof event.data === 'string' && event.data.startsWith(DETAIL_NOTICE)) {
+          onDetail(JSON.parse(event.data).data);
+        } else {
+          handler(event);
+        }
+      };
+    }
+
+    get onmessage() {
+      return super.onmessage;
     }
   };
 }
@@ -47,7 +68,7 @@ function formatTimestamp(seconds) {
   return new Date(seconds * 1000).toISOString().slice(11, 23);
 }
 
-function createLoader({name, live, token, onClose, drawn}) {
+function createLoader({name, live, token, onClose, onDetail, drawn}) {
   const options = {
     // The loaders put it in the URL as it is; the server decodes the query.
     logGuid: encodeURIComponent(name),
@@ -55,12 +76,12 @@ function createLoader({name, live, token, onClose, drawn}) {
     serverConfig: {
       serverUrl: serverUrl(),
       defaultLogLength: 30,
-      queryParams: token ? {token: encodeURIComponent(token)} : {}
+      queryParams: {detail_notices: 1, ...(token ? {token: encodeURIComponent(token)} : {})}
     },
     // Messages are parsed on the page's thread: a worker would first have to start and load
     // its own copy of the parser, which costs more than the first frames' parse.
     worker: false,
-    WebSocketClass: watchedSocket(onClose)
+    WebSocketClass: watchedSocket(onClose, onDetail)
   };
   // Every other option would be put in the WebSocket's URL: the first drawing is ServerLoader's own.
   return live ? new XVIZLiveLoader(options) : new ServerLoader(options, drawn);
@@ -75,7 +96,7 @@ function createLoader({name, live, token, onClose, drawn}) {
 export default class Viewer extends React.Component {
   constructor(props) {
     super(props);
-    this.state = {error: null, panels: [], drawn: false, linkTime: null};
+    this.state = {error: null, panels: [], drawn: false, linkTime: null, detail: null};
     const drawn = new Promise(resolve => {
       this._onDeckLoad = deck => firstDraw(deck).then(resolve);
     });
@@ -86,7 +107,7 @@ export default class Viewer extends React.Component {
         this._seekToLinkedTime();
       }
     });
-    this.log = createLoader({...props, drawn, onClose: this._onSocketClose});
+    this.log = createLoader({...props, drawn, onClose: this._onSocketClose, onDetail: this._onDetail});
     // The socket opens while React mounts the 3D view; nothing it receives is handled
     // before componentDidMount, which runs in this same task. Refusals are reported by
     // _onSocketClose as they happen; the loader gives up after a few.
@@ -137,6 +158,20 @@ export default class Viewer extends React.Component {
     }
   };
 
+  _onDetail = detail => {
+    if (!this.closed) {
+      this.setState({detail});
+    }
+  };
+
+  /** Ask the server for a level of detail, or 'auto' (chosen from the link). */
+  _chooseDetail = event => {
+    const message = {type: 'xviz/reconfigure', data: {update_type: 'DELTA', config_update: {profile: event.target.value}}};
+    if (this.log.socket) {
+      this.log.socket.send(JSON.stringify(message));
+    }
+  };
+
   _onSocketClose = (event, opened) => {
     if (this.closed) {
       return;
@@ -155,7 +190,7 @@ export default class Viewer extends React.Component {
 
   render() {
     const {name, live, mapToken, onClose} = this.props;
-    const {error, panels, drawn, linkTime} = this.state;
+    const {error, panels, drawn, linkTime, detail} = this.state;
     return (
       <div style={{display: 'flex', flexDirection: 'column', height: '100%'}}>
         <header style={{display: 'flex', gap: 16, alignItems: 'center', padding: '8px 16px', background: '#fff'}}>
@@ -174,6 +209,23 @@ export default class Viewer extends React.Component {
             <a className="time-link" href={pageUrl(name, linkTime)} title="A link that opens this log at this time">
               link at {linkTime.toFixed(1)} s
             </a>
+          )}
+          {detail && (
+            <label className="detail" style={{marginLeft: 'auto'}}>
+              detail{' '}
+              <select value={detail.auto ? 'auto' : detail.level} onChange={this._chooseDetail}>
+                <option value="auto">auto</option>
+                {detail.levels.map(level => (
+                  <option key={level} value={level}>
+                    {level}
+                  </option>
+                ))}
+              </select>{' '}
+              <span className="detail-level">
+                {detail.level}
+                {detail.link_mbps !== null ? ` (link ${detail.link_mbps} Mbit/s)` : ''}
+              </span>
+            </label>
           )}
         </header>
         {error && <ErrorBanner message={error} />}

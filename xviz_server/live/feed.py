@@ -12,7 +12,7 @@ one publish then writes the update to every such viewer's connection in one
 pass, as ``websockets.broadcast`` does.
 
 An update is decoded once and encoded once per :class:`Variant` (format,
-stream filter, point budget) that some viewer asked for; the bytes are
+stream filter, point budget, level of detail) that some viewer asked for; the bytes are
 shared. The feed also keeps the latest complete state, so that a viewer
 who joins late draws at once.
 """
@@ -35,6 +35,7 @@ from ..messages import XVIZ_VERSION, envelope, unwrap
 from ..logs import check_log_name
 from ..session import LiveFacts, Variant
 from ..frames import render, render_message
+from ..levels import FULL
 from ..state import COMPLETE_TYPES, complete_state
 from ..work import Workers
 
@@ -64,19 +65,29 @@ class LiveUpdate:
 
     async def encoded(self, variant: Variant, workers: Workers) -> bytes:
         """The bytes of this update for ``variant``; the first viewer to ask encodes them."""
+        return await asyncio.shield(self.prepare(variant, workers))
+
+    def prepare(self, variant: Variant, workers: Workers) -> asyncio.Future[bytes]:
+        """Start making the bytes of this update for ``variant``, unless made or being made; their future."""
         future = self._encodings.get(variant)
         if future is None:
             future = asyncio.ensure_future(self._encode(variant, workers))
+            future.add_done_callback(lambda done: done.cancelled() or done.exception())  # a viewer that asks is told
             self._encodings[variant] = future
-        return await asyncio.shield(future)
+        return future
+
+    @property
+    def variants(self) -> list[Variant]:
+        """The variants asked for so far."""
+        return list(self._encodings)
 
     async def _encode(self, variant: Variant, workers: Workers) -> bytes:
-        if variant.fmt is Format.BINARY:
+        if variant.fmt is Format.BINARY and variant.level is FULL:
             return await workers.io(render_message, self.message, variant.fmt, variant.streams, variant.max_points)
-        # JSON holds the GIL for long: a worker process makes it from GLB bytes,
-        # which pickle cheaply where decoded messages (views into a frame) do not.
+        # JSON and levels of detail hold the GIL for long: a worker process makes them
+        # from GLB bytes, which pickle cheaply where decoded messages (views into a frame) do not.
         glb = await self.encoded(Variant(Format.BINARY), workers)
-        return await workers.cpu(render, glb, variant.fmt, variant.streams, variant.max_points)
+        return await workers.cpu(render, glb, variant.fmt, variant.streams, variant.max_points, variant.level)
 
 
 @dataclass(frozen=True)
@@ -141,6 +152,11 @@ class Subscription:
             self.lagging_since = None  # caught up
         return item
 
+    @property
+    def offered(self) -> int:
+        """Updates the feed offered this subscription so far, with those that decimation skipped."""
+        return self._seen
+
     def take_drops(self) -> int:
         """Updates dropped since the last call."""
         dropped, self.dropped = self.dropped, 0
@@ -176,6 +192,7 @@ class LiveFeed:
         self._metadata_messages: dict[Format, bytes] = {}
         self._state: dict[str, Any] | None = None
         self._state_number = -1  # number of the latest update in _state
+        self._latest: LiveUpdate | None = None  # the latest update published
         self._subscribers: set[Subscription] = set()
         self._numbers = itertools.count()
 
@@ -220,6 +237,11 @@ class LiveFeed:
         if original is None and self._subscribers:  # GLB, the live default, made once before the viewers ask
             await update.encoded(Variant(Format.BINARY), self.registry.workers)
         self._remember(update)
+        # the levels of detail viewers took of the previous update: made now, before they ask, beside the others
+        for variant in self._latest.variants if self._latest is not None and self._subscribers else ():
+            if variant.level is not FULL:
+                update.prepare(variant, self.registry.workers)
+        self._latest = update
         for listener in self.registry.listeners:  # first: the broker's write then goes on beside the fan-out
             listener(self, update)
         for subscriber in self._subscribers:

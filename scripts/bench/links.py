@@ -1,0 +1,178 @@
+"""Viewers on slow links: live updates a second, the longest gap, and how fast a whole log downloads, per link speed.
+
+The viewer runs in its own network namespace behind a veth pair, the
+server-to-viewer direction shaped with ``tc tbf`` (so this needs root and
+``ip``/``tc``); the server serves the real KITTI frames of ``../shared/data``
+both as a log and, replayed with ``--loop``, as a live feed at 10 Hz. For
+each link speed and each ``--detail`` setting (``off``: every byte, as
+before levels of detail; ``auto``), it reports:
+
+* live: updates a second (of the feed's 10) and the longest gap between two,
+  after the first ``warm-up`` seconds;
+* log: ``transform_log`` of the whole log, as many times as fit in
+  ``--log-seconds``: log seconds delivered per second (1.0 is real time), for
+  the first request (cut short at ``--log-seconds``) and the slowest later one;
+* the level the session ended at.
+
+Run as root: ``python scripts/bench/links.py [--quick]``. Names in the
+machine's network (``xvl-<pid>``) are removed on exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import subprocess
+import sys
+import time
+from typing import Literal
+
+from kit import KITTI  # noqa: E402  (the kit puts the repository on the path)
+HOST, VIEWER = "10.231.{}.1", "10.231.{}.2"
+FRAME_SECONDS = 0.1  # the KITTI drive's frames are 10 Hz
+
+
+# ------------------------------------------------------------------ the viewer (run in the namespace)
+
+
+async def viewer(url: str, mode: str, seconds: float, warm_up: float) -> dict[str, object]:
+    """What one viewer saw: live arrivals, or whole-log downloads."""
+    from websockets.asyncio.client import connect
+
+    from xviz_server.codec import decode
+
+    result: dict[str, object] = {}
+    async with connect(url, max_size=None, open_timeout=30) as websocket:
+        start = time.monotonic()
+        if mode == "live":
+            arrivals = []
+            while (now := time.monotonic() - start) < seconds:
+                try:
+                    data = await asyncio.wait_for(websocket.recv(), seconds - now)
+                except asyncio.TimeoutError:
+                    break
+                if isinstance(data, bytes) and decode(data)["type"] == "xviz/state_update":
+                    arrivals.append(time.monotonic() - start)
+            kept = [t for t in arrivals if t >= warm_up]
+            gaps = [b - a for a, b in zip([warm_up, *kept], [*kept, seconds])]
+            result = {"updates_per_s": len(kept) / (seconds - warm_up), "longest_gap": max(gaps)}
+        else:
+            first = decode(await websocket.recv())["data"]["log_info"]["start_time"]
+            speeds: list[float] = []
+            while time.monotonic() - start < seconds:
+                begun, last = time.monotonic(), first
+                await websocket.send(json.dumps({"type": "xviz/transform_log", "data": {"id": str(len(speeds))}}))
+                while True:
+                    remaining = seconds - (time.monotonic() - start)
+                    try:
+                        message = decode(await asyncio.wait_for(websocket.recv(), max(remaining, 0.01)))
+                    except asyncio.TimeoutError:
+                        message = {"type": "timeout"}
+                    if message["type"] == "xviz/state_update":  # log seconds delivered: up to the frame's end
+                        last = message["data"]["updates"][0]["timestamp"] + FRAME_SECONDS
+                    elif message["type"] in ("xviz/transform_log_done", "timeout"):
+                        speeds.append((last - first) / (time.monotonic() - begun))
+                        break
+            result = {"first_x_real_time": speeds[0], "later_x_real_time": speeds[1:] and min(speeds[1:])}
+    return result
+
+
+# ------------------------------------------------------------------ the link
+
+
+class Link:
+    """A veth pair into a network namespace; the host side's egress shaped with ``tc tbf``."""
+
+    def __init__(self) -> None:
+        self.id = os.getpid() % 250 + 1
+        self.namespace, self.host, self.peer = f"xvl-{os.getpid()}", f"xvl-{os.getpid()}h", f"xvl-{os.getpid()}v"
+
+    def __enter__(self) -> Link:
+        host, viewer = HOST.format(self.id), VIEWER.format(self.id)
+        for command in (
+            f"ip netns add {self.namespace}",
+            f"ip link add {self.host} type veth peer name {self.peer}",
+            f"ip link set {self.peer} netns {self.namespace}",
+            f"ip addr add {host}/24 dev {self.host}",
+            f"ip link set {self.host} up",
+            f"ip netns exec {self.namespace} ip addr add {viewer}/24 dev {self.peer}",
+            f"ip netns exec {self.namespace} ip link set {self.peer} up",
+            f"ip netns exec {self.namespace} ip link set lo up",
+        ):
+            subprocess.run(command.split(), check=True)
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        subprocess.run(f"ip link del {self.host}".split(), stderr=subprocess.DEVNULL)
+        subprocess.run(f"ip netns del {self.namespace}".split(), stderr=subprocess.DEVNULL)
+
+    def shape(self, mbps: float) -> None:
+        burst = max(32_000, int(mbps * 125_000 / 100))  # 10 ms of the rate
+        subprocess.run(f"tc qdisc replace dev {self.host} root tbf rate {mbps}mbit burst {burst} latency 100ms".split(), check=True)
+
+    async def run_viewer(self, url: str, mode: str, seconds: float, warm_up: float) -> dict[str, object]:
+        command = ["ip", "netns", "exec", self.namespace, sys.executable, __file__, "--viewer", url, mode, str(seconds), str(warm_up)]
+        process = await asyncio.create_subprocess_exec(*command, stdout=subprocess.PIPE)
+        stdout, _ = await process.communicate()
+        return json.loads(stdout)
+
+
+async def measure(link: Link, detail: Literal["auto", "off"], mbps: float, seconds: float, log_seconds: float) -> dict[str, object]:
+    import logging
+
+    from xviz_server.server import XVIZServer
+    from xviz_server.settings import Settings
+
+    levels: list[str] = []
+
+    class Levels(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if record.getMessage().startswith("detail changed"):
+                levels.append(record.getMessage().split()[3].removeprefix("detail="))
+
+    handler = Levels()
+    logging.getLogger("xviz_server.session").addHandler(handler)
+    logging.getLogger("xviz_server.session").setLevel(logging.INFO)
+    settings = Settings(host=HOST.format(link.id), port=0, data_dir=[str(KITTI.parent)], live_from=KITTI, loop=True, detail=detail)
+    try:
+        async with XVIZServer(settings) as server:
+            link.shape(mbps)
+            base = f"ws://{HOST.format(link.id)}:{server.port}"
+            live = await link.run_viewer(f"{base}/?session_type=live&profile=default", "live", seconds, min(5.0, seconds / 3))
+            live_level = levels[-1] if levels else "full"
+            log = await link.run_viewer(f"{base}/?log={KITTI.name}&profile=default", "log", log_seconds, 0)
+            log_level = levels[-1] if levels and levels[-1] != live_level else live_level
+    finally:
+        logging.getLogger("xviz_server.session").removeHandler(handler)
+    return {"detail": detail, "mbps": mbps, **live, "live_level": live_level, **log, "log_level": log_level}
+
+
+async def main(arguments: argparse.Namespace) -> None:
+    if os.geteuid() != 0:
+        sys.exit("this benchmark shapes a veth pair with tc: run it as root")
+    rates = [20.0] if arguments.quick else arguments.mbps
+    seconds = 6.0 if arguments.quick else arguments.seconds
+    log_seconds = 6.0 if arguments.quick else arguments.log_seconds
+    print("detail  Mbit/s  live updates/s  longest gap s  level    |  log x real time: first  later  level")
+    with Link() as link:
+        for mbps in rates:
+            for detail in ("off", "auto"):  # type: Literal["off", "auto"]
+                r = await measure(link, detail, mbps, seconds, log_seconds)
+                later = f"{r['later_x_real_time']:.2f}" if r["later_x_real_time"] else "-"
+                print(f"{detail:6}  {mbps:6g}  {r['updates_per_s']:14.1f}  {r['longest_gap']:13.2f}  {r['live_level']:7}  "
+                      f"|  {r['first_x_real_time']:22.2f}  {later:>5}  {r['log_level']}", flush=True)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "--viewer":
+        url, mode, seconds, warm_up = sys.argv[2], sys.argv[3], float(sys.argv[4]), float(sys.argv[5])
+        print(json.dumps(asyncio.run(viewer(url, mode, seconds, warm_up))))
+        sys.exit(0)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="20 Mbit/s only, 6 s of each")
+    parser.add_argument("--mbps", type=float, nargs="+", default=[100.0, 20.0, 5.0], help="link speeds")
+    parser.add_argument("--seconds", type=float, default=15.0, help="seconds of live viewing per run")
+    parser.add_argument("--log-seconds", type=float, default=12.0, help="seconds of log downloads per run")
+    asyncio.run(main(parser.parse_args()))
