@@ -37,7 +37,7 @@ from .flow import backlog, close, limit_unsent, receiver_limited, watch_progress
 from .framing import ready_to_write, write_message
 from .levels import LEVELS, Level
 from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription
-from .logfmt import log_event, redact_url
+from .logfmt import ending, log_event, peer, redact_url
 from .logs import Catalog, Log
 from .metrics import Metrics
 from .readahead import ReadAhead, Window
@@ -94,7 +94,7 @@ class Connection:
         self.metrics.sessions.inc()
         self.metrics.sessions_open.inc()
         self.metrics.sessions_by_detail.labels(self.session.level.name).inc()
-        remote = _remote(self.websocket)
+        remote = peer(self.websocket)
         log_event(logger, "session start", remote=remote, path=redact_url(self.path))
         try:
             self._spawn("a stalled send", watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
@@ -117,7 +117,7 @@ class Connection:
             log = self.session.log.name if self.session.log else None
             duration, fmt = round(time.monotonic() - started, 3), self.session.format.value
             log_event(logger, "session end", remote=remote, log=log, format=fmt, frames=self.frames_sent,
-                      bytes=self.bytes_sent, duration=duration, **_ending(self.websocket))
+                      bytes=self.bytes_sent, duration=duration, **ending(self.websocket))
 
     # -- carrying events out ----------------------------------------------
 
@@ -131,7 +131,7 @@ class Connection:
             await self._failed(what, exc)
 
     async def _failed(self, what: str, exc: Exception) -> None:
-        logger.exception("error handling %s from %s", what, _remote(self.websocket), exc_info=exc)
+        logger.exception("error handling %s from %s", what, peer(self.websocket), exc_info=exc)
         await self._quietly(self._execute(self.session.internal_error(what, exc)))
 
     async def _execute(self, events: list[Event]) -> None:
@@ -198,9 +198,9 @@ class Connection:
         await self._write(event.data, event.text)
         if event.error is not None:
             self.metrics.errors.labels(event.error).inc()
-            log_event(logger, "error sent", remote=_remote(self.websocket), kind=event.error, message=event.message)
+            log_event(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
         elif event.notice is not None:
-            log_event(logger, "notice sent", remote=_remote(self.websocket), kind=event.notice, message=event.message)
+            log_event(logger, "notice sent", remote=peer(self.websocket), kind=event.notice, message=event.message)
 
     async def _send_update(self, data: bytes, fmt: Format) -> None:
         """Send a state update and count it."""
@@ -345,7 +345,7 @@ class Connection:
             try:
                 write_message(websocket, data, text=variant.fmt is Format.JSON)
             except Exception as exc:  # the connection broke: its reader ends the session
-                logger.debug("live update to %s not sent: %s", _remote(websocket), exc)
+                logger.debug("live update to %s not sent: %s", peer(websocket), exc)
                 return True
             self.messages_sent += 1
             self.bytes_written += len(data)
@@ -386,7 +386,7 @@ class Connection:
         self.metrics.sessions_by_detail.labels(event.previous.name).dec()
         self.metrics.sessions_by_detail.labels(event.level.name).inc()
         mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
-        log_event(logger, "detail changed", remote=_remote(self.websocket), detail=event.level.name,
+        log_event(logger, "detail changed", remote=peer(self.websocket), detail=event.level.name,
                   previous=event.previous.name, auto=event.auto, link_mbps=mbps)
 
     async def _watch_lag(self, subscription: Subscription) -> None:
@@ -408,17 +408,6 @@ async def _wait(stop: asyncio.Event, seconds: float) -> None:
             pass
 
 
-def _ending(websocket: ServerConnection) -> dict[str, Any]:
-    """How a session's connection ended: ``reason``, the close code and reason of the side that closed first
-    (``connection lost`` if neither did), and ``closed_by`` (``client`` or ``server``), so that a code a client
-    sends (1011 when its own program failed) is never taken for the server's."""
-    protocol = websocket.protocol
-    first = protocol.close_rcvd if protocol.close_rcvd_then_sent else protocol.close_sent
-    if first is None:
-        return {"reason": "connection lost"}
-    return {"reason": f"{first.code} {first.reason}".strip(), "closed_by": "client" if protocol.close_rcvd_then_sent else "server"}
-
-
 def _is_loopback(websocket: ServerConnection) -> bool:
     """Whether the client is on this host (a loopback address)."""
     address = websocket.remote_address
@@ -426,8 +415,3 @@ def _is_loopback(websocket: ServerConnection) -> bool:
         return bool(address) and ipaddress.ip_address(address[0]).is_loopback
     except ValueError:  # a Unix socket's path
         return False
-
-
-def _remote(websocket: ServerConnection) -> str:
-    address = websocket.remote_address
-    return f"{address[0]}:{address[1]}" if address else "?"

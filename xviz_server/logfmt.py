@@ -17,12 +17,18 @@ import datetime
 import logging
 import re
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import unquote_plus, urlsplit, urlunsplit
 
 import orjson
 
-__all__ = ["configure_logging", "log_event", "printable", "redact_url", "redact_password", "JsonFormatter", "TextFormatter"]
+if TYPE_CHECKING:
+    from websockets.asyncio.server import ServerConnection
+
+__all__ = [
+    "configure_logging", "log_event", "printable", "redact_url", "redact_password", "peer", "ending",
+    "JsonFormatter", "TextFormatter",
+]
 
 _FIELDS = "xviz_fields"
 
@@ -63,6 +69,27 @@ def printable(text: str) -> str:
     if text.isprintable():
         return text
     return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
+def peer(websocket: ServerConnection) -> str:
+    """The client's address as log lines show it: ``host:port`` (``?`` when unknown)."""
+    address = websocket.remote_address
+    return f"{address[0]}:{address[1]}" if address else "?"
+
+
+def ending(websocket: ServerConnection) -> dict[str, Any]:
+    """How a session's connection ended, as fields of its last log line.
+
+    ``reason`` is the close code and reason of the side that closed first
+    (``connection lost`` if neither did), and ``closed_by`` says which side
+    that was (``client`` or ``server``), so that a code a client sends (1011
+    when its own program failed) is never taken for the server's.
+    """
+    protocol = websocket.protocol
+    first = protocol.close_rcvd if protocol.close_rcvd_then_sent else protocol.close_sent
+    if first is None:
+        return {"reason": "connection lost"}
+    return {"reason": f"{first.code} {first.reason}".strip(), "closed_by": "client" if protocol.close_rcvd_then_sent else "server"}
 
 
 def log_event(logger: logging.Logger, event: str, level: int = logging.INFO, **fields: Any) -> None:

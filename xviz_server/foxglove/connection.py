@@ -28,7 +28,7 @@ from websockets.exceptions import ConnectionClosed
 
 from ..exceptions import XVIZError
 from ..flow import watch_progress
-from ..logfmt import log_event, redact_url
+from ..logfmt import ending, log_event, peer, redact_url
 from ..logs import Catalog, Log
 from ..metrics import Metrics
 from ..session import OpenLog, Send
@@ -102,7 +102,7 @@ class FoxgloveConnection:
         started = time.monotonic()
         self.metrics.sessions.inc()
         self.metrics.sessions_open.inc()
-        remote = _remote(self.websocket)
+        remote = peer(self.websocket)
         log_event(logger, "session start", remote=remote, path=redact_url(self.path), protocol=self.websocket.subprotocol)
         self._watch = asyncio.ensure_future(watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
         try:
@@ -117,10 +117,9 @@ class FoxgloveConnection:
                     task.cancel()
             await asyncio.gather(*(t for t in (self._player, self._watch) if t is not None), return_exceptions=True)
             self.metrics.sessions_open.dec()
-            code, reason = self.websocket.close_code, self.websocket.close_reason
-            reason = f"{code} {reason}".strip() if code is not None else "connection lost"
             log_event(logger, "session end", remote=remote, log=self._log.name if self._log else None, format="foxglove",
-                      messages=self.messages_sent, bytes=self.bytes_sent, duration=round(time.monotonic() - started, 3), reason=reason)
+                      messages=self.messages_sent, bytes=self.bytes_sent, duration=round(time.monotonic() - started, 3),
+                      **ending(self.websocket))
 
     async def _execute(self, events: list[Event]) -> None:
         for event in events:
@@ -128,7 +127,7 @@ class FoxgloveConnection:
                 await self._write(event.data, event.text)
                 if event.error is not None:
                     self.metrics.errors.labels(event.error).inc()
-                    log_event(logger, "error sent", remote=_remote(self.websocket), kind=event.error, message=event.message)
+                    log_event(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
             elif isinstance(event, OpenLog):
                 await self._open(event.name)
             elif isinstance(event, Play):
@@ -181,7 +180,7 @@ class FoxgloveConnection:
         except ConnectionClosed:
             pass
         except Exception as exc:
-            logger.exception("error playing log %r to %s", log.name, _remote(self.websocket), exc_info=exc)
+            logger.exception("error playing log %r to %s", log.name, peer(self.websocket), exc_info=exc)
 
     async def _send_frame(self, position: int, targets: Mapping[int, int]) -> None:
         """Send the messages of the frame at ``position`` in time order to ``targets``, subscriptions by channel."""
@@ -196,8 +195,3 @@ class FoxgloveConnection:
             subscription = targets.get(channel)
             if subscription is not None:
                 await self._write(message_header(subscription, stamp) + payload, text=False)
-
-
-def _remote(websocket: ServerConnection) -> str:
-    address = websocket.remote_address
-    return f"{address[0]}:{address[1]}" if address else "?"
