@@ -241,10 +241,12 @@ def marker(m: Messages, t: int, *, action: int, kind: int, id: int, x: float, te
 
 
 def write_bag(path: Path, container: str, messages: Iterator[tuple[str, str, int, Any]] | None = None, *,
-              drive: KittiDrive | None = None, compression: str | None = None, frames: int | None = None) -> Path:
+              drive: KittiDrive | None = None, compression: str | None = None, frames: int | None = None,
+              mode: str = "storage") -> Path:
     """Write a bag of ``container`` (``ros1``, ``sqlite3``, ``mcap``: a bare .mcap file) at ``path``; return it.
 
-    ``compression``: ``bz2`` or ``lz4`` chunks for ROS 1, ``zstd`` chunks for MCAP.
+    ``compression``: ``bz2`` or ``lz4`` chunks for ROS 1, ``zstd`` for ROS 2 and MCAP: of MCAP chunks
+    (``mode`` ``storage``), of each message (``message``) or of each storage file (``file``).
     """
     m = Messages(Stores.ROS1_NOETIC if container == "ros1" else Stores.ROS2_HUMBLE)
     source = messages if messages is not None else kitti_messages(drive, m, frames)  # type: ignore[arg-type]
@@ -256,7 +258,7 @@ def write_bag(path: Path, container: str, messages: Iterator[tuple[str, str, int
         folder = path if container == "sqlite3" else path.with_suffix("")
         writer = Writer2(folder, version=9, storage_plugin=StoragePlugin.SQLITE3 if container == "sqlite3" else StoragePlugin.MCAP)
         if compression:
-            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            writer.set_compression(CompressionMode[mode.upper()], CompressionFormat.ZSTD)
     connections: dict[str, Any] = {}
     with writer:
         for topic, msgtype, t, message in source:

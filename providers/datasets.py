@@ -6,8 +6,8 @@ is named by its path without the suffix) or given explicitly (``--dataset
 kitti:PATH``: named by the folder's name, or a file's name without its
 suffix; a folder of datasets of that kind serves each of them; ``--dataset
 rosbag:PATH?config=FILE`` gives the kind's options). A dataset is opened in
-the process pool, never in the server's own process: its metadata and its
-frame times come back from there (a recording that unpacks to too much, or
+the process pool, never in the server's own process (the first waits for the
+pool to start): its metadata and its frame times come back from there (a recording that unpacks to too much, or
 kills the worker, fails that log alone). Each frame is converted in the
 process pool when first asked for, encoded as GLB once, and kept in the
 shared frame cache like any other frame. A frame whose raw files are
@@ -65,7 +65,7 @@ class DatasetProvider:
         path = found.path  # an object in a store goes as it is: picklable, without a credential
         where = path if isinstance(path, (StorePath, StoreTree)) else str(path)
         try:
-            metadata, times = await self._workers.cpu(describe_dataset, found.kind, where, options)
+            metadata, times = await self._workers.cpu(describe_dataset, found.kind, where, options, isolated=True)
         except (DatasetError, StoreError, WorkerError) as exc:
             raise LogError(f"log {found.name!r}: {exc}", log=found.name) from None
         return DatasetLog(found.name, found.kind, where, metadata, times, options, self._workers)
@@ -99,6 +99,6 @@ class DatasetLog:
 
     async def read(self, frame: int) -> bytes:
         try:
-            return await self._workers.cpu(convert_frame, self._kind, self._path, self._options, frame, self._metadata)
+            return await self._workers.cpu(convert_frame, self._kind, self._path, self._options, frame, self._metadata, isolated=True)
         except (DatasetError, StoreError) as exc:
             raise FrameError(f"frame {frame} of log {self.name!r}: {exc}", log=self.name, frame=frame) from None

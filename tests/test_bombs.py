@@ -13,6 +13,7 @@ import asyncio
 import bz2
 import json
 import re
+import sqlite3
 import struct
 import urllib.error
 import urllib.request
@@ -410,3 +411,38 @@ def test_an_mcap_file_without_a_summary_is_read_through_within_the_bound(bags: d
     (tmp_path / "x.mcap").write_bytes(data[: data_end + 9 + 4] + footer + b"\x89MCAP0\r\n")
     with pytest.raises(DatasetError, match=f"^{tmp_path / 'x.mcap'}: an MCAP chunk read by rosbags declares 3 GiB uncompressed, more "):
         Bag(tmp_path / "x.mcap")
+
+
+@pytest.mark.parametrize("mode", ["message", "file"])
+async def test_a_ros2_bag_compressed_per_message_or_per_file_unpacks_within_the_bound(
+    mode: str, shared_dir: Path, bags: dict[str, Path], tmp_path: Path
+):
+    """rosbags unpacks these itself, declaring no size: a message at most MAX_CHUNK_BYTES, a file 100 times its size."""
+    root = tmp_path / "data"
+    root.mkdir()
+    folder = write_bag(root / "bomb", "sqlite3", drive=KittiDrive(shared_dir / "data" / RAW), frames=2, compression="zstd", mode=mode)
+    if mode == "message":  # the largest message becomes a bomb
+        with sqlite3.connect(next(folder.glob("*.db3"))) as database:
+            (largest,) = database.execute("SELECT id FROM messages ORDER BY length(data) DESC LIMIT 1").fetchone()
+            database.execute("UPDATE messages SET data = ? WHERE id = ?", (zstd_bomb(), largest))
+        says = "a ROS 2 bag's message compressed with zstd unpacks to more than the limit of 256 MiB"
+    else:  # the storage file becomes a bomb
+        [storage] = folder.glob("*.zstd")
+        storage.write_bytes(zstd_bomb())
+        says = f"{storage.name} (compressed with zstd) unpacks to more than the limit of 256 MiB"
+    (root / "good.bag").write_bytes(bags["lz4"].read_bytes())
+    async with served(root) as server:
+        assert not [m for m in await server.session("good") if m["type"] == "xviz/error"]
+        before = server.rss()
+        logs = await server.logs()
+        errors = [logs["bomb"].get("error", "")] + [m["data"]["message"] for m in await server.session("bomb")
+                                                    if m["type"] == "xviz/error"]
+        assert any(says in error for error in errors), errors
+        assert await server.get("/healthz") == (200, "ok\n")
+        assert not [m for m in await server.session("good") if m["type"] == "xviz/error"]
+        peaks = server.peaks()
+        grown = {pid: peaks[pid] - rss for pid, rss in before.items() if pid in peaks}
+        # The server process never unpacks; a worker holds at most the limit while it refuses it, twice over (the
+        # decompressor's buffer and the bytes made of it).
+        assert grown[server.process.pid] < GROWTH, grown
+        assert max(grown.values()) < 2 * MAX_CHUNK_BYTES + GROWTH, {pid: f"{g / _MiB:.0f} MiB" for pid, g in grown.items()}

@@ -10,6 +10,11 @@ header lies) is refused after that many bytes, never unpacked whole. The
 four compressions recordings use (bz2, lz4 frames, zstd, zlib) are all read
 through their incremental decompressors, which take such a bound.
 
+What declares no size is bounded by a limit alone: a ROS 2 bag's message
+compressed on its own (at most :data:`MAX_CHUNK_BYTES`), a ROS 2 bag's
+storage file compressed whole (at most :data:`MAX_FILE_RATIO` times its
+compressed size).
+
 A part stored uncompressed (a TFRecord record) is read only if its declared
 length fits in the file and in :data:`MAX_RECORD_BYTES`.
 
@@ -21,12 +26,16 @@ a :class:`~xviz_server.exceptions.DatasetError`. Both name the part.
 from __future__ import annotations
 
 import bz2
+import io
 import zlib
 from typing import Any, Callable
 
 from .exceptions import DatasetError, OversizeError
 
-__all__ = ["MAX_CHUNK_BYTES", "MAX_RECORD_BYTES", "COMPRESSIONS", "unpack", "check_declared", "size_text"]
+__all__ = [
+    "MAX_CHUNK_BYTES", "MAX_RECORD_BYTES", "MAX_FILE_RATIO", "COMPRESSIONS", "unpack", "unpack_unsized", "BoundedReader",
+    "check_declared", "size_text", "zstd_module",
+]
 
 #: The most bytes one compressed part of a recording (a ROS 1 or MCAP chunk) may declare once unpacked.
 #: Recorders write chunks of a few megabytes (rosbag 768 KiB, MCAP 4 MiB by default); a message larger than
@@ -34,14 +43,23 @@ __all__ = ["MAX_CHUNK_BYTES", "MAX_RECORD_BYTES", "COMPRESSIONS", "unpack", "che
 MAX_CHUNK_BYTES = 256 << 20
 #: The most bytes of data one record of a TFRecord file (a Waymo frame, some megabytes) may declare.
 MAX_RECORD_BYTES = 256 << 20
+#: How many times its own size a whole compressed file of a recording (a ROS 2 bag's storage file, which
+#: declares no size) may unpack to, and at least :data:`MAX_CHUNK_BYTES`: recordings compress a few times
+#: at most, a bomb a thousand times and more.
+MAX_FILE_RATIO = 100
 
 
-def _zstd() -> Any:
+def zstd_module() -> Any:
+    """The zstd module: the standard library's from Python 3.14, else the backport rosbags installs."""
     try:
         from compression import zstd  # type: ignore[import-not-found]  # Python 3.14
     except ImportError:
         from backports import zstd  # installed with rosbags
-    return zstd.ZstdDecompressor()
+    return zstd
+
+
+def _zstd() -> Any:
+    return zstd_module().ZstdDecompressor()
 
 
 def _lz4() -> Any:
@@ -68,6 +86,68 @@ def size_text(size: int) -> str:
     return f"{size} bytes"
 
 
+def _inflate(data: bytes | memoryview, compression: str, room: int, where: str) -> bytes:
+    """At most ``room`` bytes of ``data`` decompressed, stream after stream."""
+    make = COMPRESSIONS.get(compression)
+    if make is None:
+        raise DatasetError(f"{where}: compression {compression!r} is not supported; known: {', '.join(COMPRESSIONS)}")
+    parts: list[bytes] = []
+    rest = bytes(data)
+    try:
+        while rest and room > 0:
+            decompressor = make()
+            part = decompressor.decompress(rest, room)
+            parts.append(part)
+            room -= len(part)
+            if not decompressor.eof:  # cut short, or stopped at the bound
+                break
+            rest = decompressor.unused_data
+    except (OSError, ValueError, EOFError, RuntimeError, zlib.error) as exc:  # what each library raises on bad data
+        raise DatasetError(f"{where}: not {compression} data: {exc}") from None
+    return b"".join(parts)
+
+
+def unpack_unsized(data: bytes | memoryview, compression: str, where: str, limit: int = MAX_CHUNK_BYTES) -> bytes:
+    """``data`` decompressed with ``compression`` where nothing declares its size (a ROS 2 bag's message):
+    at most ``limit`` bytes, else refused after that many."""
+    out = _inflate(data, compression, limit + 1, where)
+    if len(out) > limit:
+        raise OversizeError(
+            f"{where} unpacks to more than the limit of {size_text(limit)}: refused after {size_text(len(out))} "
+            "(a damaged file or a decompression bomb)",
+            size=len(out), limit=limit,
+        )
+    return out
+
+
+class BoundedReader(io.RawIOBase):
+    """A decompressing reader that refuses to give more than ``limit`` bytes (a stream that declares no size)."""
+
+    def __init__(self, inner: Any, limit: int, where: str) -> None:
+        super().__init__()
+        self._inner, self._limit, self._where, self._given = inner, limit, where, 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        with memoryview(buffer) as view:
+            data = self._inner.read(min(len(view), self._limit + 1 - self._given))
+            view[: len(data)] = data
+        self._given += len(data)
+        if self._given > self._limit:
+            raise OversizeError(
+                f"{self._where} unpacks to more than the limit of {size_text(self._limit)} (a damaged file or a "
+                "decompression bomb): refused",
+                size=self._given, limit=self._limit,
+            )
+        return len(data)
+
+    def close(self) -> None:
+        self._inner.close()
+        super().close()
+
+
 def check_declared(declared: int, where: str, limit: int = MAX_CHUNK_BYTES) -> None:
     """Refuse a part that declares more than ``limit`` bytes unpacked, before anything is read or unpacked.
 
@@ -89,26 +169,7 @@ def unpack(data: bytes | memoryview, compression: str, declared: int, where: str
     write them) are read in turn, within the same bound.
     """
     check_declared(declared, where, limit)
-    if compression in ("", "none"):
-        out = bytes(data)
-    else:
-        make = COMPRESSIONS.get(compression)
-        if make is None:
-            raise DatasetError(f"{where}: compression {compression!r} is not supported; known: {', '.join(COMPRESSIONS)}")
-        parts: list[bytes] = []
-        room, rest = declared + 1, bytes(data)
-        try:
-            while rest and room > 0:
-                decompressor = make()
-                part = decompressor.decompress(rest, room)
-                parts.append(part)
-                room -= len(part)
-                if not decompressor.eof:  # cut short, or stopped at the bound
-                    break
-                rest = decompressor.unused_data
-        except (OSError, ValueError, EOFError, RuntimeError, zlib.error) as exc:  # what each library raises on bad data
-            raise DatasetError(f"{where}: not {compression} data: {exc}") from None
-        out = b"".join(parts)
+    out = bytes(data) if compression in ("", "none") else _inflate(data, compression, declared + 1, where)
     if len(out) > declared:
         raise OversizeError(
             f"{where} unpacks to more than the {size_text(declared)} it declares: refused after "

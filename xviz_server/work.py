@@ -77,10 +77,12 @@ class Workers:
         """Run ``function(*args)`` in the thread pool."""
         return await asyncio.get_running_loop().run_in_executor(self._threads, function, *args)
 
-    async def cpu(self, function: Callable[..., T], *args: Any) -> T:
+    async def cpu(self, function: Callable[..., T], *args: Any, isolated: bool = False) -> T:
         """Run ``function(*args)`` in the process pool; it must be picklable.
 
-        While the pool is starting, it runs in a thread of this process. When
+        While the pool is starting, it runs in a thread of this process,
+        unless ``isolated``: then it waits for the pool (a job on untrusted
+        bytes, such as opening a recording, never runs in this process). When
         a worker process dies, the pool is replaced and the job tried once
         more; raises :class:`~xviz_server.exceptions.WorkerError` when it dies
         again.
@@ -88,7 +90,9 @@ class Workers:
         loop = asyncio.get_running_loop()
         for attempt in range(2):
             started = self._start()
-            if not started.done():
+            if isolated:
+                await asyncio.wrap_future(started)
+            elif not started.done():
                 return await loop.run_in_executor(self._stand_in, function, *args)
             started.result()  # raises if the pool could not start
             pool = self._processes

@@ -50,7 +50,7 @@ import numpy as np
 
 from ...exceptions import DatasetError, StoreError
 from ...storepath import RangedFile, StorePath, data_path
-from ...unpack import check_declared, unpack
+from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, BoundedReader, check_declared, unpack, unpack_unsized, zstd_module
 
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
@@ -122,7 +122,7 @@ def _import_rosbags() -> Any:
         import rosbags.highlevel
     except ImportError:
         raise DatasetError("reading ROS bags needs the rosbags package: pip install 'xviz-server[ros]'") from None
-    _bound_rosbags_mcap()
+    _bound_rosbags()
     return rosbags
 
 
@@ -343,18 +343,38 @@ def _read_chunk(owner: Any, key: int) -> bytes:
         return data
 
 
-def _bound_rosbags_mcap() -> None:
-    """Make rosbags' own MCAP reader unpack chunks through :func:`~xviz_server.unpack.unpack` too.
+def _bound_rosbags() -> None:
+    """Make rosbags unpack what it unpacks itself within :mod:`xviz_server.unpack`'s bounds.
 
-    It reads chunks itself where messages are not read by their index here
-    (an MCAP file without a summary, at open; a ROS 2 bag folder), and looks
-    its decompressors up in this table, each called with the chunk's
-    declared size.
+    Its own MCAP reader reads chunks where messages are not read by their
+    index here (an MCAP file without a summary, at open; a ROS 2 bag
+    folder), and looks its decompressors up in a table, each called with the
+    chunk's declared size: they become :func:`~xviz_server.unpack.unpack`.
+    Its ROS 2 bag reader unpacks a bag compressed per message, or per
+    storage file (into a temporary folder, at open), with zstd, declaring no
+    size: it is given :class:`_BoundedZstd` in place of the zstd module.
     """
-    from rosbags.rosbag2 import storage_mcap
+    from rosbags.rosbag2 import reader, storage_mcap
 
     for name in ("lz4", "zstd"):
         storage_mcap.DECOMPRESSORS[name] = partial(_unpack_mcap, name)
+    reader.zstd = _BoundedZstd  # type: ignore[assignment]
+
+
+class _BoundedZstd:
+    """What rosbags' ROS 2 bag reader takes from the zstd module, bounded."""
+
+    @staticmethod
+    def decompress(data: bytes) -> bytes:
+        """A message compressed on its own: at most :data:`~xviz_server.unpack.MAX_CHUNK_BYTES` unpacked."""
+        return unpack_unsized(data, "zstd", "a ROS 2 bag's message compressed with zstd")
+
+    @staticmethod
+    def open(file: Any, mode: str = "rb") -> BoundedReader:
+        """A storage file compressed whole: at most :data:`~xviz_server.unpack.MAX_FILE_RATIO` times its size."""
+        size = Path(getattr(file, "name", "")).stat().st_size if getattr(file, "name", None) else 0
+        where = f"{getattr(file, 'name', 'a ROS 2 bag storage file')} (compressed with zstd)"
+        return BoundedReader(zstd_module().open(file, mode), max(MAX_CHUNK_BYTES, MAX_FILE_RATIO * size), where)
 
 
 def _unpack_mcap(compression: str, data: bytes, declared: int) -> bytes:
