@@ -22,6 +22,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any, AsyncIterator
 
+import orjson
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
@@ -331,6 +332,14 @@ async def test_reconfigure_passes_through_the_broker_and_a_second_source_is_refu
                 await viewer.send(json.dumps({"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}}))
                 reconfigure = json.loads(await asyncio.wait_for(car.recv(), 10))
                 assert reconfigure == {"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}}
+                # Reconfigures that no viewer sends: skipped, and the next one still reaches the source.
+                client = broker.client()
+                for data in (orjson.dumps({"pad": "x" * 100_000}), b"[1, 2]", b"not json"):
+                    await client.xadd("xviz:control:car", {"v": "1", "t": "reconfigure", "o": "intruder", "n": "0", "d": data})
+                await client.aclose()
+                await viewer.send(json.dumps({"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}}))
+                assert json.loads(await asyncio.wait_for(car.recv(), 10))["data"]["config_update"] == change
+                assert len(a.log("skipped a reconfigure entry")) == 3
                 await push(car, updates[:1])
                 message = await asyncio.wait_for(viewer.recv(), 10)
                 assert isinstance(message, str)  # JSON, as this viewer asked, made on B

@@ -39,6 +39,9 @@ logger = logging.getLogger("xviz_server.broker")
 GLB = Variant(Format.BINARY)
 #: Updates of one feed that may wait to be written.
 QUEUE = 4
+#: The largest viewer's reconfigure passed to the source through the broker (a ``config_update`` is a few
+#: hundred bytes).
+MAX_RECONFIGURE_BYTES = 64 * 1024
 #: Milliseconds a feed's stream outlives its registration's time to live, unless written to again.
 STREAM_EXTRA_MS = 30_000
 #: Fewest and most entries a feed's stream keeps (within its bytes).
@@ -273,11 +276,14 @@ class Outbox:
             for entry_id, fields in entries:
                 last = entry_id
                 try:
-                    config_update = Entry.parse(fields).json()
+                    entry = Entry.parse(fields)
+                    if len(entry.data) > MAX_RECONFIGURE_BYTES:
+                        raise BrokerError(f"a reconfigure of {len(entry.data)} bytes, more than {MAX_RECONFIGURE_BYTES}")
+                    await self.feed.reconfigure(entry.json())
                 except BrokerError as exc:
                     logger.warning("live feed %r: skipped a reconfigure entry %s: %s", self.feed.name, entry_id, exc)
-                    continue
-                await self.feed.reconfigure(config_update)
+                except Exception as exc:  # the source went away while it was sent one: that one is lost, not the task
+                    logger.warning("live feed %r: cannot pass reconfigure entry %s to the source: %r", self.feed.name, entry_id, exc)
 
     async def close(self) -> None:
         """Stop writing; if this replica holds the feed, tell the others its source left and unregister it."""
