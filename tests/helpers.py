@@ -13,6 +13,7 @@ import hashlib
 import itertools
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -220,6 +221,30 @@ def http_get(port: int, path: str, method: str = "GET", **headers: str) -> tuple
             return response.status, dict(response.headers), response.read()
     except urllib.error.HTTPError as error:
         return error.code, dict(error.headers), error.read()
+
+
+async def start_serving(*args: str, **env: str) -> tuple[asyncio.subprocess.Process, int, list[str]]:
+    """``xviz-server serve --port 0 ARGS``, once it listens: the process, its port and its log lines so far."""
+    process = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "xviz_server", "serve", "--port", "0", *args,
+        stderr=asyncio.subprocess.PIPE, env=clean_env(**env),
+    )
+    assert process.stderr is not None
+    lines = []
+    while True:
+        line = (await asyncio.wait_for(process.stderr.readline(), 30)).decode()
+        assert line, "the server exited: " + "".join(lines)
+        lines.append(line)
+        if listening := re.search(r"listening on wss?://[^ ]+:(\d+)/", line):
+            return process, int(listening[1]), lines
+
+
+async def stop_serving(process: asyncio.subprocess.Process, lines: list[str]) -> str:
+    assert process.stderr is not None
+    process.terminate()
+    lines.append((await asyncio.wait_for(process.stderr.read(), 30)).decode())
+    await process.wait()
+    return "".join(lines)
 
 
 class Client:

@@ -28,8 +28,7 @@ import pytest
 from websockets.asyncio.client import connect
 
 from devkit.rosbag_kitti import RAW, write_bag
-from helpers import Client, write_log
-from test_exposure import start_serving
+from helpers import Client, start_serving, write_log
 from xviz_server.codec import edit_glb
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.waymo.tfrecord import masked_crc

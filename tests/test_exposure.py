@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import re
 import socket
 import ssl
 import subprocess
@@ -23,7 +22,7 @@ from cryptography.hazmat.primitives import serialization
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
-from helpers import clean_env, run_cli, running_server, ten_hz, write_log
+from helpers import run_cli, running_server, start_serving, stop_serving, ten_hz, write_log
 from xviz_server.logfmt import printable, redact_url
 
 TOKEN = "s3cret-Token_42"
@@ -33,30 +32,6 @@ TOKEN = "s3cret-Token_42"
 def root(tmp_path: Path) -> Path:
     write_log(tmp_path / "logs" / "drive", ten_hz(3))
     return tmp_path / "logs"
-
-
-async def start_serving(*args: str, **env: str) -> tuple[asyncio.subprocess.Process, int, list[str]]:
-    """``xviz-server serve --port 0 ARGS``, once it listens: the process, its port and its log lines so far."""
-    process = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "xviz_server", "serve", "--port", "0", *args,
-        stderr=asyncio.subprocess.PIPE, env=clean_env(**env),
-    )
-    assert process.stderr is not None
-    lines = []
-    while True:
-        line = (await asyncio.wait_for(process.stderr.readline(), 30)).decode()
-        assert line, "the server exited: " + "".join(lines)
-        lines.append(line)
-        if listening := re.search(r"listening on wss?://[^ ]+:(\d+)/", line):
-            return process, int(listening[1]), lines
-
-
-async def stop_serving(process: asyncio.subprocess.Process, lines: list[str]) -> str:
-    assert process.stderr is not None
-    process.terminate()
-    lines.append((await asyncio.wait_for(process.stderr.read(), 30)).decode())
-    await process.wait()
-    return "".join(lines)
 
 
 def test_redact_url_hides_credential_parameters_only():

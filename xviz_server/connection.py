@@ -66,11 +66,10 @@ class Connection:
         self.live = live
         self.metrics = metrics
         self.settings = settings
-        self.path = websocket.request.path if websocket.request else "/"
-        url = urlsplit(self.path)
+        self.path, path, query = request_target(websocket)
         self.session = Session(
-            path=unquote(url.path),
-            query=dict(parse_qsl(url.query, keep_blank_values=True)),
+            path=path,
+            query=query,
             available=catalog.available(),
             live=live.names(),
             lag_timeout=settings.live_lag_timeout,
@@ -406,6 +405,13 @@ async def _wait(stop: asyncio.Event, seconds: float) -> None:
             await asyncio.wait_for(stop.wait(), seconds)
         except asyncio.TimeoutError:
             pass
+
+
+def request_target(websocket: ServerConnection) -> tuple[str, str, dict[str, str]]:
+    """What a session's handshake asked for: the request target as sent, its path percent-decoded, and its query."""
+    target = websocket.request.path if websocket.request else "/"
+    url = urlsplit(target)
+    return target, unquote(url.path), dict(parse_qsl(url.query, keep_blank_values=True))
 
 
 def _is_loopback(websocket: ServerConnection) -> bool:

@@ -19,13 +19,13 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
-from urllib.parse import parse_qsl, unquote, urlsplit
 
 import numpy as np
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 
+from ..connection import request_target
 from ..exceptions import XVIZError
 from ..flow import watch_progress
 from ..logfmt import ending, log_event, peer, redact_url
@@ -83,11 +83,10 @@ class FoxgloveConnection:
         self.catalog = catalog
         self.metrics = metrics
         self.settings = settings
-        self.path = websocket.request.path if websocket.request else "/"
-        url = urlsplit(self.path)
+        self.path, path, query = request_target(websocket)
         self.session = FoxgloveSession(
-            path=unquote(url.path),
-            query=dict(parse_qsl(url.query, keep_blank_values=True)),
+            path=path,
+            query=query,
             available=catalog.available(),
             server_name=f"xviz-server {__version__}",
         )
