@@ -287,6 +287,90 @@ async def paused_viewer(server: XVIZServer, path: str) -> ClientConnection:
     return websocket
 
 
+#: The most any process of a served server may grow by while it works (its peak RSS over its RSS once warm).
+GROWTH = 160 << 20
+
+
+def _status(pid: int, field: str) -> int:
+    """A ``/proc/PID/status`` field in bytes (``VmRSS``, ``VmHWM``: the peak RSS); 0 for a process gone."""
+    try:
+        text = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return 0
+    match = re.search(rf"^{field}:\s+(\d+) kB", text, re.MULTILINE)
+    return int(match.group(1)) * 1024 if match else 0
+
+
+def _family(pid: int) -> list[int]:
+    """``pid`` and every process below it (the fork server and the worker processes)."""
+    found, queue = [], [pid]
+    while queue:
+        current = queue.pop()
+        found.append(current)
+        for task in Path(f"/proc/{current}/task").glob("*/children"):
+            try:
+                queue += [int(child) for child in task.read_text().split()]
+            except OSError:
+                pass
+    return found
+
+
+class Served:
+    """``xviz-server serve`` run as a process on port 0, and what it uses."""
+
+    def __init__(self, process: asyncio.subprocess.Process, port: int, lines: list[str]) -> None:
+        self.process, self.port, self.lines = process, port, lines
+
+    async def get(self, path: str) -> tuple[int, str]:
+        status, _, body = await asyncio.to_thread(http_get, self.port, path)
+        return status, body.decode()
+
+    async def logs(self) -> dict[str, dict[str, Any]]:
+        status, body = await self.get("/api/logs")
+        assert status == 200, body
+        return {log["name"]: log for log in json.loads(body)["logs"]}
+
+    async def session(self, log: str) -> list[dict[str, Any]]:
+        """Every message of a session that opens ``log`` and plays it all: the error, or metadata and frames."""
+        async with connect(f"ws://127.0.0.1:{self.port}/?log={log}", max_size=None, open_timeout=30) as websocket:
+            viewer = Client(websocket)
+            first = await viewer.recv(120)
+            if first["type"] != "xviz/metadata":
+                return [first]
+            await viewer.send("transform_log", {"id": "all"})
+            return [first, *await viewer.until("transform_log_done", "all", timeout=120)]
+
+    def rss(self) -> dict[int, int]:
+        return {pid: _status(pid, "VmRSS") for pid in _family(self.process.pid)}
+
+    def peaks(self) -> dict[int, int]:
+        return {pid: _status(pid, "VmHWM") for pid in _family(self.process.pid)}
+
+
+@contextlib.asynccontextmanager
+async def served(root: Path | str, *flags: str, **env: str) -> AsyncIterator[Served]:
+    """``xviz-server serve --data-dir ROOT FLAGS`` as a process with ``env``, its log read as it comes; stopped on exit."""
+    process, port, lines = await start_serving("--data-dir", str(root), *flags, **env)
+    assert process.stderr is not None
+
+    async def drain() -> None:
+        async for line in process.stderr:  # type: ignore[union-attr]
+            lines.append(line.decode())
+
+    draining = asyncio.ensure_future(drain())
+    try:
+        yield Served(process, port, lines)
+    finally:
+        if process.returncode is None:
+            process.terminate()
+            try:
+                await asyncio.wait_for(process.wait(), 20)
+            except asyncio.TimeoutError:
+                process.kill()
+                await process.wait()
+        draining.cancel()
+
+
 def timestamps(messages: list[dict[str, Any]]) -> list[float]:
     """Timestamps of the state updates among ``messages``."""
     return [m["data"]["updates"][0]["timestamp"] for m in messages if m["type"] == "xviz/state_update"]

@@ -11,14 +11,10 @@ from __future__ import annotations
 
 import asyncio
 import bz2
-import json
 import re
 import sqlite3
 import struct
-import urllib.error
-import urllib.request
-from collections.abc import AsyncIterator, Iterator
-from contextlib import asynccontextmanager
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Callable
 
@@ -28,7 +24,7 @@ import pytest
 from websockets.asyncio.client import connect
 
 from devkit.rosbag_kitti import RAW, write_bag
-from helpers import Client, start_serving, write_log
+from helpers import GROWTH, Client, served, write_log
 from xviz_server.codec import edit_glb
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.waymo.tfrecord import masked_crc
@@ -38,7 +34,6 @@ from xviz_server.unpack import MAX_CHUNK_BYTES
 FRAMES = 4
 BOMB = 512 << 20  # bytes a bomb unpacks to
 LIES = 3 << 30  # bytes a header declares
-GROWTH = 160 << 20  # the most any process of the server may grow by (its peak RSS over its RSS once warm)
 _MiB = 1 << 20
 
 
@@ -151,94 +146,6 @@ def mcap_bomb(mcap: Path, bomb: bytes | None, compression: str = "zstd") -> tupl
     data[after_offsets:end] = tail.ljust(end - after_offsets, b"\0")
     assert old == "zstd"
     return bytes(data), position
-
-
-# -- the server as a process -------------------------------------------------------
-
-
-def _status(pid: int, field: str) -> int:
-    """A ``/proc/PID/status`` field in bytes (``VmRSS``, ``VmHWM``: the peak RSS); 0 for a process gone."""
-    try:
-        text = Path(f"/proc/{pid}/status").read_text()
-    except OSError:
-        return 0
-    match = re.search(rf"^{field}:\s+(\d+) kB", text, re.MULTILINE)
-    return int(match.group(1)) * 1024 if match else 0
-
-
-def _family(pid: int) -> list[int]:
-    """``pid`` and every process below it (the fork server and the worker processes)."""
-    found, queue = [], [pid]
-    while queue:
-        current = queue.pop()
-        found.append(current)
-        for task in Path(f"/proc/{current}/task").glob("*/children"):
-            try:
-                queue += [int(child) for child in task.read_text().split()]
-            except OSError:
-                pass
-    return found
-
-
-class Served:
-    """``xviz-server serve`` run as a process on port 0, and what it uses."""
-
-    def __init__(self, process: asyncio.subprocess.Process, port: int, lines: list[str]) -> None:
-        self.process, self.port, self.lines = process, port, lines
-
-    async def get(self, path: str) -> tuple[int, str]:
-        def fetch() -> tuple[int, str]:
-            try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{self.port}{path}", timeout=60) as response:
-                    return response.status, response.read().decode()
-            except urllib.error.HTTPError as error:
-                return error.code, error.read().decode()
-        return await asyncio.to_thread(fetch)
-
-    async def logs(self) -> dict[str, dict[str, Any]]:
-        status, body = await self.get("/api/logs")
-        assert status == 200, body
-        return {log["name"]: log for log in json.loads(body)["logs"]}
-
-    async def session(self, log: str) -> list[dict[str, Any]]:
-        """Every message of a session that opens ``log`` and plays it all: the error, or metadata and frames."""
-        async with connect(f"ws://127.0.0.1:{self.port}/?log={log}", max_size=None, open_timeout=30) as websocket:
-            viewer = Client(websocket)
-            first = await viewer.recv(120)
-            if first["type"] != "xviz/metadata":
-                return [first]
-            await viewer.send("transform_log", {"id": "all"})
-            return [first, *await viewer.until("transform_log_done", "all", timeout=120)]
-
-    def rss(self) -> dict[int, int]:
-        return {pid: _status(pid, "VmRSS") for pid in _family(self.process.pid)}
-
-    def peaks(self) -> dict[int, int]:
-        return {pid: _status(pid, "VmHWM") for pid in _family(self.process.pid)}
-
-
-@asynccontextmanager
-async def served(root: Path | str, *flags: str, **env: str) -> AsyncIterator[Served]:
-    """``xviz-server serve --data-dir ROOT FLAGS`` as a process with ``env``, its log read as it comes; stopped on exit."""
-    process, port, lines = await start_serving("--data-dir", str(root), *flags, **env)
-    assert process.stderr is not None
-
-    async def drain() -> None:
-        async for line in process.stderr:  # type: ignore[union-attr]
-            lines.append(line.decode())
-
-    draining = asyncio.ensure_future(drain())
-    try:
-        yield Served(process, port, lines)
-    finally:
-        if process.returncode is None:
-            process.terminate()
-            try:
-                await asyncio.wait_for(process.wait(), 20)
-            except asyncio.TimeoutError:
-                process.kill()
-                await process.wait()
-        draining.cancel()
 
 
 # -- fixtures ----------------------------------------------------------------------

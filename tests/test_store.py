@@ -15,10 +15,9 @@ from typing import Any
 
 import pytest
 
-from helpers import Client, client, run_cli, run_xviz_session_async, running_server, start_serving, stop_serving, ten_hz, write_log, xviz_decode
+from helpers import GROWTH, Client, client, run_cli, run_xviz_session_async, running_server, served, start_serving, stop_serving, ten_hz, write_log, xviz_decode
 from devkit.s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, proxied, store_env
 from devkit.tcpproxy import Proxy
-from test_bombs import GROWTH, served
 from xviz_server.codec import Format
 
 BUCKET = "xviz-logs"

@@ -26,7 +26,7 @@ from helpers import client, run_xviz_session_async, running_server
 from devkit.rosbag_kitti import CLOUD_TOPIC, RAW, write_bag
 from devkit.s3 import SECRET_KEY, MotoS3, moto_process, proxied, store_env
 from devkit.tcpproxy import Proxy
-from test_waymo_tfrecord import write_scene
+from devkit.waymo_scene import write_scene
 from xviz_server.codec import Format
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.exceptions import StoreError
