@@ -16,16 +16,18 @@ python3 -m venv "$prefix"
 # With the broker extra (redis, hiredis): replicas share live feeds with --broker.
 "$prefix/bin/pip" install --quiet --no-cache-dir --disable-pip-version-check "$sources[broker]"
 # Serving needs none of: the installer; the dependencies' test suites (numpy's,
-# jsonschema's, referencing's, ...); type stubs; the C headers, static libraries
-# and Cython declarations for building against numpy, nor its Fortran wrapper
-# generator; the debug info and static symbol tables of extension modules, which
-# only a debugger reads (uvloop's debug info is most of its size; Debian strips
+# jsonschema's, referencing's, ...) and numpy's extension modules that only its
+# tests load (_simd, _*_tests); type stubs; the C headers, static libraries and
+# Cython declarations for building against numpy, nor its build tools (f2py, the
+# Fortran wrapper generator, and numpy.distutils); the debug info and static
+# symbol tables of extension modules, which only a debugger reads (uvloop's debug info is most of its size; Debian strips
 # its own packages' libraries the same way).
 "$prefix/bin/pip" uninstall --quiet --yes pip setuptools
 site=$(echo "$prefix"/lib/python3*/site-packages)
 find "$site" -depth -type d -name tests -exec rm -rf {} +
 find "$site" -type f \( -name '*.pyi' -o -name '*.h' -o -name '*.a' -o -name '*.pxd' \) -delete
-rm -rf "$site/numpy/f2py" "$prefix/bin/f2py" "$prefix/bin/numpy-config"
+rm -rf "$site/numpy/f2py" "$site/numpy/distutils" "$prefix/bin/f2py" "$prefix/bin/numpy-config"
+rm -f "$site"/numpy/_core/_simd.*.so "$site"/numpy/_core/_*_tests.*.so
 if command -v strip >/dev/null; then
     # Not the libraries a wheel vendors in NAME.libs/: auditwheel has rewritten
     # them with patchelf, and strip can leave them unloadable (numpy's OpenBLAS).
