@@ -9,10 +9,11 @@ import zlib
 
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, PngImagePlugin
 
 from xviz_server import frames
 from xviz_server.codec import Format, decode
+from xviz_server.codec.image import decode_image
 from xviz_server.exceptions import DecodeError
 from xviz_server.levels import FULL, LEVELS, MAX_IMAGE_PIXELS, profile_level, thin_indices
 
@@ -103,7 +104,7 @@ def test_camera_images_are_jpeg_at_the_levels_size_and_close_to_the_original(lev
         before = Image.open(io.BytesIO(bytes(original["data"]))).convert("RGB")
         after = Image.open(io.BytesIO(bytes(sent["data"])))
         assert after.format == "JPEG"
-        assert after.size == (round(before.width * level.image_scale), round(before.height * level.image_scale))
+        assert after.size == (-(-before.width // level.image_reduce), -(-before.height // level.image_reduce))
         assert (sent["width_px"], sent["height_px"]) == (original["width_px"], original["height_px"])
         shown = np.asarray(after.convert("RGB").resize(before.size), dtype=np.float64)
         assert np.abs(shown - np.asarray(before, dtype=np.float64)).mean() < 20
@@ -134,15 +135,18 @@ def test_thinning_edge_cases():
     far = np.array([[-1e9, 0, 0], [1e9, 0, 0], [0, 0, 0], [0.1, 0, 0]], np.float32)
     assert len(thin_indices(far, 0.5)) == 3  # far points share the grid's edge cubes, each side its own
     broken = np.array([[np.nan, 0, 0], [0.1, 0, 0], [np.inf, 0, 0], [-np.inf, 0, 0]], np.float32)
-    assert len(thin_indices(broken, 0.5)) == 3  # NaN is 0; infinities at the grid's edges
+    assert len(thin_indices(broken, 0.5)) == 3  # NaN and -inf at the grid's low edge, inf at its high one
     grid = np.stack(np.meshgrid(*[np.arange(40, dtype=np.float32)] * 3), -1).reshape(-1, 3) * 0.5 + 0.25
     assert len(thin_indices(grid, 0.5)) == len(grid)  # 64 000 cubes, each its own: hash collisions are resolved
+    points = cloud(decode(frame(14)))["points"]
+    shuffled = points[np.random.default_rng(3).permutation(len(points))]  # no runs of neighbours in one cube
+    assert len(thin_indices(shuffled, 0.3)) == len(thin_indices(points, 0.3))
 
 
 def test_a_camera_image_that_is_not_an_image_is_a_decode_error():
     message = decode(frame(14))
     stream_set(message)["primitives"]["/camera/image_00"]["images"][0]["data"] = b"\x89PNG not really"
-    with pytest.raises(DecodeError, match="camera image"):
+    with pytest.raises(DecodeError, match="image cannot be decoded"):
         frames.render_message(message, Format.BINARY, None, None, LEVEL["low"])
 
 
@@ -153,17 +157,102 @@ def test_profiles():
         profile_level("ultra")
 
 
+def chunk(kind: bytes, body: bytes) -> bytes:
+    """A PNG chunk."""
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+
+def png(pixels: np.ndarray, filters: dict[int, int] | None = None, split: int = 8192, depth: int = 8) -> bytes:
+    """A PNG of ``pixels`` ((H, W) grey, (H, W, 3) RGB, (H, W, 4) RGBA, uint8), written here: rows unfiltered
+    but those ``filters`` names (row: 1, Sub), its data in IDAT chunks of ``split`` bytes."""
+    height, width = pixels.shape[:2]
+    channels = 1 if pixels.ndim == 2 else pixels.shape[2]
+    rows = pixels.reshape(height, width * channels)
+    lines = []
+    for y, line in enumerate(rows):
+        kind = (filters or {}).get(y, 0)
+        if kind == 1:  # Sub: each byte less the byte of the pixel before it
+            line = line - np.concatenate([np.zeros(channels, np.uint8), line[:-channels]])
+        lines.append(bytes([kind]) + line.astype(np.uint8).tobytes())
+    data = zlib.compress(b"".join(lines), 6)
+    colour = {1: 0, 3: 2, 4: 6}[channels]
+    header = chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, depth, colour, 0, 0, 0))
+    body = b"".join(chunk(b"IDAT", data[i:i + split]) for i in range(0, len(data), split))
+    return b"\x89PNG\r\n\x1a\n" + header + body + chunk(b"IEND", b"")
+
+
+def pillow(data: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(data)))
+
+
+def camera_pngs() -> list[bytes]:
+    primitives = stream_set(decode(frame(14)))["primitives"]
+    return [bytes(primitives[name]["images"][0]["data"]) for name in CAMERAS]
+
+
+def test_unfiltered_pngs_are_inflated_here_and_give_pillows_pixels():
+    rng = np.random.default_rng(5)
+    made = [
+        png(rng.integers(0, 256, (37, 53), np.uint8)),
+        png(rng.integers(0, 256, (37, 53, 4), np.uint8)),
+        png(rng.integers(0, 256, (37, 53, 3), np.uint8), split=1),  # a chunk a byte
+        png(rng.integers(0, 256, (37, 53, 3), np.uint8), split=1 << 20),  # one chunk
+    ]
+    for data in camera_pngs() + made:  # the KITTI drive's camera images are unfiltered PNGs
+        picture = decode_image(data, MAX_IMAGE_PIXELS)
+        assert not isinstance(picture, PngImagePlugin.PngImageFile)  # not decoded by Pillow
+        assert np.array_equal(np.asarray(picture), pillow(data))
+
+
+def test_other_images_are_decoded_by_pillow():
+    rng = np.random.default_rng(6)
+    pixels = rng.integers(0, 256, (37, 53, 3), np.uint8)
+    by_pillow = io.BytesIO()
+    Image.fromarray(pixels).save(by_pillow, "PNG", optimize=True)
+    palette, deep = io.BytesIO(), io.BytesIO()
+    Image.fromarray(pixels).convert("P").save(palette, "PNG")
+    Image.fromarray(rng.integers(0, 65536, (37, 53), np.uint16)).save(deep, "PNG")  # 16 bits a pixel
+    for data in [
+        png(pixels, {0: 1}),  # the first row filtered: told at once
+        png(pixels, {36: 1}),  # only the last
+        by_pillow.getvalue(),
+        palette.getvalue(),
+        deep.getvalue(),
+    ]:
+        picture = decode_image(data, MAX_IMAGE_PIXELS)
+        assert isinstance(picture, PngImagePlugin.PngImageFile)
+        assert np.array_equal(np.asarray(picture), pillow(data))
+    jpeg = io.BytesIO()
+    Image.fromarray(pixels).save(jpeg, "JPEG")
+    assert np.array_equal(np.asarray(decode_image(jpeg.getvalue(), MAX_IMAGE_PIXELS)), pillow(jpeg.getvalue()))
+
+
+def test_a_broken_png_is_a_decode_error_or_what_pillow_makes_of_it():
+    """Cut short, or a byte changed anywhere: a real camera image gives Pillow's pixels, or a DecodeError where Pillow fails."""
+    original = camera_pngs()[2]
+    rng = np.random.default_rng(7)
+    broken = [original[:cut] for cut in (40, 60, 4000, len(original) // 2, len(original) - 20)]
+    for offset in [*rng.integers(16, len(original), 40), 100, 120]:
+        changed = bytearray(original)
+        changed[offset] ^= 0xFF
+        broken.append(bytes(changed))
+    for data in broken:
+        try:
+            expected = pillow(data)
+        except (OSError, ValueError, SyntaxError):
+            with pytest.raises(DecodeError, match="image cannot be decoded"):
+                decode_image(data, MAX_IMAGE_PIXELS)
+        else:
+            assert np.array_equal(np.asarray(decode_image(data, MAX_IMAGE_PIXELS)), expected)
+
+
 def test_a_huge_camera_image_is_sent_as_it_is():
     side = 6000  # 36 million pixels, over MAX_IMAGE_PIXELS: only its header is read
     assert side * side > MAX_IMAGE_PIXELS
     rows = zlib.compress(bytes(side * (3 * side + 1)), 1)
-
-    def chunk(kind: bytes, body: bytes) -> bytes:
-        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
-
-    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", side, side, 8, 2, 0, 0, 0)) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
+    huge = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", side, side, 8, 2, 0, 0, 0)) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
     message = decode(frame(14))
-    stream_set(message)["primitives"]["/camera/image_00"]["images"][0]["data"] = png
+    stream_set(message)["primitives"]["/camera/image_00"]["images"][0]["data"] = huge
     reduced = decode(frames.render_message(message, Format.BINARY, None, None, LEVEL["low"]))
-    assert bytes(stream_set(reduced)["primitives"]["/camera/image_00"]["images"][0]["data"]) == png
+    assert bytes(stream_set(reduced)["primitives"]["/camera/image_00"]["images"][0]["data"]) == huge
     assert Image.open(io.BytesIO(bytes(stream_set(reduced)["primitives"]["/camera/image_01"]["images"][0]["data"]))).format == "JPEG"

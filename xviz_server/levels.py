@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .exceptions import DecodeError
+from .codec.image import decode_image
 
 __all__ = ["Level", "LEVELS", "FULL", "AUTO_PROFILES", "MAX_IMAGE_PIXELS", "profile_level", "thin_indices", "reduce_message"]
 
@@ -32,16 +32,18 @@ class Level:
     """One level of detail.
 
     ``voxel``: edge of the thinning grid's cubes in metres (``None``: every
-    point). ``image_scale`` and ``image_quality``: camera images scaled by
-    this factor and re-encoded as JPEG at this quality (``None``: as they
-    are). ``every``: a live session gets every ``every``-th update.
+    point). ``image_quality``: camera images re-encoded as JPEG at this
+    quality (``None``: as they are), their sides first divided by
+    ``image_reduce`` (each pixel the mean of a block of ``image_reduce``
+    by ``image_reduce``; a part block at an edge makes a pixel too).
+    ``every``: a live session gets every ``every``-th update.
     ``share``: the part of a full update's bytes the level is expected to
     take before any of its updates were measured (from the KITTI drive).
     """
 
     name: str
     voxel: float | None = None
-    image_scale: float = 1.0
+    image_reduce: int = 1
     image_quality: int | None = None
     every: int = 1
     share: float = 1.0
@@ -52,9 +54,9 @@ LEVELS: tuple[Level, ...] = (
     Level("full"),
     Level("high", voxel=0.15, image_quality=85, share=0.35),
     Level("medium", voxel=0.3, image_quality=70, share=0.15),
-    Level("low", voxel=0.6, image_scale=0.5, image_quality=60, share=0.065),
-    Level("minimal", voxel=1.5, image_scale=0.5, image_quality=50, share=0.02),
-    Level("sparse", voxel=1.5, image_scale=0.5, image_quality=50, every=2, share=0.02),
+    Level("low", voxel=0.6, image_reduce=2, image_quality=60, share=0.065),
+    Level("minimal", voxel=1.5, image_reduce=2, image_quality=50, share=0.02),
+    Level("sparse", voxel=1.5, image_reduce=2, image_quality=50, every=2, share=0.02),
 )
 FULL = LEVELS[0]
 _BY_NAME = {level.name: level for level in LEVELS}
@@ -92,38 +94,50 @@ def thin_indices(points: np.ndarray, voxel: float) -> np.ndarray:
 
     ``points`` is an ``(n, 3)`` array. Points beyond about a million
     voxels from the origin share the cubes at the grid's edge; a NaN
-    coordinate counts as 0. The cubes
-    are told apart by an exact key through a hash table (numpy scatter and
-    gather), without sorting every point: points whose slot another cube
-    took go round again with another hash.
+    coordinate counts as the grid's lowest. Of a run of points in the same
+    cube (a lidar sweep's neighbours often are) only the first is looked at
+    further; the cubes of those are told apart by an exact key through a
+    hash table (numpy scatter and gather), without sorting: points whose
+    slot another cube took go round again with another hash.
     """
     count = len(points)
     if count == 0:
         return np.arange(0, dtype=np.intp)
-    cells = np.floor(np.asarray(points, dtype=np.float32) * np.float32(1.0 / voxel))
-    np.nan_to_num(cells, copy=False)  # a point with a NaN coordinate goes in the cube at 0
-    np.clip(cells, -_KEY_HALF, _KEY_HALF - 1, out=cells)
-    cells = cells.astype(np.int64) + _KEY_HALF
-    keys = (cells[:, 0] << (2 * _KEY_BITS)) | (cells[:, 1] << _KEY_BITS) | cells[:, 2]
-    bits = max(10, int(count).bit_length() + 1)
-    pending = np.arange(count, dtype=np.intp)
-    kept: list[np.ndarray] = []
+    keys = _cell_keys(np.asarray(points, dtype=np.float32), voxel)
+    firsts = np.empty(count, dtype=bool)  # the first point of each run in one cube
+    firsts[0] = True
+    np.not_equal(keys[1:], keys[:-1], out=firsts[1:])
+    pending = np.flatnonzero(firsts)
+    bits = max(10, len(pending).bit_length() + 1)
+    table = np.empty(1 << bits, dtype=np.intp)  # only slots written in a round are read in it
+    kept = np.zeros(count, dtype=bool)
     for round_ in range(64):
         if not len(pending):
             break
-        table = np.full(1 << bits, -1, dtype=np.intp)
         key = keys[pending]
         multiplier = _HASH + np.uint64(2 * round_)
         slots = ((key.view(np.uint64) * multiplier) >> np.uint64(64 - bits)).astype(np.intp)
         table[slots] = pending  # one point of those that share a slot wins it
         winner = table[slots]
-        kept.append(winner[winner == pending])
+        kept[winner] = True
         pending = pending[keys[winner] != key]  # another cube holds the slot: try again
-    if len(pending):  # unreachable in practice; kept exact regardless
-        kept.append(pending)
-    result = np.concatenate(kept)
-    result.sort()
-    return result
+    kept[pending] = True  # none left in practice; kept exact regardless
+    return np.flatnonzero(kept)
+
+
+def _cell_keys(points: np.ndarray, voxel: float) -> np.ndarray:
+    """The key (21 bits a coordinate) of the grid cube each of ``points`` (float32, ``(n, 3)``) is in."""
+    cells = points * np.float32(1.0 / voxel)
+    np.floor(cells, out=cells)
+    if not (cells.min() >= -_KEY_HALF and cells.max() < _KEY_HALF):  # so too with a NaN
+        np.fmax(cells, -_KEY_HALF, out=cells)  # a NaN gives way to the bound
+        np.fmin(cells, _KEY_HALF - 1, out=cells)
+    cells += _KEY_HALF
+    coordinates = cells.astype(np.int64)
+    keys = coordinates[:, 0] << (2 * _KEY_BITS)
+    keys |= coordinates[:, 1] << _KEY_BITS
+    keys |= coordinates[:, 2]
+    return keys
 
 
 def _thin_cloud(cloud: dict[str, Any], voxel: float) -> dict[str, Any]:
@@ -134,10 +148,10 @@ def _thin_cloud(cloud: dict[str, Any], voxel: float) -> dict[str, Any]:
     keep = thin_indices(points, voxel)
     if len(keep) == len(points):
         return cloud
-    result = {**cloud, "points": points[keep]}
+    result = {**cloud, "points": np.take(points, keep, axis=0)}  # take: rows copied whole, faster than indexing
     colors = _as_array(cloud.get("colors"))
     if colors is not None and len(colors) == len(points):
-        result["colors"] = colors[keep]
+        result["colors"] = np.take(colors, keep, axis=0)
     return result
 
 
@@ -154,24 +168,17 @@ def _as_array(value: Any) -> np.ndarray | None:
 
 def _reduce_image(image: dict[str, Any], level: Level) -> dict[str, Any]:
     """``image`` (an image primitive) re-encoded for ``level``."""
-    from PIL import Image
-
     data = image.get("data")
     if level.image_quality is None or not isinstance(data, (bytes, bytearray, memoryview)):
         return image
-    try:
-        with Image.open(io.BytesIO(data)) as opened:
-            if opened.width * opened.height > MAX_IMAGE_PIXELS:
-                return image
-            picture = opened.convert("RGB")
-    except (OSError, ValueError, Image.DecompressionBombError) as exc:
-        raise DecodeError(f"a camera image cannot be decoded: {exc}") from None
+    picture = decode_image(data, MAX_IMAGE_PIXELS)
+    if picture is None:
+        return image
     width, height = picture.size
-    if level.image_scale != 1.0:
-        size = (max(1, round(width * level.image_scale)), max(1, round(height * level.image_scale)))
-        picture = picture.resize(size, Image.Resampling.BILINEAR, reducing_gap=2.0)
+    if level.image_reduce != 1:
+        picture = picture.reduce(level.image_reduce)
     out = io.BytesIO()
-    picture.save(out, "JPEG", quality=level.image_quality)
+    (picture if picture.mode in ("RGB", "L") else picture.convert("RGB")).save(out, "JPEG", quality=level.image_quality)
     result = {**image, "data": out.getvalue()}
     # What the client shows the image as stays the size the full level says.
     result.setdefault("width_px", width)
