@@ -108,7 +108,7 @@ def _unfiltered_png(view: memoryview, size: tuple[int, int]) -> Picture | None:
     from PIL import Image
     from zlib_ng import zlib_ng
 
-    if bytes(view[12:16]) != b"IHDR" or struct.unpack_from(">II", view, 16) != size:
+    if len(view) < 33 or bytes(view[12:16]) != b"IHDR" or struct.unpack_from(">II", view, 16) != size:
         return None
     depth, colour, _, _, interlace = view[24:29]
     if depth != 8 or colour not in _PNG_MODES or interlace:
