@@ -227,6 +227,21 @@ def test_other_images_are_decoded_by_pillow():
     assert np.array_equal(np.asarray(decode_image(jpeg.getvalue(), MAX_IMAGE_PIXELS)), pillow(jpeg.getvalue()))
 
 
+@pytest.mark.parametrize("mode", ["P", "I;16", "LA", "RGBA", "L", "1"])
+def test_camera_images_of_any_mode_are_sent_as_jpeg_at_the_levels_size(mode):
+    message = decode(frame(14))
+    image = stream_set(message)["primitives"]["/camera/image_00"]["images"][0]
+    original = Image.open(io.BytesIO(bytes(image["data"])))
+    stored = io.BytesIO()
+    original.convert("L").convert(mode).save(stored, "PNG")
+    image["data"] = stored.getvalue()
+    for level in (LEVEL["medium"], LEVEL["low"]):
+        sent = stream_set(decode(frames.render_message(message, Format.BINARY, None, None, level)))["primitives"]
+        after = Image.open(io.BytesIO(bytes(sent["/camera/image_00"]["images"][0]["data"])))
+        assert after.format == "JPEG" and after.mode in ("RGB", "L")
+        assert after.size == (-(-original.width // level.image_reduce), -(-original.height // level.image_reduce))
+
+
 def test_a_broken_png_is_a_decode_error_or_what_pillow_makes_of_it():
     """Cut short, or a byte changed anywhere: a real camera image gives Pillow's pixels, or a DecodeError where Pillow fails."""
     original = camera_pngs()[2]

@@ -178,10 +178,12 @@ def _reduce_image(image: dict[str, Any], level: Level) -> dict[str, Any]:
     if picture is None:
         return image
     width, height = picture.size
+    if picture.mode not in ("RGB", "L"):  # JPEG holds no alpha, palette or 16-bit samples
+        picture = picture.convert("RGB")
     if level.image_reduce != 1:
         picture = picture.reduce(level.image_reduce)
     out = io.BytesIO()
-    (picture if picture.mode in ("RGB", "L") else picture.convert("RGB")).save(out, "JPEG", quality=level.image_quality)
+    picture.save(out, "JPEG", quality=level.image_quality)
     result = {**image, "data": out.getvalue()}
     # What the client shows the image as stays the size the full level says.
     result.setdefault("width_px", width)

@@ -74,9 +74,9 @@ def decode_image(data: bytes | bytearray | memoryview, max_pixels: int) -> Pictu
 
     Only the header of a larger image is read. A PNG image of 8-bit grey,
     RGB or RGBA pixels that is not interlaced and whose rows are not
-    filtered (the default of sharp and libvips, which the XVIZ converters
-    write camera images with) is inflated with zlib-ng instead of Pillow's
-    zlib, more than twice as fast, and taken as it is; any other image is
+    filtered (the default of sharp and libvips; the XVIZ KITTI converter
+    scales its camera images with sharp) is inflated with zlib-ng, faster
+    than Pillow's zlib, and its rows taken as they are; any other image is
     decoded by Pillow. Raises :class:`~xviz_server.exceptions.DecodeError`
     for bytes that are no image Pillow can decode.
     """
