@@ -24,10 +24,11 @@ from typing import Any
 import numpy as np
 
 from ..codec import Format
-from ..datasets import convert_frame, describe_dataset, detect
+from ..datasets import convert_frame, describe_dataset, detect, original_messages
 from ..exceptions import DatasetError, FrameError, LogError, StoreError, WorkerError
 from ..index import TimeIndex
 from ..layout import Found, discover
+from ..records import OriginalTopic
 from ..store import StoredDataset
 from ..storepath import StorePath, StoreTree
 from ..work import Workers
@@ -65,10 +66,10 @@ class DatasetProvider:
         path = found.path  # an object in a store goes as it is: picklable, without a credential
         where = path if isinstance(path, (StorePath, StoreTree)) else str(path)
         try:
-            metadata, times = await self._workers.cpu(describe_dataset, found.kind, where, options, isolated=True)
+            metadata, times, originals = await self._workers.cpu(describe_dataset, found.kind, where, options, isolated=True)
         except (DatasetError, StoreError, WorkerError) as exc:
             raise LogError(f"log {found.name!r}: {exc}", log=found.name) from None
-        return DatasetLog(found.name, found.kind, where, metadata, times, options, self._workers)
+        return DatasetLog(found.name, found.kind, where, metadata, times, options, self._workers, originals)
 
 
 class DatasetLog:
@@ -78,7 +79,7 @@ class DatasetLog:
 
     def __init__(
         self, name: str, kind: str, path: str | StorePath | StoreTree, metadata: dict[str, Any], times: np.ndarray,
-        options: dict[str, Any], workers: Workers,
+        options: dict[str, Any], workers: Workers, originals: tuple[OriginalTopic, ...] = (),
     ) -> None:
         self.name = name
         self._kind = kind
@@ -87,6 +88,8 @@ class DatasetLog:
         self._times = times
         self._options = options
         self._workers = workers
+        #: The topics of the recording it is read from, as the file holds them (a ROS bag, an MCAP file).
+        self.originals = originals
 
     async def metadata(self) -> dict[str, Any]:
         return self._metadata
@@ -102,3 +105,10 @@ class DatasetLog:
             return await self._workers.cpu(convert_frame, self._kind, self._path, self._options, frame, self._metadata, isolated=True)
         except (DatasetError, StoreError) as exc:
             raise FrameError(f"frame {frame} of log {self.name!r}: {exc}", log=self.name, frame=frame) from None
+
+    async def read_originals(self, frame: int) -> bytes:
+        """The original messages of ``frame``, packed (see :func:`~xviz_server.datasets.original_messages`)."""
+        try:
+            return await self._workers.cpu(original_messages, self._kind, self._path, self._options, frame, isolated=True)
+        except (DatasetError, StoreError) as exc:
+            raise FrameError(f"frame {frame} of log {self.name!r}: its original messages: {exc}", log=self.name, frame=frame) from None

@@ -9,16 +9,23 @@ import shutil
 import struct
 import subprocess
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
+import numpy as np
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from mcap.reader import make_reader
 from websockets.exceptions import InvalidStatus
 
+from devkit.rosbag_kitti import CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, GRAY_TOPIC, RAW, Messages, kitti_messages, write_bag
+
 from xviz_server.codec import decode
 from xviz_server.foxglove.wire import SUBPROTOCOLS
+from xviz_server.datasets.kitti import KittiDrive
+from xviz_server.datasets.ros import RosBag, dataset as ros_dataset
+from xviz_server.exceptions import DatasetError, OversizeError
+from xviz_server.records import unpack
 
 from helpers import INTEROP, client, http_get, running_server
 
@@ -204,6 +211,176 @@ async def test_the_viewer_token_applies_to_foxglove_handshakes(kitti_root: Path)
         assert refused.value.response.status_code == 401
         async with await foxglove(server, path="/?log=kitti&token=s3cret") as websocket:
             await opened(websocket)
+
+
+# ----------------------------------------------------------------- ROS bags and MCAP files: their original topics
+
+BAG_FRAMES = 4
+#: Each container of the KITTI bags: its file name, its message and schema encoding.
+CONTAINERS = {"ros1": ("drive.bag", "ros1", "ros1msg"), "sqlite3": ("drive", "cdr", "ros2msg"), "mcap": ("drive.mcap", "cdr", "ros2msg")}
+
+
+@pytest.fixture(scope="module")
+def kitti_bags(shared_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[KittiDrive, dict[str, Path]]:
+    """The real KITTI raw excerpt's first frames, and the bag of each container holding them, by container."""
+    drive, root = KittiDrive(shared_dir / "data" / RAW), tmp_path_factory.mktemp("original-bags")
+    return drive, {
+        container: write_bag(root / container / name, container, drive=drive, frames=BAG_FRAMES)
+        for container, (name, _, _) in CONTAINERS.items() if (root / container).mkdir() is None
+    }
+
+
+def recorded(drive: KittiDrive, container: str) -> dict[str, list[tuple[int, bytes, Any]]]:
+    """What the bag holds, by topic: (record time, serialized bytes, message), made by the generator that wrote it."""
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS1_NOETIC if container == "ros1" else Stores.ROS2_HUMBLE)
+    topics: dict[str, list[tuple[int, bytes, Any]]] = {}
+    for topic, msgtype, time, message in kitti_messages(drive, m, BAG_FRAMES):
+        topics.setdefault(topic, []).append((time, m.serialize(message, msgtype), message))
+    return topics
+
+
+def schema_name(msgtype: str, container: str) -> str:
+    return msgtype.replace("/msg/", "/") if container == "ros1" else msgtype
+
+
+@pytest.mark.parametrize("container", CONTAINERS)
+async def test_the_published_client_decodes_the_original_messages_with_their_own_definitions(
+    container: str, kitti_bags: tuple[KittiDrive, dict[str, Path]],
+) -> None:
+    drive, bags = kitti_bags
+    expected = recorded(drive, container)
+    encoding, schema_encoding = CONTAINERS[container][1:]
+    async with running_server(None, dataset=[f"rosbag:{bags[container]}"]) as server:
+        out = await published_client(f"ws://127.0.0.1:{server.port}/?log=drive", "foxglove.websocket.v1")
+    assert out["errors"] == [] and out["statuses"] == []
+    channels = {channel["topic"]: channel for channel in out["channels"]}
+    # One channel per original topic, under its own name, with the file's encoding and schema.
+    for topic, messages in expected.items():
+        assert (channels[topic]["encoding"], channels[topic]["schemaEncoding"]) == (encoding, schema_encoding), topic
+    assert channels[CLOUD_TOPIC]["schemaName"] == schema_name("sensor_msgs/msg/PointCloud2", container)
+    assert channels["/tf"]["schemaName"] == schema_name("tf2_msgs/msg/TFMessage", container)
+    # The converted channels beside them, under /xviz.
+    assert channels["/xviz" + CLOUD_TOPIC]["schemaName"] == "foxglove.PointCloud"
+    assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    topics = out["topics"]
+    for topic, messages in expected.items():
+        assert topics[topic]["timestamps"] == [str(time) for time, _, _ in messages], topic
+    assert len(topics["/xviz" + CLOUD_TOPIC]["timestamps"]) == BAG_FRAMES
+    # All in time order, the converted and the original messages together.
+    arrivals = [int(time) for time in out["arrivals"]]
+    assert arrivals == sorted(arrivals) and len(arrivals) == sum(topic["count"] for topic in topics.values())
+    # What each message holds, decoded with its own definition, is what the file holds.
+    clouds = topics[CLOUD_TOPIC]["summaries"]
+    assert [(c["width"], c["height"], c["point_step"], c["bytes"]) for c in clouds] == [
+        (len(drive.velodyne(i)), 1, 16, 16 * len(drive.velodyne(i))) for i in range(BAG_FRAMES)
+    ]
+    assert {tuple(c["fields"]) for c in clouds} == {("x", "y", "z", "intensity")} and {c["frame_id"] for c in clouds} == {"/velo_link"}
+    for topic in (GRAY_TOPIC, COLOR_TOPIC):
+        images = [message for _, _, message in expected[topic]]
+        assert topics[topic]["summaries"] == [
+            {"encoding": image.encoding, "width": image.width, "height": image.height, "bytes": len(image.data)} for image in images
+        ]
+    assert [(image["format"], image["magic"], image["bytes"]) for image in topics[COMPRESSED_TOPIC]["summaries"]] == [
+        ("png", "89504e47", drive.image_path("image_03", i).stat().st_size) for i in range(BAG_FRAMES)
+    ]
+    for topic in ("/tf", "/tf_static"):
+        assert [summary["transforms"] for summary in topics[topic]["summaries"]] == [
+            [{"parent": t.header.frame_id, "child": t.child_frame_id,
+              "translation": {axis: getattr(t.transform.translation, axis) for axis in "xyz"},
+              "rotation": {axis: getattr(t.transform.rotation, axis) for axis in "xyzw"}} for t in message.transforms]
+            for _, _, message in expected[topic]
+        ]
+
+
+async def message_data(websocket: ClientConnection, timeout: float = 10) -> tuple[int, int, bytes]:
+    """The next message data message: subscription, log time, payload."""
+    while True:
+        data = await asyncio.wait_for(websocket.recv(), timeout)
+        if isinstance(data, bytes) and data[0] == 0x01:
+            subscription, time = struct.unpack_from("<IQ", data, 1)
+            return subscription, time, data[13:]
+
+
+async def test_original_bytes_arrive_unchanged_and_follow_subscriptions_and_seeks(kitti_bags: tuple[KittiDrive, dict[str, Path]]) -> None:
+    drive, bags = kitti_bags
+    expected = recorded(drive, "ros1")
+    times = [time for time, _, _ in expected[CLOUD_TOPIC]]
+    async with running_server(None, dataset=[f"rosbag:{bags['ros1']}"]) as server:
+        async with await foxglove(server, path="/?log=drive", subprotocols=["foxglove.sdk.v1"]) as websocket:
+            _, advertised = await opened(websocket)
+            ids = {channel["topic"]: channel["id"] for channel in advertised}
+            await websocket.send(control(False, request_id="pause"))
+            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": ids["/tf"]}]}))
+            await websocket.send(control(False, seek=times[2] + 1000, request_id="seek"))
+            assert await message_data(websocket) == (1, times[2], expected["/tf"][2][1])
+            with pytest.raises(asyncio.TimeoutError):
+                await message_data(websocket, timeout=0.5)
+            # Another channel instead: only its messages come, the bytes the file holds.
+            await websocket.send(json.dumps({"op": "unsubscribe", "subscriptionIds": [1]}))
+            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 2, "channelId": ids[CLOUD_TOPIC]}]}))
+            # A new subscription gets the frame on screen, then the seek plays on from its time.
+            assert await message_data(websocket) == (2, times[2], expected[CLOUD_TOPIC][2][1])
+            await websocket.send(control(True, speed=4.0, seek=times[1], request_id="play"))
+            received = [await message_data(websocket) for _ in range(BAG_FRAMES - 1)]
+            assert received == [(2, time, data) for time, data, _ in expected[CLOUD_TOPIC][1:]]
+
+
+async def test_the_export_has_the_original_channels(kitti_bags: tuple[KittiDrive, dict[str, Path]]) -> None:
+    drive, bags = kitti_bags
+    expected = recorded(drive, "sqlite3")
+    async with running_server(None, dataset=[f"rosbag:{bags['sqlite3']}"]) as server:
+        status, _, body = await asyncio.to_thread(http_get, server.port, "/api/logs/drive/export?format=mcap")
+    assert status == 200, body
+    summary, messages = read_mcap(body)
+    channels = {channel.topic: channel for channel in summary.channels.values()}
+    for topic, records in expected.items():
+        schema = summary.schemas[channels[topic].schema_id]
+        assert (channels[topic].message_encoding, schema.encoding) == ("cdr", "ros2msg")
+        assert summary.statistics.channel_message_counts[channels[topic].id] == len(records)
+        assert [(time, data) for name, _, time, data in messages if name == topic] == [(time, data) for time, data, _ in records]
+    clouds = [PointCloud.FromString(data) for name, _, _, data in messages if name == "/xviz" + CLOUD_TOPIC]
+    assert [len(cloud.data) // cloud.point_stride for cloud in clouds] == [len(drive.velodyne(i)) for i in range(BAG_FRAMES)]
+
+
+def test_the_original_messages_of_a_frame_are_bounded(kitti_bags: tuple[KittiDrive, dict[str, Path]], monkeypatch: pytest.MonkeyPatch) -> None:
+    bag = RosBag(kitti_bags[1]["ros1"])
+    records = list(unpack(bag.original_messages(1)))
+    assert len(records) == len(bag.originals) - 1  # every topic but /tf_static, once
+    monkeypatch.setattr(ros_dataset, "MAX_FRAME_MESSAGES", 3)
+    with pytest.raises(DatasetError, match="frame 1: more than 3 original messages"):
+        bag.original_messages(1)
+    monkeypatch.undo()
+    monkeypatch.setattr(ros_dataset, "MAX_CHUNK_BYTES", 1 << 20)
+    with pytest.raises(OversizeError, match=f"frame 1: its original messages pass {1 << 20} bytes"):
+        bag.original_messages(1)
+
+
+async def test_a_frame_with_too_many_original_messages_gets_a_status_and_the_rest_goes_on(tmp_path: Path) -> None:
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS1_NOETIC)
+    t0, second = 1_700_000_000 * 10**9, 10**9
+    flood = ros_dataset.MAX_FRAME_MESSAGES + 1
+    flag = m.std_msgs__Bool(data=True)
+
+    def messages() -> Iterator[tuple[str, str, int, Any]]:
+        point = np.zeros((1, 4), np.float32)
+        yield "/cloud", "sensor_msgs/msg/PointCloud2", t0, m.cloud(t0, point, "base_link")
+        for i in range(flood):  # all in the first frame's span
+            yield "/flag", "std_msgs/msg/Bool", t0 + 1 + i, flag
+        yield "/cloud", "sensor_msgs/msg/PointCloud2", t0 + second, m.cloud(t0 + second, point, "base_link")
+
+    bag = write_bag(tmp_path / "flood.bag", "ros1", messages())
+    async with running_server(None, dataset=[f"rosbag:{bag}"]) as server:
+        out = await published_client(f"ws://127.0.0.1:{server.port}/?log=flood", "foxglove.websocket.v1")
+    assert out["errors"] == []
+    assert [(s["level"], f"more than {ros_dataset.MAX_FRAME_MESSAGES} original messages" in s["message"]) for s in out["statuses"]] == [(1, True)]
+    topics = out["topics"]
+    assert topics["/xviz/cloud"]["timestamps"] == [str(t0), str(t0 + second)]  # both frames, converted
+    assert topics["/cloud"]["timestamps"] == [str(t0 + second)]  # the second frame's original messages
+    assert topics["/flag"]["count"] == 0
 
 
 async def test_an_xviz_session_and_a_foxglove_session_share_a_log(kitti_root: Path) -> None:

@@ -17,7 +17,7 @@ import os
 import stat
 import time
 from pathlib import Path
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Awaitable, Callable, Protocol, Sequence
 
 from . import frames
 from .cache import FrameCache
@@ -33,6 +33,7 @@ from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
 from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store
 from .readahead import ReadAhead
+from .records import OriginalTopic
 from .store import ObjectStore, StoredDataset, StoredLog
 from .work import Place, Workers
 
@@ -99,6 +100,10 @@ class Log:
         self._validate = validate
         #: How far a stream reads ahead of this log, when its source says (a log in an object store).
         self.read_ahead: ReadAhead | None = getattr(source, "read_ahead", None)
+        #: The topics of the recording the log is read from, as the file holds them (a ROS bag, an MCAP file); their
+        #: messages come from :meth:`original_messages`.
+        self.originals: tuple[OriginalTopic, ...] = tuple(getattr(source, "originals", ()))
+        self._read_originals: Callable[[int], Awaitable[bytes]] | None = getattr(source, "read_originals", None)
         self._metadata_messages = {
             fmt: encode(envelope("metadata", self.metadata), fmt) for fmt in Format
         }
@@ -172,6 +177,17 @@ class Log:
                 raise self._corrupt(number, exc) from None
 
         return await self._cache.get((self._key, number, name), make)
+
+    async def original_messages(self, number: int) -> bytes:
+        """The original messages of frame ``number`` (see :attr:`originals`), packed, each record's channel its
+        topic's place in :attr:`originals`: read once, in a worker process, and kept in the frame cache.
+
+        Raises :class:`~xviz_server.exceptions.FrameError` naming the frame.
+        """
+        read = self._read_originals
+        if not self.originals or read is None:
+            return b""
+        return await self._cache.get((self._key, number, "originals"), lambda: read(number))
 
     async def preload(self) -> int:
         """Load every frame into the frame cache, in frame order, one at a time; how many were read.

@@ -304,7 +304,7 @@ class XVIZServer:
         try:
             span = parse_range(query)
             log = await self.catalog.open(name, preload=False)
-            body = await export(log, plan(log.metadata), span, self.workers, int(self.settings.export_max_mb * MB))
+            body = await export(log, plan(log.metadata, log.originals), span, self.workers, int(self.settings.export_max_mb * MB))
         except LogNotFound as exc:
             return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
         except ExportError as exc:

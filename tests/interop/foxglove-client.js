@@ -1,7 +1,9 @@
 // Connect to a server with the published Foxglove client (@foxglove/ws-protocol),
 // subscribe to every channel it advertises, decode each message with the schema
-// its channel advertises (protobufjs for protobuf, JSON.parse for json), and
-// print what arrived as one JSON object.
+// its channel advertises (protobufjs for protobuf, JSON.parse for json, the
+// definition parsed by @foxglove/rosmsg and read by @foxglove/rosmsg-serialization
+// for ros1 or @foxglove/rosmsg2-serialization for cdr), and print what arrived
+// as one JSON object.
 //
 //   node foxglove-client.js URL SUBPROTOCOL [--idle-ms N] [--timeout-ms N] [--send JSON]...
 //
@@ -10,19 +12,28 @@
 // message sent once the channels are advertised and subscribed to.
 //
 // Output: {"subprotocol", "serverInfo", "channels": [{id, topic, encoding,
-// schemaName}], "topics": {TOPIC: {"count", "timestamps": [ns as strings],
-// "summaries": [...]}}, "times": N, "statuses": [...], "errors": [...]}.
+// schemaName, schemaEncoding}], "topics": {TOPIC: {"count", "timestamps": [ns as strings],
+// "summaries": [...]}}, "arrivals": [ns as strings, every message's in the order
+// they came], "times": N, "statuses": [...], "errors": [...]}.
 // A summary says what the decoded message holds: for foxglove.PointCloud
 // {"points", "stride", "frame_id", "fields"}; for foxglove.CompressedImage
 // {"format", "magic" (first bytes, hex), "bytes"}; for foxglove.FrameTransform
 // {"parent", "child", "translation"}; for foxglove.SceneUpdate {"entities",
-// "deletions"}; for JSON channels the decoded value; for others the keys.
+// "deletions"}; for JSON channels the decoded value; for sensor_msgs/PointCloud2
+// {"width", "height", "point_step", "fields", "bytes", "frame_id"}; for
+// sensor_msgs/Image {"encoding", "width", "height", "bytes"}; for
+// sensor_msgs/CompressedImage {"format", "magic", "bytes"}; for
+// tf2_msgs/TFMessage {"transforms": [{parent, child, translation, rotation}]};
+// for others the keys.
 'use strict';
 
 const WebSocket = require('ws');
 const {FoxgloveClient} = require('@foxglove/ws-protocol');
 const protobuf = require('protobufjs');
 const descriptor = require('protobufjs/ext/descriptor');
+const {parse: parseDefinition} = require('@foxglove/rosmsg');
+const {MessageReader: Ros1Reader} = require('@foxglove/rosmsg-serialization');
+const {MessageReader: Ros2Reader} = require('@foxglove/rosmsg2-serialization');
 
 function options(argv) {
   const out = {idleMs: 1500, timeoutMs: 30000, send: []};
@@ -53,11 +64,34 @@ function decoderFor(channel) {
     const type = root.lookupType(channel.schemaName);
     return data => type.toObject(type.decode(bytesOf(data)), {longs: String, bytes: Buffer});
   }
-  throw new Error(`channel ${channel.topic}: no decoder for encoding ${channel.encoding}`);
+  if (channel.encoding === 'ros1' && channel.schemaEncoding === 'ros1msg') {
+    const reader = new Ros1Reader(parseDefinition(channel.schema));
+    return data => reader.readMessage(bytesOf(data));
+  }
+  if (channel.encoding === 'cdr' && channel.schemaEncoding === 'ros2msg') {
+    const reader = new Ros2Reader(parseDefinition(channel.schema, {ros2: true}));
+    return data => reader.readMessage(bytesOf(data));
+  }
+  throw new Error(`channel ${channel.topic}: no decoder for encoding ${channel.encoding} (${channel.schemaEncoding})`);
+}
+
+function stamp(header) {
+  const time = header.stamp;
+  return {sec: time.sec, nsec: time.nsec !== undefined ? time.nsec : time.nanosec};
 }
 
 function summary(schemaName, value) {
-  switch (schemaName) {
+  switch (schemaName.replace('/msg/', '/')) {
+    case 'sensor_msgs/PointCloud2':
+      return {width: value.width, height: value.height, point_step: value.point_step, bytes: value.data.length,
+        fields: value.fields.map(f => f.name), frame_id: value.header.frame_id, stamp: stamp(value.header)};
+    case 'sensor_msgs/Image':
+      return {encoding: value.encoding, width: value.width, height: value.height, bytes: value.data.length};
+    case 'sensor_msgs/CompressedImage':
+      return {format: value.format, magic: Buffer.from(value.data.subarray(0, 4)).toString('hex'), bytes: value.data.length};
+    case 'tf2_msgs/TFMessage':
+      return {transforms: value.transforms.map(t => ({parent: t.header.frame_id, child: t.child_frame_id,
+        translation: t.transform.translation, rotation: t.transform.rotation}))};
     case 'foxglove.PointCloud':
       return {points: value.data.length / value.point_stride, stride: value.point_stride, frame_id: value.frame_id,
         fields: (value.fields || []).map(f => f.name)};
@@ -74,7 +108,7 @@ function summary(schemaName, value) {
 
 function main() {
   const opts = options(process.argv.slice(2));
-  const out = {subprotocol: null, serverInfo: null, channels: [], topics: {}, times: 0, statuses: [], errors: []};
+  const out = {subprotocol: null, serverInfo: null, channels: [], topics: {}, arrivals: [], times: 0, statuses: [], errors: []};
   const ws = new WebSocket(opts.url, [opts.subprotocol]);
   const client = new FoxgloveClient({ws});
   const bySubscription = new Map();
@@ -101,7 +135,8 @@ function main() {
     // Decoders first, then every subscription at once, as Foxglove does.
     const decodable = [];
     for (const channel of channels) {
-      out.channels.push({id: channel.id, topic: channel.topic, encoding: channel.encoding, schemaName: channel.schemaName});
+      out.channels.push({id: channel.id, topic: channel.topic, encoding: channel.encoding, schemaName: channel.schemaName,
+        schemaEncoding: channel.schemaEncoding});
       try {
         decodable.push({channel, decode: decoderFor(channel)});
       } catch (error) {
@@ -124,6 +159,7 @@ function main() {
     const topic = out.topics[target.channel.topic];
     topic.count += 1;
     topic.timestamps.push(String(timestamp));
+    out.arrivals.push(String(timestamp));
     try {
       topic.summaries.push(summary(target.channel.schemaName, target.decode(data)));
     } catch (error) {

@@ -18,11 +18,12 @@ import numpy as np
 from ..codec import Format, encode
 from ..exceptions import DatasetError
 from ..messages import envelope
+from ..records import OriginalTopic
 from ..storepath import StorePath, StoreTree
 
 __all__ = [
     "Dataset", "KINDS", "FILE_KINDS", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "detect", "detect_in_store", "dataset_options", "describe_dataset", "convert_frame", "OPEN_DATASETS",
+    "open_dataset", "detect", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
 ]
 
 
@@ -135,10 +136,19 @@ def _dataset(kind: str, path: str | StorePath | StoreTree, options: dict[str, An
     return dataset
 
 
-def describe_dataset(kind: str, path: str | StorePath | StoreTree, options: dict[str, Any]) -> tuple[dict[str, Any], np.ndarray]:
-    """A dataset's metadata and frame times; for worker processes, so that opening it happens there."""
+def describe_dataset(
+    kind: str, path: str | StorePath | StoreTree, options: dict[str, Any],
+) -> tuple[dict[str, Any], np.ndarray, tuple[OriginalTopic, ...]]:
+    """A dataset's metadata, frame times and original topics (see :func:`original_messages`); for worker
+    processes, so that opening it happens there."""
     dataset = _dataset(kind, path, options)
-    return dataset.metadata(), np.asarray(dataset.times, dtype=np.float64)
+    return dataset.metadata(), np.asarray(dataset.times, dtype=np.float64), tuple(getattr(dataset, "originals", ()))
+
+
+def original_messages(kind: str, path: str | StorePath | StoreTree, options: dict[str, Any], frame: int) -> bytes:
+    """The original messages of frame ``frame`` of a dataset read from a recording that has them (a ROS bag, an
+    MCAP file), packed (:func:`~xviz_server.records.pack`); for worker processes."""
+    return _dataset(kind, path, options).original_messages(frame)  # type: ignore[attr-defined]
 
 
 def convert_frame(

@@ -3,10 +3,12 @@
 One :class:`FoxgloveConnection` per WebSocket connection that chose a
 Foxglove subprotocol. It reads the client's messages into the session,
 opens the log the session names, and runs this connection's player: the
-log's frames from a time on, paced at the session's speed, each frame's
-Foxglove messages (converted once per frame and kept in the frame cache,
-see :meth:`~xviz_server.logs.Log.derived`) sent to the subscriptions that
-want them, then a ``time`` message. ``send`` waits while the socket's
+log's messages from a time on, each sent at its log time (paced at the
+session's speed) to the subscriptions that want it, then a ``time``
+message: each frame's Foxglove messages (converted once per frame and kept
+in the frame cache, see :meth:`~xviz_server.logs.Log.derived`) at the
+frame's time and, for a log read from a ROS bag or MCAP file, its original
+messages at theirs (see :mod:`~xviz_server.foxglove.frame`). ``send`` waits while the socket's
 write buffer is full, so a client that reads slowly slows its own playback
 and nobody else's.
 """
@@ -16,9 +18,10 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from functools import cached_property
+from operator import itemgetter
 
 import numpy as np
 
@@ -34,7 +37,8 @@ from ..metrics import Metrics
 from ..session import OpenLog, Send
 from ..settings import Settings
 from ..version import __version__
-from .convert import CONVERTED, Channel, Plan, convert, nanoseconds, plan, unpack
+from .convert import Channel, Plan, nanoseconds, plan
+from .frame import Message, frame_messages
 from .session import Event, FoxgloveSession, Play, SendLatest, Stop
 from .wire import message_header, time_message
 
@@ -54,7 +58,7 @@ class _OpenLog:
 
     @cached_property
     def plan(self) -> Plan:
-        return plan(self.log.metadata)
+        return plan(self.log.metadata, self.log.originals)
 
     @property
     def channels(self) -> tuple[Channel, ...]:
@@ -158,21 +162,28 @@ class FoxgloveConnection:
         self._player = None
 
     async def _play(self, request: Play) -> None:
-        """Send the log's frames from ``request.start`` on, at ``request.speed`` times real time."""
+        """Send the log's messages from ``request.start`` on, each at its time, at ``request.speed`` times real time.
+
+        The frame at ``request.start`` is played from there: after a seek
+        whole (its state at the new time), else from ``request.start`` on
+        (what comes before was sent), unless nothing of it was.
+        """
         assert self._log is not None
         log, times = self._log.log, self._log.times
-        if request.seek:  # the state at the new time at once: the last frame starting at or before it
-            first = max(0, int(np.searchsorted(times, request.start, side="right")) - 1)
-        else:
-            first = int(np.searchsorted(times, request.start, side="left"))
+        first = max(0, int(np.searchsorted(times, request.start, side="right")) - 1)
+        skip_before = request.start if not request.seek and len(times) and request.start > times[first] else None
         loop = asyncio.get_running_loop()
         clock = loop.time()
         try:
             for position in range(first, len(times)):
-                at = int(times[position])
-                await asyncio.sleep(max(0.0, clock + (at - request.start) / 1e9 / request.speed - loop.time()))
-                await self._send_frame(position, self.session.frame(at, position))
-                await self._write(time_message(at), text=False)
+                for at, group in _by_time(int(times[position]), await self._messages(position)):
+                    if skip_before is not None and at < skip_before:
+                        continue
+                    if request.once and at > request.start:
+                        return
+                    await asyncio.sleep(max(0.0, clock + (at - request.start) / 1e9 / request.speed - loop.time()))
+                    await self._send(group, self.session.frame(at, position))
+                    await self._write(time_message(at), text=False)
                 if request.once:
                     return
             await self._execute(self.session.ended())
@@ -181,16 +192,29 @@ class FoxgloveConnection:
         except Exception as exc:
             logger.exception("error playing log %r to %s", log.name, peer(self.websocket), exc_info=exc)
 
-    async def _send_frame(self, position: int, targets: Mapping[int, int]) -> None:
-        """Send the messages of the frame at ``position`` in time order to ``targets``, subscriptions by channel."""
+    async def _messages(self, position: int, *, report: bool = True) -> list[Message]:
+        """The messages of the frame at ``position``, in time order; with ``report``, a status for a part missing."""
         assert self._log is not None
-        log = self._log.log
-        try:
-            packed = await log.derived(int(log.index.frames[position]), CONVERTED, convert, self._log.plan)
-        except XVIZError as exc:
-            await self._execute(self.session.frame_failed(exc))
-            return
-        for channel, stamp, payload in unpack(packed):
+        messages, errors = await frame_messages(self._log.log, self._log.plan, int(self._log.log.index.frames[position]))
+        for error in errors if report else ():
+            await self._execute(self.session.frame_failed(error))
+        return messages
+
+    async def _send_frame(self, position: int, targets: Mapping[int, int]) -> None:
+        """Send the messages of the frame at ``position`` up to the playback's time to ``targets``, subscriptions by channel."""
+        until = self.session.position
+        await self._send([m for m in await self._messages(position, report=False) if m[1] <= until], targets)
+
+    async def _send(self, messages: list[Message], targets: Mapping[int, int]) -> None:
+        for channel, stamp, payload in messages:
             subscription = targets.get(channel)
             if subscription is not None:
                 await self._write(message_header(subscription, stamp) + payload, text=False)
+
+
+def _by_time(tick: int, messages: list[Message]) -> Iterator[tuple[int, list[Message]]]:
+    """Messages in time order, grouped by time; the frame's ``tick`` is a time of its own even without one."""
+    groups: dict[int, list[Message]] = {tick: []}
+    for message in messages:
+        groups.setdefault(message[1], []).append(message)
+    yield from sorted(groups.items(), key=itemgetter(0))

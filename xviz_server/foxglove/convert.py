@@ -28,13 +28,17 @@ matrix) becomes the pose of each point cloud and primitive in that frame.
 :func:`convert` turns one XVIZ state update into the messages of every
 channel it has data for, each stamped with the update's timestamp, packed
 into one ``bytes`` (see :func:`pack`) so that the frame cache keeps them.
+
+A log read from a ROS bag or an MCAP file also has its original topics
+(:attr:`~xviz_server.logs.Log.originals`): :func:`plan` gives each a channel
+with the file's own encoding and schema, whose messages are the file's
+bytes, unchanged (:meth:`~xviz_server.logs.Log.original_messages`).
 """
 
 from __future__ import annotations
 
 import math
-import struct
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,12 +66,16 @@ from google.protobuf.timestamp_pb2 import Timestamp
 from ..codec import decode
 from ..codec.image import sniff_image
 from ..exceptions import DecodeError
+from ..records import OriginalTopic, pack, unpack
 from .schemas import Schema, json_schema, protobuf_schema
 
-__all__ = ["CONVERTED", "Channel", "Plan", "plan", "convert", "pack", "unpack", "nanoseconds", "ROOT_FRAME"]
+__all__ = ["CONVERTED", "CONVERTED_PREFIX", "Channel", "Plan", "plan", "convert", "pack", "unpack", "nanoseconds", "ROOT_FRAME"]
 
 #: The frame cache's name for a frame's Foxglove messages (see :meth:`~xviz_server.logs.Log.derived`).
 CONVERTED = "foxglove"
+
+#: What the topics of converted channels start with in a log that also has its original topics.
+CONVERTED_PREFIX = "/xviz"
 
 #: The fixed frame every pose is given in.
 ROOT_FRAME = "map"
@@ -78,7 +86,6 @@ _TIME_SERIES_SCHEMA = {
     "properties": {"timestamp": {"type": "number"}, "value": {"type": ["number", "string", "boolean"]}},
     "required": ["timestamp", "value"],
 }
-_RECORD = struct.Struct("<IQI")  # channel id, log time (ns), payload length
 
 
 @dataclass(frozen=True)
@@ -87,8 +94,9 @@ class Channel:
 
     id: int
     topic: str
-    stream: str  #: the XVIZ stream its messages come from
-    kind: str  #: how they are made: transform, pose, location, points, image, scene, time_series, json
+    stream: str  #: the XVIZ stream its messages come from (``""`` for an original topic)
+    #: how they are made: transform, pose, location, points, image, scene, time_series, json; original: as the file holds them
+    kind: str
     schema: Schema
 
     def advertisement(self) -> dict[str, Any]:
@@ -108,14 +116,23 @@ class Plan:
     """A log's channels and what :func:`convert` needs to know of its streams (picklable)."""
 
     channels: tuple[Channel, ...]
+    #: The channel of each of the log's original topics (:attr:`~xviz_server.logs.Log.originals`), in their order.
+    originals: tuple[int, ...] = ()
     #: Each stream's channels as (id, kind).
     targets: Mapping[str, tuple[tuple[int, str], ...]] = field(default_factory=dict)
     #: The frame each primitive stream is drawn in, and its pose there (position, quaternion).
     frames: Mapping[str, tuple[str, tuple[float, ...], tuple[float, ...]]] = field(default_factory=dict)
 
 
-def plan(metadata: Mapping[str, Any]) -> Plan:
-    """The channels of a log whose XVIZ metadata is ``metadata``, numbered from 1 in stream order."""
+def plan(metadata: Mapping[str, Any], originals: Sequence[OriginalTopic] = ()) -> Plan:
+    """The channels of a log whose XVIZ metadata is ``metadata``, numbered from 1 in stream order.
+
+    A log read from a recording also has a channel of each of its
+    ``originals``, after the converted ones, under the topic's own name and
+    with the file's encoding and schema; the converted channels' topics then
+    start with :data:`CONVERTED_PREFIX`, so that no two channels share a topic.
+    """
+    prefix = CONVERTED_PREFIX if originals else ""
     streams = metadata.get("streams") or {}
     poses = sorted(name for name, info in streams.items() if isinstance(info, dict) and info.get("category") == "POSE")
     vehicle = "/vehicle_pose" if "/vehicle_pose" in poses else (poses[0] if poses else ROOT_FRAME)
@@ -124,6 +141,8 @@ def plan(metadata: Mapping[str, Any]) -> Plan:
     frames: dict[str, tuple[str, tuple[float, ...], tuple[float, ...]]] = {}
 
     def add(stream: str, topic: str, kind: str, schema: Schema) -> None:
+        if prefix:
+            topic = prefix + topic if topic.startswith("/") else f"{prefix}/{topic}"
         channel = Channel(len(channels) + 1, topic, stream, kind, schema)
         channels.append(channel)
         targets[stream] = (*targets.get(stream, ()), (channel.id, kind))
@@ -149,7 +168,12 @@ def plan(metadata: Mapping[str, Any]) -> Plan:
             continue
         description = f"the XVIZ {category.lower() or 'unknown'} stream {name} as XVIZ carries it"
         add(name, name, "json", json_schema(name, {"type": "object", "description": description}))
-    return Plan(tuple(channels), targets, frames)
+    ids = tuple(range(len(channels) + 1, len(channels) + 1 + len(originals)))
+    channels += [
+        Channel(id, original.topic, "", "original", Schema(original.encoding, original.schema_name, original.schema_encoding, original.schema))
+        for id, original in zip(ids, originals)
+    ]
+    return Plan(tuple(channels), ids, targets, frames)
 
 
 def convert(data: bytes, plan: Plan) -> bytes:
@@ -173,24 +197,6 @@ def convert(data: bytes, plan: Plan) -> bytes:
                 if payload is not None:
                     out.append((channel, time, payload))
     return pack(out)
-
-
-def pack(messages: list[tuple[int, int, bytes]]) -> bytes:
-    """Messages as (channel id, log time in ns, payload), packed into one ``bytes``."""
-    parts: list[bytes] = []
-    for channel, time, payload in messages:
-        parts += (_RECORD.pack(channel, time, len(payload)), payload)
-    return b"".join(parts)
-
-
-def unpack(packed: bytes) -> Iterator[tuple[int, int, memoryview]]:
-    """The messages :func:`pack` packed, in order, their payloads as views of ``packed``."""
-    view, offset = memoryview(packed), 0
-    while offset < len(view):
-        channel, time, size = _RECORD.unpack_from(view, offset)
-        offset += _RECORD.size
-        yield channel, time, view[offset:offset + size]
-        offset += size
 
 
 # --------------------------------------------------------------- the streams of an update

@@ -6,7 +6,8 @@ client of the log is offered, and the messages of every frame that starts in
 ``[S, E]`` (seconds, the log's own times; either may be left out), each with
 its XVIZ time as log and publish time. Foxglove and Lichtblick open it
 offline. The frames' messages come from the frame cache, converted once as
-for a Foxglove session.
+for a Foxglove session; a log read from a ROS bag or MCAP file has its
+original topics too, each message of a frame's span unchanged.
 
 The file is made whole before it is sent, so a clip is bounded: one whose
 messages pass ``export_max_mb`` is refused (HTTP 413) before it is written,
@@ -30,7 +31,8 @@ from mcap.writer import CompressionType, Writer
 from ..exceptions import ExportError
 from ..logs import Log
 from ..work import Workers
-from .convert import CONVERTED, Plan, convert, unpack
+from .convert import Plan
+from .frame import Message, frame_messages
 
 __all__ = ["FORMATS", "ExportRange", "export_path", "parse_range", "export"]
 
@@ -81,21 +83,23 @@ async def export(log: Log, plan: Plan, span: ExportRange, workers: Workers, max_
     positions = log.index.range(span.start, span.end)
     if span.start is not None:  # frames that start in the range, not those that only overlap it
         positions = positions[log.index.start[positions] >= span.start]
-    frames: list[bytes] = []
+    frames: list[list[Message]] = []
     size = 0
     for number in log.index.frames[positions].tolist():
-        packed = await log.derived(number, CONVERTED, convert, plan)
-        size += len(packed)
+        messages, errors = await frame_messages(log, plan, number)
+        if errors:
+            raise errors[0]
+        size += sum(len(payload) for _, _, payload in messages)
         if size > max_bytes:
             raise ExportError(
                 f"log {log.name!r}: the clip passes {max_bytes >> 20} MB of messages (export_max_mb) "
                 f"after {len(frames)} of {len(positions)} frames; export a shorter range", too_large=True,
             )
-        frames.append(packed)
+        frames.append(messages)
     return await workers.io(_write, plan, frames, log.name)
 
 
-def _write(plan: Plan, frames: list[bytes], name: str) -> bytes:
+def _write(plan: Plan, frames: list[list[Message]], name: str) -> bytes:
     out = io.BytesIO()
     writer = Writer(out, compression=CompressionType.ZSTD)
     writer.start(profile="", library="xviz-server")
@@ -106,8 +110,8 @@ def _write(plan: Plan, frames: list[bytes], name: str) -> bytes:
         schema_id = writer.register_schema(schema.name, schema.schema_encoding, data)
         channels[channel.id] = writer.register_channel(channel.topic, schema.encoding, schema_id)
     sequence = 0
-    for packed in frames:
-        for channel_id, time, payload in unpack(packed):
+    for messages in frames:
+        for channel_id, time, payload in messages:
             writer.add_message(channels[channel_id], log_time=time, data=bytes(payload), publish_time=time, sequence=sequence)
             sequence += 1
     writer.add_metadata("xviz", {"log": name})

@@ -31,10 +31,10 @@ __all__ = ["Schema", "protobuf_schema", "json_schema", "WELL_KNOWN"]
 class Schema:
     """What a channel advertises about its messages."""
 
-    encoding: str  #: the message encoding: ``protobuf`` or ``json``
-    name: str  #: the schema's name: ``foxglove.PointCloud``, or the stream's name for JSON
-    schema_encoding: str  #: ``protobuf`` or ``jsonschema``
-    schema: str  #: base64 ``FileDescriptorSet``, or JSON Schema text
+    encoding: str  #: the message encoding: ``protobuf`` or ``json``; an original topic's: ``ros1``, ``cdr``
+    name: str  #: the schema's name: ``foxglove.PointCloud``, the stream's name for JSON, the message type for ROS
+    schema_encoding: str  #: ``protobuf`` or ``jsonschema``; ``ros1msg``, ``ros2msg`` or ``ros2idl``
+    schema: str  #: base64 ``FileDescriptorSet``, JSON Schema text, or the message definition text
 
 
 #: The Foxglove messages this server converts XVIZ streams into, by their short name.

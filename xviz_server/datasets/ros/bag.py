@@ -49,6 +49,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...exceptions import DatasetError, StoreError
+from ...records import OriginalTopic
 from ...storepath import RangedFile, StorePath, data_path
 from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, BoundedReader, check_declared, unpack, unpack_unsized, zstd_module
 
@@ -286,18 +287,47 @@ class Bag:
             skip -= 1
         raise DatasetError(f"{self.path}: topic {topic}: message {index} is in the index but not in the bag", path=self.path)
 
-    def messages(self, topic: str, start: int, stop: int) -> Iterator[tuple[int, Any]]:
-        """The messages of ``topic`` recorded in ``[start, stop)`` ns, decoded, in time order."""
+    def messages(self, topic: str, start: int | None, stop: int | None) -> Iterator[tuple[int, Any]]:
+        """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded), decoded, in time order."""
+        for time, msgtype, data in self.serialized(topic, start, stop):
+            yield time, self._decode(topic, msgtype, time, data)
+
+    def serialized(self, topic: str, start: int | None, stop: int | None) -> Iterator[tuple[int, str, bytes | memoryview]]:
+        """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded) as the file holds them:
+        (record time, message type, serialized bytes), in time order."""
         info = self.topics[topic]
         if info.places is not None:
-            first, last = np.searchsorted(info.times, [start, stop], side="left")
-            for index in range(int(first), int(last)):
-                yield self.message(topic, index)
+            first = 0 if start is None else int(np.searchsorted(info.times, start, side="left"))
+            last = len(info) if stop is None else int(np.searchsorted(info.times, stop, side="left"))
+            for index in range(first, last):
+                with self._lock:
+                    data = self._guard(topic, partial(self._payload, info.places[index], topic))
+                yield int(info.times[index]), info.msgtype, data
             return
         with self._lock:
             raw = self._guard(topic, lambda: list(self._reader.messages(info.connections, start=start, stop=stop)))
         for connection, time, data in raw:
-            yield time, self._decode(topic, connection.msgtype, time, data)
+            yield time, connection.msgtype, data
+
+    def original(self, topic: str) -> OriginalTopic | None:
+        """How the file holds ``topic``'s messages: their encoding and schema, the definition as recorded (or,
+        for a ROS 2 bag that recorded none, made from the type store); ``None`` when its connections disagree on
+        the type or its definition cannot be had."""
+        info = self.topics[topic]
+        first = info.connections[0]
+        if any(c.msgtype != info.msgtype for c in info.connections):
+            return None
+        definition, ros1 = first.msgdef.data, isinstance(first.owner, _ros1_reader())
+        idl = not ros1 and first.msgdef.format.name == "IDL"
+        if not definition:
+            try:
+                definition, _ = self._reader.typestore.generate_msgdef(info.msgtype, ros_version=1 if ros1 else 2)
+            except Exception:  # noqa: BLE001 - a type the store does not know
+                return None
+        if ros1:
+            return OriginalTopic(topic, "ros1", info.msgtype.replace("/msg/", "/", 1), "ros1msg", definition)
+        encoding = getattr(first.ext, "serialization_format", "cdr")
+        return OriginalTopic(topic, encoding, info.msgtype, "ros2idl" if idl else "ros2msg", definition)
 
     def _guard(self, topic: str, read: Any) -> Any:
         try:

@@ -35,8 +35,10 @@ from typing import Any
 import numpy as np
 
 from ...builder import FrameBuilder, MetadataBuilder, ui
-from ...exceptions import DatasetError
+from ...exceptions import DatasetError, OversizeError
+from ...records import RECORD_BYTES, OriginalTopic, pack
 from ...storepath import StorePath, data_path
+from ...unpack import MAX_CHUNK_BYTES
 from .. import DEFAULT_IMAGE_WIDTH
 from .bag import Bag, is_rosbag
 from .config import RosConfig, load_config
@@ -48,12 +50,14 @@ from .markers import draw_marker, live_markers, path_vertices
 from .sensors import cloud_points, compressed_image_bytes, image_bytes
 from .tf import TF, Snapshot, TransformTree, frame_name
 
-__all__ = ["RosBag", "PoseSource", "POSE_STREAM"]
+__all__ = ["RosBag", "PoseSource", "POSE_STREAM", "MAX_FRAME_MESSAGES"]
 
 logger = logging.getLogger(__name__)
 
 POSE_STREAM = "/vehicle_pose"
 DEFAULT_RATE = 10.0  # Hz, when the bag has no point cloud
+#: The most original messages a frame may have (each is a message to every client that subscribes to its topic).
+MAX_FRAME_MESSAGES = 100_000
 _FIXED_FRAMES = ("map", "odom", "world")
 _FIRST_FIXES = 100  # fixes looked at for the map origin: the first with a position (status >= 0) wins
 _MARKER_STYLES: dict[str, dict[str, Any]] = {
@@ -244,6 +248,42 @@ class RosBag:
                 if np.isfinite([fix.latitude, fix.longitude, fix.altitude]).all() and fix.status.status >= 0:
                     return (float(fix.longitude), float(fix.latitude), float(fix.altitude))
         return None
+
+    # -- the original messages ------------------------------------------------
+
+    @cached_property
+    def originals(self) -> tuple[OriginalTopic, ...]:
+        """The topics served as the file holds them (every one with messages that the configuration wants)."""
+        found = (self.bag.original(t) for t, info in self.bag.topics.items() if len(info) and self.settings.wants(t))
+        return tuple(topic for topic in found if topic is not None)
+
+    def original_messages(self, frame: int) -> bytes:
+        """The messages of :attr:`originals` recorded from ``frame``'s tick to the next one's, as the file holds
+        them, in time order, packed (:func:`~xviz_server.records.pack`; a record's channel is its topic's place
+        in :attr:`originals`). The first frame also has every message before its tick, the last every one after.
+
+        Raises :class:`~xviz_server.exceptions.OversizeError` when they pass
+        :data:`~xviz_server.unpack.MAX_CHUNK_BYTES`, and
+        :class:`~xviz_server.exceptions.DatasetError` when they are more than
+        :data:`MAX_FRAME_MESSAGES` or a message cannot be read.
+        """
+        start = int(self.clock[frame]) if frame > 0 else None
+        stop = int(self.clock[frame + 1]) if frame + 1 < len(self.clock) else None
+        found: list[tuple[int, int, bytes | memoryview]] = []
+        size = 0
+        for number, original in enumerate(self.originals):
+            for time, _, data in self.bag.serialized(original.topic, start, stop):
+                size += RECORD_BYTES + len(data)
+                if size > MAX_CHUNK_BYTES:
+                    raise OversizeError(
+                        f"{self.path}: frame {frame}: its original messages pass {MAX_CHUNK_BYTES} bytes (at {original.topic})",
+                        size=size, limit=MAX_CHUNK_BYTES, path=self.path,
+                    )
+                found.append((number, time, data))
+                if len(found) > MAX_FRAME_MESSAGES:
+                    raise DatasetError(f"{self.path}: frame {frame}: more than {MAX_FRAME_MESSAGES} original messages", path=self.path)
+        found.sort(key=lambda record: (record[1], record[0]))
+        return pack(found)
 
     # -- XVIZ ---------------------------------------------------------------
 
