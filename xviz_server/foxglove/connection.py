@@ -8,9 +8,9 @@ session's speed) to the subscriptions that want it, then a ``time``
 message: each frame's Foxglove messages (converted once per frame and kept
 in the frame cache, see :meth:`~xviz_server.logs.Log.derived`) at the
 frame's time and, for a log read from a ROS bag or MCAP file, its original
-messages at theirs (see :mod:`~xviz_server.foxglove.frame`). ``send`` waits while the socket's
-write buffer is full, so a client that reads slowly slows its own playback
-and nobody else's.
+messages at theirs (see :mod:`~xviz_server.foxglove.frame`). ``send``
+waits while the socket's write buffer is full, so a client that reads
+slowly slows its own playback and nobody else's.
 """
 
 from __future__ import annotations

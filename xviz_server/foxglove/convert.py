@@ -27,7 +27,7 @@ matrix) becomes the pose of each point cloud and primitive in that frame.
 
 :func:`convert` turns one XVIZ state update into the messages of every
 channel it has data for, each stamped with the update's timestamp, packed
-into one ``bytes`` (see :func:`pack`) so that the frame cache keeps them.
+into one ``bytes`` (see :func:`~xviz_server.records.pack`) so that the frame cache keeps them.
 
 A log read from a ROS bag or an MCAP file also has its original topics
 (:attr:`~xviz_server.logs.Log.originals`): :func:`plan` gives each a channel
@@ -66,10 +66,10 @@ from google.protobuf.timestamp_pb2 import Timestamp
 from ..codec import decode
 from ..codec.image import sniff_image
 from ..exceptions import DecodeError
-from ..records import OriginalTopic, pack, unpack
+from ..records import OriginalTopic, pack
 from .schemas import Schema, json_schema, protobuf_schema
 
-__all__ = ["CONVERTED", "CONVERTED_PREFIX", "Channel", "Plan", "plan", "convert", "pack", "unpack", "nanoseconds", "ROOT_FRAME"]
+__all__ = ["CONVERTED", "CONVERTED_PREFIX", "Channel", "Plan", "plan", "convert", "nanoseconds", "ROOT_FRAME"]
 
 #: The frame cache's name for a frame's Foxglove messages (see :meth:`~xviz_server.logs.Log.derived`).
 CONVERTED = "foxglove"
@@ -177,7 +177,7 @@ def plan(metadata: Mapping[str, Any], originals: Sequence[OriginalTopic] = ()) -
 
 
 def convert(data: bytes, plan: Plan) -> bytes:
-    """The Foxglove messages of the XVIZ state update ``data``, packed (see :func:`pack`).
+    """The Foxglove messages of the XVIZ state update ``data``, packed (see :func:`~xviz_server.records.pack`).
 
     Raises :class:`~xviz_server.exceptions.DecodeError` for a frame that is
     not a state update.
