@@ -27,7 +27,7 @@ from xviz_server.datasets.ros import RosBag, dataset as ros_dataset
 from xviz_server.exceptions import DatasetError, OversizeError
 from xviz_server.records import unpack
 
-from helpers import INTEROP, client, http_get, running_server
+from helpers import INTEROP, client, http_get, metric, running_server
 
 DRIVER = INTEROP / "foxglove-client.js"
 
@@ -42,11 +42,11 @@ def nanoseconds(seconds: float) -> int:
     return round(seconds * 1e9)
 
 
-async def published_client(url: str, subprotocol: str, *sends: str) -> dict[str, Any]:
+async def published_client(url: str, subprotocol: str, *sends: str, options: tuple[str, ...] = ()) -> dict[str, Any]:
     node = shutil.which("node")
     assert node, "node is required for the interop tests"
     assert (INTEROP / "node_modules" / "@foxglove" / "ws-protocol").is_dir(), "run `npm ci --prefix tests/interop`"
-    args = [node, str(DRIVER), url, subprotocol, *(item for text in sends for item in ("--send", text))]
+    args = [node, str(DRIVER), url, subprotocol, *options, *(item for text in sends for item in ("--send", text))]
     process = await asyncio.create_subprocess_exec(*args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     stdout, stderr = await asyncio.wait_for(process.communicate(), 60)
     assert process.returncode == 0, stderr.decode()
@@ -193,15 +193,6 @@ async def test_clients_seek_in_the_same_log_each_to_its_own_time(kitti_root: Pat
                     pass
                 assert message[1] == times[target]
                 assert (await next_of(websocket, "message"))[1] == times[target + 1]
-
-
-async def test_a_live_session_is_refused_with_a_status(kitti_root: Path) -> None:
-    async with running_server(kitti_root) as server:
-        async with await foxglove(server, path="/?session_type=live&log=kitti") as websocket:
-            info = json.loads(await websocket.recv())
-            assert info["op"] == "serverInfo"
-            status = await next_of(websocket, "status")
-            assert status["level"] == 2 and "live feeds" in status["message"]
 
 
 async def test_the_viewer_token_applies_to_foxglove_handshakes(kitti_root: Path) -> None:
@@ -393,6 +384,171 @@ async def test_an_xviz_session_and_a_foxglove_session_share_a_log(kitti_root: Pa
             updates = [m for m in await xviz.until("transform_log_done") if m["type"] == "xviz/state_update"]
             assert len(updates) == 25
             assert (await next_of(websocket, "message"))[0] in range(len(channels))
+
+
+# ----------------------------------------------------------------- live feeds
+
+
+def kitti_source(kitti_log: Path) -> tuple[dict[str, Any], list[bytes]]:
+    """The KITTI log as a live source sends it: its metadata, and its updates as GLB bytes in time order."""
+    frames = sorted(kitti_log.glob("*-frame.glb"), key=lambda path: int(path.name.split("-")[0]))
+    return decode(frames[0].read_bytes())["data"], [path.read_bytes() for path in frames[1:]]
+
+
+async def foxglove_subscribed(server: Any, count: int = 1, every: bool = False) -> None:
+    """Wait until ``count`` Foxglove connections follow a live feed with subscriptions (to ``every`` channel)."""
+    for _ in range(300):
+        following = [s for s in server.sessions if getattr(getattr(s, "session", None), "feed", None) is not None
+                     and s.session._subscriptions and (not every or len(s.session._subscriptions) == len(s.session._channels))]
+        if len(following) >= count:
+            return
+        await asyncio.sleep(0.05)
+    raise AssertionError("no Foxglove client subscribed")
+
+
+async def xviz_updates(xviz: Any, count: int) -> list[float]:
+    """The timestamps of the next ``count`` state updates an XVIZ live viewer gets."""
+    times: list[float] = []
+    while len(times) < count:
+        message = await xviz.recv()
+        if message["type"] == "xviz/state_update":
+            times.append(message["data"]["updates"][0]["timestamp"])
+    return times
+
+
+@pytest.mark.parametrize("subprotocol", SUBPROTOCOLS)
+async def test_published_client_follows_a_live_feed_beside_an_xviz_viewer(
+    kitti_root: Path, kitti_log: Path, subprotocol: str
+) -> None:
+    updates = kitti_frames(kitti_log)
+    metadata, frames = kitti_source(kitti_log)
+    async with running_server(kitti_root) as server:
+        feed = server.live.feed("car")
+        feed.set_metadata(metadata)
+        url = f"ws://127.0.0.1:{server.port}/?session_type=live&log=car"
+        reading = asyncio.ensure_future(published_client(url, subprotocol, options=("--times", str(len(frames)))))
+        async with client(server, "/?session_type=live&log=car") as xviz:
+            assert (await xviz.recv())["type"] == "xviz/metadata"
+            await foxglove_subscribed(server, every=True)
+            for frame in frames:  # as an ingest source sends them: GLB, at 10 Hz
+                await feed.publish(frame)
+                await asyncio.sleep(0.1)
+            assert await xviz_updates(xviz, len(frames)) == [update["timestamp"] for update in updates]
+        out = await reading
+    assert out["errors"] == [] and out["statuses"] == []
+    assert out["serverInfo"]["capabilities"] == ["time"] and out["serverInfo"]["metadata"] == {"live": "car"}
+    # The channels of a log with the same metadata, converted the same way.
+    async with running_server(kitti_root) as server:
+        async with await foxglove(server) as websocket:
+            _, recorded = await opened(websocket)
+    assert [(c["topic"], c["schemaName"]) for c in out["channels"]] == [(c["topic"], c["schemaName"]) for c in recorded]
+    topics = out["topics"]
+    clouds = topics["/lidar/points"]
+    assert [summary["points"] for summary in clouds["summaries"]] == [
+        len(update["primitives"]["/lidar/points"]["points"][0]["points"]) for update in updates
+    ]
+    assert clouds["timestamps"] == [str(nanoseconds(update["timestamp"])) for update in updates]
+    assert [int(t) for t in clouds["timestamps"]] == sorted({int(t) for t in clouds["timestamps"]})
+    images = topics["/camera/image_00"]["summaries"]
+    assert len(images) == len(updates) and {image["magic"] for image in images} == {"89504e47"}
+    assert len(topics["/vehicle_pose"]["summaries"]) == len(updates)
+    assert out["times"] == len(updates)
+
+
+async def test_each_live_update_is_converted_once_for_every_foxglove_client(kitti_root: Path, kitti_log: Path) -> None:
+    metadata, frames = kitti_source(kitti_log)
+    async with running_server(kitti_root) as server:
+        feed = server.live.feed("car")
+        feed.set_metadata(metadata)
+        clients = [await foxglove(server, path="/?session_type=live&log=car") for _ in range(3)]
+        for websocket in clients:
+            _, channels = await opened(websocket)
+            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channels[0]["id"]}]}))
+        await foxglove_subscribed(server, 3)
+        update = await feed.publish(frames[0])
+        received = [await next_of(websocket, "message") for websocket in clients]
+        assert received == [(1, nanoseconds(kitti_frames(kitti_log)[0]["timestamp"]))] * 3
+        assert len(update._derived) == 1  # one conversion, shared
+        for websocket in clients:
+            await websocket.close()
+
+
+async def test_a_stalled_live_client_stays_bounded_and_is_told_it_fell_behind(kitti_root: Path, kitti_log: Path) -> None:
+    metadata, frames = kitti_source(kitti_log)
+    async with running_server(kitti_root, live_queue=4, live_lag_timeout=60) as server:
+        feed = server.live.feed("car")
+        feed.set_metadata(metadata)
+        stalled = await foxglove(server, path="/?session_type=live&log=car")
+        _, channels = await opened(stalled)
+        await stalled.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
+        await foxglove_subscribed(server)
+        stalled.transport.pause_reading()
+        [connection] = [s for s in server.sessions if getattr(getattr(s, "session", None), "feed", None) == "car"]
+        async with client(server, "/?session_type=live&log=car") as xviz:
+            await xviz.recv()
+            # The XVIZ viewer of the same feed gets every update.
+            reading = asyncio.ensure_future(xviz_updates(xviz, 2 * len(frames)))
+            buffered = []
+            for frame in frames * 2:
+                await feed.publish(frame)
+                await asyncio.sleep(0.05)
+                buffered.append(connection.websocket.transport.get_write_buffer_size())
+            assert len(await reading) == 2 * len(frames)
+        queued = [len(subscription._queue) for subscription in feed._subscribers]
+        assert queued and max(queued) <= 4  # bounded by live_queue, not by what was published
+        # The socket holds at most its high-water mark and the message on its way (a frame's point cloud: 1.5 MB).
+        assert max(buffered) < 4_000_000
+        status, _, page = await asyncio.to_thread(http_get, server.port, "/metrics")
+        assert status == 200 and metric(page, "xviz_live_dropped_updates_total") > 0
+        stalled.transport.resume_reading()
+        notice = await next_of(stalled, "status", timeout=30)
+        assert notice["level"] == 1 and "this client is behind" in notice["message"] and "updates were dropped" in notice["message"]
+        await stalled.close()
+
+
+async def test_a_live_feed_is_found_waited_for_and_refuses_playback_control(kitti_root: Path, kitti_log: Path) -> None:
+    metadata, frames = kitti_source(kitti_log)
+    async with running_server(kitti_root) as server:
+        # Named before its source comes: waited for.
+        async with await foxglove(server, path="/?session_type=live&log=truck", subprotocols=["foxglove.sdk.v1"]) as waiting:
+            info = json.loads(await waiting.recv())
+            assert info["op"] == "serverInfo" and info["capabilities"] == ["time"]
+            assert "has not started yet" in (await next_of(waiting, "status"))["message"]
+            feed = server.live.feed("truck")
+            feed.set_metadata(metadata)
+            advertise = json.loads(await asyncio.wait_for(waiting.recv(), 10))
+            assert advertise["op"] == "advertise" and len(advertise["channels"]) > 5
+            # A live feed plays as its source sends.
+            await waiting.send(control(False, seek=1, request_id="p"))
+            status = await next_of(waiting, "status")
+            assert status["level"] == 2 and "cannot be paused, sought or sped up" in status["message"]
+            assert (await next_of(waiting, "state"))[3:] == (False, "p")
+            # New metadata: the old channels go, the new ones come with new ids.
+            pose = next(c["id"] for c in advertise["channels"] if c["topic"] == "/vehicle_pose")
+            await waiting.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": pose}]}))
+            await foxglove_subscribed(server)
+            feed.set_metadata({**metadata, "streams": {"/vehicle_pose": metadata["streams"]["/vehicle_pose"]}})
+            gone = json.loads(await asyncio.wait_for(waiting.recv(), 10))
+            assert gone == {"op": "unadvertise", "channelIds": [c["id"] for c in advertise["channels"]]}
+            again = json.loads(await asyncio.wait_for(waiting.recv(), 10))
+            assert [c["topic"] for c in again["channels"]] == ["/vehicle_pose", "/vehicle_pose/pose", "/vehicle_pose/location"]
+            assert min(c["id"] for c in again["channels"]) > max(c["id"] for c in advertise["channels"])
+            await waiting.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 2, "channelId": again["channels"][0]["id"]}]}))
+            await asyncio.sleep(0.2)
+            await feed.publish(frames[3])
+            assert await next_of(waiting, "message") == (2, nanoseconds(kitti_frames(kitti_log)[3]["timestamp"]))
+            feed.disconnect()
+            assert "went away" in (await next_of(waiting, "status"))["message"]
+        # No name and one running feed, or a log name that is a running feed's: that feed.
+        feed.set_metadata(metadata)
+        for path in ("/?session_type=live", "/?log=truck"):
+            async with await foxglove(server, path=path) as websocket:
+                info = json.loads(await websocket.recv())
+                assert info["metadata"] == {"live": "truck"}, path
+        # A name that is neither a log nor a running feed.
+        async with await foxglove(server, path="/?log=nowhere") as websocket:
+            await websocket.recv()
+            assert "nowhere" in (await next_of(websocket, "status"))["message"]
 
 
 # ----------------------------------------------------------------- clips as MCAP files

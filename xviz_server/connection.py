@@ -36,7 +36,7 @@ from .detail import SAMPLE_INTERVAL
 from .flow import backlog, close, limit_unsent, receiver_limited, watch_progress
 from .framing import ready_to_write, write_message
 from .levels import LEVELS, Level
-from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription
+from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription, watch_lag
 from .logfmt import ending, log_event, peer, redact_url
 from .logs import Catalog, Log
 from .metrics import Metrics
@@ -300,7 +300,8 @@ class Connection:
             await self._execute(self.session.live_failed(event.name))
             return
         self._subscription = subscription = feed.subscribe(self.settings.live_queue, self.session.decimate, self._deliver)
-        self._spawn("a slow live viewer", self._watch_lag(subscription))
+        lag = watch_lag(subscription, self.websocket.transport, self.settings.live_lag_timeout, self._lagging)
+        self._spawn("a slow live viewer", lag)
         state = self._hold(feed.state())
         await self._execute(self.session.live_joined(feed.name, state, feed.metadata is not None))
         while True:
@@ -388,14 +389,9 @@ class Connection:
         log_event(logger, "detail changed", remote=peer(self.websocket), detail=event.level.name,
                   previous=event.previous.name, auto=event.auto, link_mbps=mbps)
 
-    async def _watch_lag(self, subscription: Subscription) -> None:
+    async def _lagging(self, seconds: float) -> None:
         """Tell the session how long the viewer has been dropping updates."""
-        interval = min(1.0, self.settings.live_lag_timeout / 4)
-        while not self.websocket.transport.is_closing():
-            await asyncio.sleep(interval)
-            since = subscription.lagging_since
-            if since is not None:
-                await self._execute(self.session.live_lagging(time.monotonic() - since))
+        await self._execute(self.session.live_lagging(seconds))
 
 
 async def _wait(stop: asyncio.Event, seconds: float) -> None:

@@ -247,7 +247,7 @@ class XVIZServer:
             return
         connection: Connection | FoxgloveConnection
         if websocket.subprotocol in SUBPROTOCOLS:
-            connection = FoxgloveConnection(websocket, self.catalog, self.metrics, self.settings)
+            connection = FoxgloveConnection(websocket, self.catalog, self.live, self.metrics, self.settings)
         else:
             connection = Connection(websocket, self.catalog, self.live, self.metrics, self.settings)
         self.sessions.add(connection)

@@ -5,10 +5,11 @@
 // for ros1 or @foxglove/rosmsg2-serialization for cdr), and print what arrived
 // as one JSON object.
 //
-//   node foxglove-client.js URL SUBPROTOCOL [--idle-ms N] [--timeout-ms N] [--send JSON]...
+//   node foxglove-client.js URL SUBPROTOCOL [--idle-ms N] [--timeout-ms N] [--times N] [--send JSON]...
 //
 // It stops once no message has come for --idle-ms (default 1500) after the
-// first one, or after --timeout-ms (default 30000). Each --send is a text
+// first one, once --times time messages have come (a live feed goes on), or
+// after --timeout-ms (default 30000). Each --send is a text
 // message sent once the channels are advertised and subscribed to.
 //
 // Output: {"subprotocol", "serverInfo", "channels": [{id, topic, encoding,
@@ -36,11 +37,12 @@ const {MessageReader: Ros1Reader} = require('@foxglove/rosmsg-serialization');
 const {MessageReader: Ros2Reader} = require('@foxglove/rosmsg2-serialization');
 
 function options(argv) {
-  const out = {idleMs: 1500, timeoutMs: 30000, send: []};
+  const out = {idleMs: 1500, timeoutMs: 30000, times: Infinity, send: []};
   const positional = [];
   for (let i = 0; i < argv.length; i++) {
     if (argv[i] === '--idle-ms') out.idleMs = Number(argv[++i]);
     else if (argv[i] === '--timeout-ms') out.timeoutMs = Number(argv[++i]);
+    else if (argv[i] === '--times') out.times = Number(argv[++i]);
     else if (argv[i] === '--send') out.send.push(argv[++i]);
     else positional.push(argv[i]);
   }
@@ -166,7 +168,11 @@ function main() {
       out.errors.push(`${target.channel.topic}: ${error.message}`);
     }
   });
-  client.on('time', () => { out.times += 1; touch(); });
+  client.on('time', () => {
+    out.times += 1;
+    if (out.times >= opts.times) finish();
+    else touch();
+  });
 }
 
 main();

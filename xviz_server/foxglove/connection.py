@@ -11,6 +11,11 @@ frame's time and, for a log read from a ROS bag or MCAP file, its original
 messages at theirs (see :mod:`~xviz_server.foxglove.frame`). ``send``
 waits while the socket's write buffer is full, so a client that reads
 slowly slows its own playback and nobody else's.
+
+A live feed is followed as an XVIZ live viewer follows it: a bounded
+subscription (``live_queue`` updates, the oldest dropped when the client
+falls behind), each update's messages converted once for every Foxglove
+client of the feed (:mod:`.live`).
 """
 
 from __future__ import annotations
@@ -27,19 +32,23 @@ import numpy as np
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
+from websockets.frames import CloseCode
 
 from ..connection import request_target
 from ..exceptions import XVIZError
-from ..flow import watch_progress
+from ..flow import close, watch_progress
+from ..live import FeedEvent, LiveRegistry, LiveUpdate, watch_lag
 from ..logfmt import ending, log_event, peer, redact_url
 from ..logs import Catalog, Log
 from ..metrics import Metrics
-from ..session import OpenLog, Send
+from ..records import unpack
+from ..session import Close, LookUpLive, OpenLog, Send, SubscribeLive
 from ..settings import Settings
 from ..version import __version__
 from .convert import Channel, Plan, nanoseconds, plan
 from .frame import Message, frame_messages
-from .session import Event, FoxgloveSession, Play, SendLatest, Stop
+from .live import LivePlan, converted, feed_plan, update_time
+from .session import Event, FoxgloveSession, Play, SendLatest, SendLive, Stop
 from .wire import message_header, time_message
 
 __all__ = ["FoxgloveConnection"]
@@ -80,11 +89,14 @@ class _OpenLog:
 
 
 class FoxgloveConnection:
-    """One WebSocket connection speaking the Foxglove protocol, with its own playback of one log."""
+    """One WebSocket connection speaking the Foxglove protocol, with its own playback of one log, or a live feed."""
 
-    def __init__(self, websocket: ServerConnection, catalog: Catalog, metrics: Metrics, settings: Settings) -> None:
+    def __init__(
+        self, websocket: ServerConnection, catalog: Catalog, live: LiveRegistry, metrics: Metrics, settings: Settings
+    ) -> None:
         self.websocket = websocket
         self.catalog = catalog
+        self.live = live
         self.metrics = metrics
         self.settings = settings
         self.path, path, query = request_target(websocket)
@@ -93,9 +105,12 @@ class FoxgloveConnection:
             query=query,
             available=catalog.available(),
             server_name=f"xviz-server {__version__}",
+            lag_timeout=settings.live_lag_timeout,
         )
         self._log: _OpenLog | None = None
         self._player: asyncio.Task[None] | None = None
+        self._follower: asyncio.Task[None] | None = None
+        self._update: tuple[LiveUpdate, LivePlan] | None = None  # the live update the session is deciding about
         self._watch: asyncio.Task[None] | None = None
         self.messages_sent = 0
         self.bytes_sent = 0
@@ -115,12 +130,12 @@ class FoxgloveConnection:
         except ConnectionClosed:
             pass
         finally:
-            for task in (self._player, self._watch):
-                if task is not None:
-                    task.cancel()
-            await asyncio.gather(*(t for t in (self._player, self._watch) if t is not None), return_exceptions=True)
+            tasks = [task for task in (self._player, self._watch, self._follower) if task is not None]
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
             self.metrics.sessions_open.dec()
-            log_event(logger, "session end", remote=remote, log=self._log.name if self._log else None, format="foxglove",
+            log_event(logger, "session end", remote=remote, log=self._log.name if self._log else self.session.feed, format="foxglove",
                       messages=self.messages_sent, bytes=self.bytes_sent, duration=round(time.monotonic() - started, 3),
                       **ending(self.websocket))
 
@@ -140,6 +155,14 @@ class FoxgloveConnection:
                 await self._stop()
             elif isinstance(event, SendLatest):
                 await self._send_frame(event.place, event.targets)
+            elif isinstance(event, LookUpLive):
+                await self._execute(self.session.live_found(self.live.facts(event.name)))
+            elif isinstance(event, SubscribeLive):
+                self._follower = asyncio.ensure_future(self._follow(event.name))
+            elif isinstance(event, SendLive):
+                await self._send_live(event)
+            elif isinstance(event, Close):
+                await close(self.websocket, event.code, event.reason)
 
     async def _write(self, data: bytes, text: bool) -> None:
         await self.websocket.send(data, text=text)
@@ -210,6 +233,59 @@ class FoxgloveConnection:
             subscription = targets.get(channel)
             if subscription is not None:
                 await self._write(message_header(subscription, stamp) + payload, text=False)
+
+    # -- live feeds ---------------------------------------------------------------
+
+    async def _follow(self, name: str) -> None:
+        """Follow live feed ``name`` (once a source creates it): tell the session what it does, send what it says."""
+        try:
+            feed = await self.live.wait_for(name)
+        except XVIZError:  # too many names waited for
+            await self._execute(self.session.live_failed(name))
+            return
+        subscription = feed.subscribe(self.settings.live_queue)
+        lag = asyncio.ensure_future(watch_lag(subscription, self.websocket.transport, self.settings.live_lag_timeout, self._lagging))
+        try:
+            channels = feed_plan(feed)
+            await self._execute(self.session.live_joined(None if channels is None else channels.plan.channels))
+            while True:
+                item = await subscription.next()
+                if isinstance(item, FeedEvent):
+                    channels = feed_plan(feed)
+                    if item.kind == "metadata" and channels is not None:
+                        await self._execute(self.session.live_started(channels.plan.channels))
+                    elif item.kind == "gone":
+                        await self._execute(self.session.live_gone())
+                elif channels is not None:
+                    self._update = item, channels
+                    behind = subscription.lagging_since is not None
+                    await self._execute(self.session.live_update(update_time(item), subscription.take_drops(), behind))
+        except ConnectionClosed:
+            pass
+        except Exception as exc:
+            logger.exception("error following live feed %r for %s", name, peer(self.websocket), exc_info=exc)
+            await close(self.websocket, CloseCode.INTERNAL_ERROR, "following the live feed failed")
+        finally:
+            subscription.close()
+            lag.cancel()
+            self._update = None
+
+    async def _lagging(self, seconds: float) -> None:
+        await self._execute(self.session.live_lagging(seconds))
+
+    async def _send_live(self, event: SendLive) -> None:
+        """Send the live update at hand to ``event.targets``, converted once for every client of the feed."""
+        assert self._update is not None
+        update, channels = self._update
+        if event.targets:
+            try:
+                packed = await converted(update, channels, self.live.workers)
+            except XVIZError as exc:
+                await self._execute(self.session.frame_failed(exc))
+            else:
+                await self._send(list(unpack(packed)), event.targets)
+        if event.time is not None:
+            await self._write(time_message(event.time), text=False)
 
 
 def _by_time(tick: int, messages: list[Message]) -> Iterator[tuple[int, list[Message]]]:

@@ -12,27 +12,46 @@ Each connection has its own playback: a client that only subscribes gets the
 log from its start at real time, from its first subscription on; play,
 pause, seek and speed (``foxglove.sdk.v1``'s playback control request) change
 this connection's playback only.
+
+Live feeds (``?session_type=live&log=NAME``, or ``?log=NAME`` naming no
+recorded log but a running feed) follow the XVIZ live viewer's rules: the
+session decides from what the feed registry reports (:meth:`live_found`)
+whether to follow a feed, wait for it or refuse. Its channels are those of
+the feed's metadata, advertised again (with new ids) when the metadata
+changes; each update's messages go to the subscriptions, then a ``time``
+message. A client that falls behind is told once per run of dropped updates
+(the oldest go first) and closed once it has been dropping them for
+``lag_timeout`` seconds. A live feed plays as its source sends: no
+``playbackControl`` capability, and a playback control request is answered
+with a status.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, TypeGuard
 
-from ..exceptions import FoxgloveProtocolError, XVIZError
-from ..session import OpenLog, Send
+from websockets.frames import CloseCode
+
+from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
+from ..session import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
 from .convert import Channel
 from .wire import (
     CLIENT_MESSAGE_DATA, ENDED, PAUSED, PLAYBACK_CONTROL_REQUEST, PLAYING, SERVICE_CALL_REQUEST, PlaybackControl,
     parse_playback_control, parse_text, playback_state, text,
 )
 
-__all__ = ["FoxgloveLog", "Play", "Stop", "SendLatest", "FoxgloveSession", "CAPABILITIES", "MAX_SPEED"]
+__all__ = [
+    "FoxgloveLog", "Play", "Stop", "SendLatest", "SendLive", "FoxgloveSession", "CAPABILITIES", "LIVE_CAPABILITIES",
+    "MAX_SPEED",
+]
 
-#: What ``serverInfo`` says this server does.
+#: What ``serverInfo`` says this server does for a recorded log.
 CAPABILITIES = ("time", "playbackControl")
+#: What it says for a live feed, which plays as its source sends.
+LIVE_CAPABILITIES = ("time",)
 
 #: The fastest playback a client may ask for, as a factor of real time.
 MAX_SPEED = 100.0
@@ -94,7 +113,20 @@ class SendLatest:
     targets: Mapping[int, int]
 
 
-Event = Send | OpenLog | Play | Stop | SendLatest
+@dataclass(frozen=True)
+class SendLive:
+    """Send the messages of the live update at hand to ``targets`` (subscriptions by channel), then a ``time``
+    message of ``time`` (nanoseconds) unless it is ``None``.
+
+    Channels are numbered as :func:`~xviz_server.foxglove.convert.plan`
+    numbers those of the feed's metadata.
+    """
+
+    targets: Mapping[int, int]
+    time: int | None
+
+
+Event = Send | OpenLog | Play | Stop | SendLatest | LookUpLive | SubscribeLive | SendLive | Close
 
 
 @dataclass
@@ -105,7 +137,11 @@ class FoxgloveSession:
     query: Mapping[str, str]
     available: Sequence[str] = ()
     server_name: str = "xviz-server"
+    #: Seconds a live client may keep dropping updates before it is closed.
+    lag_timeout: float = 30.0
     log: FoxgloveLog | None = field(init=False, default=None)
+    #: The live feed followed (or waited for), once the session chose one.
+    feed: str | None = field(init=False, default=None)
     #: Where playback is (nanoseconds), its speed, and whether it plays.
     position: int = field(init=False, default=0)
     speed: float = field(init=False, default=1.0)
@@ -116,17 +152,20 @@ class FoxgloveSession:
     _channels: dict[int, Channel] = field(init=False, default_factory=dict)
     _subscriptions: dict[int, int] = field(init=False, default_factory=dict)  # subscription id -> channel id
     _by_channel: dict[int, int] = field(init=False, default_factory=dict)  # channel id -> subscription id
+    _live: bool = field(init=False, default=False)  # the URL asks for a live feed
+    _asked: str | None = field(init=False, default=None)  # the name the URL gives
+    _unfound: XVIZError | None = field(init=False, default=None)  # no log of that name: a live feed, if one runs
+    _base: int = field(init=False, default=0)  # a live channel's id is its number in the feed's plan plus this
+    _behind: bool = field(init=False, default=False)  # the live client is dropping updates
 
     # -- inputs -------------------------------------------------------------
 
     def connect(self) -> list[Event]:
-        """The connection opened: open the log its URL names."""
+        """The connection opened: open the log its URL names, or look up the live feed it names."""
+        name = self._asked = self.query.get("log") or self.query.get("logGuid") or self.path.strip("/") or None
         if self.query.get("session_type", "").upper() == "LIVE":
-            return [self._server_info(), self._status(
-                ERROR, "live feeds are not served to Foxglove clients yet: connect with ?log=NAME for a recorded log",
-                kind="live",
-            )]
-        name = self.query.get("log") or self.query.get("logGuid") or self.path.strip("/") or None
+            self._live = True
+            return [LookUpLive(name)]
         if name is None:
             if len(self.available) != 1:
                 shown = ", ".join(repr(n) for n in self.available[:20]) or "none"
@@ -143,7 +182,10 @@ class FoxgloveSession:
         return [self._server_info(), Send(advertise, text=True)]
 
     def log_failed(self, error: XVIZError) -> list[Event]:
-        """The log cannot be served."""
+        """The log cannot be served; a name that is no recorded log may be a running live feed's."""
+        if isinstance(error, LogNotFound) and self._asked is not None and not self._live and self._unfound is None:
+            self._unfound = error
+            return [LookUpLive(self._asked)]
         return [self._server_info(), self._status(ERROR, str(error), kind="log")]
 
     def receive(self, data: bytes | str) -> list[Event]:
@@ -173,8 +215,93 @@ class FoxgloveSession:
         return [self._state(ENDED, False, None)] if self._controlled else []
 
     def frame_failed(self, error: XVIZError) -> list[Event]:
-        """A frame could not be read or converted; playback goes on with the next."""
+        """A frame (or live update) could not be read or converted; playback goes on with the next."""
         return [self._status(WARNING, str(error), kind="frame")]
+
+    # -- live feeds -------------------------------------------------------------
+
+    def live_found(self, facts: LiveFacts) -> list[Event]:
+        """What the registry knows of the feed the URL names (see :class:`LookUpLive`): follow it, wait, or refuse.
+
+        A named feed is that feed only, waited for if no source has created
+        it yet; with no name, the only running feed is followed. A name that
+        is no recorded log is followed only if its feed runs.
+        """
+        name = self._asked
+        if self._unfound is not None:
+            if name not in facts.running:
+                return [self._server_info(), self._status(ERROR, str(self._unfound), kind="log")]
+            self._live = True
+            return self._follow(name)
+        if not facts.allowed:
+            return self.live_failed(name)
+        if name is None:
+            return self._follow(facts.running[0]) if len(facts.running) == 1 else self.live_failed(None, facts.running)
+        if facts.exists:
+            return self._follow(name)
+        info, subscribe = self._follow(name)
+        return [info, self._waiting(name), subscribe]
+
+    def live_failed(self, name: str | None, running: Sequence[str] = ()) -> list[Event]:
+        """No live feed answers to what the client asked for (or too many are waited for)."""
+        shown = ", ".join(repr(n) for n in running[:20]) or "none"
+        what = f"named {name!r} can be followed" if name is not None else "named: add ?log=NAME to the URL"
+        return [self._server_info(), self._status(ERROR, f"no live feed {what}; running live feeds: {shown}", kind="live")]
+
+    def live_joined(self, channels: Sequence[Channel] | None) -> list[Event]:
+        """The connection follows the feed; ``channels`` are those of its metadata (``None``: it has none yet)."""
+        if channels is None:
+            assert self.feed is not None
+            return [self._waiting(self.feed)]
+        return self.live_started(channels)
+
+    def live_started(self, channels: Sequence[Channel]) -> list[Event]:
+        """The feed has (new) metadata whose channels are ``channels``: advertise them unless they are advertised.
+
+        Channels that change are unadvertised (their subscriptions end) and
+        the new ones advertised with ids never used on this connection.
+        """
+        current = [(c.id - self._base, c.topic, c.schema) for c in self._channels.values()]
+        if current == [(c.id, c.topic, c.schema) for c in channels]:
+            return []
+        events: list[Event] = []
+        if self._channels:
+            events.append(Send(text("unadvertise", channelIds=list(self._channels)), text=True))
+            self._base = max(self._channels)
+        self._subscriptions.clear()
+        self._by_channel.clear()
+        shown = [replace(channel, id=channel.id + self._base) for channel in channels]
+        self._channels = {channel.id: channel for channel in shown}
+        events.append(Send(text("advertise", channels=[channel.advertisement() for channel in shown]), text=True))
+        return events
+
+    def live_gone(self) -> list[Event]:
+        """The feed's source went away."""
+        message = f"live feed {self.feed!r} went away; this connection stays open and resumes when it comes back"
+        return [self._status(WARNING, message, kind="gone")]
+
+    def live_update(self, time: int | None, dropped: int, behind: bool) -> list[Event]:
+        """The feed's next update for this client is at hand; its time is ``time`` (nanoseconds, if it has one).
+
+        ``dropped`` updates were dropped since the last call because the
+        client fell behind; ``behind`` tells whether it still is.
+        """
+        events: list[Event] = []
+        if dropped and not self._behind:
+            message = (f"live feed {self.feed!r}: this client is behind; {dropped} updates were dropped "
+                       "(the oldest go first; clients that stay behind are disconnected)")
+            events.append(self._status(WARNING, message, kind="behind"))
+        self._behind = behind
+        if time is not None:
+            self.position = time
+        events.append(SendLive({cid - self._base: sid for cid, sid in self._by_channel.items()}, time))
+        return events
+
+    def live_lagging(self, seconds: float) -> list[Event]:
+        """The client has been dropping live updates for ``seconds``."""
+        if seconds <= self.lag_timeout:
+            return []
+        return [Close(CloseCode.TRY_AGAIN_LATER, f"too slow: dropped live updates for over {self.lag_timeout:g} s")]
 
     # -- client messages ------------------------------------------------------
 
@@ -241,6 +368,10 @@ class FoxgloveSession:
 
     def _on_playback_control(self, request: PlaybackControl) -> list[Event]:
         self._controlled = True
+        if self._live:
+            message = (f"playback control request {request.request_id!r}: live feed {self.feed!r} plays as its source "
+                       "sends; it cannot be paused, sought or sped up (playbackControl is not in serverInfo)")
+            return [self._status(ERROR, message, kind="invalid"), self._state(PLAYING, False, request.request_id)]
         if self.log is None:
             raise FoxgloveProtocolError(f"playback control request {request.request_id!r}: no log is open")
         if not (math.isfinite(request.speed) and 0 < request.speed <= MAX_SPEED):
@@ -276,9 +407,18 @@ class FoxgloveSession:
         self._shown = None
         return Play(start, self.speed, seek=seek, once=once)
 
+    def _follow(self, name: str) -> list[Event]:
+        self.feed = name
+        return [self._server_info(), SubscribeLive(name)]
+
+    def _waiting(self, name: str) -> Send:
+        return self._status(INFO, f"live feed {name!r} has not started yet; waiting for it", kind="waiting")
+
     def _server_info(self) -> Send:
-        info: dict[str, Any] = {"name": self.server_name, "capabilities": list(CAPABILITIES)}
-        if self.log is not None:
+        info: dict[str, Any] = {"name": self.server_name, "capabilities": list(LIVE_CAPABILITIES if self._live else CAPABILITIES)}
+        if self.feed is not None:
+            info["metadata"] = {"live": self.feed}
+        elif self.log is not None:
             info["metadata"] = {"log": self.log.name}
             info["dataStartTime"] = _time(self.log.start_time)
             info["dataEndTime"] = _time(self.log.end_time)

@@ -5,6 +5,6 @@ over the network, :mod:`.replay` plays a recorded log as a feed and
 :mod:`.record` writes feeds out as logs.
 """
 
-from .feed import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription
+from .feed import FeedEvent, LiveFeed, LiveRegistry, LiveUpdate, Subscription, watch_lag
 
-__all__ = ["LiveFeed", "LiveRegistry", "LiveUpdate", "Subscription", "FeedEvent"]
+__all__ = ["LiveFeed", "LiveRegistry", "LiveUpdate", "Subscription", "FeedEvent", "watch_lag"]

@@ -26,7 +26,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Awaitable, Callable, Iterator, Mapping
+from typing import Any, Awaitable, Callable, Hashable, Iterator, Mapping
 
 
 from ..codec import Format, decode, detect_format, encode
@@ -34,12 +34,12 @@ from ..exceptions import XVIZError
 from ..messages import XVIZ_VERSION, envelope, unwrap
 from ..logs import check_log_name
 from ..session import LiveFacts, Variant
-from ..frames import render, render_message
+from ..frames import placement, render, render_message
 from ..levels import FULL
 from ..state import COMPLETE_TYPES, complete_state
 from ..work import Workers
 
-__all__ = ["LiveUpdate", "Subscription", "FeedEvent", "LiveFeed", "LiveRegistry"]
+__all__ = ["LiveUpdate", "Subscription", "FeedEvent", "LiveFeed", "LiveRegistry", "watch_lag"]
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +53,7 @@ class LiveUpdate:
         self.number = number
         self.message = message
         self._encodings: dict[Variant, asyncio.Future[bytes]] = {}
+        self._derived: dict[Hashable, asyncio.Future[bytes]] = {}
         if original is not None:
             future = asyncio.get_running_loop().create_future()
             future.set_result(original)
@@ -76,10 +77,28 @@ class LiveUpdate:
             self._encodings[variant] = future
         return future
 
+    def derived(self, name: Hashable, job: Callable[..., bytes], *args: Any, workers: Workers) -> asyncio.Future[bytes]:
+        """This update made into something else by ``job(glb, *args)`` (``glb``: its GLB bytes), made once.
+
+        ``name`` tells what ``job`` makes: the first viewer to ask for a
+        ``name`` starts the job, the others get its future. ``job`` runs
+        where a frame job of that size runs (:func:`~xviz_server.frames.placement`).
+        """
+        future = self._derived.get(name)
+        if future is None:
+            future = asyncio.ensure_future(self._derive(job, args, workers))
+            future.add_done_callback(lambda done: done.cancelled() or done.exception())  # a viewer that asks is told
+            self._derived[name] = future
+        return future
+
     @property
     def variants(self) -> list[Variant]:
         """The variants asked for so far."""
         return list(self._encodings)
+
+    async def _derive(self, job: Callable[..., bytes], args: tuple[Any, ...], workers: Workers) -> bytes:
+        glb = await self.encoded(Variant(Format.BINARY), workers)
+        return await workers.run(placement(len(glb), Format.BINARY), job, glb, *args)
 
     async def _encode(self, variant: Variant, workers: Workers) -> bytes:
         if variant.fmt is Format.BINARY and variant.level is FULL:
@@ -459,6 +478,21 @@ class LiveRegistry:
             waited.viewers -= 1
             if not waited.viewers and self._waited.get(name) is waited:
                 del self._waited[name]
+
+
+async def watch_lag(subscription: Subscription, transport: asyncio.BaseTransport, timeout: float,
+                    report: Callable[[float], Awaitable[None]]) -> None:
+    """Report how long the viewer of ``subscription`` has been dropping updates, while it drops them.
+
+    ``report`` is awaited with the seconds, every quarter of ``timeout`` (a
+    second at most), until ``transport`` closes.
+    """
+    interval = min(1.0, timeout / 4)
+    while not transport.is_closing():
+        await asyncio.sleep(interval)
+        since = subscription.lagging_since
+        if since is not None:
+            await report(time.monotonic() - since)
 
 
 def _allowed(name: str) -> bool:

@@ -1,0 +1,61 @@
+"""A live feed's updates as Foxglove messages, converted once per update for every Foxglove client of the feed.
+
+A feed's channels are those :func:`~xviz_server.foxglove.convert.plan`
+gives for its metadata (:func:`feed_plan`, made once per metadata). Each
+update's messages are :func:`~xviz_server.foxglove.convert.convert` of its
+GLB bytes, made by the first Foxglove client to ask and kept with the update
+(:meth:`~xviz_server.live.LiveUpdate.derived`): the other clients of the
+feed get the same bytes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+from weakref import WeakKeyDictionary
+
+from ..live import LiveFeed, LiveUpdate
+from ..work import Workers
+from .convert import CONVERTED, Plan, convert, nanoseconds, plan
+
+__all__ = ["LivePlan", "feed_plan", "converted", "update_time"]
+
+
+@dataclass(frozen=True, eq=False)
+class LivePlan:
+    """A feed's Foxglove channels under one metadata (compared and hashed by identity: one per metadata)."""
+
+    metadata: Mapping[str, Any]
+    plan: Plan
+
+
+_plans: WeakKeyDictionary[LiveFeed, LivePlan] = WeakKeyDictionary()
+
+
+def feed_plan(feed: LiveFeed) -> LivePlan | None:
+    """The channels of ``feed`` under its current metadata, or ``None`` before it has any."""
+    metadata = feed.metadata
+    if metadata is None:
+        return None
+    held = _plans.get(feed)
+    if held is None or held.metadata is not metadata:
+        held = _plans[feed] = LivePlan(metadata, plan(metadata))
+    return held
+
+
+async def converted(update: LiveUpdate, channels: LivePlan, workers: Workers) -> bytes:
+    """The Foxglove messages of ``update`` on ``channels``, packed (:func:`~xviz_server.records.pack`).
+
+    Raises :class:`~xviz_server.exceptions.DecodeError` for an update that
+    cannot be converted (one of its updates has no timestamp).
+    """
+    return await asyncio.shield(update.derived((CONVERTED, channels), convert, channels.plan, workers=workers))
+
+
+def update_time(update: LiveUpdate) -> int | None:
+    """The time of ``update`` in nanoseconds: its newest XVIZ timestamp (``None`` if it has none)."""
+    stamps = [item.get("timestamp") for item in update.message["data"]["updates"] if isinstance(item, dict)]
+    numbers = [stamp for stamp in stamps if isinstance(stamp, (int, float)) and not isinstance(stamp, bool)]
+    return nanoseconds(max(numbers)) if numbers else None
