@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark the Foxglove face: converting a frame, and streaming a cached log against the XVIZ path.
 
-    .venv/bin/python scripts/bench/foxglove.py [--repeats 5] [--quick]
+    .venv/bin/python scripts/bench/foxglove.py [--repeats 5] [--rate 10] [--seconds 20] [--live-clients 3] [--quick]
 
 1. Converting: each of the 25 real KITTI frames (2.2 MB GLB) into its
    Foxglove messages (:func:`xviz_server.foxglove.convert.convert`), in this
@@ -16,6 +16,16 @@
    seeking (paused) to random frames ``--seeks`` times; the time from
    sending the request to the first message of the frame sought, p50 and p99
    over every seek of every client.
+4. Live: a source process pushes a real KITTI frame (2.1 MB of GLB) to
+   ``/ingest/bench`` at ``--rate`` Hz for ``--seconds`` (``kit.live``'s
+   source, each update's timestamp unique); one XVIZ live viewer and
+   ``--live-clients`` Foxglove clients (every channel subscribed) of that
+   feed, all minimal clients (``kit.ws.RawClient``) in this process, note
+   when each update's last byte arrives: for the Foxglove clients, its
+   ``time`` message, which follows its messages. Reported: a Foxglove
+   client's arrival minus the XVIZ viewer's, for the same update, p50 and
+   p99 over every update of every client (goal: at most 20 ms), and the
+   updates each got.
 
 """
 
@@ -27,6 +37,7 @@ import json
 import random
 import statistics
 import struct
+import subprocess
 import tempfile
 import time
 from pathlib import Path
@@ -35,9 +46,11 @@ from websockets.asyncio.client import connect
 from websockets.typing import Subprotocol
 
 from kit import KITTI, parse, percentile
-from kit.proc import start_server
+from kit.live import ROLE
+from kit.proc import BENCH, start_server
+from kit.ws import RawClient, envelope_of
 from xviz_server.codec import decode
-from xviz_server.foxglove.convert import convert, plan
+from xviz_server.foxglove.convert import convert, nanoseconds, plan
 from xviz_server.foxglove.session import MAX_SPEED
 
 MB = 1e6
@@ -148,14 +161,74 @@ async def streaming(repeats: int, clients: int, seeks: int) -> None:
     print(f"| request to the first message at the new time | {statistics.median(waits) * 1e3:.1f} | {percentile(waits, 99) * 1e3:.1f} |")
 
 
+async def live_viewer(url: str, seconds: float, subscribed: asyncio.Event, foxglove: bool) -> dict[int, float]:
+    """When each update of the feed at ``url`` arrives (by its time in nanoseconds), at an XVIZ viewer or a Foxglove
+    client subscribed to every channel (then: when its ``time`` message arrives); ``subscribed`` is set once it is."""
+    setup = 1 << 22  # room for the advertise message (its schemas) while setting up
+    client = await RawClient.open(url, keep=setup, subprotocol="foxglove.sdk.v1" if foxglove else None)
+    arrivals: dict[int, float] = {}
+    try:
+        if foxglove:
+            while True:
+                _, head, _ = await client.recv()
+                message = json.loads(head) if head[:1] == b"{" else {}
+                if message.get("op") == "advertise":
+                    subscriptions = [{"id": c["id"], "channelId": c["id"]} for c in message["channels"]]
+                    await client.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+                    break
+        client.protocol.keep = 16 if foxglove else 65536
+        subscribed.set()
+        deadline = time.perf_counter() + seconds
+        while (left := deadline - time.perf_counter()) > 0:
+            try:
+                length, head, arrived = await asyncio.wait_for(client.recv(), left)
+            except asyncio.TimeoutError:
+                break
+            if foxglove and head[:1] == b"\x02":  # a time message
+                arrivals[struct.unpack_from("<Q", head, 1)[0]] = arrived
+            elif not foxglove and length > 100_000:
+                arrivals[nanoseconds(envelope_of(head)["data"]["updates"][0]["timestamp"])] = arrived
+    finally:
+        client.abort()
+    return arrivals
+
+
+async def live(rate: float, seconds: float, clients: int) -> None:
+    with start_server(None) as server:
+        url = f"ws://127.0.0.1:{server.port}/?session_type=live&log=bench"
+        ready = [asyncio.Event() for _ in range(clients + 1)]
+        watch = seconds + 4
+        viewers = [asyncio.ensure_future(live_viewer(url, watch, ready[i], foxglove=i > 0)) for i in range(clients + 1)]
+        source = await asyncio.create_subprocess_exec(
+            *ROLE, "source", f"ws://127.0.0.1:{server.port}/ingest/bench", str(rate), str(seconds), cwd=BENCH,
+        )
+        await asyncio.wait_for(asyncio.gather(*(event.wait() for event in ready)), 30)  # the source waits 1 s for them
+        if await source.wait() != 0:
+            raise subprocess.CalledProcessError(source.returncode or 1, "kit.live source")
+        xviz, *foxes = await asyncio.gather(*viewers)
+    behind = [(fox[stamp] - arrived) * 1e3 for fox in foxes for stamp, arrived in xviz.items() if stamp in fox]
+    sent = int(rate * seconds)
+    print()
+    print(f"| a live feed of KITTI frames at {rate:g} Hz, {sent} updates; {clients} Foxglove clients beside one XVIZ viewer "
+          "| p50 ms | p99 ms | updates got (XVIZ; Foxglove min-max) |")
+    print("|---|---|---|---|")
+    got = [len(fox) for fox in foxes]
+    print(f"| Foxglove client's arrival minus the XVIZ viewer's, per update | {statistics.median(behind):.1f} "
+          f"| {percentile(behind, 99):.1f} | {len(xviz)}; {min(got)}-{max(got)} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--clients", type=int, default=20, help="Foxglove clients seeking at once")
     parser.add_argument("--seeks", type=int, default=20, help="seeks per client")
-    args = parse(parser, {"repeats": 1, "clients": 2, "seeks": 3})
+    parser.add_argument("--rate", type=float, default=10.0, help="live updates a second")
+    parser.add_argument("--seconds", type=float, default=20.0, help="seconds the live source sends")
+    parser.add_argument("--live-clients", type=int, default=3, help="Foxglove clients of the live feed")
+    args = parse(parser, {"repeats": 1, "clients": 2, "seeks": 3, "seconds": 1.5, "live_clients": 1})
     converting(args.repeats)
     asyncio.run(streaming(args.repeats, args.clients, args.seeks))
+    asyncio.run(live(args.rate, args.seconds, args.live_clients))
 
 
 if __name__ == "__main__":

@@ -40,11 +40,12 @@ __all__ = [
 ]
 
 
-def handshake_request(target: str, host: str = "127.0.0.1") -> bytes:
-    """A client's opening handshake (RFC 6455 4.1) for ``target`` (path and query) on ``host``."""
+def handshake_request(target: str, host: str = "127.0.0.1", subprotocol: str | None = None) -> bytes:
+    """A client's opening handshake (RFC 6455 4.1) for ``target`` (path and query) on ``host``, offering ``subprotocol``."""
     key = base64.b64encode(os.urandom(16)).decode()
+    offer = f"Sec-WebSocket-Protocol: {subprotocol}\r\n" if subprotocol else ""
     return (f"GET {target} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode()
+            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n{offer}\r\n").encode()
 
 
 def masked_frame(opcode: int, payload: bytes) -> bytes:
@@ -251,7 +252,9 @@ class RawClient:
         self.extensions = match.group(1).strip() if match else None
 
     @classmethod
-    async def open(cls, url: str, keep: int = 512, compression: str | None = None, max_queue: int = 16) -> RawClient:
+    async def open(
+        cls, url: str, keep: int = 512, compression: str | None = None, max_queue: int = 16, subprotocol: str | None = None
+    ) -> RawClient:
         if compression:
             raise ValueError("the raw client does not do compression")
         parts = urlsplit(url)
@@ -260,7 +263,7 @@ class RawClient:
         _, protocol = await loop.create_connection(lambda: RawProtocol(keep), parts.hostname, parts.port)
         target = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
         assert protocol.transport is not None
-        protocol.transport.write(handshake_request(target, parts.netloc))
+        protocol.transport.write(handshake_request(target, parts.netloc, subprotocol))
         response = await asyncio.wait_for(protocol.opened, 60)
         return cls(protocol, response)
 
