@@ -16,7 +16,7 @@ import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from mcap.reader import make_reader
-from websockets.exceptions import InvalidStatus
+from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from devkit.rosbag_kitti import CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, GRAY_TOPIC, RAW, Messages, kitti_messages, write_bag
 
@@ -473,16 +473,23 @@ async def test_each_live_update_is_converted_once_for_every_foxglove_client(kitt
             await websocket.close()
 
 
+async def stalled_live_client(server: Any, metadata: dict[str, Any]) -> tuple[Any, ClientConnection]:
+    """The live feed ``car`` with ``metadata``, and a Foxglove client of it subscribed to every channel that then
+    stopped reading its socket."""
+    feed = server.live.feed("car")
+    feed.set_metadata(metadata)
+    stalled = await foxglove(server, path="/?session_type=live&log=car")
+    _, channels = await opened(stalled)
+    await stalled.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
+    await foxglove_subscribed(server)
+    stalled.transport.pause_reading()
+    return feed, stalled
+
+
 async def test_a_stalled_live_client_stays_bounded_and_is_told_it_fell_behind(kitti_root: Path, kitti_log: Path) -> None:
     metadata, frames = kitti_source(kitti_log)
     async with running_server(kitti_root, live_queue=4, live_lag_timeout=60) as server:
-        feed = server.live.feed("car")
-        feed.set_metadata(metadata)
-        stalled = await foxglove(server, path="/?session_type=live&log=car")
-        _, channels = await opened(stalled)
-        await stalled.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
-        await foxglove_subscribed(server)
-        stalled.transport.pause_reading()
+        feed, stalled = await stalled_live_client(server, metadata)
         [connection] = [s for s in server.sessions if getattr(getattr(s, "session", None), "feed", None) == "car"]
         async with client(server, "/?session_type=live&log=car") as xviz:
             await xviz.recv()
@@ -504,6 +511,21 @@ async def test_a_stalled_live_client_stays_bounded_and_is_told_it_fell_behind(ki
         notice = await next_of(stalled, "status", timeout=30)
         assert notice["level"] == 1 and "this client is behind" in notice["message"] and "updates were dropped" in notice["message"]
         await stalled.close()
+
+
+async def test_a_live_client_hopelessly_behind_is_closed_with_a_reason(kitti_root: Path, kitti_log: Path) -> None:
+    metadata, frames = kitti_source(kitti_log)
+    async with running_server(kitti_root, live_queue=2, live_lag_timeout=0.5) as server:
+        feed, slow = await stalled_live_client(server, metadata)
+        for frame in frames * 2:
+            await feed.publish(frame)
+            await asyncio.sleep(0.05)
+        slow.transport.resume_reading()
+        with pytest.raises(ConnectionClosed) as closed:
+            while True:
+                await asyncio.wait_for(slow.recv(), 15)
+        assert closed.value.rcvd is not None and closed.value.rcvd.code == 1013
+        assert "too slow: dropped live updates" in closed.value.rcvd.reason
 
 
 async def test_a_live_feed_is_found_waited_for_and_refuses_playback_control(kitti_root: Path, kitti_log: Path) -> None:

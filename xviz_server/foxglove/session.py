@@ -6,7 +6,8 @@ player reached a time) and answers with events for the asyncio side to carry
 out. It owns every decision of the protocol: which log the URL names, what
 ``serverInfo`` and ``advertise`` say, which subscription gets which channel,
 what a playback control request does, and the ``status`` message that
-answers anything wrong. Nothing it is sent closes the connection.
+answers anything wrong. Nothing a client sends closes the connection (a
+live client that stays behind is closed, see below).
 
 Each connection has its own playback: a client that only subscribes gets the
 log from its start at real time, from its first subscription on; play,
