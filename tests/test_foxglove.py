@@ -540,6 +540,8 @@ async def test_a_live_feed_is_found_waited_for_and_refuses_playback_control(kitt
             feed.set_metadata(metadata)
             advertise = json.loads(await asyncio.wait_for(waiting.recv(), 10))
             assert advertise["op"] == "advertise" and len(advertise["channels"]) > 5
+            await waiting.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 9, "channelId": 999}]}))
+            assert "no channel 999 in live feed 'truck'" in (await next_of(waiting, "status"))["message"]
             # A live feed plays as its source sends.
             await waiting.send(control(False, seek=1, request_id="p"))
             status = await next_of(waiting, "status")

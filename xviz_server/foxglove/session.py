@@ -435,6 +435,8 @@ class FoxgloveSession:
         return Send(data, text=True, notice=kind, message=message)
 
     def _where(self) -> str:
+        if self.feed is not None:
+            return f" in live feed {self.feed!r}"
         return f" in log {self.log.name!r}" if self.log is not None else ""
 
 
