@@ -114,14 +114,18 @@ async def test_viewers_asking_for_made_up_feeds_create_nothing(monkeypatch: pyte
         assert not server.live._waited  # nobody waits: the names are forgotten
 
 
-async def test_an_accessor_referenced_many_times_is_refused():
+@pytest.mark.parametrize("where", ["primitives", "behind a number"])
+async def test_an_accessor_referenced_many_times_is_refused(where: str):
     cloud = np.zeros((50_000, 3), dtype=np.float32)  # 600 KB
     data = {"update_type": "SNAPSHOT", "updates": [{"timestamp": 1.0, "primitives": {"/points": {"points": [{"points": cloud}]}}}]}
     glb = encode({"type": "xviz/state_update", "data": data}, Format.BINARY)
 
     def reference_it_a_hundred_times(message):
         stream = message["data"]["updates"][0]["primitives"]["/points"]
-        stream["points"] = stream["points"] * 100
+        if where == "primitives":
+            stream["points"] = stream["points"] * 100
+        else:  # in a list of the update's own whose first item is a number, then the cloud's accessor 99 times
+            message["data"]["updates"][0]["extra"] = [0, *[stream["points"][0]["points"]] * 99]
         return message
 
     amplified = edit_glb(glb, reference_it_a_hundred_times)

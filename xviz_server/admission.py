@@ -14,10 +14,11 @@ it and returns it as GLB bytes, or raises
   ``update_type`` the protocol knows, a list of stream sets each with a
   finite ``timestamp``, stream maps of objects, primitive lists of objects,
   point clouds that are arrays;
-* what the message expands to when re-encoded (every array as many times
+* what a GLB message expands to when re-encoded (every array as many times
   as it is referenced) must fit in ``max_bytes``: a GLB accessor referenced
   a thousand times costs a few bytes to send and a thousand copies to
-  re-encode.
+  re-encode. JSON references nothing: it expands to about its own size,
+  which ``max_bytes`` bounds already, so its values are not walked.
 
 It is a pure function of bytes to bytes, for a worker process when the
 message is large JSON. :func:`check` makes the same checks of a message
@@ -62,21 +63,22 @@ def admit(data: bytes, max_bytes: int) -> tuple[str, bytes]:
     if not binary and nested_deeper(message):  # GLB's decoder refuses them itself
         raise MessageError(f"lists and objects nested more than {MAX_DEPTH} deep")
     kind, content = unwrap(message)
-    check(kind, content, max_bytes)
+    check(kind, content, max_bytes, from_glb=binary)
     if binary:
         return kind, data
     return kind, encode(envelope(kind.removeprefix("xviz/"), content), Format.BINARY)
 
 
-def check(kind: str, content: Any, max_bytes: int) -> None:
+def check(kind: str, content: Any, max_bytes: int, *, from_glb: bool = True) -> None:
     """Raise :class:`~xviz_server.exceptions.MessageError` unless ``content`` (decoded) is an admissible message of
-    type ``kind``: what :func:`admit` checks once the message is decoded."""
+    type ``kind``: what :func:`admit` checks once the message is decoded. ``from_glb``: ``content`` was decoded from
+    GLB, so its arrays may be referenced more than once."""
     if kind == "xviz/metadata":
         _require(isinstance(content, Mapping), "metadata", "must be an object", content)
         _require(isinstance(content.get("streams", {}), Mapping), "metadata.streams", "must be an object", content.get("streams"))
     elif kind == "xviz/state_update":
         _check_update(content)
-        size = expanded_size(content)
+        size = expanded_size(content) if from_glb else 0
         if size > max_bytes:
             raise MessageError(
                 f"state update expands to {size / 2**20:.1f} MB when re-encoded (arrays referenced more than once), "
@@ -135,8 +137,16 @@ def _check_primitives(where: str, state: Mapping[str, Any]) -> None:
                     _require(isinstance(value, (np.ndarray, list)), f"{where}.{kind}[{k}].{key}", "must be an array", value)
 
 
+_CONTAINERS = (Mapping, list, np.ndarray, bytes, bytearray, memoryview)
+
+
 def expanded_size(value: Any) -> int:
-    """Bytes of the arrays and binary data in ``value``, each counted as often as it is referenced."""
+    """Bytes of the arrays and binary data in ``value`` (a decoded GLB message), each counted as often as it is
+    referenced, and 8 bytes for each number or string in a list.
+
+    Every item of a list is looked at: an array may hide behind a first item that is a number. The walk is one
+    step per value of the message's JSON part, which in GLB is small (its clouds and images are arrays).
+    """
     if isinstance(value, np.ndarray):
         return int(value.nbytes)
     if isinstance(value, (bytes, bytearray, memoryview)):
@@ -144,5 +154,5 @@ def expanded_size(value: Any) -> int:
     if isinstance(value, Mapping):
         return sum(expanded_size(item) for item in value.values())
     if isinstance(value, list):
-        return sum(expanded_size(item) for item in value) if value and isinstance(value[0], (dict, list, np.ndarray)) else 8 * len(value)
+        return sum(expanded_size(item) if isinstance(item, _CONTAINERS) else 8 for item in value)
     return 0

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any, Collection, Sequence
 
 from .admission import expanded_size
-from .codec import Format, decode, detect_format, edit_glb, encode
+from .codec import Format, decode, detect_format, edit_glb, encode, is_glb
 from .exceptions import DecodeError
 from .layout import update_span
 from .levels import FULL, Level, reduce_message
@@ -78,11 +78,11 @@ def check(data: bytes, schema: bool = False) -> tuple[str, int]:
     Raises :class:`~xviz_server.exceptions.DecodeError` unless ``data`` is a
     readable state update, and with ``schema``
     :class:`~xviz_server.exceptions.SchemaValidationError` unless it matches
-    the XVIZ schema, or one that expands to more than
+    the XVIZ schema, or a GLB frame that expands to more than
     :data:`MAX_EXPANDED_BYTES` when re-encoded.
     """
     message = _decode_update(data)
-    size = expanded_size(message["data"])
+    size = expanded_size(message["data"]) if is_glb(data) else 0  # JSON references nothing: see admission
     if size > MAX_EXPANDED_BYTES:
         raise DecodeError(
             f"state update expands to {size_text(size)} when re-encoded (arrays referenced more than once), "
