@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from xviz_server.detail import HOLD, SAMPLE_INTERVAL, DetailChooser, LinkMeter, Sample
+from xviz_server.detail import HOLD, SAMPLE_INTERVAL, START, DetailChooser, LinkMeter, Sample
 from xviz_server.levels import FULL, LEVELS
 
 LEVEL = {level.name: level for level in LEVELS}
@@ -60,10 +60,21 @@ def live_chooser() -> DetailChooser:
     return chooser
 
 
-def test_a_fast_link_keeps_full_detail():
+def test_a_session_on_a_link_starts_one_level_down_and_a_fast_link_gets_full_detail_within_3_s():
     link = Link(live_chooser(), rate=1e9)
+    assert link.chooser.level is LEVELS[START] is LEVEL["high"]  # nothing known yet: the first frames come soon
     link.run(30)
-    assert link.changes == [] and link.chooser.level is FULL
+    [(when, level)] = link.changes
+    assert level == "full" and when <= 3 and link.chooser.level is FULL
+
+
+def test_a_session_on_this_host_keeps_full_detail_from_the_first_update():
+    chooser = DetailChooser(local=True)
+    chooser.rate = 10.0
+    link = Link(chooser, rate=1 * MBPS)
+    assert chooser.level is FULL
+    link.run(10)
+    assert link.changes == [] and chooser.level is FULL
 
 
 @pytest.mark.parametrize("mbps, level", [(100, "high"), (20, "low"), (5, "minimal")])
@@ -72,7 +83,7 @@ def test_a_slow_link_gets_the_level_it_carries_within_2_s_and_keeps_it(mbps, lev
     link.run(2)
     assert link.chooser.level is LEVEL[level], link.changes
     link.run(60)
-    assert len(link.changes) == 1
+    assert len(link.changes) == (level != LEVELS[START].name)  # one change at most, the first choice
 
 
 def test_a_link_dropping_from_100_to_5_mbps_then_recovering():
@@ -138,3 +149,16 @@ def test_a_log_session_never_takes_a_level_that_only_skips_live_updates():
     link = Link(chooser, rate=3 * MBPS)  # too slow even for "minimal" at 10 frames a second
     link.run(5)
     assert chooser.level is LEVEL["minimal"], link.changes
+
+
+def test_a_link_seldom_busy_is_stepped_up_at_most_two_levels_at_once():
+    link = Link(live_chooser(), rate=5 * MBPS)
+    link.run(20)
+    chooser, written, time = link.chooser, link.written, link.time
+    assert chooser.level is LEVEL["minimal"]
+    changes = []
+    for _ in range(200):  # 10 s of a link never found busy that delivered 20 MB a second: it may carry anything
+        time, written = time + SAMPLE_INTERVAL, written + 1_000_000
+        if (changed := chooser.sample(Sample(time, written, 0))) is not None:
+            changes.append(changed.name)
+    assert changes == ["medium", "full"]

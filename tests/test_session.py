@@ -189,7 +189,8 @@ def test_a_logguid_is_a_recorded_log_if_one_opens_else_a_live_feed():
 
 
 def live_session(**query: str) -> Session:
-    session = Session(path="/", query={"log": "car", "session_type": "live", **query}, lag_timeout=5)
+    """A live session of a viewer on this host (full detail, whatever its link)."""
+    session = Session(path="/", query={"log": "car", "session_type": "live", **query}, lag_timeout=5, local=True)
     session.connect()
     return session
 

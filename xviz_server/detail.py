@@ -21,11 +21,14 @@ whose bytes at the content's rate (updates a second, from the log's index
 or the live feed) fit the capacity: a session whose level needs more than
 :data:`DOWN` of the capacity steps down, after :data:`DOWN_AFTER` seconds,
 to the most detailed level that needs at most :data:`FIT` of what it
-carried over the last :data:`RECENT` seconds; it steps
-up once a more detailed level has needed at most :data:`UP` of it for
-:data:`UP_AFTER` seconds. Levels change at most once in :data:`HOLD`
-seconds. A level's bytes per update are learnt from the updates made at it;
-a level not yet seen is estimated from the last one seen, scaled by their
+carried over the last :data:`RECENT` seconds; it steps up (at most
+:data:`MOST_UP` levels at once) once a more detailed level has needed at
+most :data:`UP` of it for :data:`UP_AFTER` seconds. Levels change at most
+once in :data:`HOLD` seconds. A session on a link starts at level
+:data:`START` (one on this host at full detail), and its first choice
+comes once :data:`LEAST` seconds of samples are there. A level's bytes per
+update are learnt from the updates made at it; a level not yet seen is
+estimated from the last one seen, scaled by their
 :attr:`~xviz_server.levels.Level.share`. ``max_mbps`` caps the capacity; a
 fixed level (the user's choice) is never changed.
 
@@ -42,7 +45,8 @@ from dataclasses import dataclass
 from .levels import LEVELS, Level
 
 __all__ = [
-    "Sample", "LinkMeter", "DetailChooser", "SAMPLE_INTERVAL", "WINDOW", "DOWN", "FIT", "UP", "DOWN_AFTER", "UP_AFTER", "HOLD",
+    "Sample", "LinkMeter", "DetailChooser", "SAMPLE_INTERVAL", "WINDOW", "RECENT", "LEAST", "START", "DOWN", "FIT", "UP",
+    "DOWN_AFTER", "UP_AFTER", "HOLD", "MOST_UP",
 ]
 
 #: Seconds between two samples of a connection's delivery.
@@ -51,10 +55,15 @@ SAMPLE_INTERVAL = 0.05
 WINDOW = 2.0
 #: Seconds of samples that say what a link that got slower carries now.
 RECENT = 1.0
+#: Least seconds of samples a capacity is measured from (a session's first choice comes after them).
+LEAST = 0.5
+#: The level a session on a link starts at, before anything is measured (an index into the levels): one
+#: that a few Mbit/s carry about a frame a second of, so that the first frames come soon on a slow link.
+START = 1
 #: A level that needs more than this share of the capacity is too much.
 DOWN = 0.9
 #: Stepping down goes to the most detailed level that needs at most this share.
-FIT = 0.75
+FIT = 0.85
 #: A more detailed level is taken once it needs at most this share.
 UP = 0.75
 #: Seconds a level must have been too much before stepping down.
@@ -63,6 +72,8 @@ DOWN_AFTER = 0.6
 UP_AFTER = 2.0
 #: Least seconds between two changes of level.
 HOLD = 5.0
+#: Most levels one step up goes.
+MOST_UP = 2
 #: Weight of a new size in a level's running mean of bytes per update.
 _SIZE_WEIGHT = 0.2
 
@@ -99,14 +110,14 @@ class LinkMeter:
 
     def capacity_over(self, seconds: float) -> float | None:
         """Bytes a second the link carried when busy over the last ``seconds``; ``None`` while unknown (the
-        samples cover less than half of it, or nothing was delivered).
+        samples cover less than :data:`LEAST` seconds, or nothing was delivered).
 
         A link seldom found busy may have been busy between the samples: the
         share busy is taken to be at least three samples' worth, so that a
         link found idle is said to carry at least a few times what it carried.
         """
         samples = [sample for sample in self._samples if self._samples[-1].time - sample.time <= seconds]
-        if len(samples) < 2 or samples[-1].time - samples[0].time < seconds / 2:
+        if len(samples) < 2 or samples[-1].time - samples[0].time < min(seconds, LEAST):
             return None
         first, last = samples[0], samples[-1]
         delivered = (last.written - last.backlog) - (first.written - first.backlog)
@@ -135,7 +146,9 @@ class DetailChooser:
         self.live = False
         self.fixed: Level | None = None
         self.cap: float | None = None
-        self.level: Level = levels[0]
+        #: The level now: a session on a link starts at ``levels[START]`` (nothing is known of its link yet),
+        #: a local one, or every one when turned off, at full detail.
+        self.level: Level = levels[0] if local or not enabled else levels[min(START, len(levels) - 1)]
         #: Updates a second of the content (``None``: unknown, taken as 10).
         self.rate: float | None = None
         self.meter = LinkMeter()
@@ -203,7 +216,8 @@ class DetailChooser:
             return None
         too_much = need > DOWN * budget and self.level is not self._least
         self._down_for = self._down_for + elapsed if too_much else max(0.0, self._down_for - elapsed)
-        up = self._fitting(budget * UP)
+        up = self._fitting(budget * UP)  # a link seldom busy tells a lower bound only: a few levels up at a time
+        up = self.levels[max(self.levels.index(up), self.levels.index(self.level) - MOST_UP)]
         if self.levels.index(up) < self.levels.index(self.level) and not too_much:
             self._up_for, self._up_to = self._up_for + elapsed, up
         else:
