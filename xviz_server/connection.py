@@ -42,7 +42,7 @@ from .logs import Catalog, Log
 from .metrics import Metrics
 from .readahead import ReadAhead, Window
 from .session import Close, ConfigureLive, Event, LookUpLive, OpenLog, QueryInstant, Send, Session, SubscribeLive
-from .session import CancelStream, DetailChanged, SendLiveMetadata, SendLiveUpdate, StreamFrames
+from .session import CancelStream, DetailChanged, SendLiveMetadata, SendLiveUpdate, SkipToState, StreamFrames
 from .settings import Settings
 
 __all__ = ["Connection"]
@@ -144,6 +144,9 @@ class Connection:
                 data = await update.encoded(event.variant, self.live.workers)
                 self.session.update_made(event.variant.level, len(data))
                 await self._send_update(data, event.variant.fmt)
+            elif isinstance(event, SkipToState):
+                assert self._subscription is not None
+                await self._execute(self.session.live_skipped(self._hold(self._subscription.feed.state())))
             elif isinstance(event, SendLiveMetadata):
                 assert self._subscription is not None
                 metadata = self._subscription.feed.metadata_message(event.fmt)
@@ -319,7 +322,7 @@ class Connection:
             number = self._hold(item)
             assert number is not None
             behind = subscription.lagging_since is not None
-            await self._execute(self.session.live_update(number, subscription.take_drops(), behind))
+            await self._execute(self.session.live_update(number, subscription.take_drops(), behind, subscription.queued))
 
     def _deliver(self, update: LiveUpdate) -> bool:
         """Send ``update`` now, from the feed's publish, if nothing stands in the way; whether it was sent.

@@ -26,7 +26,8 @@ carried over the last :data:`RECENT` seconds; it steps up (at most
 most :data:`UP` of it for :data:`UP_AFTER` seconds. Levels change at most
 once in :data:`HOLD` seconds. A session on a link starts at level
 :data:`START` (one on this host at full detail), and its first choice
-comes once :data:`LEAST` seconds of samples are there. A level's bytes per
+comes once :data:`LEAST` seconds of samples are there (a start level too
+much for the link is left after :data:`FIRST_AFTER` seconds). A level's bytes per
 update are learnt from the updates made at it; a level not yet seen is
 estimated from the last one seen, scaled by their
 :attr:`~xviz_server.levels.Level.share`. ``max_mbps`` caps the capacity; a
@@ -46,7 +47,7 @@ from .levels import LEVELS, Level
 
 __all__ = [
     "Sample", "LinkMeter", "DetailChooser", "SAMPLE_INTERVAL", "WINDOW", "RECENT", "LEAST", "START", "DOWN", "FIT", "UP",
-    "DOWN_AFTER", "UP_AFTER", "HOLD", "MOST_UP",
+    "DOWN_AFTER", "FIRST_AFTER", "UP_AFTER", "HOLD", "MOST_UP",
 ]
 
 #: Seconds between two samples of a connection's delivery.
@@ -68,12 +69,17 @@ FIT = 0.85
 UP = 0.75
 #: Seconds a level must have been too much before stepping down.
 DOWN_AFTER = 0.6
+#: Seconds the start level must have been too much for the first choice, in the first :data:`WINDOW` seconds
+#: (the start level is a guess, and the link is busy with the first frames).
+FIRST_AFTER = 0.2
 #: Seconds a more detailed level must have fitted before stepping up.
 UP_AFTER = 2.0
 #: Least seconds between two changes of level.
 HOLD = 5.0
 #: Most levels one step up goes.
 MOST_UP = 2
+#: Samples that found a link busy, at least, for its capacity to be more than a lower bound.
+_BUSY_SAMPLES = 3
 #: Weight of a new size in a level's running mean of bytes per update.
 _SIZE_WEIGHT = 0.2
 
@@ -125,7 +131,16 @@ class LinkMeter:
             return None
         count = len(samples) - 1
         busy = sum(sample.backlog > 0 and not sample.reader for sample in samples[1:]) / count
-        return delivered / (last.time - first.time) / max(busy, min(1.0, 3 / count))
+        return delivered / (last.time - first.time) / max(busy, min(1.0, _BUSY_SAMPLES / count))
+
+    def busy(self, seconds: float = WINDOW) -> bool:
+        """Whether the link was found busy (with a backlog that did not wait for the peer) in at least three
+        samples of the last ``seconds``; if not, its capacity is a lower bound only (it may carry far more)."""
+        if not self._samples:
+            return False
+        end = self._samples[-1].time
+        found = sum(end - s.time <= seconds and s.backlog > 0 and not s.reader for s in self._samples)
+        return found >= _BUSY_SAMPLES
 
 
 class DetailChooser:
@@ -156,6 +171,7 @@ class DetailChooser:
         self._last_sized: Level | None = None
         self._changed_at = -math.inf
         self._sampled_at = -math.inf
+        self._first_sampled: float | None = None
         self._down_for = 0.0  # seconds the level has been too much (counted down while it is not)
         self._up_for = 0.0  # seconds a more detailed level has fitted (likewise)
         self._up_to: Level | None = None
@@ -205,6 +221,8 @@ class DetailChooser:
         self.meter.add(sample)
         now = sample.time
         elapsed, self._sampled_at = now - self._sampled_at, now
+        if self._first_sampled is None:
+            self._first_sampled = now
         if not self.auto:
             return None
         budget = None if self.local else self.meter.capacity
@@ -214,7 +232,9 @@ class DetailChooser:
         if budget is None or need is None:  # nothing known: nothing changes
             self._down_for = self._up_for = 0.0
             return None
-        too_much = need > DOWN * budget and self.level is not self._least
+        # a link seldom found busy (say, before the first frame is written) is never too slow: it may carry far more
+        measured = budget == self.cap or self.meter.busy()
+        too_much = need > DOWN * budget and self.level is not self._least and measured
         self._down_for = self._down_for + elapsed if too_much else max(0.0, self._down_for - elapsed)
         up = self._fitting(budget * UP)  # a link seldom busy tells a lower bound only: a few levels up at a time
         up = self.levels[max(self.levels.index(up), self.levels.index(self.level) - MOST_UP)]
@@ -224,7 +244,8 @@ class DetailChooser:
             self._up_for = max(0.0, self._up_for - elapsed)
         if now - self._changed_at < HOLD:
             return None
-        if self._down_for >= DOWN_AFTER:
+        first = self._changed_at == -math.inf and now - self._first_sampled < WINDOW
+        if self._down_for >= (FIRST_AFTER if first else DOWN_AFTER):
             recent = self.meter.capacity_over(RECENT)  # what the link carries since it got slower
             return self._change(self._fitting(min(budget, recent or budget) * FIT), now)
         if self._up_for >= UP_AFTER and self._up_to is not None:
