@@ -137,6 +137,10 @@ def test_the_meter_measures_a_link_busy_part_of_the_time():
         written += 50_000
         meter.add(Sample(tick * 0.05, written, 1000 if tick % 4 == 0 else 0))
     assert meter.capacity == pytest.approx(4_000_000, rel=0.1)
+    kernel = LinkMeter()  # the kernel counts a quarter of the time busy; every sample happened to find a backlog
+    for tick in range(1, 41):
+        kernel.add(Sample(tick * 0.05, tick * 50_000, 1000, busy=tick * 0.05 / 4))
+    assert kernel.capacity == pytest.approx(4_000_000, rel=0.1) and kernel.busy()
     idle = LinkMeter()
     for tick in range(1, 41):
         idle.add(Sample(tick * 0.05, 0, 0))

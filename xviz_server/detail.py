@@ -7,9 +7,11 @@ how many of those are not delivered yet (its *backlog*: the transport's
 write buffer and the kernel's send queue, unsent or unacknowledged).
 :class:`LinkMeter` turns the samples into the link's capacity: the bytes
 delivered over the last :data:`WINDOW` seconds divided by the time the link
-was busy (the share of samples that found a backlog, times the window), so
-that a link that is busy a tenth of the time is seen carrying ten times
-what it carried. A link seldom or never found busy is taken to be busy
+was busy, so that a link that is busy a tenth of the time is seen carrying
+ten times what it carried. The busy time is the kernel's own count where
+it tells (``TCP_INFO``'s ``tcpi_busy_time``: unbiased by when the server's
+process gets the CPU to sample), else the share of samples that found a
+backlog, times the window. A link seldom or never found busy is taken to be busy
 three samples' worth of the window (it may have been between samples): it
 carries at least some times what it carried, and a session steps up
 towards full detail a few levels at a time. A backlog that waited for the
@@ -88,12 +90,14 @@ _SIZE_WEIGHT = 0.2
 class Sample:
     """A connection's delivery at ``time``: bytes ``written`` so far, ``backlog`` of them not yet delivered;
     ``reader``: since the sample before, the backlog waited mostly for the peer to read (its receive
-    window was full), not for the link."""
+    window was full), not for the link; ``busy``: seconds so far the link was busy with the connection's
+    bytes (not waiting for the peer), as the kernel counts them (``None`` where it does not tell)."""
 
     time: float
     written: int
     backlog: int
     reader: bool = False
+    busy: float | None = None
 
 
 class LinkMeter:
@@ -129,18 +133,23 @@ class LinkMeter:
         delivered = (last.written - last.backlog) - (first.written - first.backlog)
         if delivered <= 0:
             return None
-        count = len(samples) - 1
-        busy = sum(sample.backlog > 0 and not sample.reader for sample in samples[1:]) / count
-        return delivered / (last.time - first.time) / max(busy, min(1.0, _BUSY_SAMPLES / count))
+        least = min(1.0, _BUSY_SAMPLES / (len(samples) - 1))
+        return delivered / (last.time - first.time) / max(self._busy_share(samples), least)
 
     def busy(self, seconds: float = WINDOW) -> bool:
-        """Whether the link was found busy (with a backlog that did not wait for the peer) in at least three
-        samples of the last ``seconds``; if not, its capacity is a lower bound only (it may carry far more)."""
-        if not self._samples:
-            return False
-        end = self._samples[-1].time
-        found = sum(end - s.time <= seconds and s.backlog > 0 and not s.reader for s in self._samples)
-        return found >= _BUSY_SAMPLES
+        """Whether the link was busy for at least three samples' worth of the last ``seconds``; if not, its
+        capacity is a lower bound only (it may carry far more)."""
+        samples = [sample for sample in self._samples if self._samples[-1].time - sample.time <= seconds]
+        return len(samples) > 1 and self._busy_share(samples) * (len(samples) - 1) >= _BUSY_SAMPLES
+
+    @staticmethod
+    def _busy_share(samples: list[Sample]) -> float:
+        """The share of the time between the first and the last of ``samples`` that the link was busy: as the
+        kernel counted it, else the share of the samples that found a backlog not waiting for the peer."""
+        first, last = samples[0], samples[-1]
+        if first.busy is not None and last.busy is not None and last.time > first.time:
+            return min(1.0, (last.busy - first.busy) / (last.time - first.time))
+        return sum(sample.backlog > 0 and not sample.reader for sample in samples[1:]) / (len(samples) - 1)
 
 
 class DetailChooser:

@@ -330,12 +330,18 @@ class Session:
         return self._on_reconfigure(request)
 
     def link_sampled(
-        self, time: float, written: int, backlog: int, reader: bool = False, offered: int | None = None
+        self,
+        time: float,
+        written: int,
+        backlog: int,
+        reader: bool = False,
+        offered: int | None = None,
+        busy: float | None = None,
     ) -> list[Event]:
         """A sample of the connection's delivery at ``time`` (monotonic seconds): bytes ``written`` so far,
         ``backlog`` of them not yet delivered, ``reader`` whether they waited for the client to read (see
-        :class:`xviz_server.detail.Sample`); for a live session, the updates its feed ``offered`` it so far
-        (for the feed's rate)."""
+        :class:`xviz_server.detail.Sample`), ``busy`` the seconds so far its link was busy, as the kernel
+        counts them; for a live session, the updates its feed ``offered`` it so far (for the feed's rate)."""
         self._clock = time
         if offered is not None:
             self._offered.append((time, offered))
@@ -345,7 +351,7 @@ class Session:
             if t1 - t0 >= RATE_WINDOW / 2 and n1 > n0:
                 self.chooser.rate = (n1 - n0) / (t1 - t0) / (self.config.decimate or 1)
         previous = self.chooser.level
-        return self._detail_changed(previous, self.chooser.sample(Sample(time, written, backlog, reader)))
+        return self._detail_changed(previous, self.chooser.sample(Sample(time, written, backlog, reader, busy)))
 
     def update_made(self, level: Level, size: int) -> None:
         """An update of ``size`` bytes was made at ``level`` for this session."""
