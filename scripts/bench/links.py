@@ -100,6 +100,8 @@ async def run_viewer(link: TcLink, url: str, mode: str, seconds: float, warm_up:
 async def measure(link: TcLink, detail: Literal["auto", "off"], mbps: float, seconds: float, log_seconds: float) -> dict[str, object]:
     import logging
 
+    from xviz_server.detail import START
+    from xviz_server.levels import LEVELS
     from xviz_server.server import XVIZServer
     from xviz_server.settings import Settings
 
@@ -119,9 +121,11 @@ async def measure(link: TcLink, detail: Literal["auto", "off"], mbps: float, sec
             link.shape(mbps)
             base = f"ws://{link.host}:{server.port}"
             live = await run_viewer(link, f"{base}/?session_type=live&profile=default", "live", seconds, min(5.0, seconds / 3))
-            live_level = levels[-1] if levels else "full"
+            start = LEVELS[START].name if detail == "auto" else "full"  # a session on a link starts one level down
+            live_level = levels[-1] if levels else start
+            changes = len(levels)
             log = await run_viewer(link, f"{base}/?log={KITTI.name}&profile=default", "log", log_seconds, 0)
-            log_level = levels[-1] if levels and levels[-1] != live_level else live_level
+            log_level = levels[-1] if len(levels) > changes else start
     finally:
         logging.getLogger("xviz_server.session").removeHandler(handler)
     return {"detail": detail, "mbps": mbps, **live, "live_level": live_level, **log, "log_level": log_level}
