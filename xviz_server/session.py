@@ -466,9 +466,6 @@ class Session:
         viewer gets the feed's latest complete state instead
         (:class:`SkipToState`), and is back in real time.
         """
-        stale, self._stale = self._stale, False
-        if stale and queued >= STALE_QUEUE:
-            return [SkipToState()]
         events: list[Event] = []
         if dropped and not self._behind:
             events.append(
@@ -480,7 +477,10 @@ class Session:
                 )
             )
         self._behind = behind
-        if number > self._covered:
+        stale, self._stale = self._stale, False
+        if stale and queued >= STALE_QUEUE:
+            events.append(SkipToState())
+        elif number > self._covered:
             events.append(SendLiveUpdate(number, self.variant))
         return events
 
