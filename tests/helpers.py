@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import ctypes
 import hashlib
-import itertools
 import json
 import os
 import re
@@ -18,7 +16,6 @@ import shutil
 import socket
 import subprocess
 import sys
-import threading
 import urllib.error
 import urllib.request
 from dataclasses import dataclass
@@ -527,86 +524,3 @@ def _result(stdout: bytes, stderr: bytes, returncode: int) -> SessionResult:
     lines = [json.loads(line) for line in stdout.decode().splitlines()]
     summary = lines.pop()["summary"] if lines and "summary" in lines[-1] else None
     return SessionResult(lines, summary, returncode, stderr.decode())
-
-
-# ------------------------------------------------------------ a shaped network link (root only)
-
-_LINKS = itertools.count()
-_CLONE_NEWNET = 0x40000000
-
-
-def can_shape_links() -> bool:
-    """Whether this process may make network namespaces and shape links with ``tc`` (root, with ``ip`` and ``tc``)."""
-    return os.geteuid() == 0 and shutil.which("ip") is not None and shutil.which("tc") is not None
-
-
-@dataclass
-class TcLink:
-    """A veth pair from this network namespace (:attr:`host`) into one of its own, the way out shaped with tc tbf."""
-
-    namespace: str
-    device: str
-    host: str
-    peer: str
-    shaped: bool = False
-
-    def shape(self, mbps: float) -> None:
-        """Carry at most ``mbps`` Mbit/s towards the namespace (bursts of 10 ms of it, 300 ms of queue)."""
-        burst = max(32_000, int(mbps * 125_000 / 100))
-        # "change" keeps the packets queued (a new qdisc would drop them, and TCP would stall on its timeouts)
-        verb = "change" if self.shaped else "add"
-        _ip(f"tc qdisc {verb} dev {self.device} root tbf rate {mbps}mbit burst {burst} latency 300ms")
-        self.shaped = True
-
-    def connect(self, port: int) -> socket.socket:
-        """A TCP socket from inside the namespace, connected to ``port`` of :attr:`host`."""
-        result: dict[str, Any] = {}
-
-        def run() -> None:  # setns() moves the calling thread only: a thread of its own, which then ends
-            fd = os.open(f"/var/run/netns/{self.namespace}", os.O_RDONLY)
-            try:
-                if ctypes.CDLL(None, use_errno=True).setns(fd, _CLONE_NEWNET) != 0:
-                    raise OSError(ctypes.get_errno(), "setns")
-                result["socket"] = socket.create_connection((self.host, port), timeout=10)
-            except BaseException as exc:
-                result["error"] = exc
-            finally:
-                os.close(fd)
-
-        thread = threading.Thread(target=run)
-        thread.start()
-        thread.join()
-        if "error" in result:
-            raise result["error"]
-        sock: socket.socket = result["socket"]
-        sock.settimeout(None)
-        return sock
-
-
-def _ip(command: str) -> None:
-    subprocess.run(command.split(), check=True, capture_output=True)
-
-
-@contextlib.contextmanager
-def tc_link(mbps: float) -> Any:
-    """A :class:`TcLink` shaped to ``mbps``, removed on exit; names unique to this process (``xvl<pid>-<n>``)."""
-    number = next(_LINKS)
-    name = f"xvl{os.getpid()}{chr(97 + number % 26)}"
-    subnet = f"10.{200 + number % 50}.{os.getpid() % 250}"
-    link = TcLink(name, f"{name}h", f"{subnet}.1", f"{subnet}.2")
-    try:
-        for command in (
-            f"ip netns add {name}",
-            f"ip link add {name}h type veth peer name {name}v",
-            f"ip link set {name}v netns {name}",
-            f"ip addr add {link.host}/24 dev {name}h",
-            f"ip link set {name}h up",
-            f"ip netns exec {name} ip addr add {link.peer}/24 dev {name}v",
-            f"ip netns exec {name} ip link set {name}v up",
-        ):
-            _ip(command)
-        link.shape(mbps)
-        yield link
-    finally:
-        subprocess.run(["ip", "link", "del", f"{name}h"], capture_output=True)
-        subprocess.run(["ip", "netns", "del", name], capture_output=True)

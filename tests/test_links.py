@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import time
 import urllib.request
 from collections import Counter
@@ -26,13 +27,15 @@ from websockets.asyncio.client import connect
 
 from xviz_server import frames
 from xviz_server.codec import Format, decode
+from xviz_server.detail import START
 from xviz_server.levels import LEVELS
 from xviz_server.server import XVIZServer
 from xviz_server.settings import Settings
 
 from conftest import KITTI_LOG
 from devkit.tcpproxy import shaped_link
-from helpers import can_shape_links, running_server, tc_link, xviz_decode
+from devkit.tclink import can_shape_links, tc_link
+from helpers import running_server, xviz_decode
 
 LOG = KITTI_LOG.name
 NUMBERS = list(range(2, 27))  # the frames of the log, in order
@@ -54,17 +57,18 @@ def level_of(number: int, data: bytes) -> str:
     raise AssertionError(f"frame {number} ({len(data)} bytes) is no level of the frame")
 
 
-async def whole_log(websocket, request_id: str, **request: float) -> tuple[list[bytes], float]:
-    """Every frame of the log (or of the ``request``'s range), and the seconds it took to get them."""
+async def whole_log(websocket, request_id: str, **request: float) -> tuple[list[bytes], tuple[float, float]]:
+    """Every frame of the log (or of the ``request``'s range), and the seconds it took to get the first and all."""
     started = time.monotonic()
     await websocket.send(json.dumps({"type": "xviz/transform_log", "data": {"id": request_id, **request}}))
-    received = []
+    received, first = [], math.inf
     while True:
         data = await asyncio.wait_for(websocket.recv(), 30)
         if isinstance(data, bytes) and len(data) > 10_000:
             received.append(data)
+            first = min(first, time.monotonic() - started)
         elif decode(data)["type"] == "xviz/transform_log_done":
-            return received, time.monotonic() - started
+            return received, (first, time.monotonic() - started)
 
 
 def metrics(server) -> str:
@@ -92,17 +96,20 @@ async def test_loopback_gets_every_byte(kitti_root):
 
 @shaped
 @pytest.mark.parametrize("mbps, expected", [(100, {"high"}), (20, {"low"}), (5, {"minimal"})])
-async def test_a_log_over_a_slow_link_plays_in_real_time_at_the_level_the_link_carries(kitti_root, caplog, mbps, expected):
+async def test_a_log_over_a_slow_link_starts_within_2_s_and_plays_in_real_time_at_the_level_the_link_carries(
+    kitti_root, caplog, mbps, expected
+):
     caplog.set_level(logging.INFO, "xviz_server.session")
     with tc_link(mbps) as link:
         async with XVIZServer(Settings(host=link.host, port=0, data_dir=kitti_root)) as server:
             async with await connect_through(link, server, "/?log=kitti&profile=default") as websocket:
                 await websocket.recv()
-                first, _ = await whole_log(websocket, "first")
-                again, seconds = await whole_log(websocket, "again")
+                first, (start, _) = await whole_log(websocket, "first")
+                again, (_, seconds) = await whole_log(websocket, "again")
                 text = await asyncio.to_thread(metrics, server)
-    # The first frame is sent before anything is known of the link: at full detail (3.4 s at 5 Mbit/s).
-    assert level_of(NUMBERS[0], first[0]) == "full"
+    # Nothing is known of the link before the first frame: it is sent one level down (0.76 MB: 1.2 s at 5 Mbit/s).
+    assert level_of(NUMBERS[0], first[0]) == LEVELS[START].name
+    assert start <= 2, f"the first frame took {start:.2f} s"
     levels = [level_of(number, data) for number, data in zip(NUMBERS, first)]
     assert set(levels[-10:]) == expected, levels  # within the first seconds
     levels = [level_of(number, data) for number, data in zip(NUMBERS, again)]
@@ -110,9 +117,12 @@ async def test_a_log_over_a_slow_link_plays_in_real_time_at_the_level_the_link_c
     if mbps <= 20:  # at 100 Mbit/s the server and this client, one process, may not keep up on a shared machine
         assert seconds <= SPAN, f"{seconds:.2f} s for a log of {SPAN} s"
     assert f'xviz_sessions_by_detail{{level="{levels[-1]}"}} 1.0' in text
-    assert 'xviz_sessions_by_detail{level="full"} 0.0' in text
+    assert f'xviz_sessions_by_detail{{level="{LEVELS[START].name}"}} {float(levels[-1] == LEVELS[START].name)}' in text
     changes = [r.getMessage() for r in caplog.records if r.getMessage().startswith("detail changed")]
-    assert len(changes) == 1 and "previous=full auto=True link_mbps=" in changes[0]
+    if expected == {LEVELS[START].name}:
+        assert changes == []
+    else:
+        assert len(changes) == 1 and f"previous={LEVELS[START].name} auto=True link_mbps=" in changes[0], changes
 
 
 async def test_a_slow_reader_is_no_slow_link(kitti_root):
@@ -125,11 +135,6 @@ async def test_a_slow_reader_is_no_slow_link(kitti_root):
 
 
 @shaped
-@pytest.mark.xfail(
-    strict=False,
-    reason="open: in about half the runs under pytest, the session stalls (nothing arrives for 30 s) right after "
-    "it steps down at the drop to 5 Mbit/s on the tc link; the same run outside pytest has not stalled; cause not found",
-)
 async def test_a_live_link_dropping_from_100_to_5_mbps_then_recovering(kitti_log, caplog):
     caplog.set_level(logging.INFO, "xviz_server.session")
     with tc_link(100) as link:
@@ -145,27 +150,30 @@ async def test_a_live_link_dropping_from_100_to_5_mbps_then_recovering(kitti_log
                         cloud = decode(data)["data"]["updates"][0]["primitives"]["/lidar/points"]["points"][0]
                         arrivals.append((time.monotonic() - start, len(cloud["points"])))
 
-            def changes() -> list[tuple[float, str]]:
+            def changes(after: float) -> list[tuple[float, str]]:
+                """The changes of level after ``after`` seconds: (seconds, level)."""
                 found = []
                 for record in caplog.records:
                     if record.getMessage().startswith("detail changed"):
-                        found.append((record.created - server_started, record.getMessage().split()[3]))
-                return found
+                        found.append((record.created - server_started, record.getMessage().split()[3].removeprefix("detail=")))
+                return [change for change in found if change[0] > after]
 
             server_started = time.time() - (time.monotonic() - start)
             await read(5)
-            assert changes()[-1][1] == "detail=high"
+            assert [level for _, level in changes(0)] in ([], ["high"])  # it starts at high, the level 100 Mbit/s carries
             link.shape(5)
             await read(14)
-            slow = changes()
-            assert slow[-1][1] in ("detail=minimal", "detail=sparse") and slow[1][0] <= 5 + 2.5, slow
+            down = changes(5)
+            assert down and down[0][1] in ("minimal", "sparse") and down[0][0] <= 5 + 2.5, down  # down within 2 s (and a tick)
+            assert down[-1][1] in ("minimal", "sparse"), down
             settled = [t for t, _ in arrivals if 10 <= t < 14]
             assert len(settled) >= 4 * 8, f"{len(settled)} updates in the last 4 s at 5 Mbit/s"
             link.shape(100)
             await read(24)
-            assert changes()[-1][1] == "detail=high" and changes()[-1][0] <= 14 + 10, changes()
-            times = [t for t, _ in changes()]
-            assert all(b - a >= 5 for a, b in zip(times, times[1:]))
+            up = changes(14)
+            assert up and up[-1][1] == "high" and up[-1][0] <= 14 + 10, up  # back up within 10 s
+            times = [t for t, _ in changes(0)]
+            assert all(b - a >= 5 for a, b in zip(times, times[1:])), changes(0)  # at most one change in 5 s
 
 
 async def test_the_user_picks_a_level_or_a_cap_and_bad_ones_are_named(kitti_root):

@@ -24,6 +24,7 @@ from xviz_server.session import (
     SendLiveMetadata,
     SendLiveUpdate,
     Session,
+    SkipToState,
     StreamFrames,
     SubscribeLive,
     Variant,
@@ -189,7 +190,8 @@ def test_a_logguid_is_a_recorded_log_if_one_opens_else_a_live_feed():
 
 
 def live_session(**query: str) -> Session:
-    session = Session(path="/", query={"log": "car", "session_type": "live", **query}, lag_timeout=5)
+    """A live session of a viewer on this host (full detail, whatever its link)."""
+    session = Session(path="/", query={"log": "car", "session_type": "live", **query}, lag_timeout=5, local=True)
     session.connect()
     return session
 
@@ -238,6 +240,20 @@ def test_live_reconfigure_changes_the_variant_and_is_forwarded():
     assert configure == ConfigureLive(decimate=2, forward=update)
     [send] = session.live_update(1, dropped=0, behind=False)
     assert send == SendLiveUpdate(1, Variant(Format.JSON, frozenset({"/points"}), 100))
+
+
+def test_a_live_viewer_whose_level_went_down_skips_what_queued_up_for_the_latest_state():
+    session = live_session()
+    session.live_joined("car", state=None, started=True)
+    assert session.live_update(1, dropped=0, behind=False, queued=5) == [SendLiveUpdate(1, Variant(Format.BINARY))]
+    session.receive(message("reconfigure", {"update_type": "DELTA", "config_update": {"profile": "low"}}))
+    low = Variant(Format.BINARY, level=session.level)
+    assert session.level.name == "low"
+    assert session.live_update(2, dropped=0, behind=False, queued=5) == [SkipToState()]  # 0.5 s of updates meant for full
+    assert session.live_skipped(7) == [SendLiveUpdate(7, low)]  # the latest complete state, up to update 7
+    assert [session.live_update(n, dropped=0, behind=False, queued=7 - n) for n in range(3, 8)] == [[]] * 5
+    assert session.live_update(8, dropped=0, behind=False, queued=4) == [SendLiveUpdate(8, low)]  # once only
+    assert session.live_skipped(None) == []
 
 
 def facts(exists: bool = False, started: bool = False, running: tuple[str, ...] = (), allowed: bool = True) -> LiveFacts:

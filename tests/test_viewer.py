@@ -27,7 +27,8 @@ from PIL import Image
 
 from devkit.fleet import write_fleet
 from devkit.tcpproxy import shaped_link
-from helpers import can_shape_links, http_get, metadata, metric, running_server, tc_link, ten_hz, write_demo, write_log
+from devkit.tclink import can_shape_links, tc_link
+from helpers import http_get, metadata, metric, running_server, ten_hz, write_demo, write_log
 from xviz_server.catalog import parse_query
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer

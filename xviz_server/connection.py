@@ -33,7 +33,7 @@ from websockets.frames import CloseCode
 from .codec import Format
 from .exceptions import XVIZError
 from .detail import SAMPLE_INTERVAL
-from .flow import backlog, close, limit_unsent, receiver_limited, watch_progress
+from .flow import backlog, close, limit_unsent, link_times, watch_progress
 from .framing import ready_to_write, write_message
 from .levels import LEVELS, Level
 from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription, watch_lag
@@ -42,7 +42,7 @@ from .logs import Catalog, Log
 from .metrics import Metrics
 from .readahead import ReadAhead, Window
 from .session import Close, ConfigureLive, Event, LookUpLive, OpenLog, QueryInstant, Send, Session, SubscribeLive
-from .session import CancelStream, DetailChanged, SendLiveMetadata, SendLiveUpdate, StreamFrames
+from .session import CancelStream, DetailChanged, SendLiveMetadata, SendLiveUpdate, SkipToState, StreamFrames
 from .settings import Settings
 
 __all__ = ["Connection"]
@@ -144,6 +144,9 @@ class Connection:
                 data = await update.encoded(event.variant, self.live.workers)
                 self.session.update_made(event.variant.level, len(data))
                 await self._send_update(data, event.variant.fmt)
+            elif isinstance(event, SkipToState):
+                assert self._subscription is not None
+                await self._execute(self.session.live_skipped(self._hold(self._subscription.feed.state())))
             elif isinstance(event, SendLiveMetadata):
                 assert self._subscription is not None
                 metadata = self._subscription.feed.metadata_message(event.fmt)
@@ -319,7 +322,7 @@ class Connection:
             number = self._hold(item)
             assert number is not None
             behind = subscription.lagging_since is not None
-            await self._execute(self.session.live_update(number, subscription.take_drops(), behind))
+            await self._execute(self.session.live_update(number, subscription.take_drops(), behind, subscription.queued))
 
     def _deliver(self, update: LiveUpdate) -> bool:
         """Send ``update`` now, from the feed's publish, if nothing stands in the way; whether it was sent.
@@ -371,15 +374,16 @@ class Connection:
     async def _measure(self) -> None:
         """Sample the connection's delivery for the session, which chooses the level of detail from it."""
         transport = self.websocket.transport
-        before, waited = time.monotonic(), receiver_limited(transport)
+        before, times = time.monotonic(), link_times(transport)
         while not transport.is_closing():
             # at jittered times, so as never to keep step with a feed's updates
             await asyncio.sleep(SAMPLE_INTERVAL * random.uniform(0.5, 1.5))
-            now, limited = time.monotonic(), receiver_limited(transport)
-            reader = limited is not None and waited is not None and (limited - waited) / 1e6 >= (now - before) / 2
-            before, waited = now, limited
+            now, previous, times = time.monotonic(), times, link_times(transport)
+            reader = times is not None and previous is not None and (times[1] - previous[1]) / 1e6 >= (now - before) / 2
+            busy = None if times is None else (times[0] - times[1]) / 1e6
+            before = now
             offered = None if self._subscription is None else self._subscription.offered
-            events = self.session.link_sampled(now, self.bytes_written, backlog(transport), reader, offered)
+            events = self.session.link_sampled(now, self.bytes_written, backlog(transport), reader, offered, busy)
             await self._execute(events)
 
     def _detail_changed(self, event: DetailChanged) -> None:

@@ -7,9 +7,11 @@ how many of those are not delivered yet (its *backlog*: the transport's
 write buffer and the kernel's send queue, unsent or unacknowledged).
 :class:`LinkMeter` turns the samples into the link's capacity: the bytes
 delivered over the last :data:`WINDOW` seconds divided by the time the link
-was busy (the share of samples that found a backlog, times the window), so
-that a link that is busy a tenth of the time is seen carrying ten times
-what it carried. A link seldom or never found busy is taken to be busy
+was busy, so that a link that is busy a tenth of the time is seen carrying
+ten times what it carried. The busy time is the kernel's own count where
+it tells (``TCP_INFO``'s ``tcpi_busy_time``: unbiased by when the server's
+process gets the CPU to sample), else the share of samples that found a
+backlog, times the window. A link seldom or never found busy is taken to be busy
 three samples' worth of the window (it may have been between samples): it
 carries at least some times what it carried, and a session steps up
 towards full detail a few levels at a time. A backlog that waited for the
@@ -21,11 +23,15 @@ whose bytes at the content's rate (updates a second, from the log's index
 or the live feed) fit the capacity: a session whose level needs more than
 :data:`DOWN` of the capacity steps down, after :data:`DOWN_AFTER` seconds,
 to the most detailed level that needs at most :data:`FIT` of what it
-carried over the last :data:`RECENT` seconds; it steps
-up once a more detailed level has needed at most :data:`UP` of it for
-:data:`UP_AFTER` seconds. Levels change at most once in :data:`HOLD`
-seconds. A level's bytes per update are learnt from the updates made at it;
-a level not yet seen is estimated from the last one seen, scaled by their
+carried over the last :data:`RECENT` seconds; it steps up (at most
+:data:`MOST_UP` levels at once) once a more detailed level has needed at
+most :data:`UP` of it for :data:`UP_AFTER` seconds. Levels change at most
+once in :data:`HOLD` seconds. A session on a link starts at level
+:data:`START` (one on this host at full detail), and its first choice
+comes once :data:`LEAST` seconds of samples are there (a start level too
+much for the link is left after :data:`FIRST_AFTER` seconds). A level's bytes per
+update are learnt from the updates made at it; a level not yet seen is
+estimated from the last one seen, scaled by their
 :attr:`~xviz_server.levels.Level.share`. ``max_mbps`` caps the capacity; a
 fixed level (the user's choice) is never changed.
 
@@ -42,7 +48,8 @@ from dataclasses import dataclass
 from .levels import LEVELS, Level
 
 __all__ = [
-    "Sample", "LinkMeter", "DetailChooser", "SAMPLE_INTERVAL", "WINDOW", "DOWN", "FIT", "UP", "DOWN_AFTER", "UP_AFTER", "HOLD",
+    "Sample", "LinkMeter", "DetailChooser", "SAMPLE_INTERVAL", "WINDOW", "RECENT", "LEAST", "START", "DOWN", "FIT", "UP",
+    "DOWN_AFTER", "FIRST_AFTER", "UP_AFTER", "HOLD", "MOST_UP",
 ]
 
 #: Seconds between two samples of a connection's delivery.
@@ -51,18 +58,30 @@ SAMPLE_INTERVAL = 0.05
 WINDOW = 2.0
 #: Seconds of samples that say what a link that got slower carries now.
 RECENT = 1.0
+#: Least seconds of samples a capacity is measured from (a session's first choice comes after them).
+LEAST = 0.5
+#: The level a session on a link starts at, before anything is measured (an index into the levels): one
+#: that a few Mbit/s carry about a frame a second of, so that the first frames come soon on a slow link.
+START = 1
 #: A level that needs more than this share of the capacity is too much.
 DOWN = 0.9
 #: Stepping down goes to the most detailed level that needs at most this share.
-FIT = 0.75
+FIT = 0.85
 #: A more detailed level is taken once it needs at most this share.
 UP = 0.75
 #: Seconds a level must have been too much before stepping down.
 DOWN_AFTER = 0.6
+#: Seconds the start level must have been too much for the first choice, in the first :data:`WINDOW` seconds
+#: (the start level is a guess, and the link is busy with the first frames).
+FIRST_AFTER = 0.2
 #: Seconds a more detailed level must have fitted before stepping up.
 UP_AFTER = 2.0
 #: Least seconds between two changes of level.
 HOLD = 5.0
+#: Most levels one step up goes.
+MOST_UP = 2
+#: Samples that found a link busy, at least, for its capacity to be more than a lower bound.
+_BUSY_SAMPLES = 3
 #: Weight of a new size in a level's running mean of bytes per update.
 _SIZE_WEIGHT = 0.2
 
@@ -71,12 +90,14 @@ _SIZE_WEIGHT = 0.2
 class Sample:
     """A connection's delivery at ``time``: bytes ``written`` so far, ``backlog`` of them not yet delivered;
     ``reader``: since the sample before, the backlog waited mostly for the peer to read (its receive
-    window was full), not for the link."""
+    window was full), not for the link; ``busy``: seconds so far the link was busy with the connection's
+    bytes (not waiting for the peer), as the kernel counts them (``None`` where it does not tell)."""
 
     time: float
     written: int
     backlog: int
     reader: bool = False
+    busy: float | None = None
 
 
 class LinkMeter:
@@ -99,22 +120,36 @@ class LinkMeter:
 
     def capacity_over(self, seconds: float) -> float | None:
         """Bytes a second the link carried when busy over the last ``seconds``; ``None`` while unknown (the
-        samples cover less than half of it, or nothing was delivered).
+        samples cover less than :data:`LEAST` seconds, or nothing was delivered).
 
         A link seldom found busy may have been busy between the samples: the
         share busy is taken to be at least three samples' worth, so that a
         link found idle is said to carry at least a few times what it carried.
         """
         samples = [sample for sample in self._samples if self._samples[-1].time - sample.time <= seconds]
-        if len(samples) < 2 or samples[-1].time - samples[0].time < seconds / 2:
+        if len(samples) < 2 or samples[-1].time - samples[0].time < min(seconds, LEAST):
             return None
         first, last = samples[0], samples[-1]
         delivered = (last.written - last.backlog) - (first.written - first.backlog)
         if delivered <= 0:
             return None
-        count = len(samples) - 1
-        busy = sum(sample.backlog > 0 and not sample.reader for sample in samples[1:]) / count
-        return delivered / (last.time - first.time) / max(busy, min(1.0, 3 / count))
+        least = min(1.0, _BUSY_SAMPLES / (len(samples) - 1))
+        return delivered / (last.time - first.time) / max(self._busy_share(samples), least)
+
+    def busy(self, seconds: float = WINDOW) -> bool:
+        """Whether the link was busy for at least three samples' worth of the last ``seconds``; if not, its
+        capacity is a lower bound only (it may carry far more)."""
+        samples = [sample for sample in self._samples if self._samples[-1].time - sample.time <= seconds]
+        return len(samples) > 1 and self._busy_share(samples) * (len(samples) - 1) >= _BUSY_SAMPLES
+
+    @staticmethod
+    def _busy_share(samples: list[Sample]) -> float:
+        """The share of the time between the first and the last of ``samples`` that the link was busy: as the
+        kernel counted it, else the share of the samples that found a backlog not waiting for the peer."""
+        first, last = samples[0], samples[-1]
+        if first.busy is not None and last.busy is not None and last.time > first.time:
+            return min(1.0, (last.busy - first.busy) / (last.time - first.time))
+        return sum(sample.backlog > 0 and not sample.reader for sample in samples[1:]) / (len(samples) - 1)
 
 
 class DetailChooser:
@@ -135,7 +170,9 @@ class DetailChooser:
         self.live = False
         self.fixed: Level | None = None
         self.cap: float | None = None
-        self.level: Level = levels[0]
+        #: The level now: a session on a link starts at ``levels[START]`` (nothing is known of its link yet),
+        #: a local one, or every one when turned off, at full detail.
+        self.level: Level = levels[0] if local or not enabled else levels[min(START, len(levels) - 1)]
         #: Updates a second of the content (``None``: unknown, taken as 10).
         self.rate: float | None = None
         self.meter = LinkMeter()
@@ -143,6 +180,7 @@ class DetailChooser:
         self._last_sized: Level | None = None
         self._changed_at = -math.inf
         self._sampled_at = -math.inf
+        self._first_sampled: float | None = None
         self._down_for = 0.0  # seconds the level has been too much (counted down while it is not)
         self._up_for = 0.0  # seconds a more detailed level has fitted (likewise)
         self._up_to: Level | None = None
@@ -192,6 +230,8 @@ class DetailChooser:
         self.meter.add(sample)
         now = sample.time
         elapsed, self._sampled_at = now - self._sampled_at, now
+        if self._first_sampled is None:
+            self._first_sampled = now
         if not self.auto:
             return None
         budget = None if self.local else self.meter.capacity
@@ -201,16 +241,20 @@ class DetailChooser:
         if budget is None or need is None:  # nothing known: nothing changes
             self._down_for = self._up_for = 0.0
             return None
-        too_much = need > DOWN * budget and self.level is not self._least
+        # a link seldom found busy (say, before the first frame is written) is never too slow: it may carry far more
+        measured = budget == self.cap or self.meter.busy()
+        too_much = need > DOWN * budget and self.level is not self._least and measured
         self._down_for = self._down_for + elapsed if too_much else max(0.0, self._down_for - elapsed)
-        up = self._fitting(budget * UP)
+        up = self._fitting(budget * UP)  # a link seldom busy tells a lower bound only: a few levels up at a time
+        up = self.levels[max(self.levels.index(up), self.levels.index(self.level) - MOST_UP)]
         if self.levels.index(up) < self.levels.index(self.level) and not too_much:
             self._up_for, self._up_to = self._up_for + elapsed, up
         else:
             self._up_for = max(0.0, self._up_for - elapsed)
         if now - self._changed_at < HOLD:
             return None
-        if self._down_for >= DOWN_AFTER:
+        first = self._changed_at == -math.inf and now - self._first_sampled < WINDOW
+        if self._down_for >= (FIRST_AFTER if first else DOWN_AFTER):
             recent = self.meter.capacity_over(RECENT)  # what the link carries since it got slower
             return self._change(self._fitting(min(budget, recent or budget) * FIT), now)
         if self._up_for >= UP_AFTER and self._up_to is not None:

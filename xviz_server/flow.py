@@ -6,8 +6,8 @@ the closing handshake. :func:`watch_progress` ends such a connection when its
 write buffer has not shrunk for ``timeout`` seconds; :func:`close` closes
 with a code and reason, and aborts the transport when the closing frame
 cannot be written within the time given. :func:`backlog` tells how many
-bytes written are not delivered yet, :func:`receiver_limited` whether they
-waited for the peer to read rather than for the link; :func:`limit_unsent`
+bytes written are not delivered yet, :func:`link_times` how long the link
+was busy with them and how long they waited for the peer to read; :func:`limit_unsent`
 keeps most of them where the server sees them.
 """
 
@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 from websockets.asyncio.connection import Connection
 
-__all__ = ["watch_progress", "close", "backlog", "limit_unsent", "receiver_limited"]
+__all__ = ["watch_progress", "close", "backlog", "limit_unsent", "link_times"]
 
 logger = logging.getLogger(__name__)
 
@@ -106,23 +106,25 @@ def limit_unsent(transport: asyncio.WriteTransport, limit: int = UNSENT_LIMIT) -
         pass
 
 
-# struct tcp_info (linux/tcp.h): the u64 tcpi_rwnd_limited, microseconds, since Linux 4.10
-_RWND_LIMITED = struct.Struct("Q")
-_RWND_LIMITED_OFFSET = 176
+# struct tcp_info (linux/tcp.h): the u64s tcpi_busy_time and tcpi_rwnd_limited, microseconds, since Linux 4.10
+_TIMES = struct.Struct("QQ")
+_BUSY_TIME_OFFSET = 168
 
 
-def receiver_limited(transport: asyncio.WriteTransport) -> int | None:
-    """Microseconds so far that ``transport``'s connection could not send because the peer's receive
-    window was full (a peer that reads slower than the link carries), from ``TCP_INFO``; ``None`` where
-    the system does not tell."""
+def link_times(transport: asyncio.WriteTransport) -> tuple[int, int] | None:
+    """Microseconds so far that ``transport``'s connection had data unsent or unacknowledged in the kernel
+    (busy), and of them those it could not send because the peer's receive window was full (a peer that
+    reads slower than the link carries), from ``TCP_INFO``; ``None`` where the system does not tell.
+    The kernel counts them in its clock ticks (4 ms at 250 Hz)."""
     option = getattr(socket, "TCP_INFO", None)
     sock = transport.get_extra_info("socket")
     if option is None or sock is None:
         return None
     try:
-        info = sock.getsockopt(socket.IPPROTO_TCP, option, _RWND_LIMITED_OFFSET + _RWND_LIMITED.size)
+        info = sock.getsockopt(socket.IPPROTO_TCP, option, _BUSY_TIME_OFFSET + _TIMES.size)
     except OSError:
         return None
-    if len(info) < _RWND_LIMITED_OFFSET + _RWND_LIMITED.size:
+    if len(info) < _BUSY_TIME_OFFSET + _TIMES.size:
         return None
-    return int(_RWND_LIMITED.unpack_from(info, _RWND_LIMITED_OFFSET)[0])
+    busy, receiver = _TIMES.unpack_from(info, _BUSY_TIME_OFFSET)
+    return int(busy), int(receiver)

@@ -9,6 +9,8 @@ from __future__ import annotations
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
+from .levels import LEVELS
+
 __all__ = ["Metrics", "CONTENT_TYPE"]
 
 CONTENT_TYPE = CONTENT_TYPE_LATEST
@@ -26,6 +28,8 @@ class Metrics:
             "xviz_sessions_by_detail", "Sessions now open, by the level of detail they are sent.", ["level"],
             registry=registry,
         )
+        for level in LEVELS:  # every level is shown, those no session is at with 0
+            self.sessions_by_detail.labels(level.name)
         self.frames_sent = Counter(
             "xviz_frames_sent", "State updates sent, by message format.", ["format"], registry=registry
         )

@@ -60,7 +60,8 @@ from .messages import SessionConfig, describe_validation_error, merge_patch, par
 
 __all__ = [
     "Session", "LogView", "Variant", "Event", "Send", "Close", "OpenLog", "StreamFrames", "CancelStream", "QueryInstant",
-    "LookUpLive", "LiveFacts", "SubscribeLive", "ConfigureLive", "SendLiveMetadata", "SendLiveUpdate", "DetailChanged",
+    "LookUpLive", "LiveFacts", "SubscribeLive", "ConfigureLive", "SendLiveMetadata", "SendLiveUpdate", "SkipToState",
+    "DetailChanged",
 ]
 
 
@@ -203,6 +204,14 @@ class SendLiveUpdate:
 
 
 @dataclass(frozen=True)
+class SkipToState:
+    """Send the feed's latest complete state instead of the updates queued for this viewer (it is behind).
+
+    Answer with :meth:`Session.live_skipped`.
+    """
+
+
+@dataclass(frozen=True)
 class DetailChanged:
     """The session's level of detail changed from ``previous`` to ``level``.
 
@@ -218,7 +227,7 @@ class DetailChanged:
 
 Event = Union[
     Send, Close, OpenLog, StreamFrames, CancelStream, QueryInstant, LookUpLive, SubscribeLive, ConfigureLive,
-    SendLiveMetadata, SendLiveUpdate, DetailChanged,
+    SendLiveMetadata, SendLiveUpdate, SkipToState, DetailChanged,
 ]
 
 
@@ -227,6 +236,8 @@ Event = Union[
 URL_START_KEYS = ("version", "profile", "session_type", "message_format", "log")
 #: The type of the message that tells a client that asked for it (``?detail_notices=1``) its level of detail.
 DETAIL_NOTICE = "xviz-server/detail"
+#: Updates queued for a live viewer after its level went down that are skipped for the latest complete state.
+STALE_QUEUE = 3
 #: Seconds over which a live feed's rate of updates is measured.
 RATE_WINDOW = 4.0
 #: Configuration keys about the level of detail: the session's own, never passed on to a live source.
@@ -263,6 +274,7 @@ class Session:
     _exact_feed: bool = field(init=False, default=False)
     _covered: int = field(init=False, default=-1)
     _behind: bool = field(init=False, default=False)
+    _stale: bool = field(init=False, default=False)  # updates queued for the viewer were meant for a higher level
     chooser: DetailChooser = field(init=False)
     _url_cap: float | None = field(init=False, default=None)
     _clock: float = field(init=False, default=0.0)  # time of the latest sample
@@ -318,12 +330,18 @@ class Session:
         return self._on_reconfigure(request)
 
     def link_sampled(
-        self, time: float, written: int, backlog: int, reader: bool = False, offered: int | None = None
+        self,
+        time: float,
+        written: int,
+        backlog: int,
+        reader: bool = False,
+        offered: int | None = None,
+        busy: float | None = None,
     ) -> list[Event]:
         """A sample of the connection's delivery at ``time`` (monotonic seconds): bytes ``written`` so far,
         ``backlog`` of them not yet delivered, ``reader`` whether they waited for the client to read (see
-        :class:`xviz_server.detail.Sample`); for a live session, the updates its feed ``offered`` it so far
-        (for the feed's rate)."""
+        :class:`xviz_server.detail.Sample`), ``busy`` the seconds so far its link was busy, as the kernel
+        counts them; for a live session, the updates its feed ``offered`` it so far (for the feed's rate)."""
         self._clock = time
         if offered is not None:
             self._offered.append((time, offered))
@@ -333,7 +351,7 @@ class Session:
             if t1 - t0 >= RATE_WINDOW / 2 and n1 > n0:
                 self.chooser.rate = (n1 - n0) / (t1 - t0) / (self.config.decimate or 1)
         previous = self.chooser.level
-        return self._detail_changed(previous, self.chooser.sample(Sample(time, written, backlog, reader)))
+        return self._detail_changed(previous, self.chooser.sample(Sample(time, written, backlog, reader, busy)))
 
     def update_made(self, level: Level, size: int) -> None:
         """An update of ``size`` bytes was made at ``level`` for this session."""
@@ -437,11 +455,16 @@ class Session:
         text = f"live feed {self._feed!r} went away; this session stays open and resumes when it comes back"
         return [self._error("gone", text, notice=True)]
 
-    def live_update(self, number: int, dropped: int, behind: bool) -> list[Event]:
+    def live_update(self, number: int, dropped: int, behind: bool, queued: int = 0) -> list[Event]:
         """Update ``number`` of the feed is next for this viewer.
 
         ``dropped`` updates were dropped since the last call because the
-        viewer fell behind; ``behind`` tells whether it still is.
+        viewer fell behind; ``behind`` tells whether it still is; ``queued``
+        more updates wait after this one. Those that queued up while the
+        level of detail was too high for the link (at least
+        :data:`STALE_QUEUE` of them, after a step down) are skipped: the
+        viewer gets the feed's latest complete state instead
+        (:class:`SkipToState`), and is back in real time.
         """
         events: list[Event] = []
         if dropped and not self._behind:
@@ -454,9 +477,20 @@ class Session:
                 )
             )
         self._behind = behind
-        if number > self._covered:
+        stale, self._stale = self._stale, False
+        if stale and queued >= STALE_QUEUE:
+            events.append(SkipToState())
+        elif number > self._covered:
             events.append(SendLiveUpdate(number, self.variant))
         return events
+
+    def live_skipped(self, state: int | None) -> list[Event]:
+        """Answer to :class:`SkipToState`: ``state`` is the number of the update the feed's latest complete state
+        ends at (``None``: it has none); the updates up to it are not sent."""
+        if state is None:
+            return []
+        self._covered = max(self._covered, state)
+        return [SendLiveUpdate(state, self.variant)]
 
     def live_lagging(self, seconds: float) -> list[Event]:
         """The viewer has been dropping updates for ``seconds``."""
@@ -615,6 +649,8 @@ class Session:
         events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.meter.capacity)]
         if self.is_live and level.every != previous.every:
             events.append(ConfigureLive(self.decimate, {}))
+        if self.is_live and self.chooser.levels.index(level) > self.chooser.levels.index(previous):
+            self._stale = True
         if self.query.get("detail_notices") == "1":
             events.append(self._detail_notice())
         return events

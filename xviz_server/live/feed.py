@@ -150,8 +150,7 @@ class Subscription:
                 return
             if not self._queue and not self.dropped and self._deliver is not None and self._deliver(item):
                 return
-            updates = sum(isinstance(i, LiveUpdate) for i in self._queue)
-            if updates >= self._size:
+            if self.queued >= self._size:
                 oldest = next(i for i in self._queue if isinstance(i, LiveUpdate))
                 self._queue.remove(oldest)
                 self.dropped += 1
@@ -170,6 +169,11 @@ class Subscription:
         if not self._queue:
             self.lagging_since = None  # caught up
         return item
+
+    @property
+    def queued(self) -> int:
+        """Updates waiting in the queue."""
+        return sum(isinstance(item, LiveUpdate) for item in self._queue)
 
     @property
     def offered(self) -> int:
