@@ -24,7 +24,6 @@ writer), in a thread.
 
 from __future__ import annotations
 
-import base64
 import math
 from collections.abc import AsyncGenerator, Mapping
 from dataclasses import dataclass
@@ -143,8 +142,7 @@ def _register(writer: Writer, plan: Plan) -> dict[int, int]:
     channels: dict[int, int] = {}
     for channel in plan.channels:
         schema = channel.schema
-        data = base64.b64decode(schema.schema) if schema.schema_encoding == "protobuf" else schema.schema.encode()
-        schema_id = writer.register_schema(schema.name, schema.schema_encoding, data)
+        schema_id = writer.register_schema(schema.name, schema.schema_encoding, schema.data())
         channels[channel.id] = writer.register_channel(channel.topic, schema.encoding, schema_id)
     return channels
 
