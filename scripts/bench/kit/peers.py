@@ -271,12 +271,16 @@ def foxglove_sdk_main(directory: str) -> None:
     holds the whole log: none is dropped), then broadcasts the state *ended*.
     The SDK has one timeline for every client: one client at a time here.
     """
+    import importlib
     import threading
 
-    bench = Path(__file__).resolve().parents[1]  # where foxglove.py, the benchmark, would shadow the package
+    # The benchmark foxglove.py shadows the package here, on the path and for mypy: imported by name, untyped.
+    bench = Path(__file__).resolve().parents[1]
     sys.path[:] = [entry for entry in sys.path if Path(entry or ".").resolve() != bench]
-    import foxglove
-    from foxglove.websocket import Capability, PlaybackCommand, PlaybackState, PlaybackStatus
+    foxglove: Any = importlib.import_module("foxglove")
+    websocket: Any = importlib.import_module("foxglove.websocket")
+    Capability, PlaybackCommand = websocket.Capability, websocket.PlaybackCommand
+    PlaybackState, PlaybackStatus = websocket.PlaybackState, websocket.PlaybackStatus
 
     from xviz_server.codec import decode
     from xviz_server.foxglove.convert import convert, plan, unpack
