@@ -5,10 +5,8 @@ from __future__ import annotations
 import asyncio
 import io
 import json
-import shutil
 import socket
 import struct
-import subprocess
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -28,9 +26,7 @@ from xviz_server.datasets.ros import RosBag, dataset as ros_dataset
 from xviz_server.exceptions import DatasetError, OversizeError
 from xviz_server.records import unpack
 
-from helpers import INTEROP, client, http_get, metric, running_server
-
-DRIVER = INTEROP / "foxglove-client.js"
+from helpers import client, foxglove_client, http_get, metric, running_server
 
 
 def kitti_frames(kitti_log: Path) -> list[dict[str, Any]]:
@@ -43,22 +39,11 @@ def nanoseconds(seconds: float) -> int:
     return round(seconds * 1e9)
 
 
-async def published_client(url: str, subprotocol: str, *sends: str, options: tuple[str, ...] = ()) -> dict[str, Any]:
-    node = shutil.which("node")
-    assert node, "node is required for the interop tests"
-    assert (INTEROP / "node_modules" / "@foxglove" / "ws-protocol").is_dir(), "run `npm ci --prefix tests/interop`"
-    args = [node, str(DRIVER), url, subprotocol, *options, *(item for text in sends for item in ("--send", text))]
-    process = await asyncio.create_subprocess_exec(*args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    stdout, stderr = await asyncio.wait_for(process.communicate(), 60)
-    assert process.returncode == 0, stderr.decode()
-    return json.loads(stdout)
-
-
 @pytest.mark.parametrize("subprotocol", SUBPROTOCOLS)
 async def test_published_client_decodes_every_frame(kitti_root: Path, kitti_log: Path, subprotocol: str) -> None:
     updates = kitti_frames(kitti_log)
     async with running_server(kitti_root) as server:
-        out = await published_client(f"ws://127.0.0.1:{server.port}/?log=kitti", subprotocol)
+        out = await foxglove_client(f"ws://127.0.0.1:{server.port}/?log=kitti", subprotocol)
     assert out["errors"] == [] and out["statuses"] == []
     assert out["subprotocol"] == subprotocol
     assert {"time", "playbackControl"} <= set(out["serverInfo"]["capabilities"])
@@ -245,7 +230,7 @@ async def test_the_published_client_decodes_the_original_messages_with_their_own
     expected = recorded(drive, container)
     encoding, schema_encoding = CONTAINERS[container][1:]
     async with running_server(None, dataset=[f"rosbag:{bags[container]}"]) as server:
-        out = await published_client(f"ws://127.0.0.1:{server.port}/?log=drive", "foxglove.websocket.v1")
+        out = await foxglove_client(f"ws://127.0.0.1:{server.port}/?log=drive", "foxglove.websocket.v1")
     assert out["errors"] == [] and out["statuses"] == []
     channels = {channel["topic"]: channel for channel in out["channels"]}
     # One channel per original topic, under its own name, with the file's encoding and schema.
@@ -366,7 +351,7 @@ async def test_a_frame_with_too_many_original_messages_gets_a_status_and_the_res
 
     bag = write_bag(tmp_path / "flood.bag", "ros1", messages())
     async with running_server(None, dataset=[f"rosbag:{bag}"]) as server:
-        out = await published_client(f"ws://127.0.0.1:{server.port}/?log=flood", "foxglove.websocket.v1")
+        out = await foxglove_client(f"ws://127.0.0.1:{server.port}/?log=flood", "foxglove.websocket.v1")
     assert out["errors"] == []
     assert [(s["level"], f"more than {ros_dataset.MAX_FRAME_MESSAGES} original messages" in s["message"]) for s in out["statuses"]] == [(1, True)]
     topics = out["topics"]
@@ -427,7 +412,7 @@ async def test_published_client_follows_a_live_feed_beside_an_xviz_viewer(
         feed = server.live.feed("car")
         feed.set_metadata(metadata)
         url = f"ws://127.0.0.1:{server.port}/?session_type=live&log=car"
-        reading = asyncio.ensure_future(published_client(url, subprotocol, options=("--times", str(len(frames)))))
+        reading = asyncio.ensure_future(foxglove_client(url, subprotocol, options=("--times", str(len(frames)))))
         async with client(server, "/?session_type=live&log=car") as xviz:
             assert (await xviz.recv())["type"] == "xviz/metadata"
             await foxglove_subscribed(server, every=True)
