@@ -20,6 +20,7 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from devkit.rosbag_kitti import CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, GRAY_TOPIC, RAW, Messages, kitti_messages, write_bag
 
 from xviz_server.codec import decode
+from xviz_server.server import SHUTDOWN_TIMEOUT
 from xviz_server.foxglove.wire import SUBPROTOCOLS
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.ros import RosBag, dataset as ros_dataset
@@ -665,6 +666,33 @@ async def test_an_export_to_a_client_that_stops_reading_holds_a_bounded_buffer_a
         data = await asyncio.to_thread(rest)
         sock.close()
         assert b"200 OK" in data[:100] and not data.endswith(b"0\r\n\r\n") and len(data) < total
+
+
+async def test_an_export_counts_as_a_session_and_is_cut_short_when_the_server_stops(kitti_root: Path) -> None:
+    async with running_server(kitti_root, max_sessions=1) as server:
+        reader, writer, head = await get_raw(server.port, "/api/logs/kitti/export")
+        assert b"200 OK" in head
+        await reader.readexactly(1 << 16)  # under way
+        status, _, body = await export(server, "")
+        assert (status, body) == (503, b"too many sessions, try again later\n")
+        with pytest.raises(InvalidStatus) as refused:
+            await foxglove(server)
+        assert refused.value.response.status_code == 503
+
+        async def slowly() -> bytes:  # a client that goes on reading, slower than the server writes
+            data = bytearray()
+            while more := await reader.read(1 << 16):
+                data += more
+                await asyncio.sleep(0.02)
+            return bytes(data)
+
+        reading = asyncio.ensure_future(slowly())
+        await asyncio.sleep(0.2)
+        began = asyncio.get_running_loop().time()
+        await server.close()
+        assert asyncio.get_running_loop().time() - began < SHUTDOWN_TIMEOUT / 2
+        assert not (await asyncio.wait_for(reading, 10)).endswith(b"0\r\n\r\n")
+        writer.close()
 
 
 async def test_a_head_request_for_an_export_gets_its_head_only(kitti_root: Path) -> None:
