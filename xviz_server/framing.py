@@ -207,7 +207,7 @@ class FramingConnection(ServerConnection):
                 if transport.is_closing():
                     break
                 if not self.server.is_serving():
-                    self.logger.info("HTTP response cut short: the server is stopping")
+                    logger.info("%s: the answer to %s is cut short: the server is stopping", self.remote_address, self._path())
                     break
                 if piece:
                     transport.writelines((b"%x\r\n" % len(piece), piece, b"\r\n"))
@@ -217,8 +217,7 @@ class FramingConnection(ServerConnection):
                 complete = not transport.is_closing()
         except Exception as exc:
             if not transport.is_closing():
-                path = self.request.path if self.request is not None else ""
-                logger.warning("%s: the body of the answer to %s failed: %s", self.remote_address, path, exc,
+                logger.warning("%s: the body of the answer to %s failed: %s", self.remote_address, self._path(), exc,
                                exc_info=not isinstance(exc, XVIZError))
         finally:
             watchdog.cancel()
@@ -230,8 +229,13 @@ class FramingConnection(ServerConnection):
             return
         transport.write(_LAST_CHUNK)
         transport.resume_reading()
-        async with self.send_context(expected_state=State.CONNECTING):
-            self.protocol.end_response()
+        if self.protocol.state is State.CONNECTING:  # else the client left: nothing to end
+            async with self.send_context(expected_state=State.CONNECTING):
+                self.protocol.end_response()
+
+    def _path(self) -> str:
+        """The request's path, without its query (which may hold a token)."""
+        return self.request.path.partition("?")[0] if self.request is not None else "?"
 
     def send_data(self) -> None:
         """Write the protocol's outgoing data, several buffers in one call."""
