@@ -283,7 +283,8 @@ def foxglove_sdk_main(directory: str) -> None:
     PlaybackState, PlaybackStatus = websocket.PlaybackState, websocket.PlaybackStatus
 
     from xviz_server.codec import decode
-    from xviz_server.foxglove.convert import convert, plan, unpack
+    from xviz_server.foxglove.convert import convert, plan
+    from xviz_server.records import unpack
 
     frames = sorted(Path(directory).glob("*-frame.glb"), key=lambda path: int(path.name.split("-")[0]))
     channels = plan(decode(frames[0].read_bytes())["data"])
