@@ -60,12 +60,8 @@ from kit.live import ROLE
 from kit.proc import BENCH, start_foxglove_sdk, start_server
 from kit.ws import RawClient, envelope_of
 from xviz_server.codec import decode
-<<<<<<< HEAD
-from xviz_server.foxglove.convert import convert, nanoseconds, plan, unpack
-=======
-from xviz_server.foxglove.convert import convert, plan
+from xviz_server.foxglove.convert import convert, nanoseconds, plan
 from xviz_server.records import unpack
->>>>>>> f12efcc (bench: unpack comes from xviz_server.records since main moved it there)
 from xviz_server.foxglove.session import MAX_SPEED
 
 MB = 1e6
