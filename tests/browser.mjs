@@ -11,7 +11,9 @@
 // seek (once drawn, click the timeline at this fraction of its width, then wait for
 // the next message and for the 3D view to show a changed picture); detail (once drawn,
 // pick this level of detail in the header's list and wait for the page to show it in use);
-// hosts (more host names, besides this machine's loopback ones, that the page may reach).
+// hosts (more host names, besides this machine's loopback ones, that the page may reach);
+// foxglove (a log name: read the Foxglove URL its catalog row shows, click its Copy button and
+// read the clipboard, and the row's link to Foxglove's web app).
 // Prints one JSON object: frames received over the page's WebSockets, whether and
 // when (ms after navigation, as the screenshot was taken) the 3D canvas first showed a
 // picture, the page's own timings (ms after navigation: the script bundle received, and the User Timing
@@ -22,7 +24,8 @@
 // the tests use no network), after a seek what the playback control shows, the
 // page's address at the end, the URLs of its WebSockets, what its
 // Content-Security-Policy refused, the catalog's rows and count after a search,
-// and the link the page offers to the time shown.
+// and the link the page offers to the time shown; with foxglove, the row's Foxglove URL,
+// what its Copy button put on the clipboard, and its link to Foxglove's web app.
 // Each run launches a browser with a fresh profile of its own (playwright's).
 //
 // The canvas is screenshotted (which makes the browser composite a frame, and on a
@@ -65,6 +68,9 @@ const report = {
 };
 try {
   const page = await browser.newPage({viewport: options.viewport});
+  if (options.foxglove !== undefined) {
+    await page.context().grantPermissions(['clipboard-read', 'clipboard-write']);
+  }
   const start = Date.now();
   page.on('pageerror', error => report.pageErrors.push(String(error)));
   page.on('console', message => {
@@ -126,8 +132,18 @@ try {
   if (options.search !== undefined || options.more) {
     await searchCatalog(page);
   }
+  if (options.foxglove !== undefined) {
+    const row = page.locator(`tr.log[data-log="${options.foxglove}"]`);
+    await row.waitFor({timeout: options.timeout});
+    report.foxgloveUrl = await row.locator('input.foxglove-url').inputValue();
+    await row.locator('button.foxglove-copy').click();
+    await row.locator('button.foxglove-copy', {hasText: 'Copied'}).waitFor({timeout: options.timeout});
+    report.foxgloveCopied = await page.evaluate(() => navigator.clipboard.readText());
+    report.foxgloveAppLink = await row.locator('a.foxglove-open').getAttribute('href');
+    report.catalogText = await page.locator('table.catalog').innerText();
+  }
   if (options.click) {
-    const link = page.locator(`tr.log[data-log="${options.click}"] a`);
+    const link = page.locator(`tr.log[data-log="${options.click}"] td:first-child a`);
     await link.waitFor({timeout: options.timeout});
     report.catalogText = await page.locator('table.catalog').innerText();
     await link.click();

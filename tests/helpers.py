@@ -368,6 +368,19 @@ async def served(root: Path | str, *flags: str, **env: str) -> AsyncIterator[Ser
         draining.cancel()
 
 
+async def foxglove_client(url: str, subprotocol: str, *sends: str, options: tuple[str, ...] = ()) -> dict[str, Any]:
+    """What the published Foxglove client (``@foxglove/ws-protocol``, ``interop/foxglove-client.js``) got from ``url``."""
+    node = shutil.which("node")
+    assert node, "node is required for the interop tests"
+    assert (INTEROP / "node_modules" / "@foxglove" / "ws-protocol").is_dir(), "run `npm ci --prefix tests/interop`"
+    args = [node, str(INTEROP / "foxglove-client.js"), url, subprotocol, *options, *(item for text in sends for item in ("--send", text))]
+    process = await asyncio.create_subprocess_exec(*args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    stdout, stderr = await asyncio.wait_for(process.communicate(), 60)
+    assert process.returncode == 0, stderr.decode()
+    result: dict[str, Any] = json.loads(stdout)
+    return result
+
+
 def timestamps(messages: list[dict[str, Any]]) -> list[float]:
     """Timestamps of the state updates among ``messages``."""
     return [m["data"]["updates"][0]["timestamp"] for m in messages if m["type"] == "xviz/state_update"]

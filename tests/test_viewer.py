@@ -16,6 +16,7 @@ import re
 import shutil
 import subprocess
 import sys
+import urllib.parse
 import urllib.request
 from datetime import datetime
 from pathlib import Path
@@ -28,7 +29,7 @@ from PIL import Image
 from devkit.fleet import write_fleet
 from devkit.tcpproxy import shaped_link
 from devkit.tclink import can_shape_links, tc_link
-from helpers import http_get, metadata, metric, running_server, ten_hz, write_demo, write_log
+from helpers import foxglove_client, http_get, metadata, metric, running_server, ten_hz, write_demo, write_log
 from xviz_server.catalog import parse_query
 from xviz_server.codec import Format
 from xviz_server.server import XVIZServer
@@ -340,11 +341,30 @@ async def test_a_click_in_the_catalog_opens_the_log(tmp_path: Path):
         report = await open_page(server, "/", "catalog-click", click="demo")
         (summary,) = await listed(server)
     rows = [line.split("\t") for line in report["catalogText"].split("\n")]
-    assert rows[0] == ["name", "format", "frames", "duration", "streams"]
-    assert rows[1] == ["demo", summary["format"], str(summary["frames"]), f"{summary['end_time'] - summary['start_time']:.1f} s", str(len(summary["streams"]))]
+    assert rows[0] == ["name", "format", "frames", "duration", "streams", "Foxglove / Lichtblick"]
+    assert rows[1][:5] == ["demo", summary["format"], str(summary["frames"]), f"{summary['end_time'] - summary['start_time']:.1f} s", str(len(summary["streams"]))]
     assert report["url"].endswith("/?log=demo")
     assert_drawn_cleanly(report)
     assert_stream_list_shows(report, summary["streams"])
+
+
+@browser
+async def test_the_catalog_gives_each_log_the_url_that_opens_it_in_foxglove(tmp_path: Path, kitti_log: Path):
+    (tmp_path / "drives").mkdir()
+    (tmp_path / "drives" / "kitti").symlink_to(kitti_log)
+    write_demo(tmp_path / "demo", duration=1.0)
+    for settings, path in (({}, "/"), ({"viewer_token": "s3cret"}, "/?token=s3cret")):
+        async with running_server(tmp_path, **settings) as server:
+            report = await open_page(server, path, "foxglove-url", draw=False, settle=0, foxglove="drives/kitti")
+            url = report["foxgloveCopied"]
+            # What the page shows and copies, pasted into the published Foxglove client, opens that log.
+            out = await foxglove_client(url, "foxglove.websocket.v1")
+            token = "&token=s3cret" if settings else ""
+            assert url == report["foxgloveUrl"] == f"ws://127.0.0.1:{server.port}/?log=drives/kitti{token}"
+        assert report["foxgloveAppLink"] == "https://app.foxglove.dev/?ds=foxglove-websocket&ds.url=" + urllib.parse.quote(url, safe="")
+        assert report["pageErrors"] == [] and report["failedRequests"] == [] and report["externalRequests"] == []
+        assert out["errors"] == [] and out["statuses"] == [] and out["serverInfo"]["metadata"]["log"] == "drives/kitti"
+        assert out["topics"]["/lidar/points"]["count"] == 25
 
 
 @browser

@@ -216,8 +216,4 @@ class FoxgloveProtocolError(XVIZError):
 
 
 class ExportError(XVIZError):
-    """A clip of a log cannot be exported as asked; ``too_large`` when it passes the size limit."""
-
-    def __init__(self, message: str, *, too_large: bool = False) -> None:
-        super().__init__(message)
-        self.too_large = too_large
+    """A clip of a log cannot be exported as asked (a bad range or format)."""

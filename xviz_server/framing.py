@@ -26,7 +26,19 @@ does the standard library's transport from Python 3.12; before 3.12 it joins
 them, which is the copy websockets made anyway. TLS transports encrypt from
 the buffers they are given.
 
-Use it with ``serve(..., create_connection=FramingConnection)``.
+Use it with ``serve(..., create_connection=FramingConnection, open_timeout=None)``
+(:class:`FramingConnection` times the opening handshake itself, see below).
+
+HTTP answers of any length go out as they are made: ``process_request`` may
+return a :func:`streamed` response, whose head is sent as any answer's and
+whose body then follows in chunked transfer encoding, piece by piece from an
+asynchronous iterator, each piece written once the transport's buffer is
+below its high-water mark (so what waits for a slow client is that buffer
+and one piece). websockets ends every answer other than a switch to
+WebSocket right after writing it, so the protocol here holds back that end
+for a streamed one and the connection sends the body after the handshake:
+the handshake proper (request, ``process_request``, head) keeps a time limit
+of :data:`OPEN_TIMEOUT`, the body has none but its stall timeout.
 
 :func:`ready_to_write` and :func:`write_message` write one message to a
 connection at once, from a live feed's publish, the way
@@ -34,9 +46,11 @@ connection at once, from a live feed's publish, the way
 not go through a coroutine per viewer (see docs/performance.md#live-fan-out:
 this server against ``websockets.broadcast`` and raw writes).
 
-This module overrides a private method of websockets (``send_frame``),
-relies on how the protocol queues outgoing data (``writes``,
-``data_to_send``), and writes as ``websockets.broadcast`` does (the
+This module overrides a private method of websockets (``send_frame``) and
+the protocol's ``send_response``, relies on how the protocol queues outgoing
+data (``writes``, ``data_to_send``), ends a response as ``send_response``
+does (``send_eof``, ``discard``), registers a connection sending a body in
+the server's ``all_connections``, and writes as ``websockets.broadcast`` does (the
 protocol's ``state``, ``send_text``/``send_binary``, the connection's
 ``send_in_progress`` and ``send_data``); importing it raises
 :exc:`~xviz_server.exceptions.DependencyError` unless the installed
@@ -45,21 +59,31 @@ websockets is a version it was tested with (:data:`TESTED_WEBSOCKETS`).
 
 from __future__ import annotations
 
+import asyncio
+import dataclasses
+import logging
 import struct
+from collections.abc import AsyncGenerator, Awaitable, Callable
 from typing import Any
 
 from websockets.asyncio.server import Server, ServerConnection
+from websockets.datastructures import Headers
 from websockets.frames import DATA_OPCODES, Frame
+from websockets.http11 import SERVER, Request, Response
 from websockets.protocol import State
 from websockets.server import ServerProtocol
 from websockets.version import version as websockets_version
 
+from .exceptions import XVIZError
+from .flow import watch_progress
 from .version import require_tested
 
 __all__ = [
-    "TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "frame_header", "FramingProtocol", "FramingConnection", "ready_to_write",
-    "write_message",
+    "TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "OPEN_TIMEOUT", "frame_header", "StreamedResponse", "streamed",
+    "FramingProtocol", "FramingConnection", "ready_to_write", "write_message",
 ]
+
+logger = logging.getLogger(__name__)
 
 #: The websockets releases (major, minor) this module was tested with.
 TESTED_WEBSOCKETS = frozenset({(17, 4)})
@@ -67,6 +91,12 @@ TESTED_WEBSOCKETS = frozenset({(17, 4)})
 #: Smallest payload sent as a buffer of its own; below it, copying the
 #: payload behind its header costs less than a second buffer.
 SEPARATE_PAYLOAD = 16 * 1024
+
+#: Seconds a connection has from its start to send its request and be sent
+#: the head of the answer (websockets' own default ``open_timeout``).
+OPEN_TIMEOUT = 10.0
+
+_LAST_CHUNK = b"0\r\n\r\n"
 
 
 require_tested(__name__, "websockets", websockets_version, TESTED_WEBSOCKETS, "pip install -e .")
@@ -83,8 +113,50 @@ def frame_header(frame: Frame) -> bytes:
     return struct.pack("!BBQ", head, 127, length)
 
 
+@dataclasses.dataclass
+class StreamedResponse(Response):
+    """An HTTP answer whose body is sent in chunked transfer encoding as ``chunks`` yields it; see :func:`streamed`."""
+
+    chunks: AsyncGenerator[bytes, None] | None = None
+    #: Seconds the client may read nothing of the body before it is dropped.
+    stall_timeout: float = 60.0
+
+
+def streamed(response: Response, chunks: AsyncGenerator[bytes, None], stall_timeout: float) -> StreamedResponse:
+    """``response``'s status and headers, with a body of unknown length sent as ``chunks`` yields it.
+
+    Its ``Content-Length`` is replaced by ``Transfer-Encoding: chunked``.
+    Once the head is sent, the pieces go out in order, each when the
+    transport's buffer is below its high-water mark; an empty piece is
+    skipped. The body ends early, the connection aborted so that the client
+    sees a body cut short (no last chunk), when ``chunks`` raises (logged),
+    when the client reads nothing for ``stall_timeout`` seconds, and when
+    the server stops serving (at the next piece, or with the connections
+    still open at its shutdown deadline). ``chunks`` is closed in every case.
+    A response that is not sent (the client left, a ``HEAD``) never starts
+    ``chunks``.
+    """
+    headers = Headers((key, value) for key, value in response.headers.raw_items() if key.lower() != "content-length")
+    headers["Transfer-Encoding"] = "chunked"
+    return StreamedResponse(response.status_code, response.reason_phrase, headers, chunks=chunks, stall_timeout=stall_timeout)
+
+
 class FramingProtocol(ServerProtocol):
-    """websockets' server protocol, queueing large data payloads by reference."""
+    """websockets' server protocol, queueing large data payloads by reference, holding back the end of a streamed answer."""
+
+    def send_response(self, response: Response) -> None:
+        """Queue ``response``; a :class:`StreamedResponse`'s head only, the stream left open for its body."""
+        if not isinstance(response, StreamedResponse):
+            super().send_response(response)
+            return
+        self.writes.append(response.serialize())
+        self.logger.info("HTTP response started (%d %s)", response.status_code, response.reason_phrase)
+
+    def end_response(self) -> None:
+        """End the stream after a streamed answer's body, as websockets ends every other answer."""
+        self.send_eof()
+        self.parser = self.discard()
+        next(self.parser)
 
     def send_frame(self, frame: Frame) -> None:
         data = frame.data
@@ -105,9 +177,65 @@ class FramingConnection(ServerConnection):
     adds no state, at once.
     """
 
+    protocol: FramingProtocol
+
     def __init__(self, protocol: ServerProtocol, server: Server, **kwargs: Any) -> None:
         protocol.__class__ = FramingProtocol
         super().__init__(protocol, server, **kwargs)
+
+    async def handshake(
+        self,
+        process_request: Callable[[ServerConnection, Request], Awaitable[Response | None] | Response | None] | None = None,
+        process_response: Callable[[ServerConnection, Request, Response], Awaitable[Response | None] | Response | None] | None = None,
+        server_header: str | None = SERVER,
+    ) -> None:
+        """websockets' opening handshake within :data:`OPEN_TIMEOUT` seconds, then a streamed answer's body."""
+        await asyncio.wait_for(super().handshake(process_request, process_response, server_header), OPEN_TIMEOUT)
+        response = self.response
+        if isinstance(response, StreamedResponse) and response.chunks is not None and self.protocol.state is State.CONNECTING:
+            await self._send_body(response, response.chunks)
+
+    async def _send_body(self, response: StreamedResponse, chunks: AsyncGenerator[bytes, None]) -> None:
+        transport = self.transport
+        transport.pause_reading()  # the request is read: nothing after it is (a pipelined request is not answered)
+        self.server.all_connections.add(self)  # aborted with the open ones when the server's shutdown runs late
+        sent = 0
+        watchdog = asyncio.ensure_future(watch_progress(self, response.stall_timeout, lambda: sent))
+        complete = False
+        try:
+            async for piece in chunks:
+                if transport.is_closing():
+                    break
+                if not self.server.is_serving():
+                    logger.info("%s: the answer to %s is cut short: the server is stopping", self.remote_address, self._path())
+                    break
+                if piece:
+                    transport.writelines((b"%x\r\n" % len(piece), piece, b"\r\n"))
+                    sent += 1
+                    await self.drain()
+            else:
+                complete = not transport.is_closing()
+        except Exception as exc:
+            if not transport.is_closing():
+                logger.warning("%s: the body of the answer to %s failed: %s", self.remote_address, self._path(), exc,
+                               exc_info=not isinstance(exc, XVIZError))
+        finally:
+            watchdog.cancel()
+            self.server.all_connections.discard(self)
+            if not complete:
+                transport.abort()
+            await chunks.aclose()
+        if not complete:
+            return
+        transport.write(_LAST_CHUNK)
+        transport.resume_reading()
+        if self.protocol.state is State.CONNECTING:  # else the client left: nothing to end
+            async with self.send_context(expected_state=State.CONNECTING):
+                self.protocol.end_response()
+
+    def _path(self) -> str:
+        """The request's path, without its query (which may hold a token)."""
+        return self.request.path.partition("?")[0] if self.request is not None else "?"
 
     def send_data(self) -> None:
         """Write the protocol's outgoing data, several buffers in one call."""

@@ -20,7 +20,6 @@ they reach the parser:
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
 from http import HTTPStatus
@@ -85,7 +84,7 @@ class GatedConnection(ServerConnection):
                 return response
             if response.status_code == HTTPStatus.SWITCHING_PROTOCOLS:
                 response = self._method_not_allowed("HEAD")
-            return dataclasses.replace(response, body=b"")
+            return Response(response.status_code, response.reason_phrase, response.headers)  # its head only, whatever its kind
 
         await super().handshake(process_request, respond, server_header)
 

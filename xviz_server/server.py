@@ -35,7 +35,7 @@ import os
 import signal
 from http import HTTPStatus
 from pathlib import Path
-from collections.abc import Sequence
+from collections.abc import AsyncGenerator, Sequence
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
@@ -56,7 +56,7 @@ from .foxglove.connection import FoxgloveConnection
 from .foxglove.convert import plan
 from .foxglove.export import export, export_path, parse_range
 from .foxglove.wire import SUBPROTOCOLS
-from .framing import FramingConnection
+from .framing import OPEN_TIMEOUT, FramingConnection, streamed
 from .gate import GatedConnection
 from .live import LiveRegistry
 from .live.ingest import run_ingest
@@ -135,6 +135,7 @@ class XVIZServer:
             self.broker = _broker(settings, self.live, self.metrics, self.workers)
         #: The sessions running now.
         self.sessions: set[Connection | FoxgloveConnection] = set()
+        self._exports = 0  # clips being sent now
         #: The built-in viewer's page and assets.
         self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors)
 
@@ -179,6 +180,8 @@ class XVIZServer:
                 close_timeout=min(10.0, self.settings.idle_timeout),
                 server_header=f"xviz-server/{__version__}",
                 create_connection=_Connection,
+                open_timeout=None,  # _Connection times the handshake itself: not the body of a streamed answer
+                ssl_handshake_timeout=OPEN_TIMEOUT if tls else None,
             )
         except OSError as exc:
             raise ConfigError(_cannot_listen(self.settings.host, self.settings.port, exc)) from None
@@ -268,9 +271,8 @@ class XVIZServer:
                 return None
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
-            if len(self.sessions) >= self.settings.max_sessions:
-                logger.warning("refused a session: %d sessions open", self.settings.max_sessions)
-                return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "too many sessions, try again later\n")
+            if self._open() >= self.settings.max_sessions:
+                return self._too_many(connection, "a session")
             return None
         path = urlsplit(request.path).path
         if path == "/healthz":
@@ -300,22 +302,42 @@ class XVIZServer:
         )
 
     async def _export(self, connection: ServerConnection, name: str, query: dict[str, str]) -> Response:
-        """A clip of log ``name`` as an MCAP file (see :mod:`xviz_server.foxglove.export`)."""
+        """A clip of log ``name`` as an MCAP file, sent as it is written (see :mod:`xviz_server.foxglove.export`)."""
         try:
             span = parse_range(query)
             log = await self.catalog.open(name, preload=False)
-            body = await export(log, plan(log.metadata, log.originals), span, self.workers, int(self.settings.export_max_mb * MB))
         except LogNotFound as exc:
             return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
         except ExportError as exc:
-            status = HTTPStatus.REQUEST_ENTITY_TOO_LARGE if exc.too_large else HTTPStatus.BAD_REQUEST
-            return connection.respond(status, f"{exc}\n")
+            return connection.respond(HTTPStatus.BAD_REQUEST, f"{exc}\n")
         except XVIZError as exc:
             return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
-        response = _response(connection, HTTPStatus.OK, body, "application/octet-stream")
+        if self._open() >= self.settings.max_sessions:
+            return self._too_many(connection, "an export")
+        head = connection.respond(HTTPStatus.OK, "")
+        del head.headers["Content-Type"]
+        head.headers["Content-Type"] = "application/octet-stream"
         filename = name.replace("/", "_") + ".mcap"
-        response.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
-        return response
+        head.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
+        return streamed(head, self._counted(export(log, plan(log.metadata, log.originals), span, self.workers)), self.settings.idle_timeout)
+
+    def _too_many(self, connection: ServerConnection, what: str) -> Response:
+        logger.warning("refused %s: %d sessions and exports open", what, self.settings.max_sessions)
+        return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "too many sessions, try again later\n")
+
+    def _open(self) -> int:
+        """Sessions and exports running now: what ``max_sessions`` bounds."""
+        return len(self.sessions) + self._exports
+
+    async def _counted(self, pieces: AsyncGenerator[bytes, None]) -> AsyncGenerator[bytes, None]:
+        """``pieces``, counted in :meth:`_open` from its first piece until it ends."""
+        self._exports += 1
+        try:
+            async for piece in pieces:
+                yield piece
+        finally:
+            self._exports -= 1
+            await pieces.aclose()
 
     async def _listing(self, path: str, target: str) -> tuple[HTTPStatus, dict[str, Any]]:
         """The answer to ``GET /api/logs?...`` (a page of the catalog) or ``GET /api/logs/NAME`` (one log)."""

@@ -105,9 +105,6 @@ class Settings(BaseSettings):
         description="read --ingest-token from this file (unlike a flag, it is not shown to other users by ps)",
     )
     max_ingest_mb: float = Field(default=64, gt=0, description="largest message a live source may push, MB")
-    export_max_mb: float = Field(
-        default=512, gt=0, description="largest clip GET /api/logs/NAME/export makes, MB of messages (it is made whole before it is sent)"
-    )
     detail: Literal["auto", "off"] = Field(
         default="auto",
         description="auto: each session gets the level of detail its link carries (thinned point clouds, smaller "

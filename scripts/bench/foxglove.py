@@ -12,7 +12,16 @@
    Foxglove client subscribes to every channel and plays the log at the
    fastest speed the server allows. Reported: MB/s of payload received (the
    median of ``--repeats``), and Foxglove's MB/s over XVIZ's in each repeat.
-3. Seeking: ``--clients`` Foxglove clients of the same log at once, each
+   The reference, in the same run: the published ``foxglove-sdk`` server
+   (Foxglove's own, in Rust) in a process of its own, holding the same
+   messages converted in advance, logging them all as fast as it takes them
+   when the client asks to play (it has no pacing and one timeline for
+   every client); the same client receives them all.
+3. Exporting: ``GET /api/logs/kitti/export`` (the whole log as an MCAP
+   file), ``--repeats`` times: the time to the first byte of the file and
+   to its end, beside ``GET /healthz`` on the same server (the bare HTTP
+   round trip).
+4. Seeking: ``--clients`` Foxglove clients of the same log at once, each
    seeking (paused) to random frames ``--seeks`` times; the time from
    sending the request to the first message of the frame sought, p50 and p99
    over every seek of every client.
@@ -34,6 +43,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import random
 import statistics
 import struct
@@ -47,10 +57,11 @@ from websockets.typing import Subprotocol
 
 from kit import KITTI, parse, percentile
 from kit.live import ROLE
-from kit.proc import BENCH, start_server
+from kit.proc import BENCH, start_foxglove_sdk, start_server
 from kit.ws import RawClient, envelope_of
 from xviz_server.codec import decode
 from xviz_server.foxglove.convert import convert, nanoseconds, plan
+from xviz_server.records import unpack
 from xviz_server.foxglove.session import MAX_SPEED
 
 MB = 1e6
@@ -88,22 +99,42 @@ async def xviz_log(port: int) -> tuple[int, float]:
             received += len(message)
 
 
-async def foxglove_log(port: int) -> tuple[int, float]:
-    """Bytes of the whole log as a Foxglove client playing it at the fastest speed gets it, and the seconds it took."""
+async def foxglove_log(port: int, expected: int) -> tuple[int, float]:
+    """Bytes of the whole log (``expected`` messages) as a Foxglove client playing it at the fastest speed gets it,
+    and the seconds from asking to play to the last message."""
     async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None) as websocket:
         json.loads(await websocket.recv())
-        channels = json.loads(await websocket.recv())["channels"]
+        while (advertise := json.loads(await websocket.recv()))["op"] != "advertise":
+            pass
+        channels = advertise["channels"]
         await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 0, 0, 0))  # take control: paused
         await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
-        began, received = time.perf_counter(), 0
+        began, received, count = time.perf_counter(), 0, 0
         await websocket.send(struct.pack("<BBfBQI", 3, 0, MAX_SPEED, 0, 0, 0))  # play from the start
-        while True:
+        while count < expected:
             message = await websocket.recv()
-            if isinstance(message, bytes):
-                if message[0] == 0x05 and message[1] == 3:  # playback state: ended
-                    return received, time.perf_counter() - began
-                if message[0] == 0x01:
-                    received += len(message) - 13
+            if isinstance(message, bytes) and message[0] == 0x01:
+                received += len(message) - 13
+                count += 1
+        return received, time.perf_counter() - began
+
+
+async def http_get(port: int, path: str) -> tuple[float, float, int]:
+    """Seconds to the first byte of the body of ``GET path`` and to its end, and the body's bytes (chunked or not)."""
+    began = time.perf_counter()
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    writer.write(f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
+    head = (await reader.readuntil(b"\r\n\r\n")).lower()
+    first, size = 0.0, 0
+    if b"transfer-encoding: chunked" in head:
+        while length := int((await reader.readline()).strip(), 16):
+            size += len(await reader.readexactly(length + 2)) - 2
+            first = first or time.perf_counter() - began
+    else:
+        size = len(await reader.read())
+        first = time.perf_counter() - began
+    writer.close()
+    return first, time.perf_counter() - began, size
 
 
 async def seeker(port: int, seeks: int, seed: int) -> list[float]:
@@ -135,26 +166,52 @@ async def seeker(port: int, seeks: int, seed: int) -> list[float]:
         return waits
 
 
+def messages_in_log() -> int:
+    """How many Foxglove messages the KITTI log makes (what a client of every channel receives)."""
+    frames = sorted(KITTI.glob("*-frame.glb"), key=lambda path: int(path.name.split("-")[0]))
+    channels = plan(decode(frames[0].read_bytes())["data"])
+    return sum(len(list(unpack(convert(path.read_bytes(), channels)))) for path in frames[1:])
+
+
 async def streaming(repeats: int, clients: int, seeks: int) -> None:
+    expected = messages_in_log()
+    before = os.getloadavg()
     with tempfile.TemporaryDirectory() as data:
         (Path(data) / "kitti").symlink_to(KITTI)
-        with start_server(data) as server:
+        with start_server(data) as server, start_foxglove_sdk(KITTI) as sdk:
             port = server.port
             await xviz_log(port)  # warm the cache, both ways
-            await foxglove_log(port)
-            rates: dict[str, list[float]] = {"xviz": [], "foxglove": []}
+            await foxglove_log(port, expected)
+            rates: dict[str, list[float]] = {"xviz": [], "foxglove": [], "sdk": []}
             for _ in range(repeats):
-                for name, run in (("xviz", xviz_log), ("foxglove", foxglove_log)):
-                    size, seconds = await run(port)
+                for name, run in (("xviz", xviz_log(port)), ("foxglove", foxglove_log(port, expected)),
+                                  ("sdk", foxglove_log(sdk.port, expected))):
+                    size, seconds = await run
                     rates[name].append(size / seconds / MB)
+            exports = [await http_get(port, "/api/logs/kitti/export") for _ in range(repeats)]
+            health = [await http_get(port, "/healthz") for _ in range(repeats)]
             waits = [wait for each in await asyncio.gather(*(seeker(port, seeks, seed) for seed in range(clients))) for wait in each]
+    after = os.getloadavg()
     ratios = [f / x for f, x in zip(rates["foxglove"], rates["xviz"])]
+    against_sdk = [f / r for f, r in zip(rates["foxglove"], rates["sdk"])]
+    print()
+    print(f"load average {before[0]:.2f} before, {after[0]:.2f} after (1 min; 2 cores)")
     print()
     print("| streaming the cached KITTI log to one client | MB/s (median) |")
     print("|---|---|")
     print(f"| XVIZ, transform_log of the whole log (GLB) | {statistics.median(rates['xviz']):.0f} |")
     print(f"| Foxglove, every channel, played at {MAX_SPEED:g}x | {statistics.median(rates['foxglove']):.0f} |")
+    print(f"| foxglove-sdk server, the same {expected} messages, unpaced | {statistics.median(rates['sdk']):.0f} |")
     print(f"| Foxglove / XVIZ (median of the repeats) | x{statistics.median(ratios):.2f} |")
+    print(f"| Foxglove / foxglove-sdk (median of the repeats) | x{statistics.median(against_sdk):.2f} |")
+    print()
+    size = exports[0][2]
+    print(f"| GET, {repeats} times | first byte p50 ms | max ms | whole answer p50 ms | MB/s |")
+    print("|---|---|---|---|---|")
+    for label, runs in ((f"/api/logs/kitti/export (MCAP, {size / MB:.1f} MB)", exports), ("/healthz (reference)", health)):
+        firsts, wholes = [run[0] * 1e3 for run in runs], [run[1] for run in runs]
+        rate = statistics.median(run[2] / run[1] / MB for run in runs)
+        print(f"| {label} | {statistics.median(firsts):.1f} | {max(firsts):.1f} | {statistics.median(wholes) * 1e3:.0f} | {rate:.1f} |")
     print()
     print(f"| {clients} Foxglove clients seeking in one log, {len(waits)} seeks | p50 ms | p99 ms |")
     print("|---|---|---|")

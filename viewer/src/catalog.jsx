@@ -1,5 +1,5 @@
 import React from 'react';
-import {fetchCatalog} from './page';
+import {fetchCatalog, foxgloveAppUrl, foxgloveUrl} from './page';
 
 /** Logs asked for a page. */
 const PAGE = 100;
@@ -13,7 +13,60 @@ function duration(log) {
   return `${(log.end_time - log.start_time).toFixed(1)} s`;
 }
 
-function Row({name, cells, onOpen}) {
+/** Put `text` on the clipboard: the Clipboard API where the page may use it, else the selected `input`'s copy. */
+async function copy(text, input) {
+  if (navigator.clipboard && window.isSecureContext) {
+    await navigator.clipboard.writeText(text);
+    return;
+  }
+  input.select();
+  if (!document.execCommand('copy')) {
+    throw new Error('copy refused');
+  }
+}
+
+/** The address a Foxglove or Lichtblick user pastes for one log, with a button that copies it. */
+class FoxgloveUrl extends React.Component {
+  state = {copied: null};
+  input = React.createRef();
+
+  componentWillUnmount() {
+    clearTimeout(this.timer);
+  }
+
+  _onCopy = () => {
+    copy(this.props.url, this.input.current).then(
+      () => this.setState({copied: 'Copied'}),
+      () => this.setState({copied: 'Select and copy'})
+    );
+    clearTimeout(this.timer);
+    this.timer = setTimeout(() => this.setState({copied: null}), 2000);
+  };
+
+  render() {
+    const {url} = this.props;
+    return (
+      <span style={{display: 'flex', gap: 6, alignItems: 'center'}}>
+        <input
+          className="foxglove-url"
+          readOnly
+          value={url}
+          aria-label="Foxglove WebSocket URL"
+          onFocus={event => event.target.select()}
+          style={{flex: 1, minWidth: 120, fontFamily: 'monospace', fontSize: 12}}
+        />
+        <button className="foxglove-copy" type="button" onClick={this._onCopy} title="Copy, then in Foxglove or Lichtblick: Open connection, Foxglove WebSocket">
+          {this.state.copied || 'Copy'}
+        </button>
+        <a className="foxglove-open" href={foxgloveAppUrl(url)} target="_blank" rel="noopener noreferrer" title="Open in Foxglove's web app">
+          app
+        </a>
+      </span>
+    );
+  }
+}
+
+function Row({name, cells, onOpen, foxglove}) {
   const open = event => {
     event.preventDefault();
     onOpen(name);
@@ -28,6 +81,9 @@ function Row({name, cells, onOpen}) {
       {cells.map((cell, i) => (
         <td key={i}>{cell}</td>
       ))}
+      <td>
+        <FoxgloveUrl url={foxglove} />
+      </td>
     </tr>
   );
 }
@@ -48,7 +104,8 @@ function cells(log) {
 }
 
 /**
- * The list of logs and live feeds, a page at a time; a click on a name opens it. `catalog` is
+ * The list of logs and live feeds, a page at a time; a click on a name opens it. Each row
+ * shows the address that opens it in Foxglove or Lichtblick. `catalog` is
  * the first page, fetched by the page; a search (of names and descriptions) asks the server
  * for its own pages.
  */
@@ -92,7 +149,7 @@ export default class Catalog extends React.Component {
   };
 
   render() {
-    const {catalog, onOpen} = this.props;
+    const {catalog, onOpen, token} = this.props;
     const {q, logs, next, counts, loading, error} = this.state;
     const live = q.trim() ? [] : catalog.live || [];
     const indexing = Number.isFinite(counts.found) && counts.indexed < counts.found;
@@ -117,7 +174,7 @@ export default class Catalog extends React.Component {
         <table className="catalog" style={{borderCollapse: 'collapse', width: '100%', background: '#fff'}}>
           <thead>
             <tr style={{textAlign: 'left'}}>
-              {['name', 'format', 'frames', 'duration', 'streams'].map(title => (
+              {['name', 'format', 'frames', 'duration', 'streams', 'Foxglove / Lichtblick'].map(title => (
                 <th key={title} style={{padding: '6px 10px', borderBottom: '1px solid #ccc'}}>
                   {title}
                 </th>
@@ -131,10 +188,11 @@ export default class Catalog extends React.Component {
                 name={feed.name}
                 cells={['live', '', feed.connected ? 'source connected' : 'waiting for a source', '']}
                 onOpen={onOpen}
+                foxglove={foxgloveUrl(feed.name, true, token)}
               />
             ))}
             {logs.map(log => (
-              <Row key={log.name} name={log.name} cells={cells(log)} onOpen={onOpen} />
+              <Row key={log.name} name={log.name} cells={cells(log)} onOpen={onOpen} foxglove={foxgloveUrl(log.name, false, token)} />
             ))}
           </tbody>
         </table>

@@ -79,6 +79,24 @@ export function serverUrl() {
   return `${scheme}://${window.location.host}/`;
 }
 
+/**
+ * The address a Foxglove or Lichtblick user pastes to open `name` (a live feed if `live`):
+ * "Open connection", "Foxglove WebSocket". The page's viewer token, if it has one, is in it:
+ * those apps cannot send a header.
+ */
+export function foxgloveUrl(name, live, token) {
+  const query = [live ? 'session_type=live' : null, `log=${encodeURIComponent(name).replace(/%2F/g, '/')}`];
+  if (token) {
+    query.push(`token=${encodeURIComponent(token)}`);
+  }
+  return `${serverUrl()}?${query.filter(Boolean).join('&')}`;
+}
+
+/** Foxglove's web app opening `url` as a Foxglove WebSocket connection, as the Foxglove SDK links it. */
+export function foxgloveAppUrl(url) {
+  return `https://app.foxglove.dev/?ds=foxglove-websocket&ds.url=${encodeURIComponent(url)}`;
+}
+
 async function getJSON(path, token, params = {}) {
   const headers = token ? {Accept: 'application/json', Authorization: `Bearer ${token}`} : {Accept: 'application/json'};
   const text = new URLSearchParams(params).toString();

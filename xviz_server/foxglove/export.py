@@ -1,4 +1,4 @@
-"""A clip of a log as an MCAP file: the Foxglove channels and messages of a time range.
+"""A clip of a log as an MCAP file: the Foxglove channels and messages of a time range, made as it is sent.
 
 ``GET /api/logs/NAME/export?start=S&end=E&format=mcap`` answers with an
 indexed, chunked MCAP file (zstd) holding the same channels that a Foxglove
@@ -9,9 +9,14 @@ offline. The frames' messages come from the frame cache, converted once as
 for a Foxglove session; a log read from a ROS bag or MCAP file has its
 original topics too, each message of a frame's span unchanged.
 
-The file is made whole before it is sent, so a clip is bounded: one whose
-messages pass ``export_max_mb`` is refused (HTTP 413) before it is written,
-with the size it reached.
+:func:`export` yields the file in pieces as it is written: its start (magic
+and header) at once, then each MCAP chunk (about :data:`CHUNK_BYTES` of
+messages, compressed) with its message indexes as soon as it is full, then
+the summary and footer. What it holds at a time is the chunk being filled
+and the index of the chunks written (a few dozen bytes each), whatever the
+length of the clip; the server sends it with
+:func:`~xviz_server.framing.streamed`, so that a client that reads slowly
+slows the writing down rather than making it buffer.
 
 The file is written with the published ``mcap`` package (Foxglove's own
 writer), in a thread.
@@ -19,11 +24,10 @@ writer), in a thread.
 
 from __future__ import annotations
 
-import base64
-import io
 import math
-from collections.abc import Mapping
+from collections.abc import AsyncGenerator, Mapping
 from dataclasses import dataclass
+from typing import IO, cast
 from urllib.parse import unquote
 
 from mcap.writer import CompressionType, Writer
@@ -34,7 +38,7 @@ from ..work import Workers
 from .convert import Plan
 from .frame import Message, frame_messages
 
-__all__ = ["FORMATS", "ExportRange", "export_path", "parse_range", "export"]
+__all__ = ["FORMATS", "CHUNK_BYTES", "ExportRange", "export_path", "parse_range", "export"]
 
 _PREFIX, _SUFFIX = "/api/logs/", "/export"
 
@@ -78,42 +82,74 @@ def parse_range(query: Mapping[str, str]) -> ExportRange:
     return ExportRange(start, end)
 
 
-async def export(log: Log, plan: Plan, span: ExportRange, workers: Workers, max_bytes: int) -> bytes:
-    """The MCAP file of ``span`` of ``log``; raises :class:`ExportError` when it would pass ``max_bytes``."""
+#: Bytes of messages an MCAP chunk holds before it is compressed and sent (the writer's default).
+CHUNK_BYTES = 1 << 20
+
+
+async def export(log: Log, plan: Plan, span: ExportRange, workers: Workers) -> AsyncGenerator[bytes, None]:
+    """The MCAP file of ``span`` of ``log``, in pieces as they are written.
+
+    A frame that cannot be read or converted raises its
+    :class:`~xviz_server.exceptions.XVIZError` (the file is then cut short).
+    """
     positions = log.index.range(span.start, span.end)
     if span.start is not None:  # frames that start in the range, not those that only overlap it
         positions = positions[log.index.start[positions] >= span.start]
-    frames: list[list[Message]] = []
-    size = 0
+    out = _Pieces()
+    writer = Writer(cast(IO[bytes], out), chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+    writer.start(profile="", library="xviz-server")
+    yield out.take()
+    channels = _register(writer, plan)
+    sequence = 0
     for number in log.index.frames[positions].tolist():
         messages, errors = await frame_messages(log, plan, number)
         if errors:
             raise errors[0]
-        size += sum(len(payload) for _, _, payload in messages)
-        if size > max_bytes:
-            raise ExportError(
-                f"log {log.name!r}: the clip passes {max_bytes >> 20} MB of messages (export_max_mb) "
-                f"after {len(frames)} of {len(positions)} frames; export a shorter range", too_large=True,
-            )
-        frames.append(messages)
-    return await workers.io(_write, plan, frames, log.name)
+        sequence = await workers.io(_add, writer, channels, messages, sequence)
+        yield out.take()
+    writer.add_metadata("xviz", {"log": log.name})
+    await workers.io(writer.finish)
+    yield out.take()
 
 
-def _write(plan: Plan, frames: list[list[Message]], name: str) -> bytes:
-    out = io.BytesIO()
-    writer = Writer(out, compression=CompressionType.ZSTD)
-    writer.start(profile="", library="xviz-server")
+class _Pieces:
+    """A stream for the MCAP writer (it calls ``write``, ``tell`` and ``flush``) that keeps what was written until it is taken."""
+
+    def __init__(self) -> None:
+        self._pieces: list[bytes] = []
+        self._offset = 0
+
+    def write(self, data: bytes) -> int:
+        self._pieces.append(bytes(data))
+        self._offset += len(data)
+        return len(data)
+
+    def tell(self) -> int:
+        return self._offset
+
+    def flush(self) -> None:
+        pass
+
+    def take(self) -> bytes:
+        """What was written since the last call."""
+        data = b"".join(self._pieces)
+        self._pieces.clear()
+        return data
+
+
+def _register(writer: Writer, plan: Plan) -> dict[int, int]:
+    """Register the schema and channel of each of the plan's channels; the MCAP channel id of each channel id."""
     channels: dict[int, int] = {}
     for channel in plan.channels:
         schema = channel.schema
-        data = base64.b64decode(schema.schema) if schema.schema_encoding == "protobuf" else schema.schema.encode()
-        schema_id = writer.register_schema(schema.name, schema.schema_encoding, data)
+        schema_id = writer.register_schema(schema.name, schema.schema_encoding, schema.data())
         channels[channel.id] = writer.register_channel(channel.topic, schema.encoding, schema_id)
-    sequence = 0
-    for messages in frames:
-        for channel_id, time, payload in messages:
-            writer.add_message(channels[channel_id], log_time=time, data=bytes(payload), publish_time=time, sequence=sequence)
-            sequence += 1
-    writer.add_metadata("xviz", {"log": name})
-    writer.finish()
-    return out.getvalue()
+    return channels
+
+
+def _add(writer: Writer, channels: Mapping[int, int], messages: list[Message], sequence: int) -> int:
+    """Add a frame's messages (see :func:`~xviz_server.foxglove.frame.frame_messages`); the next sequence number."""
+    for channel_id, time, payload in messages:
+        writer.add_message(channels[channel_id], log_time=time, data=bytes(payload), publish_time=time, sequence=sequence)
+        sequence += 1
+    return sequence

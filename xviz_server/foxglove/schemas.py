@@ -36,6 +36,10 @@ class Schema:
     schema_encoding: str  #: ``protobuf`` or ``jsonschema``; ``ros1msg``, ``ros2msg`` or ``ros2idl``
     schema: str  #: base64 ``FileDescriptorSet``, JSON Schema text, or the message definition text
 
+    def data(self) -> bytes:
+        """The schema as a file records it (an MCAP schema record, the SDK's ``Schema.data``): bytes, not base64."""
+        return base64.b64decode(self.schema) if self.schema_encoding == "protobuf" else self.schema.encode()
+
 
 #: The Foxglove messages this server converts XVIZ streams into, by their short name.
 WELL_KNOWN: dict[str, type[Message]] = {

@@ -4,6 +4,9 @@
 * ``reference``: a bare websockets (asyncio API) + uvloop server that pre-loads
   the frame files and, for each ``xviz/transform_log``, sends them all then a
   done message: the best any Python server can do on this machine;
+* ``foxglove-sdk``: the published ``foxglove-sdk`` WebSocket server (Rust,
+  MIT) playing a KITTI log's Foxglove messages, converted in advance: the
+  reference for one Foxglove client playing a log;
 * ``client``: the clients, the same code against both servers (:mod:`kit.ws`:
   the raw client and the websockets client, on uvloop); they stream whole logs
   or time point-in-time answers, and print what they measured as JSON.
@@ -256,12 +259,71 @@ def client_main(spec_text: str) -> None:
 
 
 
+# ================================================================ the foxglove-sdk server
+
+
+def foxglove_sdk_main(directory: str) -> None:
+    """The foxglove-sdk server with one channel per channel this server advertises for the KITTI log in ``directory``.
+
+    Every frame is converted first (``xviz_server.foxglove.convert``, what the
+    server's warm cache holds). A play request starts a thread that logs every
+    message in time order as fast as the SDK takes them (its queue per client
+    holds the whole log: none is dropped), then broadcasts the state *ended*.
+    The SDK has one timeline for every client: one client at a time here.
+    """
+    import importlib
+    import threading
+
+    # The benchmark foxglove.py shadows the package here, on the path and for mypy: imported by name, untyped.
+    bench = Path(__file__).resolve().parents[1]
+    sys.path[:] = [entry for entry in sys.path if Path(entry or ".").resolve() != bench]
+    foxglove: Any = importlib.import_module("foxglove")
+    websocket: Any = importlib.import_module("foxglove.websocket")
+    Capability, PlaybackCommand = websocket.Capability, websocket.PlaybackCommand
+    PlaybackState, PlaybackStatus = websocket.PlaybackState, websocket.PlaybackStatus
+
+    from xviz_server.codec import decode
+    from xviz_server.foxglove.convert import convert, plan
+    from xviz_server.records import unpack
+
+    frames = sorted(Path(directory).glob("*-frame.glb"), key=lambda path: int(path.name.split("-")[0]))
+    channels = plan(decode(frames[0].read_bytes())["data"])
+    messages = [(c, t, bytes(data)) for path in frames[1:] for c, t, data in unpack(convert(path.read_bytes(), channels))]
+    start, end = messages[0][1], messages[-1][1]
+    sdk = {
+        channel.id: foxglove.Channel(
+            channel.topic, message_encoding=channel.schema.encoding,
+            schema=foxglove.Schema(name=channel.schema.name, encoding=channel.schema.schema_encoding, data=channel.schema.data()),
+        )
+        for channel in channels.channels
+    }
+
+    def play(speed: float) -> None:
+        for channel_id, time_ns, data in messages:
+            sdk[channel_id].log(data, log_time=time_ns)
+        server.broadcast_playback_state(PlaybackState(PlaybackStatus.Ended, end, speed, False, ""))
+
+    class Listener:
+        def on_playback_control_request(self, request: Any) -> Any:
+            if request.playback_command == PlaybackCommand.Play:
+                threading.Thread(target=play, args=(request.playback_speed,), daemon=True).start()
+                return PlaybackState(PlaybackStatus.Playing, start, request.playback_speed, False, request.request_id)
+            return PlaybackState(PlaybackStatus.Paused, start, request.playback_speed, False, request.request_id)
+
+    server = foxglove.start_server(
+        name="foxglove-sdk reference", host="127.0.0.1", port=0, capabilities=[Capability.Time],
+        server_listener=Listener(), playback_time_range=(start, end), message_backlog_size=len(messages) + 64,
+    )
+    print(f"foxglove-sdk listening on ws://127.0.0.1:{server.port}/ ({len(messages)} messages)", file=sys.stderr, flush=True)
+    threading.Event().wait()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description="A peer of the benchmarks")
-    parser.add_argument("--role", choices=["reference", "client"], required=True)
-    parser.add_argument("spec", help="the peer's JSON spec, or - for standard input")
+    parser.add_argument("--role", choices=["reference", "foxglove-sdk", "client"], required=True)
+    parser.add_argument("spec", help="the peer's JSON spec (a log folder for foxglove-sdk), or - for standard input")
     args = parser.parse_args()
-    (reference_main if args.role == "reference" else client_main)(args.spec)
+    {"reference": reference_main, "foxglove-sdk": foxglove_sdk_main, "client": client_main}[args.role](args.spec)
 
 
 if __name__ == "__main__":

@@ -103,6 +103,11 @@ def start_reference(logs: dict[str, Path]) -> Process:
     return Process([*PEERS, "--role", "reference", spec], r"reference listening on ws://127\.0\.0\.1:(\d+)/", "reference", cwd=BENCH)
 
 
+def start_foxglove_sdk(log: Path) -> Process:
+    """The published foxglove-sdk server playing ``log``'s Foxglove messages (see :func:`kit.peers.foxglove_sdk_main`)."""
+    return Process([*PEERS, "--role", "foxglove-sdk", str(log)], r"foxglove-sdk listening on ws://127\.0\.0\.1:(\d+)/", "foxglove-sdk", cwd=BENCH)
+
+
 def descendants(pid: int) -> list[int]:
     """``pid`` and every process below it (the server's worker processes, if any)."""
     found, todo = [], [pid]
