@@ -81,6 +81,7 @@ class Connection:
         self._subscription: Subscription | None = None
         self._held: LiveUpdate | None = None  # the live update the session is deciding about
         self._live_idle = False  # the live task waits for the next update: the feed may hand it over at once
+        self._measuring = False  # the link is sampled (see _follow_link)
         self._tasks: set[asyncio.Task[None]] = set()
         self.frames_sent = 0
         self.bytes_sent = 0
@@ -97,12 +98,12 @@ class Connection:
         log_event(logger, "session start", remote=remote, path=redact_url(self.path))
         try:
             self._spawn("a stalled send", watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
-            if self.session.chooser.enabled:
-                limit_unsent(self.websocket.transport)
-                self._spawn("measuring the link", self._measure())
+            self._follow_link()
             await self._step("the connection", self.session.connect)
+            self._follow_link()
             async for message in self.websocket:
                 await self._step("a message", self.session.receive, message)
+                self._follow_link()
         except ConnectionClosed:
             pass
         finally:
@@ -371,11 +372,19 @@ class Connection:
 
     # -- the level of detail --------------------------------------------------
 
+    def _follow_link(self) -> None:
+        """Start sampling the connection's delivery once the session's level depends on it."""
+        if not self._measuring and self.session.chooser.measures:
+            self._measuring = True
+            limit_unsent(self.websocket.transport)
+            self._spawn("measuring the link", self._measure())
+
     async def _measure(self) -> None:
-        """Sample the connection's delivery for the session, which chooses the level of detail from it."""
+        """Sample the connection's delivery for the session, which chooses the level of detail from it, while
+        the level depends on it."""
         transport = self.websocket.transport
         before, times = time.monotonic(), link_times(transport)
-        while not transport.is_closing():
+        while not transport.is_closing() and self.session.chooser.measures:
             # at jittered times, so as never to keep step with a feed's updates
             await asyncio.sleep(SAMPLE_INTERVAL * random.uniform(0.5, 1.5))
             now, previous, times = time.monotonic(), times, link_times(transport)
@@ -385,6 +394,7 @@ class Connection:
             offered = None if self._subscription is None else self._subscription.offered
             events = self.session.link_sampled(now, self.bytes_written, backlog(transport), reader, offered, busy)
             await self._execute(events)
+        self._measuring = False
 
     def _detail_changed(self, event: DetailChanged) -> None:
         self.metrics.sessions_by_detail.labels(event.previous.name).dec()

@@ -190,6 +190,12 @@ class DetailChooser:
         """Whether the level is chosen from the link (not fixed by the user, nor turned off)."""
         return self.enabled and self.fixed is None
 
+    @property
+    def measures(self) -> bool:
+        """Whether samples of the connection's delivery can change the level: it is chosen here, for a link
+        to fit or under a cap (a local session without a cap stays at full detail whatever it measures)."""
+        return self.auto and (not self.local or self.cap is not None)
+
     def choose(self, fixed: Level | None, cap: float | None, now: float) -> Level | None:
         """The user fixed a level (``None``: auto) or a cap; the new level, if it changes at once."""
         self.fixed, self.cap = fixed, cap
