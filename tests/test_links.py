@@ -35,7 +35,7 @@ from xviz_server.settings import Settings
 from conftest import KITTI_LOG
 from devkit.tcpproxy import shaped_link
 from devkit.tclink import can_shape_links, tc_link
-from helpers import running_server, xviz_decode
+from helpers import metric, running_server, xviz_decode
 
 LOG = KITTI_LOG.name
 NUMBERS = list(range(2, 27))  # the frames of the log, in order
@@ -92,6 +92,25 @@ async def test_loopback_gets_every_byte(kitti_root):
                 received, _ = await whole_log(websocket, request)
                 assert received == [made(number, "full") for number in NUMBERS]
             assert 'xviz_sessions_by_detail{level="full"} 1.0' in await asyncio.to_thread(metrics, server)
+
+
+async def test_each_level_of_a_frame_is_made_once_whatever_the_viewers_at_it(kitti_root):
+    """Five viewers at one level, all at once, cost the cache's loads and makings of one viewer: never one per viewer."""
+
+    async def loads(viewers: int) -> float:
+        async with running_server(kitti_root) as server:
+            async def view() -> list[bytes]:
+                async with connect(f"ws://127.0.0.1:{server.port}/?log=kitti&profile=low", max_size=None) as websocket:
+                    await websocket.recv()
+                    return (await whole_log(websocket, "all"))[0]
+
+            for received in await asyncio.gather(*(view() for _ in range(viewers))):
+                assert received == [made(number, "low") for number in NUMBERS]
+            return metric(await asyncio.to_thread(metrics, server), "xviz_cache_misses_total")
+
+    one = await loads(1)
+    assert one >= len(NUMBERS)  # each frame was made at the level once, at least
+    assert await loads(5) == one
 
 
 @shaped
