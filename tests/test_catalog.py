@@ -26,7 +26,7 @@ from typing import Any, Callable
 import pytest
 
 from devkit.fleet import FLEET_START, FleetLog, write_fleet
-from helpers import client, metadata, running_server, ten_hz, write_log
+from helpers import client, http_get, metadata, running_server, start_serving, stop_serving, ten_hz, write_log
 from xviz_server.catalog.db import FILE_NAME, SCHEMA
 from xviz_server.codec import Format, encode
 from xviz_server.server import XVIZServer
@@ -186,6 +186,42 @@ async def test_a_restart_lists_every_log_from_its_catalog_at_once(tmp_path: Path
         assert [log["name"] for log in page["logs"]] == sorted(log.name for log in logs)
         await server.indexer.settled()
         assert (await listing(server))["indexed"] == 200
+
+
+#: What the server imports for sessions only (codecs, numpy, schemas, recordings, stores): none of it on the way to listening.
+SESSION_ONLY = (
+    "numpy", "pygltflib", "jsonschema", "google.protobuf", "PIL", "rosbags", "mcap", "foxglove_schemas_protobuf",
+    "xviz_server.codec", "xviz_server.messages", "xviz_server.session", "xviz_server.connection", "xviz_server.logs",
+    "xviz_server.catalog.facts",
+)
+
+
+def test_the_command_and_the_server_import_nothing_that_only_sessions_need():
+    found = subprocess.run(
+        [sys.executable, "-c", "import sys, xviz_server.cli, xviz_server.server\n"
+         f"print(','.join(name for name in {SESSION_ONLY!r} if name in sys.modules))"],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert found.returncode == 0, found.stderr
+    assert found.stdout.strip() == ""
+
+
+async def test_a_restart_answers_its_first_page_with_no_worker_process(tmp_path: Path):
+    write_fleet(tmp_path / "logs", 50)
+    state = tmp_path / "state"
+    async with running_server(tmp_path / "logs", state_dir=state):
+        pass
+    process, port, lines = await start_serving("--data-dir", str(tmp_path / "logs"), "--state-dir", str(state), "--host", "127.0.0.1")
+    try:
+        health = await asyncio.to_thread(http_get, port, "/healthz")
+        status, _, body = await asyncio.to_thread(http_get, port, "/api/logs")
+        children = Path(f"/proc/{process.pid}/task/{process.pid}/children").read_text().split()
+    finally:
+        await stop_serving(process, lines)
+    assert health[0] == status == 200
+    page = json.loads(body)
+    assert page["found"] == page["indexed"] == 50 and len(page["logs"]) == 50
+    assert children == []  # reading the catalog needs no worker process: they start when a job does
 
 
 async def test_logs_added_changed_and_removed_while_serving_are_listed_within_seconds(tmp_path: Path):

@@ -16,7 +16,7 @@ from urllib.parse import parse_qsl, unquote, urlsplit
 from websockets.http11 import Request
 
 from .exceptions import XVIZError
-from .logs import check_log_name
+from .layout import check_log_name
 
 __all__ = ["INGEST_PREFIX", "given_token", "token_matches", "feed_name", "ingest_refusal"]
 

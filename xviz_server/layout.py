@@ -22,9 +22,10 @@ import re
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+import stat
 from typing import Any
 
-from .messages import is_number
+from .exceptions import LogNotFound
 
 __all__ = [
     "INDEX_FILE",
@@ -42,6 +43,10 @@ __all__ = [
     "index_document",
     "update_span",
     "discover",
+    "check_log_name",
+    "stamp_of",
+    "stamp_from",
+    "MAX_NAME_PART",
 ]
 
 INDEX_FILE = "0-frame.json"
@@ -122,10 +127,74 @@ def update_span(data: Any) -> tuple[float, float] | None:
     if not isinstance(updates, list) or not updates:
         return None
     times = [u.get("timestamp") if isinstance(u, Mapping) else None for u in updates]
+    from .messages import is_number  # not at the top: the server lists logs and starts without the message models
+
     if not all(is_number(t) for t in times):
         return None
     seconds = [float(t) for t in times if t is not None]
     return min(seconds), max(seconds)
+
+
+# ------------------------------------------------------------- names and versions
+
+#: Longest component of a log or feed name, in UTF-8 bytes (a file name's limit on common file systems).
+MAX_NAME_PART = 255
+
+
+def check_log_name(name: str) -> None:
+    """Refuse a log name that could reach outside the data root.
+
+    Names are relative folder paths with ``/`` separators. The name has
+    already been percent-decoded once with the rest of the URL; a ``%`` left
+    in it, a backslash, an absolute path, a drive letter, an empty, ``.`` or
+    ``..`` component, a character that is not printable (control characters,
+    DEL, C1 codes), or a component longer than :data:`MAX_NAME_PART` bytes
+    (too long for a file system) are all refused.
+    """
+    parts = name.split("/")
+    if (
+        not name
+        or name.startswith("/")
+        or any(part in ("", ".", "..") or len(part.encode()) > MAX_NAME_PART for part in parts)
+        or any(c in name for c in "\\%")
+        or not name.isprintable()
+        or (len(name) >= 2 and name[1] == ":")
+    ):
+        raise LogNotFound(
+            f"log name {name[:300]!r} is not allowed: a log is named by its folder path inside the data root "
+            f"(like 'drive-1' or 'kitti/0005'), in printable characters, at most {MAX_NAME_PART} bytes a "
+            "component, without '..', '.', '\\', '%', a leading '/' or a drive",
+            name=name,
+            available=[],
+        )
+
+
+def stamp_of(path: str | os.PathLike[str]) -> tuple[int, ...] | None:
+    """What tells that a log or dataset changed on disk, or ``None`` when it is gone.
+
+    For a folder, its modification time (a file added, removed or renamed in
+    it) and the time and size of its index file, which writers such as the
+    reference tools write last; for a file, its time and size. Two
+    ``stat`` calls: cheap enough for every open.
+    """
+    try:
+        own = os.stat(path)
+    except OSError:
+        return None
+    if not stat.S_ISDIR(own.st_mode):
+        return stamp_from(own, None)
+    try:
+        return stamp_from(own, os.stat(os.path.join(path, INDEX_FILE)))
+    except OSError:
+        return stamp_from(own, None)
+
+
+def stamp_from(own: os.stat_result, index: os.stat_result | None) -> tuple[int, ...]:
+    """The stamp (see :func:`stamp_of`) of a folder or file whose ``stat`` is ``own``, with its index file's if any."""
+    if index is None:
+        return (own.st_mtime_ns, own.st_size)
+    return (own.st_mtime_ns, own.st_size, index.st_mtime_ns, index.st_size)
+
 
 
 # ------------------------------------------------------------- discovery

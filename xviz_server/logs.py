@@ -14,7 +14,6 @@ import asyncio
 import itertools
 import logging
 import os
-import stat
 import time
 from pathlib import Path
 from typing import Any, Awaitable, Callable, Protocol, Sequence
@@ -27,7 +26,7 @@ from .index import TimeIndex
 from .levels import FULL, Level
 from .messages import XVIZ_VERSION, envelope, is_number
 from .state import COMPLETE_TYPES
-from .layout import INDEX_FILE, LOG, Found, discover, frame_bytes, is_log_directory
+from .layout import INDEX_FILE, LOG, Found, check_log_name, discover, frame_bytes, is_log_directory, stamp_of
 from .providers import LogSource
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
@@ -37,42 +36,11 @@ from .records import OriginalTopic
 from .store import ObjectStore, StoredDataset, StoredLog
 from .work import Place, Workers
 
-__all__ = ["Catalog", "Known", "Log", "check_log_name", "complete_metadata", "stamp_of", "stamp_from"]
+__all__ = ["Catalog", "Known", "Log", "complete_metadata"]
 
 logger = logging.getLogger(__name__)
 
-#: Longest component of a log or feed name, in UTF-8 bytes (a file name's limit on common file systems).
-MAX_NAME_PART = 255
-
 _openings = itertools.count()
-
-
-def check_log_name(name: str) -> None:
-    """Refuse a log name that could reach outside the data root.
-
-    Names are relative folder paths with ``/`` separators. The name has
-    already been percent-decoded once with the rest of the URL; a ``%`` left
-    in it, a backslash, an absolute path, a drive letter, an empty, ``.`` or
-    ``..`` component, a character that is not printable (control characters,
-    DEL, C1 codes), or a component longer than :data:`MAX_NAME_PART` bytes
-    (too long for a file system) are all refused.
-    """
-    parts = name.split("/")
-    if (
-        not name
-        or name.startswith("/")
-        or any(part in ("", ".", "..") or len(part.encode()) > MAX_NAME_PART for part in parts)
-        or any(c in name for c in "\\%")
-        or not name.isprintable()
-        or (len(name) >= 2 and name[1] == ":")
-    ):
-        raise LogNotFound(
-            f"log name {name[:300]!r} is not allowed: a log is named by its folder path inside the data root "
-            f"(like 'drive-1' or 'kitti/0005'), in printable characters, at most {MAX_NAME_PART} bytes a "
-            "component, without '..', '.', '\\', '%', a leading '/' or a drive",
-            name=name,
-            available=[],
-        )
 
 
 class Log:
@@ -295,33 +263,6 @@ class Log:
         return FrameError(f"frame {number} ({where}) of log {self.name!r} is corrupt: {exc}", log=self.name, frame=number)
 
 
-def stamp_of(path: str | os.PathLike[str]) -> tuple[int, ...] | None:
-    """What tells that a log or dataset changed on disk, or ``None`` when it is gone.
-
-    For a folder, its modification time (a file added, removed or renamed in
-    it) and the time and size of its index file, which writers such as the
-    reference tools write last; for a file, its time and size. Two
-    ``stat`` calls: cheap enough for every open.
-    """
-    try:
-        own = os.stat(path)
-    except OSError:
-        return None
-    if not stat.S_ISDIR(own.st_mode):
-        return stamp_from(own, None)
-    try:
-        return stamp_from(own, os.stat(os.path.join(path, INDEX_FILE)))
-    except OSError:
-        return stamp_from(own, None)
-
-
-def stamp_from(own: os.stat_result, index: os.stat_result | None) -> tuple[int, ...]:
-    """The stamp (see :func:`stamp_of`) of a folder or file whose ``stat`` is ``own``, with its index file's if any."""
-    if index is None:
-        return (own.st_mtime_ns, own.st_size)
-    return (own.st_mtime_ns, own.st_size, index.st_mtime_ns, index.st_size)
-
-
 def complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, Any]:
     """Metadata with what clients need: ``version``, and ``log_info`` times from the index if missing."""
     result = dict(metadata)
@@ -462,7 +403,7 @@ class Catalog:
         for a log that cannot be served. A failed open is tried again next time.
 
         An open log is read again when its folder or file has changed since
-        (see :func:`stamp_of`); sessions that have it keep the one they have.
+        (see :func:`~xviz_server.layout.stamp_of`); sessions that have it keep the one they have.
         """
         check_log_name(name)
         found = self._found.get(name)

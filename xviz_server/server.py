@@ -29,6 +29,7 @@ import asyncio
 import dataclasses
 import errno
 import gc
+import importlib
 import urllib.parse
 import logging
 import os
@@ -47,22 +48,13 @@ from websockets.typing import Origin, Subprotocol
 from .version import __version__
 from .auth import feed_name, ingest_refusal, token_matches
 from .cache import FrameCache
-from .layout import LOG
-from .connection import Connection
+from .layout import LOG, check_log_name
 from .datasets import GENERATED, KINDS, dataset_options
 from .catalog import Indexer, parse_query
 from .exceptions import ConfigError, ExportError, LogError, LogNotFound, QueryError, XVIZError
-from .foxglove.connection import FoxgloveConnection
-from .foxglove.convert import plan
-from .foxglove.export import export, export_path, parse_range
 from .foxglove.wire import SUBPROTOCOLS
 from .framing import OPEN_TIMEOUT, FramingConnection, streamed
 from .gate import GatedConnection
-from .live import LiveRegistry
-from .live.ingest import run_ingest
-from .live.record import Recorder
-from .live.replay import replay
-from .logs import Catalog, check_log_name
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
 from .store import data_roots
@@ -71,7 +63,14 @@ from .viewer import HEADERS, STATIC_DIR, ViewerPage
 from .work import Workers
 
 if TYPE_CHECKING:
+    import ssl
+
+    from .connection import Connection
+    from .foxglove.connection import FoxgloveConnection
+    from .live import LiveRegistry
     from .live.broker import Broker
+    from .live.record import Recorder
+    from .logs import Catalog
 
 __all__ = ["XVIZServer", "run"]
 
@@ -84,6 +83,9 @@ LOG_PATH = "/api/logs/"
 SWEEP_LOOKS = 15
 #: Seconds that closing the server may take before the connections still open are aborted.
 SHUTDOWN_TIMEOUT = 10.0
+#: What sessions need and the listing does not (the codecs, numpy, the providers, Foxglove's schemas):
+#: imported once the server listens (see :meth:`XVIZServer.start`).
+SESSION_MODULES = ("logs", "live", "connection", "foxglove.connection", "foxglove.convert", "foxglove.export", "live.ingest")
 
 
 class _Connection(GatedConnection, FramingConnection):
@@ -104,40 +106,38 @@ class XVIZServer:
         self.metrics = Metrics()
         self.workers = Workers()
         self.cache = FrameCache(int(settings.cache_mb * MB), self.metrics)
-        roots = data_roots(settings)
-        self.catalog = Catalog(
-            roots,
-            self.cache,
-            self.workers,
-            datasets=[parse_dataset(text) for text in settings.dataset],
-            options={"image_max_width": settings.image_max_width},
-            validate=settings.validate_frames,
-            preload_bytes=int(min(settings.preload_mb, settings.cache_mb / 2) * MB),
-        )
+        self._roots = data_roots(settings)
+        self._datasets = [parse_dataset(text) for text in settings.dataset]
         #: The persistent catalog: what ``GET /api/logs`` lists, kept current in the background.
         self.indexer = Indexer(
-            roots, self.catalog, self.workers, state_dir=settings.state_dir, poll=settings.catalog_poll,
+            self._roots, self.workers, state_dir=settings.state_dir, poll=settings.catalog_poll,
             store_poll=settings.catalog_store_poll, sweep=SWEEP_LOOKS * settings.catalog_poll,
         )
-        #: The live feeds; programs embedding the server publish with ``server.live.feed(name)``.
-        self.live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
+        self._catalog: Catalog | None = None
+        self._live: LiveRegistry | None = None
+        self._ready = asyncio.Event()  # set once sessions can be served
         self._server: Server | None = None
         self._replay: asyncio.Task[None] | None = None
-        self._recorder = None
-        if settings.record is not None:
-            self._recorder = Recorder(
-                settings.record, self.live, self.workers, self.metrics, rotate_mb=settings.record_rotate_mb,
-                max_mb=settings.record_max_mb, min_free_mb=settings.record_min_free_mb,
-            )
+        self._recorder: Recorder | None = None
         #: Shares the live feeds with the other replicas, with ``--broker``.
         self.broker: Broker | None = None
-        if settings.broker is not None:
-            self.broker = _broker(settings, self.live, self.metrics, self.workers)
         #: The sessions running now.
         self.sessions: set[Connection | FoxgloveConnection] = set()
         self._exports = 0  # clips being sent now
         #: The built-in viewer's page and assets.
         self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors)
+
+    @property
+    def catalog(self) -> Catalog:
+        """What opens the logs that sessions name (set once started)."""
+        assert self._catalog is not None, "server not started"
+        return self._catalog
+
+    @property
+    def live(self) -> LiveRegistry:
+        """The live feeds (set once started); programs embedding the server publish with ``server.live.feed(name)``."""
+        assert self._live is not None, "server not started"
+        return self._live
 
     @property
     def port(self) -> int:
@@ -146,23 +146,58 @@ class XVIZServer:
         return self._server.sockets[0].getsockname()[1]
 
     async def start(self) -> None:
-        """Find the logs and start listening.
+        """Start listening, then get ready for sessions.
+
+        The server listens once the catalog's database is open: from then
+        on ``/healthz``, ``/metrics``, the viewer page and ``GET /api/logs``
+        are answered, while what sessions need is imported (in a thread),
+        the logs and datasets are found and the live feeds start; a session
+        or an export asked for meanwhile waits until that is done, which is
+        when this returns. The worker processes start when a job first needs
+        them (at once, after listening, when datasets are served).
 
         Raises :class:`~xviz_server.exceptions.ConfigError`, with the setting
-        to change, for TLS files that cannot serve, a ``--record`` folder
-        that cannot be written and an address that cannot be listened on.
+        to change, for TLS files that cannot serve, an address that cannot be
+        listened on and a ``--record`` folder that cannot be written.
         """
         tls = server_context(self.settings.certfile, self.settings.keyfile) if self.settings.certfile else None
-        if self._recorder is not None:
+        await self.indexer.open()
+        await self._listen(tls)
+        await self.workers.io(_import_session_modules)
+        from .live import LiveRegistry
+        from .logs import Catalog
+
+        self._live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
+        if self.settings.record is not None:
+            from .live.record import Recorder
+
+            self._recorder = Recorder(
+                self.settings.record, self._live, self.workers, self.metrics, rotate_mb=self.settings.record_rotate_mb,
+                max_mb=self.settings.record_max_mb, min_free_mb=self.settings.record_min_free_mb,
+            )
             await self.workers.io(self._recorder.check)
-        await self.catalog.find_datasets()
-        await self.indexer.start()
-        if self.catalog.kinds() - {LOG}:
+        if self.settings.broker is not None:
+            self.broker = _broker(self.settings, self._live, self.metrics, self.workers)
+        self._catalog = Catalog(
+            self._roots,
+            self.cache,
+            self.workers,
+            datasets=self._datasets,
+            options={"image_max_width": self.settings.image_max_width},
+            validate=self.settings.validate_frames,
+            preload_bytes=int(min(self.settings.preload_mb, self.settings.cache_mb / 2) * MB),
+        )
+        await self._catalog.find_datasets()
+        await self.indexer.start(self._catalog)
+        if self._catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
         if self.broker is not None:
             self.broker.start()
         if self.settings.live_from is not None:
             await self._start_replay(self.settings.live_from)
+        self._ready.set()
+
+    async def _listen(self, tls: ssl.SSLContext | None) -> None:
         try:
             self._server = await serve(
                 self._handle,
@@ -195,6 +230,9 @@ class XVIZServer:
 
     async def _start_replay(self, directory: Path) -> None:
         """Replay a static log as the live feed named after its folder."""
+        from .live.replay import replay
+        from .logs import Catalog
+
         catalog = Catalog([directory], self.cache, self.workers)
         names = await catalog.scan()
         if not names:
@@ -224,7 +262,8 @@ class XVIZServer:
                     connection.transport.abort()
                 await server.wait_closed()
             self._server = None
-        self.catalog.close()
+        if self._catalog is not None:
+            self._catalog.close()
         await self.indexer.close()
         if self.broker is not None:
             await self.broker.close()
@@ -245,6 +284,11 @@ class XVIZServer:
 
     async def _handle(self, websocket: ServerConnection) -> None:
         assert websocket.request is not None
+        await self._ready.wait()
+        from .connection import Connection
+        from .foxglove.connection import FoxgloveConnection
+        from .live.ingest import run_ingest
+
         if feed_name(websocket.request.path) is not None:
             await run_ingest(websocket, self.live, self.workers, self.settings, self.metrics)
             return
@@ -287,9 +331,10 @@ class XVIZServer:
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
         if (page := await self.viewer.respond(connection, request)) is not None:
             return page
-        if (name := export_path(path)) is not None:
+        if path.startswith(LOG_PATH) and (name := _export_path(path)) is not None:
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
+            await self._ready.wait()
             return await self._export(connection, name, dict(urllib.parse.parse_qsl(urlsplit(request.path).query)))
         if path in ("/", "/logs", "/api/logs") or path.startswith(LOG_PATH):
             if (refused := self._viewer_refusal(connection, request)) is not None:
@@ -303,6 +348,9 @@ class XVIZServer:
 
     async def _export(self, connection: ServerConnection, name: str, query: dict[str, str]) -> Response:
         """A clip of log ``name`` as an MCAP file, sent as it is written (see :mod:`xviz_server.foxglove.export`)."""
+        from .foxglove.convert import plan
+        from .foxglove.export import export, parse_range
+
         try:
             span = parse_range(query)
             log = await self.catalog.open(name, preload=False)
@@ -356,8 +404,8 @@ class XVIZServer:
         except QueryError as exc:
             return HTTPStatus.BAD_REQUEST, {"error": str(exc), "parameter": exc.parameter}
         body: dict[str, Any] = {"server": f"xviz-server {__version__}", **await self.indexer.page(query)}
-        if query.first_page:
-            body["live"] = [{"name": feed.name, "connected": feed.connected} for feed in self.live]
+        if query.first_page:  # no feed is connected before the server is ready
+            body["live"] = [{"name": feed.name, "connected": feed.connected} for feed in self._live or ()]
         return HTTPStatus.OK, body
 
     def _viewer_refusal(self, connection: ServerConnection, request: Request) -> Response | None:
@@ -366,6 +414,18 @@ class XVIZServer:
             return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
         return None
 
+
+
+def _import_session_modules() -> None:
+    for name in SESSION_MODULES:
+        importlib.import_module(f".{name}", __package__)
+
+
+def _export_path(path: str) -> str | None:
+    """The log an export URL names (see :func:`~xviz_server.foxglove.export.export_path`), or ``None``."""
+    from .foxglove.export import export_path
+
+    return export_path(path)
 
 
 def _process_response(connection: ServerConnection, request: Request, response: Response) -> None:

@@ -32,23 +32,12 @@ from ..logs import complete_metadata
 from ..messages import is_number
 from ..providers.static_log import FORMATS, index_problem, read_metadata
 
-__all__ = ["facts", "read_local_log", "source_kind", "tree_bytes"]
+__all__ = ["facts", "read_local_log", "tree_bytes"]
 
 #: Longest ``description`` and ``vehicle`` kept, in characters; most ``tags`` kept, each at most this long.
 MAX_TEXT = 1000
 MAX_TAGS = 100
 MAX_TAG = 100
-
-
-def source_kind(kind: str, place: str) -> str:
-    """The kind a log is listed as: ``xviz``, ``kitti``, ``waymo``, ``vista``, ``demo``, ``bag`` or ``mcap``.
-
-    ``kind`` is the kind discovery gave (:data:`~xviz_server.layout.LOG`
-    or a dataset kind); ROS recordings are told apart by ``place``'s suffix.
-    """
-    if kind == "rosbag":
-        return "mcap" if place.endswith(".mcap") else "bag"
-    return kind
 
 
 def facts(kind: str, fmt: Format, metadata: dict[str, Any], index: TimeIndex, size: int | None, modified: float | None) -> dict[str, Any]:

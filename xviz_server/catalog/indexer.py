@@ -34,20 +34,20 @@ import logging
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store
 from ..exceptions import XVIZError
 from ..layout import LOG, Found
-from ..logs import Catalog
-from ..providers.static_log import StaticLog
 from ..store import ObjectStore, StoredDataset, StoredLog
 from ..storepath import StoreTree
 from ..work import Workers
 from .db import FILE_NAME, FOUND, WAITING, CatalogDB, Row
-from .facts import facts, read_local_log, source_kind, tree_bytes
 from .query import Query
-from .scan import LocalScan, version_of
+from .scan import LocalScan, source_kind, version_of
+
+if TYPE_CHECKING:  # reading logs (.facts, the providers) is imported once there is one to read: the listing answers without it
+    from ..logs import Catalog
 
 __all__ = ["Indexer", "SETTLE", "CONCURRENCY"]
 
@@ -93,16 +93,16 @@ class Names(Sequence[str]):
 class Indexer:
     """The persistent catalog of every log the server serves (see the module).
 
-    ``roots`` are the data roots, ``catalog`` opens logs (datasets and logs
-    that need it) and is told where names come from. The database is
+    ``roots`` are the data roots. The database is
     ``state_dir``/:data:`~xviz_server.catalog.db.FILE_NAME`, or memory
-    without a ``state_dir``.
+    without a ``state_dir``; :meth:`open` opens it, and from then on
+    :meth:`page` and :meth:`one` answer from it; :meth:`start` starts
+    keeping it current.
     """
 
     def __init__(
         self,
         roots: Sequence[Path | ObjectStore],
-        catalog: Catalog,
         workers: Workers,
         *,
         state_dir: Path | None,
@@ -115,7 +115,7 @@ class Indexer:
         self._local_roots = {scan.root for scan in self._scans}
         # Where a name is in several roots, the first of these serves it.
         self._rank = {root: rank for rank, root in enumerate([*(scan.root for scan in self._scans), DATASETS, *(store.url for store in self._stores)])}
-        self._catalog = catalog
+        self._catalog: Catalog  # given to start()
         self._workers = workers
         self._path = None if state_dir is None else Path(state_dir) / FILE_NAME
         self._poll = poll
@@ -135,11 +135,15 @@ class Indexer:
         self.looked = asyncio.Event()
         self._idle = asyncio.Event()
 
-    async def start(self) -> None:
-        """Open the database (a file of another version or unreadable is built again) and start the tasks."""
+    async def open(self) -> None:
+        """Open the database (a file of another version or unreadable is built again): no log is looked at."""
         self.db = await self._workers.io(CatalogDB, self._path)
+
+    async def start(self, catalog: Catalog) -> None:
+        """Start the tasks; ``catalog`` opens logs (datasets and logs that need it) and is told where names come from."""
         await self._counted()
-        self._catalog.known = self
+        self._catalog = catalog
+        catalog.known = self
         self._tasks = [asyncio.ensure_future(self._look()), asyncio.ensure_future(self._index())]
 
     async def close(self) -> None:
@@ -464,6 +468,9 @@ class Indexer:
 
     async def _read(self, name: str, root: str, place: str, kind: str) -> dict[str, Any]:
         """The facts of a log that is not a log folder on disk with its index, opened as a session opens it."""
+        from ..providers.static_log import StaticLog
+        from .facts import facts, tree_bytes
+
         entry: Found | StoredLog | StoredDataset | None
         if root == DATASETS:
             entry = self._datasets.get(name)
@@ -490,6 +497,8 @@ def _read_local(
     logs: list[tuple[str, str, str]], now: float
 ) -> tuple[list[tuple[str, str, dict[str, Any]]], list[tuple[str, str, str]], list[str]]:
     """Facts of log folders on disk, at ``now``, for a worker process: those read, those to open as sessions do, and those waiting for their index."""
+    from .facts import read_local_log
+
     results: list[tuple[str, str, dict[str, Any]]] = []
     slow: list[tuple[str, str, str]] = []
     waiting: list[str] = []

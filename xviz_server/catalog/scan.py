@@ -8,7 +8,7 @@ held. A later look (:meth:`LocalScan.changes`) lists again only the
 folders whose modification time changed: a log copied or renamed in, or
 removed, changes its parent's. A log whose own files change (its index
 written last, frames added) changes its own folder's time, which the
-catalog's sweep of every log's version (:func:`~xviz_server.logs.stamp_of`)
+catalog's sweep of every log's version (:func:`~xviz_server.layout.stamp_of`)
 finds.
 
 Every method blocks (for a thread).
@@ -22,19 +22,28 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..datasets import FILE_KINDS
-from ..layout import FRAME_FILE, INDEX_FILE, LOG
-from ..logs import stamp_from, stamp_of
+from ..layout import FRAME_FILE, INDEX_FILE, LOG, stamp_from, stamp_of
 from .db import Row
-from .facts import source_kind
 
-__all__ = ["LocalScan", "version_of"]
+__all__ = ["LocalScan", "source_kind", "version_of"]
 
 #: Rows handed over at a time by :meth:`LocalScan.walk`.
 BATCH = 1000
 
 
+def source_kind(kind: str, place: str) -> str:
+    """The kind a log is listed as: ``xviz``, ``kitti``, ``waymo``, ``vista``, ``demo``, ``bag`` or ``mcap``.
+
+    ``kind`` is the kind discovery gave (:data:`~xviz_server.layout.LOG`
+    or a dataset kind); ROS recordings are told apart by ``place``'s suffix.
+    """
+    if kind == "rosbag":
+        return "mcap" if place.endswith(".mcap") else "bag"
+    return kind
+
+
 def version_of(path: str) -> str | None:
-    """A log's or dataset's version on disk (see :func:`~xviz_server.logs.stamp_of`), ``None`` when it is gone."""
+    """A log's or dataset's version on disk (see :func:`~xviz_server.layout.stamp_of`), ``None`` when it is gone."""
     stamp = stamp_of(path)
     return None if stamp is None else ",".join(map(str, stamp))
 

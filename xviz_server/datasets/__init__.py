@@ -11,15 +11,16 @@ from __future__ import annotations
 import importlib
 import inspect
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
-import numpy as np
-
-from ..codec import Format, encode
 from ..exceptions import DatasetError
-from ..messages import envelope
 from ..records import OriginalTopic
 from ..storepath import StorePath, StoreTree
+
+if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, and starts, without numpy and the codecs
+    import numpy as np
+
+    from ..codec import Format
 
 __all__ = [
     "Dataset", "KINDS", "FILE_KINDS", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
@@ -141,6 +142,8 @@ def describe_dataset(
 ) -> tuple[dict[str, Any], np.ndarray, tuple[OriginalTopic, ...]]:
     """A dataset's metadata, frame times and original topics (see :func:`original_messages`); for worker
     processes, so that opening it happens there."""
+    import numpy as np
+
     dataset = _dataset(kind, path, options)
     return dataset.metadata(), np.asarray(dataset.times, dtype=np.float64), tuple(getattr(dataset, "originals", ()))
 
@@ -153,12 +156,15 @@ def original_messages(kind: str, path: str | StorePath | StoreTree, options: dic
 
 def convert_frame(
     kind: str, path: str | StorePath | StoreTree, options: dict[str, Any], frame: int, metadata: dict[str, Any],
-    fmt: Format = Format.BINARY,
+    fmt: Format,
 ) -> bytes:
     """Frame ``frame`` of a dataset as an encoded message; for worker processes.
 
     Each process opens a dataset once and keeps it, with what it caches
     (and its own client of a store), among the :data:`OPEN_DATASETS` last used.
     """
+    from ..codec import encode
+    from ..messages import envelope
+
     dataset = _dataset(kind, path, options)
     return encode(envelope("state_update", dataset.convert(frame, metadata)), fmt)

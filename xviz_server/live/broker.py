@@ -30,7 +30,7 @@ import orjson
 from redis.exceptions import ResponseError
 
 from ..exceptions import XVIZError
-from ..logs import check_log_name
+from ..layout import check_log_name
 from ..metrics import Metrics
 from ..work import Workers
 from .feed import GRACE, FeedEvent, LiveFeed, LiveRegistry, LiveUpdate

@@ -32,7 +32,7 @@ from typing import Any, Awaitable, Callable, Hashable, Iterator, Mapping
 from ..codec import Format, decode, detect_format, encode
 from ..exceptions import XVIZError
 from ..messages import XVIZ_VERSION, envelope, unwrap
-from ..logs import check_log_name
+from ..layout import check_log_name
 from ..session import LiveFacts, Variant
 from ..frames import placement, render, render_message
 from ..levels import FULL
@@ -500,7 +500,7 @@ async def watch_lag(subscription: Subscription, transport: asyncio.BaseTransport
 
 
 def _allowed(name: str) -> bool:
-    """Whether a feed may be called ``name`` (as a log may, see :func:`~xviz_server.logs.check_log_name`)."""
+    """Whether a feed may be called ``name`` (as a log may, see :func:`~xviz_server.layout.check_log_name`)."""
     try:
         check_log_name(name)
     except XVIZError:
