@@ -156,15 +156,15 @@ def original_messages(kind: str, path: str | StorePath | StoreTree, options: dic
 
 def convert_frame(
     kind: str, path: str | StorePath | StoreTree, options: dict[str, Any], frame: int, metadata: dict[str, Any],
-    fmt: Format,
+    fmt: Format | None = None,
 ) -> bytes:
-    """Frame ``frame`` of a dataset as an encoded message; for worker processes.
+    """Frame ``frame`` of a dataset as a message encoded in ``fmt`` (GLB by default); for worker processes.
 
     Each process opens a dataset once and keeps it, with what it caches
     (and its own client of a store), among the :data:`OPEN_DATASETS` last used.
     """
-    from ..codec import encode
+    from ..codec import Format, encode
     from ..messages import envelope
 
     dataset = _dataset(kind, path, options)
-    return encode(envelope("state_update", dataset.convert(frame, metadata)), fmt)
+    return encode(envelope("state_update", dataset.convert(frame, metadata)), fmt or Format.BINARY)
