@@ -8,6 +8,7 @@ moto's S3 server through the counting proxy; the API asked over real HTTP.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import os
@@ -27,7 +28,7 @@ import pytest
 
 from devkit.fleet import FLEET_START, FleetLog, write_fleet
 from helpers import client, http_get, metadata, running_server, start_serving, stop_serving, ten_hz, write_log
-from xviz_server.catalog.db import FILE_NAME, SCHEMA
+from xviz_server.catalog.db import FILE_NAME, SCHEMA, SORT_INDEXES
 from xviz_server.codec import Format, encode
 from xviz_server.server import XVIZServer
 
@@ -179,6 +180,9 @@ async def test_a_restart_lists_every_log_from_its_catalog_at_once(tmp_path: Path
     async with running_server(tmp_path / "logs", state_dir=state):
         pass
     assert (state / FILE_NAME).is_file()
+    with contextlib.closing(sqlite3.connect(state / FILE_NAME)) as built:
+        indexes = {name for (name,) in built.execute("SELECT name FROM sqlite_master WHERE type = 'index'")}
+    assert set(SORT_INDEXES) <= indexes  # made once the first build was done
     async with running_server(tmp_path / "logs", state_dir=state, settled=False) as server:
         page = await listing(server, limit=1000)
         # Listed before the first look at the folders ends, and with nothing to index again.

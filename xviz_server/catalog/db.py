@@ -60,18 +60,19 @@ CREATE TABLE logs (
     bytes INTEGER, modified REAL, description TEXT, vehicle TEXT, tags TEXT,
     streams TEXT, error TEXT, detail TEXT
 );
-CREATE INDEX logs_start ON logs (start_time, name);
-CREATE INDEX logs_end ON logs (end_time, name);
-CREATE INDEX logs_duration ON logs (duration, name);
-CREATE INDEX logs_frames ON logs (frames, name);
-CREATE INDEX logs_bytes ON logs (bytes, name);
-CREATE INDEX logs_modified ON logs (modified, name);
 CREATE INDEX logs_state ON logs (state);
 CREATE TABLE stream_names (id INTEGER PRIMARY KEY, name TEXT NOT NULL UNIQUE);
 CREATE TABLE log_streams (stream INTEGER NOT NULL, log INTEGER NOT NULL, PRIMARY KEY (stream, log)) WITHOUT ROWID;
 CREATE INDEX log_streams_log ON log_streams (log);
 PRAGMA user_version = {SCHEMA};
 """
+
+#: The indexes of the sorts and of time searches. A new file gets them once its first build is done
+#: (:meth:`CatalogDB.sort_indexes`): kept up to date during it, they would slow each of its writes.
+SORT_INDEXES = {
+    "logs_start": "start_time, name", "logs_end": "end_time, name", "logs_duration": "duration, name",
+    "logs_frames": "frames, name", "logs_bytes": "bytes, name", "logs_modified": "modified, name",
+}
 
 
 @dataclass(frozen=True)
@@ -95,6 +96,7 @@ class CatalogDB:
         self.fell_back = False
         self._connection = self._open()
         self._stream_ids: dict[str, int] = dict(self._connection.execute("SELECT name, id FROM stream_names").fetchall())
+        self._sorted = self._has_sort_indexes()
 
     # -- opening ------------------------------------------------------------
 
@@ -152,6 +154,7 @@ class CatalogDB:
         self._connection.close()
         self._connection = memory
         self._stream_ids = dict(memory.execute("SELECT name, id FROM stream_names").fetchall())
+        self._sorted = self._has_sort_indexes()
         self.fell_back = True
 
     def _write(self, statements: Any, *args: Any) -> Any:
@@ -170,6 +173,29 @@ class CatalogDB:
     def close(self) -> None:
         with self._lock:
             self._connection.close()
+
+    def _has_sort_indexes(self) -> bool:
+        marks = ",".join("?" * len(SORT_INDEXES))
+        query = f"SELECT count(*) FROM sqlite_master WHERE type = 'index' AND name IN ({marks})"
+        return bool(self._connection.execute(query, list(SORT_INDEXES)).fetchone()[0] == len(SORT_INDEXES))
+
+    @property
+    def sorted(self) -> bool:
+        """Whether the indexes of :data:`SORT_INDEXES` are made."""
+        return self._sorted
+
+    def sort_indexes(self) -> bool:
+        """Make the indexes of :data:`SORT_INDEXES` that are missing (once a first build is done); whether any was."""
+        if self._sorted:
+            return False
+
+        def create(connection: sqlite3.Connection) -> None:
+            for name, columns in SORT_INDEXES.items():
+                connection.execute(f"CREATE INDEX IF NOT EXISTS {name} ON logs ({columns})")
+
+        self._write(create)
+        self._sorted = True
+        return True
 
     # -- discovery ----------------------------------------------------------
 

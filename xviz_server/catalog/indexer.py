@@ -58,7 +58,11 @@ SETTLE = 10.0
 #: Logs read at once from a store or as datasets.
 CONCURRENCY = 8
 #: Logs taken from the database at a time to index.
-BATCH = 1024
+BATCH = 4096
+#: Log folders on disk read by one job in the worker processes; the facts of each job are stored in one transaction.
+CHUNK = 512
+#: Such jobs given to the worker processes at once: the facts of one are stored while others are read.
+READING = 3
 #: The version of a log in a store that a session found before the store's next listing told its version.
 NOTICED = "noticed"
 #: The root of the datasets named by ``--dataset``.
@@ -164,12 +168,12 @@ class Indexer:
         return self.db
 
     async def settled(self) -> None:
-        """Wait until the first look is done and every log found is indexed (for tests and tools)."""
+        """Wait until the first look is done, every log found is indexed and the sorts' indexes are made (for tests and tools)."""
         await self.looked.wait()
         while True:
             self._idle.clear()
             indexed, found = await self._counted()
-            if indexed == found and not self._looking and not self._noticed:
+            if indexed == found and not self._looking and not self._noticed and self._db.sorted:
                 return
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._idle.wait(), self._poll)
@@ -250,6 +254,7 @@ class Indexer:
                 ", ".join(roots),
             )
         self.looked.set()
+        self._work.set()  # the indexer makes the sorts' indexes once it has nothing left to read
         last_sweep = last_list = time.monotonic()
         while True:
             with contextlib.suppress(asyncio.TimeoutError):
@@ -431,6 +436,10 @@ class Indexer:
             self._work.clear()
             batch = await self._workers.io(self._db.pending, BATCH)
             if not batch:
+                if self.looked.is_set():
+                    started = time.perf_counter()
+                    if await self._workers.io(self._db.sort_indexes):
+                        logger.info("catalog: the indexes of its sorts made in %.1f s", time.perf_counter() - started)
                 self._idle.set()
                 await self._work.wait()
                 continue
@@ -446,9 +455,17 @@ class Indexer:
         local_roots = self._local_roots
         on_disk = [(name, place, version) for name, root, place, version, kind in batch if root in local_roots and kind == LOG]
         others = [row for row in batch if not (row[1] in local_roots and row[4] == LOG)]
-        results, slow, waiting = await self._workers.cpu(_read_local, on_disk, time.time())
-        if waiting:
-            await self._workers.io(self._db.mark, waiting, WAITING)
+        now, reading, slow = time.time(), asyncio.Semaphore(READING), []
+
+        async def read_folders(chunk: list[tuple[str, str, str]]) -> None:
+            async with reading:
+                results, later, waiting = await self._workers.cpu(_read_local, chunk, now)
+            slow.extend(later)
+            if waiting:
+                await self._workers.io(self._db.mark, waiting, WAITING)
+            await self._workers.io(self._db.indexed, results)
+
+        await asyncio.gather(*(read_folders(on_disk[start:start + CHUNK]) for start in range(0, len(on_disk), CHUNK)))
         gate = asyncio.Semaphore(CONCURRENCY)
         places = {name: (root, place, kind) for name, root, place, version, kind in batch}
 
@@ -463,8 +480,8 @@ class Indexer:
                     return name, version, {"kind": kind, "error": f"cannot read {place}: {exc.strerror or exc}"}
 
         jobs = [read(name, version) for name, _, version in slow] + [read(name, version) for name, _, _, version, _ in others]
-        results += await asyncio.gather(*jobs)
-        await self._workers.io(self._db.indexed, results)
+        if jobs:
+            await self._workers.io(self._db.indexed, await asyncio.gather(*jobs))
 
     async def _read(self, name: str, root: str, place: str, kind: str) -> dict[str, Any]:
         """The facts of a log that is not a log folder on disk with its index, opened as a session opens it."""
