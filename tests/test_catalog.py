@@ -28,6 +28,7 @@ import pytest
 
 from devkit.fleet import FLEET_START, FleetLog, write_fleet
 from helpers import client, http_get, metadata, running_server, start_serving, stop_serving, ten_hz, write_log
+from xviz_server.catalog import indexer
 from xviz_server.catalog.db import FILE_NAME, SCHEMA, SORT_INDEXES
 from xviz_server.codec import Format, encode
 from xviz_server.server import XVIZServer
@@ -260,6 +261,29 @@ async def test_logs_added_changed_and_removed_while_serving_are_listed_within_se
         await eventually(lambda: _gone(listed, "car-01/new", "car-03/seg-000003", "car-03/seg-000013"))
         page = await listing(server)
         assert page["found"] == page["indexed"] == 20 + 2 - 2
+
+
+async def test_a_log_rewritten_in_place_is_found_by_the_sweep_a_page_a_look(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(indexer, "SWEEP_PAGE", 4)  # 21 logs: every log compared once in six looks
+    root = tmp_path / "logs"
+    logs = sorted(log.name for log in write_fleet(root, 21))
+    async with running_server(root, catalog_poll=0.2) as server:
+
+        async def size(name: str) -> int:
+            return int((await server.indexer.one(name) or {})["bytes"])
+
+        for name in (logs[-1], logs[0]):  # the last page, then the first again
+            before, folder = await size(name), os.stat(root / name).st_mtime_ns
+            with open(root / name / "0-frame.json", "r+b") as index:  # in place: the folder's time stays
+                text = index.read()
+                index.seek(0)
+                index.write(text + b" " * 100)
+            assert os.stat(root / name).st_mtime_ns == folder
+            await eventually(lambda: _bytes_are(size, name, before + 100))
+
+
+async def _bytes_are(size: Callable[[str], Any], name: str, expected: int) -> bool:
+    return bool(await size(name) == expected)
 
 
 async def _has(listed: Callable[[], Any], name: str, frames: int) -> bool:

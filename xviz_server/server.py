@@ -79,8 +79,6 @@ logger = logging.getLogger(__name__)
 MB = 1 << 20
 #: Where one log's facts are asked for: ``/api/logs/NAME``.
 LOG_PATH = "/api/logs/"
-#: Every log's version on disk is compared with the catalog's once in this many looks for changes.
-SWEEP_LOOKS = 15
 #: Seconds that closing the server may take before the connections still open are aborted.
 SHUTDOWN_TIMEOUT = 10.0
 #: What sessions need and the listing does not (the codecs, numpy, the providers, Foxglove's schemas):
@@ -111,7 +109,7 @@ class XVIZServer:
         #: The persistent catalog: what ``GET /api/logs`` lists, kept current in the background.
         self.indexer = Indexer(
             self._roots, self.workers, state_dir=settings.state_dir, poll=settings.catalog_poll,
-            store_poll=settings.catalog_store_poll, sweep=SWEEP_LOOKS * settings.catalog_poll,
+            store_poll=settings.catalog_store_poll,
         )
         self._catalog: Catalog | None = None
         self._live: LiveRegistry | None = None

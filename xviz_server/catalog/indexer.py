@@ -6,9 +6,11 @@
   (:class:`~xviz_server.catalog.scan.LocalScan`), each object store's whole
   listing and the datasets named by ``--dataset``; then, every ``poll``
   seconds, only the folders whose modification time changed, the logs
-  waiting for their index, and the logs sessions found changed; every
-  ``sweep`` seconds the version of every log on disk (two ``stat`` calls
-  each), and every ``store_poll`` seconds each store's listing again,
+  waiting for their index, the logs sessions found changed, and the
+  version on disk (two ``stat`` calls each) of the next
+  :data:`SWEEP_PAGE` logs in name order (the sweep: every log once in so
+  many looks, wherever its files changed); and every ``store_poll``
+  seconds each store's listing again,
   whose ETags (or times and sizes) are the versions of its logs. A log
   whose version is new or changed is marked found; one gone is removed.
 * the **indexer** reads the facts of the logs marked found, a batch at a
@@ -49,10 +51,13 @@ from .scan import LocalScan, source_kind, version_of
 if TYPE_CHECKING:  # reading logs (.facts, the providers) is imported once there is one to read: the listing answers without it
     from ..logs import Catalog
 
-__all__ = ["Indexer", "SETTLE", "CONCURRENCY"]
+__all__ = ["Indexer", "SETTLE", "CONCURRENCY", "SWEEP_PAGE"]
 
 logger = logging.getLogger(__name__)
 
+#: Logs on disk whose version each look compares with the catalog's: a log changed where only its own
+#: folder or index file tells it is found within ``ceil(logs / SWEEP_PAGE)`` looks.
+SWEEP_PAGE = 1000
 #: Seconds a log folder without an index must stay unchanged before it is indexed from its frames.
 SETTLE = 10.0
 #: Logs read at once from a store or as datasets.
@@ -112,7 +117,6 @@ class Indexer:
         state_dir: Path | None,
         poll: float,
         store_poll: float,
-        sweep: float,
     ) -> None:
         self._scans = [LocalScan(Path(root), detect) for root in roots if not isinstance(root, ObjectStore)]
         self._stores = [root for root in roots if isinstance(root, ObjectStore)]
@@ -124,7 +128,7 @@ class Indexer:
         self._path = None if state_dir is None else Path(state_dir) / FILE_NAME
         self._poll = poll
         self._store_poll = store_poll
-        self._sweep = sweep
+        self._swept: dict[str, str] = {}  # by root: the last log name of the sweep's last page
         self.db: CatalogDB | None = None
         self._count = 0
         self._datasets: dict[str, Found] = {}
@@ -255,16 +259,14 @@ class Indexer:
             )
         self.looked.set()
         self._work.set()  # the indexer makes the sorts' indexes once it has nothing left to read
-        last_sweep = last_list = time.monotonic()
+        last_list = time.monotonic()
         while True:
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), self._poll)
             self._wake.clear()
             self._looking = True
             try:
-                await self._look_again(sweep=time.monotonic() - last_sweep >= self._sweep)
-                if time.monotonic() - last_sweep >= self._sweep:
-                    last_sweep = time.monotonic()
+                await self._look_again()
                 if time.monotonic() - last_list >= self._store_poll:
                     last_list = time.monotonic()
                     for store in self._stores:
@@ -327,7 +329,7 @@ class Indexer:
             await self._workers.io(self._db.remove, gone)
             await self._counted()
 
-    async def _look_again(self, *, sweep: bool) -> None:
+    async def _look_again(self) -> None:
         for scan in self._scans:
             rows, gone = await self._workers.io(scan.changes)
             await self._found(rows)
@@ -345,9 +347,8 @@ class Indexer:
                 await self._found_in_store(found)
             else:
                 await self._recheck_one(name)
-        if sweep:
-            for scan in self._scans:
-                await self._sweep_root(scan.root)
+        for scan in self._scans:
+            await self._sweep(scan.root)
 
     def _recheck(self, waiting: list[tuple[str, str, str]]) -> None:
         """Mark found again the waiting logs that changed, or that stayed unchanged for :data:`SETTLE` seconds."""
@@ -383,11 +384,11 @@ class Indexer:
             self._stored[entry.name] = entry
             await self._found([Row(entry.name, store.url, store.key_url(key), NOTICED, source_kind(entry.kind, key))])
 
-    async def _sweep_root(self, root: str) -> None:
-        """Compare every log's version on disk with the catalog's (two ``stat`` calls a log), a page at a time."""
-        after = ""
-        while page := await self._workers.io(self._db.places, root, after):
-            after = page[-1][0]
+    async def _sweep(self, root: str) -> None:
+        """Compare the version on disk of the next :data:`SWEEP_PAGE` logs of ``root`` with the catalog's (two ``stat`` calls a log)."""
+        page = await self._workers.io(self._db.places, root, self._swept.get(root, ""), SWEEP_PAGE)
+        self._swept[root] = page[-1][0] if len(page) == SWEEP_PAGE else ""  # from the first again after the last
+        if page:
             changed, gone = await self._workers.io(_versions_now, page)
             if gone:
                 await self._workers.io(self._db.remove, gone)
