@@ -15,7 +15,11 @@ measures:
   over ``--requests`` sequential requests, against ``GET /healthz`` on the same
   server (the reference: HTTP on the same port, no catalog);
 * a restart with its catalog: from the start of the process to listening, and
-  to the first page answered;
+  to the first page answered, with the CPU time the process took to listen;
+  against the same server over an empty data directory and ``python -c pass``
+  (the interpreter's own start), both in the same run;
+* a log copied in while serving (into a hidden folder, then renamed into
+  place): seconds until ``GET /api/logs/NAME`` has it;
 * the server's RSS with the catalog built and the requests served, against the
   same server over an empty data directory.
 
@@ -35,6 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 from typing import Any
@@ -89,7 +94,10 @@ class Server:
         while True:
             try:
                 socket.create_connection(("127.0.0.1", self.port), timeout=1).close()
-                return time.perf_counter() - self.started
+                listening = time.perf_counter() - self.started
+                fields = Path(f"/proc/{self.process.pid}/stat").read_text().rpartition(")")[2].split()
+                self.cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # user + system, to listening
+                return listening
             except OSError:
                 if self.process.poll() is not None:
                     raise RuntimeError("the server exited") from None
@@ -109,6 +117,40 @@ class Server:
     def stop(self) -> None:
         self.process.terminate()
         self.process.wait(30)
+
+
+def interpreter_start() -> float:
+    """Seconds that ``python -c pass`` takes, start to end."""
+    started = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "pass"], check=True)
+    return time.perf_counter() - started
+
+
+def copied_in(server: Server, fleet: Path) -> float:
+    """Seconds from a log renamed into the fleet (copied into a hidden folder first) to its being listed; then it is removed."""
+    name, staging = "car-00/copied-in", fleet / f".incoming-{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    shutil.copytree(fleet / "car-00" / "seg-000000", staging)
+    started = time.perf_counter()
+    staging.rename(fleet / name)
+    try:
+        while not listed(server, name):
+            time.sleep(0.05)
+        return time.perf_counter() - started
+    finally:
+        shutil.rmtree(fleet / name)
+        while listed(server, name):
+            time.sleep(0.05)
+
+
+def listed(server: Server, name: str) -> bool:
+    try:
+        server.get(f"/api/logs/{name}")
+    except urllib.error.HTTPError as error:
+        if error.code == 404:
+            return False
+        raise
+    return True
 
 
 def timed(server: Server, paths: list[str]) -> list[float]:
@@ -136,6 +178,7 @@ def main() -> None:
         args.logs, args.requests = 2000, 50
     fleet = args.fleet_dir or Path(tempfile.gettempdir()) / f"xviz-bench-fleet-{args.logs}"
     make_fleet(fleet, args.logs)
+    load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as scratch:
         empty, state = Path(scratch) / "empty", Path(scratch) / "state"
         empty.mkdir()
@@ -164,8 +207,13 @@ def main() -> None:
             searches.append(f"/api/logs?q=seg-0{rng.randrange(100):02d}&from={start:.0f}&to={start + 3600:.0f}")
         searched = timed(server, searches)
         rss = server.rss_mb()
+        copy = copied_in(server, fleet)
         server.stop()
 
+        python = interpreter_start()
+        reference = Server(empty, Path(scratch) / "empty-state")
+        reference_listening = reference.wait_listening()
+        reference.stop()
         again = Server(fleet, state)
         relisten = again.wait_listening()
         page = again.get("/api/logs")
@@ -178,9 +226,13 @@ def main() -> None:
           f"(x{p95(first) / p95(healthz):.1f} the reference at p95)")
     print(f"search (q + from/to): p50 {statistics.median(searched):.1f} ms, p95 {p95(searched):.1f} ms "
           f"(x{p95(searched) / p95(healthz):.1f} the reference at p95)")
-    print(f"restart with its catalog: listening after {relisten:.2f} s, first page ({page['indexed']} of {page['found']} indexed) "
-          f"after {first_page:.2f} s; the server over an empty data directory listened after {reference_listening:.2f} s")
+    print(f"restart with its catalog: listening after {relisten:.2f} s ({again.cpu:.2f} s of CPU), first page "
+          f"({page['indexed']} of {page['found']} indexed) after {first_page:.2f} s; over an empty data directory: listening after "
+          f"{reference_listening:.2f} s ({reference.cpu:.2f} s of CPU), x{relisten / reference_listening:.2f}; python -c pass: "
+          f"{python:.2f} s, x{relisten / python:.1f}")
+    print(f"a log copied in while serving: listed after {copy:.2f} s")
     print(f"RSS: {rss:.0f} MB with the catalog, {empty_rss:.0f} MB over an empty data directory: +{rss - empty_rss:.0f} MB")
+    print(f"load average (1 min): {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
 
 
 if __name__ == "__main__":
