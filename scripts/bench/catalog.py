@@ -21,7 +21,7 @@ measures:
 * a log copied in while serving (into a hidden folder, then renamed into
   place): seconds until ``GET /api/logs/NAME`` has it;
 * the server's RSS with the catalog built and the requests served, against the
-  same server over an empty data directory.
+  same server over an empty data directory once it is ready for sessions.
 
 ``--quick`` is 2 000 logs and 50 requests: a few seconds once the fleet exists.
 """
@@ -102,6 +102,14 @@ class Server:
                 if self.process.poll() is not None:
                     raise RuntimeError("the server exited") from None
                 time.sleep(0.005)
+
+    def wait_ready(self) -> None:
+        """Until the server is ready for sessions (it listens before): an export is answered only then, here a 404."""
+        try:
+            self.get("/api/logs/no-such-log/export")
+        except urllib.error.HTTPError as error:
+            if error.code != 404:
+                raise
 
     def get(self, path: str) -> Any:
         with urllib.request.urlopen(f"http://127.0.0.1:{self.port}{path}", timeout=60) as response:
@@ -184,6 +192,7 @@ def main() -> None:
         empty.mkdir()
         reference = Server(empty, Path(scratch) / "empty-state")
         reference_listening = reference.wait_listening()
+        reference.wait_ready()
         reference.get("/api/logs")
         empty_rss = reference.rss_mb()
         reference.stop()
