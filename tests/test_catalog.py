@@ -211,7 +211,7 @@ def test_the_command_and_the_server_import_nothing_that_only_sessions_need():
     assert found.stdout.strip() == ""
 
 
-async def test_a_restart_answers_its_first_page_with_no_worker_process(tmp_path: Path):
+async def test_a_restart_answers_its_first_page_and_health_with_no_worker_process(tmp_path: Path):
     write_fleet(tmp_path / "logs", 50)
     state = tmp_path / "state"
     async with running_server(tmp_path / "logs", state_dir=state):

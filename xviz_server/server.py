@@ -147,10 +147,10 @@ class XVIZServer:
         """Start listening, then get ready for sessions.
 
         The server listens once the catalog's database is open: from then
-        on ``/healthz``, ``/metrics``, the viewer page and ``GET /api/logs``
-        are answered, while what sessions need is imported (in a thread),
-        the logs and datasets are found and the live feeds start; a session
-        or an export asked for meanwhile waits until that is done, which is
+        on ``GET /api/logs``, ``/metrics`` and the viewer page are answered,
+        while what sessions need is imported (in a thread), the logs and
+        datasets are found and the live feeds start; a session, an export or
+        ``/healthz`` asked for meanwhile waits until that is done, which is
         when this returns. The worker processes start when a job first needs
         them (at once, after listening, when datasets are served).
 
@@ -176,6 +176,7 @@ class XVIZServer:
             await self.workers.io(self._recorder.check)
         if self.settings.broker is not None:
             self.broker = _broker(self.settings, self._live, self.metrics, self.workers)
+            self.broker.start()
         self._catalog = Catalog(
             self._roots,
             self.cache,
@@ -189,8 +190,6 @@ class XVIZServer:
         await self.indexer.start(self._catalog)
         if self._catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
-        if self.broker is not None:
-            self.broker.start()
         if self.settings.live_from is not None:
             await self._start_replay(self.settings.live_from)
         self._ready.set()
@@ -318,6 +317,7 @@ class XVIZServer:
             return None
         path = urlsplit(request.path).path
         if path == "/healthz":
+            await self._ready.wait()  # healthy: ready for sessions
             problems = self.workers.health()
             if problems:
                 return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "".join(f"{problem}\n" for problem in problems))
