@@ -104,12 +104,8 @@ class Server:
                 time.sleep(0.005)
 
     def wait_ready(self) -> None:
-        """Until the server is ready for sessions (it listens before): an export is answered only then, here a 404."""
-        try:
-            self.get("/api/logs/no-such-log/export")
-        except urllib.error.HTTPError as error:
-            if error.code != 404:
-                raise
+        """Until the server is ready for sessions (it listens before): ``/healthz`` answers only then."""
+        self.get("/healthz")
 
     def get(self, path: str) -> Any:
         with urllib.request.urlopen(f"http://127.0.0.1:{self.port}{path}", timeout=60) as response:
