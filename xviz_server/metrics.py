@@ -9,7 +9,6 @@ from __future__ import annotations
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
-from .levels import LEVELS
 
 __all__ = ["Metrics", "CONTENT_TYPE"]
 
@@ -28,8 +27,6 @@ class Metrics:
             "xviz_sessions_by_detail", "Sessions now open, by the level of detail they are sent.", ["level"],
             registry=registry,
         )
-        for level in LEVELS:  # every level is shown, those no session is at with 0
-            self.sessions_by_detail.labels(level.name)
         self.frames_sent = Counter(
             "xviz_frames_sent", "State updates sent, by message format.", ["format"], registry=registry
         )
@@ -72,6 +69,16 @@ class Metrics:
 
         # the counters of each format, looked up once: a live update is counted once per viewer
         self._sent: dict[str, tuple[Counter, Counter]] = {}
+
+    def show_levels(self) -> None:
+        """Show every level of detail in ``xviz_sessions_by_detail``, those no session is at with 0.
+
+        Called once the server is ready for sessions: the levels import numpy and the image codecs.
+        """
+        from .levels import LEVELS
+
+        for level in LEVELS:
+            self.sessions_by_detail.labels(level.name)
 
     def update_sent(self, fmt: str, size: int) -> None:
         """Count a state update of ``size`` bytes sent in message format ``fmt``."""

@@ -162,6 +162,7 @@ class XVIZServer:
         await self.indexer.open()
         await self._listen(tls)
         await self.workers.io(_import_session_modules)
+        self.metrics.show_levels()
         from .live import LiveRegistry
         from .logs import Catalog
 
