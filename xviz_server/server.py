@@ -34,6 +34,7 @@ import urllib.parse
 import logging
 import os
 import signal
+import tempfile
 from http import HTTPStatus
 from pathlib import Path
 from collections.abc import AsyncGenerator, Sequence
@@ -159,6 +160,8 @@ class XVIZServer:
         listened on and a ``--record`` folder that cannot be written.
         """
         tls = server_context(self.settings.certfile, self.settings.keyfile) if self.settings.certfile else None
+        if self.settings.record is not None:
+            await asyncio.to_thread(_check_record_folder, self.settings.record)
         await self.indexer.open()
         await self._listen(tls)
         await self.workers.io(_import_session_modules)
@@ -174,7 +177,6 @@ class XVIZServer:
                 self.settings.record, self._live, self.workers, self.metrics, rotate_mb=self.settings.record_rotate_mb,
                 max_mb=self.settings.record_max_mb, min_free_mb=self.settings.record_min_free_mb,
             )
-            await self.workers.io(self._recorder.check)
         if self.settings.broker is not None:
             self.broker = _broker(self.settings, self._live, self.metrics, self.workers)
             self.broker.start()
@@ -413,6 +415,24 @@ class XVIZServer:
             return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
         return None
 
+
+
+def _check_record_folder(root: Path) -> None:
+    """Make ``--record``'s folder if missing and check that files can be written in it (it blocks).
+
+    Raises :class:`~xviz_server.exceptions.ConfigError` saying what to
+    change: recording into a folder that cannot be written would lose
+    every update.
+    """
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=root):
+            pass
+    except OSError as exc:
+        raise ConfigError(
+            f"--record {root}: cannot write there ({exc.strerror or exc}): "
+            "give a writable folder, or mount it read-write in a container"
+        ) from None
 
 
 def _import_session_modules() -> None:

@@ -21,13 +21,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 from ..codec import Format
-from ..exceptions import ConfigError, LogWriteError
+from ..exceptions import LogWriteError
 from ..metrics import Metrics
 from ..session import Variant
 from ..work import Workers
@@ -139,23 +138,6 @@ class Recorder:
         self._recordings: dict[str, _Recording] = {}
         self._finished: list[_Recording] = []
         registry.listeners.append(self._record)
-
-    def check(self) -> None:
-        """Make :attr:`root` if missing and check that files can be written in it (it blocks: run it in a thread).
-
-        Raises :class:`~xviz_server.exceptions.ConfigError` saying what to
-        change: recording into a folder that cannot be written would lose
-        every update.
-        """
-        try:
-            self.root.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryFile(dir=self.root):
-                pass
-        except OSError as exc:
-            raise ConfigError(
-                f"--record {self.root}: cannot write there ({exc.strerror or exc}): "
-                "give a writable folder, or mount it read-write in a container"
-            ) from None
 
     def room_for(self, size: int) -> str | None:
         """Why ``size`` more bytes may not be recorded, or ``None``; runs in the I/O pool (it asks the disk)."""
