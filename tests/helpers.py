@@ -24,8 +24,11 @@ from collections.abc import Sequence
 from typing import Any, AsyncIterator
 
 import numpy as np
+import pytest
 from prometheus_client.parser import text_string_to_metric_families
 from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed
+from websockets.frames import Close
 
 from xviz_server.codec import Format, decode, encode
 from xviz_server.layout import INDEX_FILE, METADATA_NUMBER, file_number, index_document, update_span
@@ -379,6 +382,15 @@ async def foxglove_client(url: str, subprotocol: str, *sends: str, options: tupl
     assert process.returncode == 0, stderr.decode()
     result: dict[str, Any] = json.loads(stdout)
     return result
+
+
+async def close_received(websocket: ClientConnection, timeout: float = 15) -> Close:
+    """The close frame the server ended ``websocket`` with, every message before it read and dropped."""
+    with pytest.raises(ConnectionClosed) as closed:
+        while True:
+            await asyncio.wait_for(websocket.recv(), timeout)
+    assert closed.value.rcvd is not None, "the connection ended without a close frame"
+    return closed.value.rcvd
 
 
 def timestamps(messages: list[dict[str, Any]]) -> list[float]:

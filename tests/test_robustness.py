@@ -16,7 +16,7 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from helpers import client, running_server, ten_hz, timestamps, write_log
+from helpers import client, close_received, running_server, ten_hz, timestamps, write_log
 from xviz_server.codec import Format
 from xviz_server.server import run
 from xviz_server.settings import Settings
@@ -274,10 +274,7 @@ async def test_sigterm_closes_sessions_with_1001_and_exits(root: Path):
     websocket = await connect(f"ws://127.0.0.1:{port}/kitti", max_size=None)
     await websocket.recv()
     process.send_signal(signal.SIGTERM)
-    with pytest.raises(ConnectionClosed) as closed:
-        while True:
-            await asyncio.wait_for(websocket.recv(), 10)
-    assert closed.value.rcvd.code == 1001
+    assert (await close_received(websocket, 10)).code == 1001
     assert await asyncio.wait_for(process.wait(), 10) == 0
 
 
