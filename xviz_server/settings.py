@@ -64,7 +64,7 @@ class Settings(BaseSettings):
     )
     catalog_poll: float = Field(
         default=2, gt=0, description="seconds between looks for logs added, changed or removed under a --data-dir directory "
-        "(folders whose modification time changed); every log's own version is compared every 15 looks",
+        "(folders whose modification time changed); each look also compares the versions of the next 1000 logs in name order",
     )
     catalog_store_poll: float = Field(default=60, gt=0, description="seconds between listings of an s3:// --data-dir for logs added, changed or removed")
     image_max_width: int = Field(default=DEFAULT_IMAGE_WIDTH, ge=16, description="camera images of raw datasets are scaled down to this width")
