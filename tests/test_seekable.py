@@ -22,6 +22,8 @@ from xviz_server.ranges import Representation, decide
 from helpers import INTEROP, http_get, running_server, update, write_log
 
 FILE = "/api/logs/{}/file.mcap"
+REPO = Path(__file__).parent.parent
+CHROMIUM = Path("/usr/bin/chromium")
 
 
 # ---------------------------------------------------------------- the answers, without I/O
@@ -234,6 +236,32 @@ async def test_the_file_is_answered_with_ranges_and_conditions_and_readable_by_o
         status, _, body = await asyncio.to_thread(http_get, server.port, FILE.format("..%2Fetc"))
         assert status == 404 and b"not allowed" in body
         assert server._open() == 0
+
+
+@pytest.mark.skipif(
+    not (REPO / "viewer" / "node_modules" / "playwright-core").is_dir() or not CHROMIUM.is_file() or shutil.which("node") is None,
+    reason="needs playwright-core and chromium: run scripts/test.sh",
+)
+async def test_a_page_of_another_origin_reads_the_file_by_ranges_in_chromium(tmp_path: Path) -> None:
+    write_log(tmp_path / "logs" / "drive", random_updates(5))
+    async with running_server(tmp_path / "logs") as server:
+        url = f"http://127.0.0.1:{server.port}{FILE.format('drive')}"
+        size = int((await asyncio.to_thread(http_get, server.port, FILE.format("drive"), "HEAD"))[1]["Content-Length"])
+        options = {"url": url, "ranges": [[0, 99], [size - 10, size + 100]]}
+        done = await asyncio.to_thread(
+            subprocess.run, ["node", str(REPO / "tests" / "cross-origin.mjs"), json.dumps(options)], capture_output=True, text=True, timeout=120
+        )
+        assert done.returncode == 0, done.stderr
+        report = json.loads(done.stdout)
+    # What the apps' remote-file reader does: a GET cut short for the size, the ETag and Accept-Ranges, then ranges.
+    assert report["open"] == {"status": 200, "acceptRanges": "bytes", "contentLength": str(size), "etag": report["open"]["etag"]}
+    assert report["open"]["etag"].startswith('"')
+    assert report["ranges"] == [
+        {"status": 206, "contentRange": f"bytes 0-99/{size}", "bytes": 100},
+        {"status": 206, "contentRange": f"bytes {size - 10}-{size - 1}/{size}", "bytes": 10},
+    ]
+    # A header beyond Range makes the browser ask first (OPTIONS), which gets no CORS answer: the apps send none.
+    assert "error" in report["ifRange"]
 
 
 async def test_origins_outside_allowed_origins_are_not_let_read_the_file(tmp_path: Path) -> None:
