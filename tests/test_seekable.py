@@ -322,6 +322,24 @@ async def test_an_unreadable_frame_fails_the_file_and_the_next_request_tries_aga
         assert status == 200 and len({time for _, time, _ in all_messages(body)}) == 4
 
 
+async def test_a_request_waits_for_the_file_past_the_handshake_limit(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import xviz_server.framing
+    import xviz_server.server
+
+    for name in ("first", "second"):
+        write_log(tmp_path / "logs" / name, random_updates(15))
+    monkeypatch.setattr(xviz_server.framing, "OPEN_TIMEOUT", 0.05)  # far less than making a file takes
+    async with running_server(tmp_path / "logs") as server:
+        # Allowed no longer than the handshake: the connection is dropped before the file is made.
+        monkeypatch.setattr(xviz_server.server, "FILE_WAIT", 0.05)
+        with pytest.raises(ConnectionError):
+            await asyncio.to_thread(http_get, server.port, FILE.format("first"), "HEAD")
+        # Allowed FILE_WAIT: answered once the file is made.
+        monkeypatch.setattr(xviz_server.server, "FILE_WAIT", 600.0)
+        status, headers, _ = await asyncio.to_thread(http_get, server.port, FILE.format("second"), "HEAD")
+        assert status == 200 and int(headers["Content-Length"]) > 0
+
+
 def test_the_file_url_names_the_log_percent_decoded() -> None:
     from xviz_server.foxglove.seekable import file_path
 
