@@ -340,6 +340,23 @@ async def test_a_request_waits_for_the_file_past_the_handshake_limit(tmp_path: P
         assert status == 200 and int(headers["Content-Length"]) > 0
 
 
+async def test_at_most_builds_files_are_made_at_a_time(tmp_path: Path) -> None:
+    from xviz_server.foxglove.seekable import BUILDS
+
+    names = [f"drive{i}" for i in range(BUILDS + 2)]
+    for name in names:
+        write_log(tmp_path / "logs" / name, random_updates(10))
+    files = tmp_path / "state" / "files"
+    async with running_server(tmp_path / "logs", state_dir=tmp_path / "state") as server:
+        asked = asyncio.gather(*(asyncio.to_thread(http_get, server.port, FILE.format(name), "HEAD") for name in names))
+        seen = set()
+        while not asked.done():  # the files being written, as often as the loop lets us look
+            seen.add(len(list(files.glob("*.part"))) if files.is_dir() else 0)
+            await asyncio.sleep(0.005)
+        assert {status for status, _, _ in await asked} == {200}
+    assert max(seen) <= BUILDS and len(list(files.glob("*.mcap"))) == len(names), seen
+
+
 def test_the_file_url_names_the_log_percent_decoded() -> None:
     from xviz_server.foxglove.seekable import file_path
 

@@ -17,6 +17,7 @@ that converts differently, gets a new file, and the old one is removed. The
 file is written frame by frame into a temporary file renamed into place once
 complete (what a build holds in memory is a chunk of messages, whatever the
 log's length); requests that come while it is made wait for that same build.
+At most :data:`BUILDS` files are made at a time; the others wait their turn.
 """
 
 from __future__ import annotations
@@ -39,12 +40,14 @@ from ..work import Workers
 from .convert import Plan
 from .export import ExportRange, export, log_path
 
-__all__ = ["FILE_SUFFIX", "READ_BYTES", "BuiltFile", "LogFiles", "file_path", "read_file"]
+__all__ = ["FILE_SUFFIX", "BUILDS", "READ_BYTES", "BuiltFile", "LogFiles", "file_path", "read_file"]
 
 logger = logging.getLogger(__name__)
 
 #: What ends the path of a log's file: ``/api/logs/NAME/file.mcap``.
 FILE_SUFFIX = "/file.mcap"
+#: Files made at a time: requests for more logs' files wait (each build takes a worker's CPU and the disk).
+BUILDS = 2
 #: What ends a file being written, before it is renamed into place.
 _PARTIAL = ".part"
 
@@ -71,6 +74,7 @@ class LogFiles:
         self._workers = workers
         self._building: dict[Path, asyncio.Task[BuiltFile]] = {}
         self._swept = False
+        self._turns = asyncio.Semaphore(BUILDS)
 
     async def get(self, log: Log, plan: Plan, version: str) -> BuiltFile:
         """The file of ``log`` at ``version`` (its version on disk or in its store), made now if it is not yet.
@@ -112,7 +116,10 @@ class LogFiles:
 
     async def _find_or_build(self, log: Log, plan: Plan, path: Path, stem: str) -> BuiltFile:
         found = await self._workers.io(_built, path)
-        return found if found is not None else await self._build(log, plan, path, stem)
+        if found is not None:
+            return found
+        async with self._turns:
+            return await self._build(log, plan, path, stem)
 
     async def _build(self, log: Log, plan: Plan, path: Path, stem: str) -> BuiltFile:
         began = asyncio.get_running_loop().time()
