@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 from xviz_server.foxglove.convert import plan
 from xviz_server.ranges import Representation, decide
 
-from helpers import INTEROP, http_get, running_server, update, write_log
+from helpers import INTEROP, http_get, metric, running_server, update, write_log
 
 FILE = "/api/logs/{}/file.mcap"
 REPO = Path(__file__).parent.parent
@@ -139,6 +139,11 @@ def middle_seek(file: RangeFile) -> tuple[Any, int, list[tuple[str, int, bytes]]
     return summary, middle, messages
 
 
+async def sent_bytes(server: Any) -> float:
+    """The bytes of logs' files the server has sent, by its ``/metrics``."""
+    return metric((await asyncio.to_thread(http_get, server.port, "/metrics"))[2], "xviz_file_bytes_sent_total")
+
+
 def all_messages(data: bytes) -> list[tuple[str, int, bytes]]:
     reader = make_reader(io.BytesIO(data))
     return [(channel.topic, message.log_time, message.data) for _, channel, message in reader.iter_messages()]
@@ -163,7 +168,9 @@ async def test_a_seek_to_the_middle_reads_the_summary_and_a_few_chunks_with_the_
         status, headers, whole = await asyncio.to_thread(http_get, server.port, FILE.format("kitti"))
         assert status == 200 and int(headers["Content-Length"]) == len(whole)
         file = await asyncio.to_thread(RangeFile, server.port, FILE.format("kitti"))
+        before = await sent_bytes(server)
         summary, middle, messages = await asyncio.to_thread(middle_seek, file)
+        sent = await sent_bytes(server) - before
         node = await asyncio.to_thread(mcap_ranges, f"http://127.0.0.1:{server.port}{FILE.format('kitti')}", middle, middle)
     # The file: the Foxglove face's channels, an index, every frame of the log.
     assert sorted(channel.topic for channel in summary.channels.values()) == topics
@@ -175,7 +182,7 @@ async def test_a_seek_to_the_middle_reads_the_summary_and_a_few_chunks_with_the_
     chunk_bytes = [chunk.chunk_length + chunk.message_index_length for chunk in summary.chunk_indexes]
     summary_bytes = len(whole) - summary.chunk_indexes[-1].chunk_start_offset - chunk_bytes[-1]
     assert file.received <= summary_bytes + 3 * max(chunk_bytes) + 2 * 64 * 1024, (file.received, summary_bytes, chunk_bytes)
-    assert file.received < len(whole) / 5
+    assert file.received < len(whole) / 5 and sent == file.received  # what the server sent, all received
     # The TypeScript reader, the apps' own, reads the same messages by ranges, as little.
     assert "error" not in node, node["error"]
     assert (node["size"], node["chunks"], sorted(node["channels"])) == (len(whole), len(summary.chunk_indexes), topics)

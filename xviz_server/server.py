@@ -434,7 +434,7 @@ class XVIZServer:
         del head.headers["Content-Type"]
         head.headers["Content-Type"] = "application/octet-stream"
         head.headers.update(answer.headers)
-        body = self._counted(read_file(built.path, answer.offset, answer.length, self.workers))
+        body = self._counted(read_file(built.path, answer.offset, answer.length, self.workers, self.metrics.file_bytes.inc))
         return streamed(head, body, self.settings.idle_timeout, length=answer.length)
 
     def _cors(self, request: Request) -> dict[str, str]:

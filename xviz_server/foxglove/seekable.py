@@ -30,7 +30,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import AsyncGenerator
+from collections.abc import AsyncGenerator, Callable
 from typing import IO
 
 from ..logs import Log
@@ -190,8 +190,11 @@ def _remove(path: Path) -> None:
 READ_BYTES = 256 * 1024
 
 
-async def read_file(path: Path, offset: int, length: int, workers: Workers) -> AsyncGenerator[bytes, None]:
-    """The bytes ``[offset, offset + length)`` of the file at ``path``, :data:`READ_BYTES` at a time, read in the I/O threads.
+async def read_file(
+    path: Path, offset: int, length: int, workers: Workers, count: Callable[[int], object]
+) -> AsyncGenerator[bytes, None]:
+    """The bytes ``[offset, offset + length)`` of the file at ``path``, :data:`READ_BYTES` at a time, read in the I/O threads;
+    ``count`` is called with the length of each piece.
 
     The file is opened at the first piece (an answer that is never sent opens
     nothing); one that is gone by then (a newer version of its log replaced
@@ -205,6 +208,7 @@ async def read_file(path: Path, offset: int, length: int, workers: Workers) -> A
             if not piece:
                 raise EOFError(f"{path} ended at byte {offset}, before {end}")
             offset += len(piece)
+            count(len(piece))
             yield piece
     finally:
         os.close(handle)
