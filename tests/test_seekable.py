@@ -271,6 +271,23 @@ async def test_a_page_of_another_origin_reads_the_file_by_ranges_in_chromium(tmp
     assert "error" in report["ifRange"]
 
 
+async def test_a_whole_file_get_cut_short_by_the_client_stops_the_sending(tmp_path: Path) -> None:
+    write_log(tmp_path / "logs" / "drive", random_updates(40))
+    async with running_server(tmp_path / "logs") as server:
+        size = int((await asyncio.to_thread(http_get, server.port, FILE.format("drive"), "HEAD"))[1]["Content-Length"])
+        # The apps' remote-file reader: a GET of the whole file, dropped once its head is in.
+        reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+        writer.write(f"GET {FILE.format('drive')} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
+        head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 10)
+        assert head.startswith(b"HTTP/1.1 200 OK") and f"Content-Length: {size}".encode() in head
+        writer.transport.abort()
+        deadline = asyncio.get_running_loop().time() + 10
+        while server._open() and asyncio.get_running_loop().time() < deadline:
+            await asyncio.sleep(0.05)
+        assert server._open() == 0
+        assert await sent_bytes(server) < size / 2
+
+
 async def test_origins_outside_allowed_origins_are_not_let_read_the_file(tmp_path: Path) -> None:
     write_log(tmp_path / "logs" / "drive", random_updates(2, points=10))
     async with running_server(tmp_path / "logs", allowed_origins=["http://app.example"]) as server:
