@@ -717,10 +717,19 @@ async def test_a_bad_export_request_is_refused_naming_the_problem(kitti_root: Pa
     async with running_server(kitti_root) as server:
         for query, name, expected in [
             ("?format=zip", "kitti", (400, "format='zip'")),
-            ("?start=soon", "kitti", (400, "start='soon' is not a time: give seconds, or +seconds after the log's start")),
-            ("?start=nan", "kitti", (400, "not a time: it must be a finite number")),
-            ("?start=1317042148&end=1317042147", "kitti", (400, "start=1317042148.0 is after end=1317042147.0")),
+            ("?start=soon", "kitti", (400, "start: give a finite number of seconds")),
+            ("?start=nan", "kitti", (400, "not 'nan'")),
+            ("?start=10&end=5", "kitti", (400, "start=10.0 is after end=5.0")),
             ("?start=%2B2&end=%2B1", "kitti", (400, "start=+2 is after end=+1")),
+            # The catalog's reader (xviz_server.params): a parameter given twice, numbers in plain decimal.
+            ("?start=1&start=2", "kitti", (400, "start: give it at most once")),
+            ("?end=3&format=mcap&end=4", "kitti", (400, "end: give it at most once")),
+            ("?format=mcap&format=zip", "kitti", (400, "format: give it at most once")),
+            ("?start=1_000", "kitti", (400, "not '1_000'")),
+            ("?start=+1_000", "kitti", (400, "not '1_000'")),
+            ("?start=++5", "kitti", (400, "not '+5'")),
+            ("?end=%205", "kitti", (400, "not ' 5'")),
+            ("?start=0x10", "kitti", (400, "not '0x10'")),
             # Times outside the log: its span is told, never an empty clip.
             ("?start=0&end=2", "kitti", (400, "no frame of log 'kitti' starts in [0.0, 2.0]: its frames start from "
                                          "1317042145.964 to 1317042148.444 s (+0 to +2.48 s after its start)")),

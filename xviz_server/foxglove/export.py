@@ -28,7 +28,7 @@ writer), in a thread.
 
 from __future__ import annotations
 
-from collections.abc import AsyncGenerator, Mapping
+from collections.abc import AsyncGenerator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import IO, cast
 from urllib.parse import unquote
@@ -38,6 +38,7 @@ from mcap.writer import CompressionType, Writer
 
 from ..exceptions import ExportError
 from ..logs import Log
+from ..params import SHOWN, seconds, single
 from ..probe.report import Instant
 from ..work import Workers
 from .convert import Plan
@@ -69,15 +70,16 @@ class ExportRange:
         try:
             start, end = (None if bound is None else bound.resolve(begins) for bound in (self.start, self.end))
         except ValueError as exc:
-            raise ExportError(str(exc)) from None
+            raise ExportError("start" if self.start is not None and self.start.relative else "end", str(exc)) from None
         if start is not None and end is not None and start > end:
-            raise ExportError(f"start={self.start} is after end={self.end}")
+            raise ExportError("start", f"start={self.start} is after end={self.end}")
         positions = index.range(start, end)
         if start is not None:  # frames that start in the range, not those that only overlap it
             positions = positions[index.start[positions] >= start]
         if not len(positions) and (start is not None or end is not None):
             asked = f"[{_shown(self.start, 'its start')}, {_shown(self.end, 'its end')}]"
-            raise ExportError(f"no frame of log {log.name!r} starts in {asked}: {_span(log, begins)}")
+            where = "start" if start is not None else "end"
+            raise ExportError(where, f"no frame of log {log.name!r} starts in {asked}: {_span(log, begins)}")
         return positions
 
 
@@ -106,23 +108,25 @@ def export_path(path: str) -> str | None:
     return log_path(path, _SUFFIX)
 
 
-def parse_range(query: Mapping[str, str]) -> ExportRange:
-    """``start``, ``end`` and ``format`` from a query; raises :class:`ExportError` naming a bad one.
+def parse_range(parameters: Mapping[str, Sequence[str]]) -> ExportRange:
+    """``start``, ``end`` and ``format`` from a query's parameters (each name with its values), read by
+    :mod:`xviz_server.params`; raises :class:`~xviz_server.exceptions.QueryError` naming a bad one.
 
-    A ``+`` in the query must reach here as such: read the query without
-    turning ``+`` into a space.
+    ``start`` and ``end`` are seconds, or ``+seconds`` after the log's start (a
+    ``+`` in the query must reach here as such, not as a space).
     """
-    fmt = query.get("format", "mcap")
+    values = single(parameters, ("start", "end", "format"))
+    fmt = values.get("format", "mcap")
     if fmt not in FORMATS:
-        raise ExportError(f"format={fmt!r}: this server exports {', '.join(FORMATS)}")
-    bounds: dict[str, Instant | None] = {}
-    for key in ("start", "end"):
-        text = query.get(key)
-        try:
-            bounds[key] = None if text in (None, "") else Instant.parse(text)
-        except ValueError as exc:
-            raise ExportError(f"{key}={exc}") from None
-    return ExportRange(bounds["start"], bounds["end"])
+        raise ExportError("format", f"format={fmt[:SHOWN]!r}: this server exports {', '.join(FORMATS)}")
+    start, end = (_instant(key, values[key]) if values.get(key) else None for key in ("start", "end"))
+    return ExportRange(start, end)
+
+
+def _instant(name: str, text: str) -> Instant:
+    """The time ``text`` of parameter ``name``: seconds, or ``+seconds`` after the log's start."""
+    relative = text.startswith("+")
+    return Instant(seconds(name, text[1:] if relative else text), relative=relative)
 
 
 #: Bytes of messages an MCAP chunk holds before it is compressed and sent (the writer's default).
