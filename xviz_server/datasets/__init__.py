@@ -58,6 +58,7 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "demo": ("demo", "DemoDrive", "is_demo"),
     "rosbag": ("ros", "RosBag", "is_rosbag"),
     "nuscenes": ("nuscenes", "NuScenesScene", "is_nuscenes"),
+    "argoverse2": ("argoverse2", "Argoverse2Log", "is_argoverse2_log"),
 }
 #: Kinds whose folder may hold several logs (a nuScenes root holds scenes): the function of the kind's module that
 #: names them. Each is served as a log of its own, picked by the option :data:`SCENE`.
@@ -73,9 +74,9 @@ DEFAULT_IMAGE_WIDTH = 400
 #: Kinds whose datasets are single files, by file suffix: other files are never datasets.
 FILE_KINDS: dict[str, str] = {".tfrecord": "waymo", ".parquet": "waymo", ".bag": "rosbag", ".mcap": "rosbag"}
 #: Kinds read from an object store: one-file datasets (their suffixes in :data:`FILE_KINDS`), and folders of files.
-STORE_KINDS = frozenset({"waymo", "rosbag", "kitti"})
+STORE_KINDS = frozenset({"waymo", "rosbag", "kitti", "argoverse2"})
 #: Kinds of :data:`STORE_KINDS` that are folders.
-STORE_FOLDER_KINDS = ("kitti",)
+STORE_FOLDER_KINDS = ("kitti", "argoverse2")
 #: Files of datasets that are not read from an object store, by suffix: why.
 STORE_REFUSED: dict[str, str] = {
     ".db3": "a ROS 2 bag's SQLite file is read from a local file only: serve the bag from a directory, or convert it to MCAP",

@@ -22,9 +22,9 @@ read, as the devkit documents them:
 Frames are the ``LIDAR_TOP`` captures, key frames and sweeps alike, each at its
 own time with its own ego pose; its points (``.pcd.bin``: float32 x, y, z,
 intensity, ring) turned into the vehicle frame by the sensor's calibration. A
-camera image is served in the first frame at or after its time; images
-captured before the first sweep or after the last are frames of their own
-(without points), so every image of the scene is served. Boxes are the key frames' annotations; between two key frames each
+camera image is served in the first frame at or after its time; an image that
+would share a frame with another of its camera, or comes after the last sweep,
+is a frame of its own (without points): every image of the scene is served. Boxes are the key frames' annotations; between two key frames each
 object seen in both is interpolated to the sweep's time (as the devkit's
 ``get_boxes`` does), the others kept from the nearer key frame.
 
@@ -50,7 +50,7 @@ import orjson
 from ..exceptions import DatasetError
 from . import DEFAULT_IMAGE_WIDTH
 from .images import scale_jpegs
-from .sensors import SensorFrame, SensorLog, check_points, quaternion_matrix, to_vehicle, yaw_of
+from .sensors import SensorFrame, SensorLog, check_points, frame_clock, frame_of, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
 
 __all__ = ["NuScenesScene", "is_nuscenes", "scenes", "MAX_TABLE_BYTES", "MAX_SWEEP_BYTES", "LIDAR"]
@@ -174,14 +174,14 @@ class NuScenesScene(SensorLog):
 
     @cached_property
     def _frames(self) -> list[dict[str, Any]]:
-        """The captures that are frames: every sweep, and the camera images before the first or after the last."""
+        """The frames, each the capture at its time: every sweep, and the camera images that need a frame of their
+        own (see :func:`~xviz_server.datasets.sensors.frame_clock`)."""
         sweeps = self._captures.get(LIDAR, [])
-        if not sweeps:
-            return []
-        first, last = int(sweeps[0]["timestamp"]), int(sweeps[-1]["timestamp"])
-        edges = {int(row["timestamp"]): row for camera in reversed(self.cameras) for row in self._captures[camera]
-                 if not first <= int(row["timestamp"]) <= last}  # one frame a time: images taken at once share it
-        return sorted([*sweeps, *edges.values()], key=lambda row: int(row["timestamp"]))
+        by_time = {int(row["timestamp"]): row for camera in reversed(self.cameras) for row in self._captures[camera]}
+        by_time.update((int(row["timestamp"]), row) for row in sweeps)
+        clock = frame_clock([int(row["timestamp"]) for row in sweeps],
+                            {camera: [int(row["timestamp"]) for row in self._captures[camera]] for camera in self.cameras})
+        return [by_time[stamp] for stamp in clock]
 
     def _is_sweep(self, row: dict[str, Any]) -> bool:
         return row.get("calibrated_sensor_token") in self._lidar_calibrations
@@ -196,14 +196,12 @@ class NuScenesScene(SensorLog):
 
     @cached_property
     def _images(self) -> list[dict[str, dict[str, Any]]]:
-        """Per frame, each camera's latest image up to it: every image is in one frame, and no frame has two of a camera
-        (cameras capture less often than the lidar, and images outside the sweeps are frames of their own)."""
+        """Per frame, the image of each camera served in it: every image is in one frame, none has two of a camera."""
         stamps = [int(row["timestamp"]) for row in self._frames]
         frames: list[dict[str, dict[str, Any]]] = [{} for _ in stamps]
         for camera in self.cameras:
             for row in self._captures[camera]:
-                index = min(bisect.bisect_left(stamps, int(row["timestamp"])), len(stamps) - 1)
-                frames[index][camera] = row  # in time order: the latest wins
+                frames[frame_of(stamps, int(row["timestamp"]))][camera] = row
         return frames
 
     def _transform(self, translation: Any, rotation: Any, where: str) -> np.ndarray:

@@ -19,6 +19,7 @@ updates, the same streams for each:
 from __future__ import annotations
 
 import abc
+import bisect
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -32,15 +33,15 @@ from ..exceptions import DatasetError
 from ..storepath import StorePath
 from .shared import footprints, intensity_colors, pose_angles
 
-__all__ = ["DriveLog", "SensorFrame", "SensorLog", "draw_boxes", "declare_boxes", "declare_cameras", "posed", "quaternion_matrix", "yaw_of", "TRAJECTORY_FRAMES"]
+__all__ = ["DriveLog", "SensorFrame", "SensorLog", "draw_boxes", "declare_boxes", "frame_clock", "frame_of", "declare_cameras", "posed", "quaternion_matrix", "yaw_of", "TRAJECTORY_FRAMES"]
 
 #: How many frames ahead ``/vehicle/trajectory`` reaches.
 TRAJECTORY_FRAMES = 20
-#: Colours of object categories by the first word of their name (``vehicle.car`` is ``vehicle``).
+#: Colours of object categories by a word of their name (see :func:`category_style`).
 CATEGORY_COLORS = {
     "vehicle": "#50B3FF", "car": "#50B3FF", "truck": "#50B3FF", "bus": "#50B3FF", "pedestrian": "#FFC6AF",
     "human": "#FFC6AF", "cyclist": "#957FCE", "bicycle": "#957FCE", "motorcycle": "#957FCE", "animal": "#7FCE8A",
-    "sign": "#F5D24C", "movable_object": "#E2E2E2", "static_object": "#E2E2E2",
+    "sign": "#F5D24C", "bicyclist": "#957FCE", "motorcyclist": "#957FCE", "movable_object": "#E2E2E2", "static_object": "#E2E2E2",
 }
 _OTHER = "#E2E2E2"
 
@@ -65,9 +66,10 @@ def yaw_of(rotation: np.ndarray) -> float:
 
 
 def category_style(category: str) -> str:
-    """The class name a category is styled by: its first word, or ``other``."""
-    word = category.replace(".", " ").replace("_", " ").split()[0].lower() if category else "other"
-    return word if word in CATEGORY_COLORS else "other"
+    """The class name a category is styled by: its first word that has a colour (``vehicle`` for nuScenes'
+    ``vehicle.car`` and Argoverse's ``REGULAR_VEHICLE``), or ``other``."""
+    words = category.replace(".", " ").replace("_", " ").lower().split()
+    return next((word for word in words if word in CATEGORY_COLORS), "other")
 
 
 @dataclass
@@ -212,13 +214,43 @@ def draw_boxes(
         builder.text("/objects/label", box[:3] + [0, 0, box[5] / 2 + 0.5], text, id=str(object_id))
 
 
+def frame_clock(base: Sequence[int], captures: Mapping[str, Sequence[int]]) -> list[int]:
+    """Frame times that serve every capture: ``base`` (each sweep, say), and the time of each capture that would
+    otherwise share a frame with another of its sensor, or come after the last frame.
+
+    A capture is served in the first frame at or after its time (:func:`frame_of`); so every capture of
+    ``captures`` (each sensor's times) has a frame, and no frame has two of one sensor.
+    """
+    times = sorted(set(base))
+    for stamps in captures.values():
+        while True:
+            added: set[int] = set()
+            taken: dict[int, int] = {}
+            for stamp in sorted(stamps):
+                index = bisect.bisect_left(times, stamp)
+                if index == len(times):
+                    added.add(stamp)
+                elif index in taken:
+                    added.add(taken[index])  # the earlier of the two gets a frame of its own
+                taken[index] = stamp
+            if not added:
+                break
+            times = sorted(set(times) | added)
+    return times
+
+
+def frame_of(times: Sequence[int], stamp: int) -> int:
+    """The frame a capture at ``stamp`` is served in: the first at or after it (see :func:`frame_clock`)."""
+    return bisect.bisect_left(times, stamp)
+
+
 def to_vehicle(pose: np.ndarray, centers: np.ndarray, yaws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World box centres (N, 3) and headings (N,) in the vehicle frame of ``pose``."""
     centers = (np.asarray(centers, dtype=np.float64).reshape(-1, 3) - pose[:3, 3]) @ pose[:3, :3]
     return centers, np.asarray(yaws, dtype=np.float64) - yaw_of(pose[:3, :3])
 
 
-def check_points(data: np.ndarray, where: str, path: Path) -> np.ndarray:
+def check_points(data: np.ndarray, where: str, path: object) -> np.ndarray:
     """``data`` if every value is finite; else a :class:`DatasetError` naming ``where``."""
     if not np.isfinite(data).all():
         raise DatasetError(f"{where}: points that are not finite numbers", path=path)

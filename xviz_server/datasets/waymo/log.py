@@ -115,7 +115,7 @@ class ScaledImages(Mapping[str, bytes]):
     camera.
     """
 
-    def __init__(self, scaling: dict[str, Future[bytes]], where: str, path: Path | StorePath) -> None:
+    def __init__(self, scaling: dict[str, Future[bytes]], where: str, path: object) -> None:
         self._scaling, self._where, self._path = scaling, where, path
 
     def __getitem__(self, camera: str) -> bytes:
