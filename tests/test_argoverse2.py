@@ -118,3 +118,26 @@ async def test_a_log_is_served_from_a_folder_and_from_an_object_store(written, m
     states = [m["data"]["updates"][0] for m in on_disk if m["type"] == "xviz/state_update"]
     assert [s["primitives"].keys() for s in states] == [m["data"]["updates"][0]["primitives"].keys()
                                                         for m in in_store if m["type"] == "xviz/state_update"]
+
+
+REAL = Path(__file__).parent / "data" / "argoverse2" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
+
+
+def test_a_real_log_of_the_av2_devkit_reads_with_its_cuboids_and_poses():
+    import pyarrow.feather as feather
+
+    log = open_dataset("argoverse2", REAL)
+    sweeps = sorted(int(f.stem) for f in (REAL / "sensors" / "lidar").glob("*.feather"))
+    assert log.times.tolist() == [stamp / 1e9 for stamp in sweeps]  # no camera in this excerpt: the sweeps are the clock
+    annotations = feather.read_table(REAL / "annotations.feather")
+    poses = feather.read_table(REAL / "city_SE3_egovehicle.feather")
+    for index, stamp in enumerate(sweeps):
+        update = log.convert(index)["updates"][0]
+        cloud = feather.read_table(REAL / "sensors" / "lidar" / f"{stamp}.feather")
+        points = update["primitives"]["/lidar/points"]["points"][0]["points"]
+        assert len(points) == cloud.num_rows and np.isfinite(points).all()
+        expected = int((annotations["timestamp_ns"].to_numpy() == stamp).sum())
+        assert expected > 0 and len(update["primitives"]["/objects/boxes"]["polygons"]) == expected
+        row = int(np.flatnonzero(poses["timestamp_ns"].to_numpy() <= stamp)[-1])
+        assert update["poses"]["/vehicle_pose"]["position"] == pytest.approx(
+            [poses[c][row].as_py() for c in ("tx_m", "ty_m", "tz_m")])

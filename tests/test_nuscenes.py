@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from devkit.nuscenes_scene import CAMERAS, LIDAR_ON_CAR, car, ego, sweep_points, write_nuscenes
-from helpers import client, http_get, running_server, timestamps
+from helpers import client, foxglove_client, http_get, running_server, timestamps
 from xviz_server.datasets import detect, open_dataset
 from xviz_server.datasets import nuscenes
 from xviz_server.exceptions import DatasetError
@@ -166,3 +166,17 @@ async def test_the_scenes_of_a_root_in_a_data_dir_are_listed_and_served(tmp_path
             await asyncio.sleep(0.1)
         assert status == 200 and one["state"] == "indexed" and one["kind"] == "nuscenes"
         assert one["frames"] == len(frame_times(written, "scene-0103"))
+
+
+async def test_the_published_foxglove_client_gets_every_sweep_and_image_as_channels(root):
+    async with running_server(None, dataset=[f"nuscenes:{root.root}?scene=scene-0061"]) as server:
+        out = await foxglove_client(f"ws://127.0.0.1:{server.port}/?log=nuscenes", "foxglove.websocket.v1")
+    assert out["errors"] == [] and out["statuses"] == []
+    schemas = {channel["topic"]: channel["schemaName"] for channel in out["channels"]}
+    assert schemas["/lidar/points"] == "foxglove.PointCloud" and schemas["/camera/cam_front"] == "foxglove.CompressedImage"
+    assert schemas["/objects/boxes"] == "foxglove.SceneUpdate"
+    clouds = out["topics"]["/lidar/points"]
+    sent = [int(t) for t in clouds["timestamps"]]  # each sweep at its own time (XVIZ times are float seconds: to the µs)
+    assert len(sent) == len(root.lidar["scene-0061"])
+    assert all(abs(ns - t * 1000) < 1000 for ns, t in zip(sent, root.lidar["scene-0061"]))
+    assert len(out["topics"]["/camera/cam_front"]["summaries"]) == sum(c == "CAM_FRONT" for c, _ in root.images["scene-0061"])

@@ -68,12 +68,13 @@ def _lz4() -> Any:
     return lz4.frame.LZ4FrameDecompressor()
 
 
-#: A new incremental decompressor for each compression, by the names ROS 1 and MCAP give them.
+#: A new incremental decompressor for each compression, by the names ROS 1 and MCAP give them (and gzip files').
 COMPRESSIONS: dict[str, Callable[[], Any]] = {
     "bz2": bz2.BZ2Decompressor,
     "lz4": _lz4,
     "zstd": _zstd,
     "zlib": zlib.decompressobj,
+    "gzip": lambda: zlib.decompressobj(16 + zlib.MAX_WBITS),
 }
 
 

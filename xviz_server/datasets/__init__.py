@@ -59,6 +59,7 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "rosbag": ("ros", "RosBag", "is_rosbag"),
     "nuscenes": ("nuscenes", "NuScenesScene", "is_nuscenes"),
     "argoverse2": ("argoverse2", "Argoverse2Log", "is_argoverse2_log"),
+    "pandaset": ("pandaset", "PandaSetSequence", "is_pandaset_sequence"),
 }
 #: Kinds whose folder may hold several logs (a nuScenes root holds scenes): the function of the kind's module that
 #: names them. Each is served as a log of its own, picked by the option :data:`SCENE`.

@@ -42,7 +42,7 @@ from ..exceptions import DatasetError
 from ..storepath import StoreTree
 from . import DEFAULT_IMAGE_WIDTH
 from .images import scale_jpegs
-from .sensors import SensorFrame, SensorLog, check_points, frame_clock, frame_of, quaternion_matrix, to_vehicle, yaw_of
+from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, frame_clock, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
 
 __all__ = ["Argoverse2Log", "is_argoverse2_log", "MAX_FILE_BYTES", "CAMERAS"]
@@ -129,14 +129,8 @@ class Argoverse2Log(SensorLog):
 
     @cached_property
     def _frames(self) -> list[dict[str, Where]]:
-        """Per frame, its sweep (``lidar``) if it has one, and each camera's latest image up to it."""
-        frames: list[dict[str, Where]] = [{} for _ in self._clock]
-        for stamp, file in self._sweeps:
-            frames[frame_of(self._clock, stamp)]["lidar"] = file
-        for camera, images in self._images.items():
-            for stamp, file in images:
-                frames[frame_of(self._clock, stamp)][camera] = file
-        return frames
+        """Per frame, its sweep (``lidar``) if it has one, and the image of each camera served in it."""
+        return captures_by_frame(self._clock, {"lidar": self._sweeps, **self._images})
 
     @cached_property
     def _poses(self) -> tuple[np.ndarray, np.ndarray]:

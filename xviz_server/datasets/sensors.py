@@ -33,7 +33,7 @@ from ..exceptions import DatasetError
 from ..storepath import StorePath
 from .shared import footprints, intensity_colors, pose_angles
 
-__all__ = ["DriveLog", "SensorFrame", "SensorLog", "draw_boxes", "declare_boxes", "frame_clock", "frame_of", "declare_cameras", "posed", "quaternion_matrix", "yaw_of", "TRAJECTORY_FRAMES"]
+__all__ = ["DriveLog", "SensorFrame", "SensorLog", "draw_boxes", "declare_boxes", "frame_clock", "frame_of", "captures_by_frame", "declare_cameras", "posed", "quaternion_matrix", "yaw_of", "TRAJECTORY_FRAMES"]
 
 #: How many frames ahead ``/vehicle/trajectory`` reaches.
 TRAJECTORY_FRAMES = 20
@@ -93,6 +93,7 @@ class SensorFrame:
 
 
 Frame = TypeVar("Frame")
+T = TypeVar("T")
 
 
 class DriveLog(abc.ABC, Generic[Frame]):
@@ -242,6 +243,16 @@ def frame_clock(base: Sequence[int], captures: Mapping[str, Sequence[int]]) -> l
 def frame_of(times: Sequence[int], stamp: int) -> int:
     """The frame a capture at ``stamp`` is served in: the first at or after it (see :func:`frame_clock`)."""
     return bisect.bisect_left(times, stamp)
+
+
+def captures_by_frame(times: Sequence[int], captures: Mapping[str, Sequence[tuple[int, T]]]) -> list[dict[str, T]]:
+    """Per frame of a :func:`frame_clock`, what each sensor captured that is served in it (see :func:`frame_of`);
+    ``captures`` are each sensor's (time, what) in time order."""
+    frames: list[dict[str, T]] = [{} for _ in times]
+    for sensor, items in captures.items():
+        for stamp, item in items:
+            frames[frame_of(times, stamp)][sensor] = item
+    return frames
 
 
 def to_vehicle(pose: np.ndarray, centers: np.ndarray, yaws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
