@@ -50,7 +50,7 @@ import orjson
 from ..exceptions import DatasetError
 from . import DEFAULT_IMAGE_WIDTH
 from .images import scale_jpegs
-from .sensors import SensorFrame, SensorLog, check_points, frame_clock, frame_of, quaternion_matrix, to_vehicle, yaw_of
+from .sensors import SensorFrame, SensorLog, check_points, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
 
 __all__ = ["NuScenesScene", "is_nuscenes", "scenes", "MAX_TABLE_BYTES", "MAX_SWEEP_BYTES", "LIDAR"]
@@ -251,7 +251,7 @@ class NuScenesScene(SensorLog):
         calibration = self._get("calibrated_sensor", row["calibrated_sensor_token"])
         sensor = self._transform(calibration.get("translation"), calibration.get("rotation"),
                                  f"{self.folder / 'calibrated_sensor'}.json: {calibration.get('token')}")
-        points = (cloud[:, :3].astype(np.float64) @ sensor[:3, :3].T + sensor[:3, 3]).astype(np.float32)
+        points = moved(cloud, sensor[:3, :3], sensor[:3, 3])
         return points, cloud[:, 3] / np.float32(255)  # intensities are 0-255
 
     @cached_property

@@ -43,7 +43,7 @@ from ..exceptions import DatasetError
 from ..unpack import unpack_unsized
 from . import DEFAULT_IMAGE_WIDTH
 from .images import scale_jpegs
-from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, frame_clock, frame_of, quaternion_matrix, to_vehicle, yaw_of
+from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
 
 __all__ = ["PandaSetSequence", "FrameUnpickler", "is_pandaset_sequence", "MAX_PICKLE_BYTES", "CAMERAS"]
@@ -224,8 +224,8 @@ class PandaSetSequence(SensorLog):
     def _sweep(self, number: int, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         path = self.path / "lidar" / f"{number:02d}.pkl.gz"
         x, y, z, i = self._columns(read_frame(path), ("x", "y", "z", "i"), path)
-        world = check_points(np.column_stack([x, y, z]).astype(np.float64), str(path), self.path)
-        points = ((world - pose[:3, 3]) @ pose[:3, :3]).astype(np.float32)
+        world = check_points(np.column_stack([x, y, z]), str(path), self.path)
+        points = moved(world, pose[:3, :3].T, -pose[:3, :3].T @ pose[:3, 3])  # world to vehicle: the pose's inverse
         return points, np.asarray(i, dtype=np.float32) / np.float32(255)
 
     def _boxes(self, number: int, pose: np.ndarray) -> tuple[np.ndarray, list[str], list[str]]:
