@@ -173,12 +173,17 @@ class Indexer:
         return self.db
 
     async def settled(self) -> None:
-        """Wait until the first look is done, every log found is indexed and the sorts' indexes are made (for tests and tools)."""
+        """Wait until the first look is done, every log found is indexed and the sorts' indexes are made (for tests and tools).
+
+        A log folder waiting for its index (see the module) is left waiting:
+        it is indexed once its writer is done, which nothing here can hasten.
+        """
         await self.looked.wait()
         while True:
             self._idle.clear()
             indexed, found = await self._counted()
-            if indexed == found and not self._looking and not self._noticed and self._db.sorted:
+            waiting = len(await self._workers.io(self._db.waiting)) if indexed < found else 0
+            if indexed + waiting == found and not self._looking and not self._noticed and self._db.sorted:
                 return
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._idle.wait(), self._poll)
