@@ -407,6 +407,7 @@ FULL_DISK = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_a_full_disk_keeps_the_catalog_in_memory_and_the_server_serving(tmp_path: Path):
     write_fleet(tmp_path / "logs", 400)
     # Files of the process may not grow past 150 KB: the catalog's database soon cannot.
@@ -457,6 +458,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
 BUCKET = "xviz-catalog"
 
 
+@pytest.mark.slow
 async def test_a_store_of_ten_thousand_keys_is_listed_from_one_listing_and_two_gets_a_log(
     store: Any, monkeypatch: pytest.MonkeyPatch
 ):
