@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from devkit.fleet import FLEET_START, write_fleet
+from kit.proc import cpu_seconds, descendants, free_port, rss_mib
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -82,12 +83,6 @@ def make_fleet(directory: Path, count: int, index: bool) -> None:
         os.utime(folder, (long_ago, long_ago))
     marker.write_text(str(count))
     print(f"made {count} logs in {directory} in {time.perf_counter() - started:.0f} s", flush=True)
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
 
 
 class Server:
@@ -126,51 +121,20 @@ class Server:
         return json.loads(body) if response.headers["Content-Type"] == "application/json" else body
 
     def rss_mb(self, field: str = "VmRSS") -> float:
-        """The server's RSS (``VmHWM``: its peak so far), in MB."""
-        return rss_mb(self.process.pid, field)
+        """The server's RSS (``VmHWM``: its peak so far), in MiB."""
+        return rss_mib(self.process.pid, field)
 
     def workers_rss_mb(self) -> float:
         """The RSS of the server's worker processes together."""
-        return sum(rss_mb(pid) for pid in descendants(self.process.pid))
+        return sum(rss_mib(pid) for pid in descendants(self.process.pid)[1:])
 
     def cpu_seconds(self) -> float:
         """CPU time (user + system) of the server and its worker processes so far."""
-        return sum(cpu_seconds(pid) for pid in [self.process.pid, *descendants(self.process.pid)])
+        return cpu_seconds(self.process.pid)
 
     def stop(self) -> None:
         self.process.terminate()
         self.process.wait(30)
-
-
-def rss_mb(pid: int, field: str = "VmRSS") -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith(f"{field}:"):
-            return int(line.split()[1]) / 1024
-    raise RuntimeError(f"no {field}")
-
-
-def cpu_seconds(pid: int) -> float:
-    """User and system time of ``pid`` and of its children that ended."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
-    return sum(int(value) for value in fields[11:15]) / os.sysconf("SC_CLK_TCK")
-
-
-def descendants(pid: int) -> list[int]:
-    """The processes below ``pid`` (the worker processes and their fork server)."""
-    children: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                parent = int((entry / "stat").read_text().rpartition(")")[2].split()[1])
-            except (OSError, IndexError):
-                continue
-            children.setdefault(parent, []).append(int(entry.name))
-    found, stack = [], list(children.get(pid, []))
-    while stack:
-        child = stack.pop()
-        found.append(child)
-        stack.extend(children.get(child, []))
-    return found
 
 
 def interpreter_start() -> float:
