@@ -94,6 +94,7 @@ def test_detects_the_three_containers_by_their_first_bytes(bags: dict[str, Path]
 # -- the default mapping against the KITTI converter ------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("container", CONTAINERS)
 def test_frames_match_the_kitti_converter(container: str, bags: dict[str, Path], drive: KittiDrive):
     bag = open_dataset("rosbag", bags[container])
