@@ -444,6 +444,11 @@ class Catalog:
             self._preloads[name] = asyncio.ensure_future(self._preload(log, found.path))
         return log
 
+    def stamp(self, name: str) -> tuple[int, ...] | None:
+        """What :func:`~xviz_server.layout.stamp_of` said of log ``name`` when :meth:`open` last read it: empty for a
+        log in a store or a generated one, ``None`` for one not open."""
+        return self._stamps.get(name)
+
     def _notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
         if self.known is not None:
             self.known.notice(name, found)

@@ -211,6 +211,11 @@ class Indexer:
         kind = rows[0]["kind"] if rows else LOG
         return found_at(name, where[1], _DISCOVERY_KINDS.get(kind, kind))
 
+    async def version(self, name: str) -> str | None:
+        """The version of log ``name`` the catalog last found (on disk, or in its store's listing), if it holds it."""
+        where = await self._workers.io(self._db.place, name)
+        return None if where is None else where[2]
+
     def notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
         """A session found ``name`` new (``found``: where), changed or gone: look at it soon."""
         self._noticed[name] = found
