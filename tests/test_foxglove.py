@@ -223,6 +223,7 @@ def schema_name(msgtype: str, container: str) -> str:
     return msgtype.replace("/msg/", "/") if container == "ros1" else msgtype
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("container", CONTAINERS)
 async def test_the_published_client_decodes_the_original_messages_with_their_own_definitions(
     container: str, kitti_bags: tuple[KittiDrive, dict[str, Path]],
@@ -335,6 +336,7 @@ def test_the_original_messages_of_a_frame_are_bounded(kitti_bags: tuple[KittiDri
         bag.original_messages(1)
 
 
+@pytest.mark.slow
 async def test_a_frame_with_too_many_original_messages_gets_a_status_and_the_rest_goes_on(tmp_path: Path) -> None:
     from rosbags.typesys import Stores
 
@@ -361,6 +363,7 @@ async def test_a_frame_with_too_many_original_messages_gets_a_status_and_the_res
     assert topics["/flag"]["count"] == 0
 
 
+@pytest.mark.slow
 async def test_an_xviz_session_and_a_foxglove_session_share_a_log(kitti_root: Path) -> None:
     async with running_server(kitti_root) as server:
         async with await foxglove(server) as websocket, client(server, "/?log=kitti") as xviz:

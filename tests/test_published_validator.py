@@ -284,6 +284,7 @@ async def validate_served(settings: dict[str, Any], fmt: Format, query: str = ""
 FORMATS = [Format.JSON, Format.BINARY]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
 @pytest.mark.parametrize("source", list(SOURCES))
 async def test_served_messages_are_valid(source: str, fmt: Format, made: Callable[[str], Served]):
@@ -291,6 +292,7 @@ async def test_served_messages_are_valid(source: str, fmt: Format, made: Callabl
     assert await validate_served(served.settings(), fmt) >= 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
 @pytest.mark.parametrize("source", DATASETS)
 async def test_converted_logs_are_valid(source: str, fmt: Format, made: Callable[[str], Served], tmp_path: Path):

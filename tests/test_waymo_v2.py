@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -110,3 +112,12 @@ def test_a_file_that_is_not_parquet_is_named(v2: Path):
     (v2.parent.parent / "lidar" / f"{SEGMENT}.parquet").write_bytes(b"PAR1 but not really")
     with pytest.raises(DatasetError, match=rf"lidar/{SEGMENT}.parquet: not a Parquet file"):
         open_dataset("waymo", v2).convert(0)
+
+
+def test_without_pyarrow_the_error_names_the_extra(v2: Path):
+    script = ("import sys; sys.modules['pyarrow'] = None\n"  # as if pyarrow were not installed
+              "from xviz_server.datasets import open_dataset\n"
+              "from xviz_server.exceptions import DatasetError\n"
+              f"try:\n    open_dataset('waymo', {str(v2)!r})\nexcept DatasetError as exc:\n    print(exc)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.stdout.strip() == "reading Waymo v2 segments needs the package 'pyarrow': pip install 'xviz-server[parquet]'", out.stderr

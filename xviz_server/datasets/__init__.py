@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, 
 
 __all__ = [
     "Dataset", "KINDS", "FILE_KINDS", "SCENE_KINDS", "SCENE", "scenes", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "detect", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
+    "open_dataset", "require", "detect", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
 ]
 
 
@@ -118,6 +118,15 @@ def scenes(kind: str, path: Path) -> list[str]:
     except DatasetError:
         return []
     return list(names) if len(names) > 1 else []
+
+
+def require(module: str, what: str, extra: str) -> Any:
+    """The module ``module``, imported; a :class:`DatasetError` saying which extra installs it when it is missing."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise DatasetError(f"reading {what} needs the package {module.partition('.')[0]!r}: "
+                           f"pip install 'xviz-server[{extra}]'") from None
 
 
 def dataset_options(kind: str) -> frozenset[str]:

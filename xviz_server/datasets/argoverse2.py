@@ -40,7 +40,7 @@ import numpy as np
 
 from ..exceptions import DatasetError
 from ..storepath import StoreTree
-from . import DEFAULT_IMAGE_WIDTH
+from . import DEFAULT_IMAGE_WIDTH, require
 from .images import scale_jpegs
 from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, frame_clock, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
@@ -94,8 +94,7 @@ class Argoverse2Log(SensorLog):
 
     def _table(self, file: Where, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
         """The columns of a Feather file as arrays; a :class:`DatasetError` naming the file if it lacks one."""
-        import pyarrow.feather as feather
-
+        feather = require("pyarrow.feather", "Argoverse 2 logs", "parquet")
         data = self._bytes(file)
         try:
             table = feather.read_table(io.BytesIO(data))

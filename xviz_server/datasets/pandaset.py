@@ -41,7 +41,7 @@ import orjson
 
 from ..exceptions import DatasetError
 from ..unpack import unpack_unsized
-from . import DEFAULT_IMAGE_WIDTH
+from . import DEFAULT_IMAGE_WIDTH, require
 from .images import scale_jpegs
 from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
@@ -103,10 +103,7 @@ class FrameUnpickler(pickle.Unpickler):
 
 def read_frame(path: Path) -> Any:
     """The pandas DataFrame of a gzipped pickle, read through :class:`FrameUnpickler`."""
-    try:
-        import pandas
-    except ImportError:
-        raise DatasetError(f"{path}: reading PandaSet needs pandas: pip install 'xviz-server[pandaset]'", path=path) from None
+    pandas = require("pandas", "PandaSet sequences", "pandaset")
     try:
         data = unpack_unsized(path.read_bytes(), "gzip", str(path), MAX_PICKLE_BYTES)
         frame = FrameUnpickler(io.BytesIO(data)).load()

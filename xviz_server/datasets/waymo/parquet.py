@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from ...exceptions import DatasetError
-from .. import DEFAULT_IMAGE_WIDTH
+from .. import DEFAULT_IMAGE_WIDTH, require
 from ..images import scale_jpegs
 from .log import CAMERAS, LIDARS, ScaledImages, WaymoFrame, WaymoLog
 from .range_images import calibration_rays, frame_rays, join_points, range_points
@@ -102,8 +102,7 @@ class _Component:
     """One component's file of a segment: its row groups read one at a time, those holding a frame."""
 
     def __init__(self, path: Path) -> None:
-        import pyarrow.parquet as pq
-
+        pq = require("pyarrow.parquet", "Waymo v2 segments", "parquet")
         self.path = path
         try:
             self.file = pq.ParquetFile(path)
@@ -120,8 +119,7 @@ class _Component:
 
     def read(self, columns: Sequence[str], micros: int | None = None) -> dict[str, list[Any]]:
         """The rows (of frame ``micros``, or all) as lists by column; columns the file lacks are left out."""
-        import pyarrow.compute as pc
-
+        pc = require("pyarrow.compute", "Waymo v2 segments", "parquet")
         wanted = [column for column in columns if column in self.columns]
         names = sorted({*wanted, _TIME} if micros is not None and _TIME in self.columns else wanted)
         rows: dict[str, list[Any]] = {column: [] for column in wanted}
