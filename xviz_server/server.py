@@ -37,7 +37,7 @@ import signal
 import tempfile
 from http import HTTPStatus
 from pathlib import Path
-from collections.abc import AsyncGenerator, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
@@ -60,7 +60,7 @@ from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
 from .store import data_roots
 from .tls import server_context
-from .viewer import HEADERS, STATIC_DIR, ViewerPage
+from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
 
 if TYPE_CHECKING:
@@ -122,7 +122,7 @@ class XVIZServer:
         self.broker: Broker | None = None
         #: The sessions running now.
         self.sessions: set[Connection | FoxgloveConnection] = set()
-        self._exports = 0  # clips being sent now
+        self._exporting: set[ServerConnection] = set()  # connections of the clips admitted, until they end
         #: The built-in viewer's page and assets.
         self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors)
 
@@ -206,7 +206,6 @@ class XVIZServer:
                 ssl=tls,
                 origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
                 process_request=self._process_request,
-                process_response=_process_response,
                 select_subprotocol=_select_subprotocol,
                 compression="deflate" if self.settings.compression else None,
                 max_size=self.settings.max_message_kb * 1024,
@@ -304,6 +303,18 @@ class XVIZServer:
             self.sessions.discard(connection)
 
     async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
+        """The answer to ``request``, or ``None`` to accept its WebSocket handshake; a failure is a 500 that
+        names what was asked (websockets' own would say a WebSocket failed to open)."""
+        try:
+            return await self._answer(connection, request)
+        except Exception:
+            path = urlsplit(request.path).path
+            logger.exception("answering GET %s failed", path)
+            upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
+            what = f"a WebSocket session on {path}" if upgrade else f"GET {path}"
+            return connection.respond(HTTPStatus.INTERNAL_SERVER_ERROR, f"the server failed to answer {what}: see its log\n")
+
+    async def _answer(self, connection: ServerConnection, request: Request) -> Response | None:
         if request.headers.get("Upgrade", "").lower() == "websocket":
             if feed_name(request.path) is not None:
                 reason = ingest_refusal(request, connection.remote_address, self.settings.ingest_token, self.settings.allowed_origins)
@@ -350,7 +361,7 @@ class XVIZServer:
     async def _export(self, connection: ServerConnection, name: str, query: dict[str, list[str]]) -> Response:
         """A clip of log ``name`` as an MCAP file, sent as it is written (see :mod:`xviz_server.foxglove.export`)."""
         from .foxglove.convert import plan
-        from .foxglove.export import export, parse_range
+        from .foxglove.export import export, first_error, parse_range
 
         try:
             span = parse_range(query)
@@ -363,12 +374,19 @@ class XVIZServer:
             return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
         if self._open() >= self.settings.max_sessions:
             return self._too_many(connection, "an export")
+        # Counted from its admission (no await between the check and here) until its connection ends.
+        self._exporting.add(connection)
+        connection.connection_lost_waiter.add_done_callback(lambda _: self._exporting.discard(connection))
+        the_plan = plan(log.metadata, log.originals)
+        if (error := await first_error(log, the_plan, span)) is not None:
+            logger.warning("refused an export of log %r: its first frame cannot be read: %s", name, error)
+            return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"the clip's first frame cannot be read: {error}\n")
         head = connection.respond(HTTPStatus.OK, "")
         del head.headers["Content-Type"]
         head.headers["Content-Type"] = "application/octet-stream"
         filename = name.replace("/", "_") + ".mcap"
         head.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
-        return streamed(head, self._counted(export(log, plan(log.metadata, log.originals), span, self.workers)), self.settings.idle_timeout)
+        return streamed(head, export(log, the_plan, span, self.workers), self.settings.idle_timeout)
 
     def _too_many(self, connection: ServerConnection, what: str) -> Response:
         logger.warning("refused %s: %d sessions and exports open", what, self.settings.max_sessions)
@@ -376,17 +394,7 @@ class XVIZServer:
 
     def _open(self) -> int:
         """Sessions and exports running now: what ``max_sessions`` bounds."""
-        return len(self.sessions) + self._exports
-
-    async def _counted(self, pieces: AsyncGenerator[bytes, None]) -> AsyncGenerator[bytes, None]:
-        """``pieces``, counted in :meth:`_open` from its first piece until it ends."""
-        self._exports += 1
-        try:
-            async for piece in pieces:
-                yield piece
-        finally:
-            self._exports -= 1
-            await pieces.aclose()
+        return len(self.sessions) + len(self._exporting)
 
     async def _listing(self, path: str, target: str) -> tuple[HTTPStatus, dict[str, Any]]:
         """The answer to ``GET /api/logs?...`` (a page of the catalog) or ``GET /api/logs/NAME`` (one log)."""
@@ -445,12 +453,6 @@ def _export_path(path: str) -> str | None:
     from .foxglove.export import export_path
 
     return export_path(path)
-
-
-def _process_response(connection: ServerConnection, request: Request, response: Response) -> None:
-    """Every HTTP answer carries the viewer's :data:`~xviz_server.viewer.HEADERS`."""
-    if response.status_code != HTTPStatus.SWITCHING_PROTOCOLS:
-        response.headers.update(HEADERS)
 
 
 def _broker(settings: Settings, live: LiveRegistry, metrics: Metrics, workers: Workers) -> Broker:

@@ -24,6 +24,7 @@ writer), in a thread.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncGenerator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import IO, cast
@@ -31,17 +32,21 @@ from urllib.parse import unquote
 
 from mcap.writer import CompressionType, Writer
 
-from ..exceptions import ExportError
+from ..exceptions import ExportError, XVIZError
 from ..logs import Log
 from ..params import SHOWN, seconds, single
 from ..work import Workers
 from .convert import Plan
 from .frame import Message, frame_messages
 
-__all__ = ["FORMATS", "CHUNK_BYTES", "ExportRange", "export_path", "parse_range", "export"]
+__all__ = ["FORMATS", "CHUNK_BYTES", "CUT_SHORT", "ExportRange", "export_path", "parse_range", "first_error", "export"]
+
+logger = logging.getLogger(__name__)
 
 _PREFIX, _SUFFIX = "/api/logs/", "/export"
 
+#: The name of the metadata record of a clip that ends early: ``{"frame": N, "error": TEXT}``.
+CUT_SHORT = "xviz-server.cut-short"
 #: The formats ``format=`` may name.
 FORMATS = ("mcap",)
 
@@ -78,25 +83,44 @@ def parse_range(parameters: Mapping[str, Sequence[str]]) -> ExportRange:
 CHUNK_BYTES = 1 << 20
 
 
-async def export(log: Log, plan: Plan, span: ExportRange, workers: Workers) -> AsyncGenerator[bytes, None]:
-    """The MCAP file of ``span`` of ``log``, in pieces as they are written.
-
-    A frame that cannot be read or converted raises its
-    :class:`~xviz_server.exceptions.XVIZError` (the file is then cut short).
-    """
+def _frames(log: Log, span: ExportRange) -> list[int]:
+    """The numbers of the frames of ``log`` that start in ``span``, in time order."""
     positions = log.index.range(span.start, span.end)
     if span.start is not None:  # frames that start in the range, not those that only overlap it
         positions = positions[log.index.start[positions] >= span.start]
+    return list(log.index.frames[positions].tolist())
+
+
+async def first_error(log: Log, plan: Plan, span: ExportRange) -> XVIZError | None:
+    """Why the first frame of ``span`` cannot be read or converted, if it cannot: the export is then refused
+    before its head is sent. Its messages stay in the frame cache for :func:`export`."""
+    numbers = _frames(log, span)
+    if not numbers:
+        return None
+    _, errors = await frame_messages(log, plan, numbers[0])
+    return errors[0] if errors else None
+
+
+async def export(log: Log, plan: Plan, span: ExportRange, workers: Workers) -> AsyncGenerator[bytes, None]:
+    """The MCAP file of ``span`` of ``log``, in pieces as they are written.
+
+    A frame that cannot be read or converted ends the clip before it: the
+    file is finished there (summary and footer, readable), with a metadata
+    record named :data:`CUT_SHORT` that names the frame and the error, and a
+    warning is logged.
+    """
     out = _Pieces()
     writer = Writer(cast(IO[bytes], out), chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
     writer.start(profile="", library="xviz-server")
     yield out.take()
     channels = _register(writer, plan)
     sequence = 0
-    for number in log.index.frames[positions].tolist():
+    for number in _frames(log, span):
         messages, errors = await frame_messages(log, plan, number)
         if errors:
-            raise errors[0]
+            logger.warning("the export of log %r ends before frame %d, which cannot be read: %s", log.name, number, errors[0])
+            writer.add_metadata(CUT_SHORT, {"frame": str(number), "error": str(errors[0])})
+            break
         sequence = await workers.io(_add, writer, channels, messages, sequence)
         yield out.take()
     writer.add_metadata("xviz", {"log": log.name})

@@ -272,6 +272,34 @@ class Bag:
             raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path)
         return found
 
+    def declared(self, topic: str, first: int, last: int) -> dict[tuple[Any, ...], int]:
+        """What reading messages ``[first, last)`` of ``topic`` unpacks, read from the index alone: each part that
+        holds them (a chunk, a ROS 2 sqlite3 row) with the bytes it declares. A part read through rosbags that
+        declares nothing (an MCAP file without a summary, a ROS 2 message compressed on its own) counts its
+        stored bytes where they are known, else nothing."""
+        info = self.topics[topic]
+        if last <= first:
+            return {}
+        if info.places is not None:
+            from .reindex import MemoryIndexedReader
+
+            parts: dict[tuple[Any, ...], int] = {}
+            for storage, chunk in {(int(s), int(c)) for s, c in info.places[first:last, :2].tolist()}:
+                owner = self._storages[storage]
+                size = owner.declared.get(chunk, 0) if isinstance(owner, MemoryIndexedReader) else owner.chunks[chunk].uncompressed_size
+                parts[(storage, chunk)] = int(size)
+            return parts
+        owners = [c.owner for c in info.connections]
+        if len(owners) != 1 or type(owners[0]).__name__ != "Sqlite3Reader":
+            return {}
+        start, stop = int(info.times[first]), int(info.times[last - 1]) + 1
+        with self._lock:
+            rows = owners[0].dbconn.execute(
+                "SELECT id, length(data) FROM messages WHERE topic_id = ? AND timestamp >= ? AND timestamp < ?",
+                (info.connections[0].id, start, stop),
+            ).fetchall()
+        return {(topic, row): int(size) for row, size in rows}
+
     def message(self, topic: str, index: int) -> tuple[int, Any]:
         """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
         info = self.topics[topic]
