@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
-from helpers import Client, Served, eventually, http_get, served, ten_hz, write_log
+from helpers import Client, Served, client, eventually, http_get, running_server, served, ten_hz, write_log
 from xviz_server.budget import LOG_LINES, MAX_ITEMS, NAMED
 
 pytestmark = pytest.mark.slow
@@ -243,6 +243,15 @@ async def test_an_export_that_meets_a_corrupt_frame_says_so(tmp_path: Path) -> N
     assert any("the export of log 'cars' ends before frame 6, which cannot be read" in line for line in server.lines)
     # The clip's first frame: refused before the head.
     assert first == 422 and refused.startswith(b"the clip's first frame cannot be read: "), refused
+
+
+async def test_a_session_url_parameter_given_twice_is_refused_and_ignored(kitti_root: Path) -> None:
+    async with running_server(kitti_root) as server:
+        async with client(server, "/?log=kitti&max_mbps=5&max_mbps=1000&speed=1&speed=2") as viewer:
+            first, second, third = [await viewer.recv(30) for _ in range(3)]
+    assert [first["type"], second["type"], third["type"]] == ["xviz/error", "xviz/error", "xviz/metadata"]
+    assert first["data"]["message"].endswith("bad connection URL parameter 'max_mbps': give it at most once; it is ignored")
+    assert second["data"]["message"].endswith("bad connection URL parameter 'speed': give it at most once; it is ignored")
 
 
 # -- the catalog ---------------------------------------------------------------------------------------------------

@@ -41,6 +41,7 @@ from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription, watch_lag
 from .logfmt import ending, log_event, peer, redact_url
 from .logs import Catalog, Log
 from .metrics import Metrics
+from .params import repeated
 from .readahead import ReadAhead, Window
 from .session import Close, ConfigureLive, Event, LookUpLive, OpenLog, QueryInstant, Send, Session, SubscribeLive
 from .session import CancelStream, DetailChanged, SendLiveMetadata, SendLiveUpdate, SkipToState, StreamFrames
@@ -76,6 +77,7 @@ class Connection:
             lag_timeout=settings.live_lag_timeout,
             detail=settings.detail == "auto",
             local=_is_loopback(websocket),
+            repeated=repeated(urlsplit(self.path).query),
         )
         self._logs: dict[str, Log] = {}
         self._stream: tuple[StreamFrames, asyncio.Event] | None = None
