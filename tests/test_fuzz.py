@@ -55,7 +55,7 @@ from xviz_server.index import TimeIndex
 from xviz_server.layout import METADATA_NUMBER
 from xviz_server.session import Send, Session
 
-pytestmark = pytest.mark.skipif(not KITTI_LOG.is_dir(), reason=f"needs the shared data in {SHARED_DIR}")
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(not KITTI_LOG.is_dir(), reason=f"needs the shared data in {SHARED_DIR}")]
 
 PROFILES = {
     # The same examples on every run (no flaky CI), few enough for a few seconds per parser.
@@ -458,7 +458,7 @@ def test_export_parameters_are_read_or_refused_by_name(pairs: list[tuple[str, st
         for key in ("start", "end"):
             assert len(parameters.get(key, [])) <= 1
             value = getattr(span, key)
-            assert value is None or re.fullmatch(r"-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?", parameters[key][0])
+            assert value is None or re.fullmatch(r"\+?-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?", parameters[key][0])
 
 
 # --------------------------------------------------------------------------
