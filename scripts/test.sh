@@ -10,7 +10,7 @@ if [ "${1:-}" = "--quick" ]; then
     set -- -m "not slow" "$@"
 fi
 source scripts/venv.sh
-python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros,broker]" -e ./devkit
+python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros,broker,parquet,pandaset]" -e ./devkit
 npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
 # The viewer's browser tests: the bundle, playwright-core (in viewer/) and Debian's chromium.
 scripts/build-viewer.sh

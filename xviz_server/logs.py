@@ -30,7 +30,7 @@ from .layout import INDEX_FILE, LOG, Found, check_log_name, discover, frame_byte
 from .providers import LogSource
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
-from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store
+from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store, scenes
 from .readahead import ReadAhead
 from .records import OriginalTopic
 from .store import ObjectStore, StoredDataset, StoredLog
@@ -372,7 +372,7 @@ class Catalog:
     def _discover(self) -> dict[str, Found]:
         found: dict[str, Found] = {}
         for root in self._roots:
-            for entry in discover(root, detect):
+            for entry in discover(root, detect, scenes):
                 found.setdefault(entry.name, entry)
         for entry in self._named_datasets():
             found.setdefault(entry.name, entry)

@@ -39,9 +39,9 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store
+from ..datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store, scenes
 from ..exceptions import XVIZError
-from ..layout import LOG, Found
+from ..layout import LOG, Found, found_at
 from ..store import ObjectStore, StoredDataset, StoredLog
 from ..storepath import StoreTree
 from ..work import Workers
@@ -119,7 +119,7 @@ class Indexer:
         poll: float,
         store_poll: float,
     ) -> None:
-        self._scans = [LocalScan(Path(root), detect) for root in roots if not isinstance(root, ObjectStore)]
+        self._scans = [LocalScan(Path(root), detect, scenes) for root in roots if not isinstance(root, ObjectStore)]
         self._stores = [root for root in roots if isinstance(root, ObjectStore)]
         self._local_roots = {scan.root for scan in self._scans}
         # Where a name is in several roots, the first of these serves it.
@@ -209,7 +209,7 @@ class Indexer:
             return self._store_datasets.get(name)
         rows = self._db.select("name = ?", [name], "name", 1)
         kind = rows[0]["kind"] if rows else LOG
-        return Found(name, Path(where[1]), _DISCOVERY_KINDS.get(kind, kind))
+        return found_at(name, where[1], _DISCOVERY_KINDS.get(kind, kind))
 
     def notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
         """A session found ``name`` new (``found``: where), changed or gone: look at it soon."""
@@ -500,7 +500,7 @@ class Indexer:
         elif root in {store.url for store in self._stores}:
             entry = self._stored.pop(name, None)
         else:
-            entry = Found(name, Path(place), _DISCOVERY_KINDS.get(kind, kind))
+            entry = found_at(name, place, _DISCOVERY_KINDS.get(kind, kind))
         if entry is None:
             raise XVIZError(f"log {name!r} is no longer where it was found: {place}")
         if isinstance(entry, StoredLog):  # its files and their sizes are those of the listing
