@@ -51,7 +51,7 @@ import numpy as np
 from ...exceptions import DatasetError, StoreError
 from ...records import OriginalTopic
 from ...storepath import RangedFile, StorePath, data_path
-from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, BoundedReader, check_declared, unpack, unpack_unsized, zstd_module
+from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, MAX_FRAME_BYTES, BoundedReader, check_declared, unpack, unpack_unsized, zstd_module
 
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
@@ -424,8 +424,9 @@ class _BoundedZstd:
 
     @staticmethod
     def decompress(data: bytes) -> bytes:
-        """A message compressed on its own: at most :data:`~xviz_server.unpack.MAX_CHUNK_BYTES` unpacked."""
-        return unpack_unsized(data, "zstd", "a ROS 2 bag's message compressed with zstd")
+        """A message compressed on its own: at most :data:`~xviz_server.unpack.MAX_FRAME_BYTES` unpacked (more
+        than one frame may take; its stored size declares nothing)."""
+        return unpack_unsized(data, "zstd", "a ROS 2 bag's message compressed with zstd", MAX_FRAME_BYTES)
 
     @staticmethod
     def open(file: Any, mode: str = "rb") -> BoundedReader:
