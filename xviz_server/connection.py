@@ -89,7 +89,7 @@ class Connection:
         self.frames_sent = 0
         self.bytes_sent = 0
         self.messages_sent = 0
-        self._mistakes = LogThrottle()  # lines logged about the client's mistakes
+        self._mistakes = LogThrottle()  # lines logged about the errors and notices it is sent
         self.bytes_written = 0  # every message's bytes, as handed to the connection
 
     async def run(self) -> None:
