@@ -342,17 +342,28 @@ def test_dataset_option_in_the_path(bags: dict[str, Path], tmp_path: Path):
 # -- bad input ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("container", ["sqlite3", "mcap"])
-def test_truncated_bag_is_an_error_naming_the_file(container: str, bags: dict[str, Path], tmp_path: Path):
-    cut = tmp_path / bags[container].name
-    if container == "sqlite3":  # a folder: cut its database file
-        shutil.copytree(bags[container], cut)
-        (database,) = cut.glob("*.db3")
-        database.write_bytes(database.read_bytes()[: database.stat().st_size // 2])
-    else:
-        cut.write_bytes(bags[container].read_bytes()[: bags[container].stat().st_size // 2])
+def test_truncated_bag_is_an_error_naming_the_file(bags: dict[str, Path], tmp_path: Path):
+    cut = tmp_path / bags["sqlite3"].name
+    shutil.copytree(bags["sqlite3"], cut)  # a folder: cut its database file
+    (database,) = cut.glob("*.db3")
+    database.write_bytes(database.read_bytes()[: database.stat().st_size // 2])
     with pytest.raises(DatasetError, match=f"{cut}: cannot open the bag: "):
         RosBag(cut)
+
+
+def test_an_mcap_file_cut_short_serves_its_whole_records(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    whole = RosBag(bags["mcap"])
+    cut = tmp_path / "drive.mcap"
+    cut.write_bytes(bags["mcap"].read_bytes()[: bags["mcap"].stat().st_size // 2])
+    with caplog.at_level(logging.WARNING):
+        bag = RosBag(cut)
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warning.startswith(f"{cut}: a record at byte ") and "is cut off by the end of the file" in warning
+    kept = {name: len(topic) for name, topic in bag.bag.topics.items()}
+    assert 0 < sum(kept.values()) < sum(len(topic) for topic in whole.bag.topics.values())
+    for name, count in kept.items():  # the messages before the cut, the same as the whole file's
+        assert [bag.bag.message(name, i)[0] for i in range(count)] == whole.bag.topics[name].times[:count].tolist()
+    assert frame_digests(bag, 1) == frame_digests(whole, 1)
 
 
 def cut_recording(bag: Path, to: Path, keep: int | None = None) -> Path:

@@ -56,7 +56,9 @@ from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, BoundedReader, check_decl
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
 
-__all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY", "CHUNK_CACHE_BYTES"]
+    from .mcapbag import McapBag
+
+__all__ = ["Bag", "Topic", "open_bag", "reason", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY", "CHUNK_CACHE_BYTES"]
 
 logger = logging.getLogger(__name__)
 
@@ -152,8 +154,10 @@ class Bag:
         except StoreError:
             raise
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
-            raise DatasetError(f"{self.path}: cannot open the bag: {_reason(exc)}", path=self.path) from None
+            raise DatasetError(f"{self.path}: cannot open the bag: {reason(exc)}", path=self.path) from None
         self._reader = reader
+        #: Topics that cannot be decoded: the reason, by topic (rosbags refuses a bag whose types do not parse).
+        self.problems: dict[str, str] = {}
         for ros1 in reader.readers:
             if getattr(ros1, "reindexed", False):
                 cut = f"; the last {ros1.lost} bytes, a record cut short, are left out" if ros1.lost else ""
@@ -173,7 +177,7 @@ class Bag:
             except DatasetError:
                 raise
             except Exception as exc:  # noqa: BLE001
-                raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {_reason(exc)}", path=self.path) from None
+                raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {reason(exc)}", path=self.path) from None
             times = np.concatenate([i[0] for i in indexes])
             order = np.argsort(times, kind="stable")
             places = [i[1] for i in indexes if i[1] is not None]
@@ -335,16 +339,27 @@ class Bag:
         except (DatasetError, StoreError):  # a store that fails is not a damaged bag: the frame fails, not the topic
             raise
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
-            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {_reason(exc)}", path=self.path) from None
+            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {reason(exc)}", path=self.path) from None
 
     def _decode(self, topic: str, msgtype: str, time: int, data: bytes | memoryview) -> Any:
         try:
             return self._reader.deserialize(data, msgtype)
         except Exception as exc:  # noqa: BLE001 - a message that does not match its type
             raise DatasetError(
-                f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {_reason(exc)}",
+                f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {reason(exc)}",
                 path=self.path,
             ) from None
+
+
+def open_bag(path: Path | StorePath) -> AnyBag:
+    """The bag at ``path``: an MCAP file with the format's own reader (:class:`~.mcapbag.McapBag`), the rest with
+    rosbags (:class:`Bag`)."""
+    path = data_path(path)
+    if path.suffix == ".mcap":
+        from .mcapbag import McapBag
+
+        return McapBag(path)
+    return Bag(path)
 
 
 def _read_chunk(owner: Any, key: int) -> bytes:
@@ -454,5 +469,11 @@ def _ros1_op(header: bytes) -> int | None:
     return None
 
 
-def _reason(exc: BaseException) -> str:
+def reason(exc: BaseException) -> str:
     return " ".join(str(arg) for arg in exc.args) or type(exc).__name__
+
+
+if TYPE_CHECKING:
+    from typing import TypeAlias
+
+    AnyBag: TypeAlias = "Bag | McapBag"

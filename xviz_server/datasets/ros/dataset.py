@@ -40,7 +40,7 @@ from ...records import RECORD_BYTES, OriginalTopic, pack
 from ...storepath import StorePath, data_path
 from ...unpack import MAX_CHUNK_BYTES
 from .. import DEFAULT_IMAGE_WIDTH
-from .bag import Bag, is_rosbag
+from .bag import is_rosbag, open_bag
 from .config import RosConfig, load_config
 from .geometry import IDENTITY, apply, enu, from_pose, from_quaternion, interpolate, rpy
 from .mapping import (
@@ -114,7 +114,7 @@ class RosBag:
             )
         self.name = self.path.stem if self.path.is_file() else self.path.name
         self.settings: RosConfig = load_config(self.config)
-        self.bag = Bag(self.path)
+        self.bag = open_bag(self.path)
         self._staleness = int(self.settings.staleness * 1e9)
         self.tree = TransformTree(self.bag, self._staleness)
         self._warned: set[str] = set()

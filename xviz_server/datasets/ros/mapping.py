@@ -10,11 +10,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .bag import Bag
 from .config import RosConfig
 from .tf import TF, TF_STATIC, TF_TYPE
+
+if TYPE_CHECKING:
+    from .bag import AnyBag
 
 __all__ = ["Mapping", "plan", "SERIES", "MARKER_STREAMS", "POSE_TYPES"]
 
@@ -113,7 +115,7 @@ def _stream_name(topic: str, config: RosConfig) -> str:
     return name if name is not None else topic if topic.startswith("/") else "/" + topic
 
 
-def plan(bag: Bag, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
+def plan(bag: AnyBag, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
     """The mapping of every topic of ``bag``; ``pose_topic`` is the topic the pose comes from, if one does."""
     mappings = []
     for topic, info in bag.topics.items():

@@ -11,7 +11,7 @@ from ...exceptions import DatasetError
 from ..images import encode_like, fit_width
 from ..shared import reflectance_colors
 
-__all__ = ["cloud_points", "image_bytes", "compressed_image_bytes", "IMAGE_ENCODINGS"]
+__all__ = ["byte_array", "cloud_points", "image_bytes", "compressed_image_bytes", "IMAGE_ENCODINGS"]
 
 # sensor_msgs/PointField datatypes.
 _FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -22,6 +22,14 @@ IMAGE_ENCODINGS = (
     "rgb8", "bgr8", "rgba8", "bgra8", "mono8", "8uc1", "mono16", "16uc1", "8uc3",
     *(f"bayer_{pattern}8" for pattern in _BAYER),
 )
+
+
+def byte_array(data: Any) -> np.ndarray:
+    """A ``uint8[]`` field as a numpy array, whichever decoder made it: an array (rosbags) or ``bytes`` (the MCAP
+    decoders, the Foxglove schemas)."""
+    if isinstance(data, (bytes, bytearray, memoryview)):
+        return np.frombuffer(data, dtype=np.uint8)
+    return np.asarray(data, dtype=np.uint8)
 
 
 def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_scale: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -52,7 +60,7 @@ def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_sca
     except (KeyError, ValueError) as exc:
         raise DatasetError(f"{where}: PointCloud2 field layout does not fit point_step {message.point_step}: {exc}") from None
     count = message.width * message.height
-    data = np.asarray(message.data, dtype=np.uint8)
+    data = byte_array(message.data)
     row = message.width * message.point_step
     if len(data) < (message.height - 1) * message.row_step + row or (message.height > 1 and message.row_step < row):
         raise DatasetError(f"{where}: PointCloud2 data holds {len(data)} bytes, too few for {message.width}x{message.height} points")
@@ -88,7 +96,7 @@ def _pixels(message: Any, where: str) -> np.ndarray:
     encoding = message.encoding.lower()
     height, width, step = message.height, message.width, message.step
     channels = {"rgb8": 3, "bgr8": 3, "8uc3": 3, "rgba8": 4, "bgra8": 4, "mono16": 2, "16uc1": 2}.get(encoding, 1)
-    data = np.asarray(message.data, dtype=np.uint8)
+    data = byte_array(message.data)
     if encoding not in IMAGE_ENCODINGS:
         raise DatasetError(f"{where}: image encoding {message.encoding!r} is not one of {', '.join(IMAGE_ENCODINGS)}")
     if step < width * channels or len(data) < height * step:

@@ -9,11 +9,14 @@ around it; all times are record times, like every other topic's.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bag import Bag
 from .geometry import from_transform, interpolate
+
+if TYPE_CHECKING:
+    from .bag import AnyBag
 
 __all__ = ["frame_name", "TransformTree", "Snapshot", "TF", "TF_STATIC", "TF_TYPE"]
 
@@ -68,7 +71,7 @@ class Snapshot:
 class TransformTree:
     """The static tree, which frames ``/tf`` moves, and snapshots at any time."""
 
-    bag: Bag
+    bag: AnyBag
     staleness: int  # ns
     static: dict[str, tuple[str, np.ndarray]] = field(init=False)
     moving: dict[str, str] = field(init=False)
