@@ -180,6 +180,18 @@ def _viz_bag(container: str, pose_type: str) -> Callable[[Path], Served]:
     return make
 
 
+_RECORDINGS = Path(__file__).parent / "recordings"
+
+
+def _recording(relative: str) -> Callable[[Path], Served]:
+    """A recording of another project, as it was published (tests/recordings/README.md)."""
+
+    def make(root: Path) -> Served:
+        return Served(dataset=f"rosbag:{_RECORDINGS / relative}")
+
+    return make
+
+
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 
@@ -202,6 +214,10 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "rosbag-ros1-viz": _viz_bag("ros1", POSE_WITH_COVARIANCE),
     "rosbag-sqlite3-viz": _viz_bag("sqlite3", POSE_STAMPED),
     "rosbag-mcap-viz": _viz_bag("mcap", POSE_STAMPED),
+    "mcap-conformance-ten-messages": _recording("mcap-conformance/TenMessages/TenMessages-ch-chx-pad-rch-rsh-st-sum.mcap"),
+    "rosbag2-service-events": _recording("rosbag2/mcap/bag_with_topics_and_service_events"),
+    "rosbag2-talker-strings": _recording("rosbag2/sqlite3/talker"),
+    "rosbag2-bare-db3": _recording("rosbag2/topics_and_services.db3"),
 }
 #: The sources that ``convert`` takes.
 DATASETS = [

@@ -43,3 +43,57 @@ def test_every_conformance_file_opens_with_its_messages(name: str):
     served = [(time, bytes(payload).hex()) for frame in range(len(log)) for _, time, payload in unpack(log.original_messages(frame))]
     schemaless = name.startswith("OneSchemalessMessage")
     assert sorted(served) == [] if schemaless else sorted((int(t), str(data)) for _, t, data in EXPECTED[name])  # type: ignore[call-overload]
+
+
+# -- ROS 2 bags of ros2/rosbag2's own tests -------------------------------------------
+
+ROSBAG2 = RECORDINGS / "rosbag2"
+
+
+def test_service_event_topics_do_not_make_a_ros2_mcap_bag_unreadable():
+    log = RosBag(ROSBAG2 / "mcap" / "bag_with_topics_and_service_events")
+    assert log.name == "bag_with_topics_and_service_events" and log.bag.container == "ROS 2 mcap"
+    events = {"/test_service1/_service_event", "/test_service2/_service_event"}
+    # Each service event channel is named with its cause; the topics beside them are read.
+    assert events <= log.bag.problems.keys() and all("BasicTypes_Event" in log.bag.problems[t] for t in events)
+    assert {m.topic: m.role for m in log.mappings if m.topic in events} == dict.fromkeys(events, "unknown")
+    assert [len(log.bag.topics[t]) for t in ("/test_topic1", "/test_topic2")] == [1, 1]
+    strings = log.bag.message("/test_topic1", 0)[1]
+    assert isinstance(strings.string_value, str)
+    log.convert(0)
+    # Foxglove clients get every topic, the service events too, as recorded.
+    assert events | {"/test_topic1", "/test_topic2"} <= {o.topic for o in log.originals}
+
+
+def _text_rows(log: RosBag, stream: str) -> list[list[str]]:
+    rows = []
+    for frame in range(len(log)):
+        table = log.convert(frame)["updates"][0].get("ui_primitives", {}).get(stream)
+        rows += [node["column_values"] for node in table["treetable"]["nodes"]] if table else []
+    return rows
+
+
+def test_a_metadata_yaml_without_storage_identifier_and_strings_as_text(tmp_path: Path):
+    folder = tmp_path / "talker"
+    folder.mkdir()
+    (folder / "talker.db3").symlink_to((ROSBAG2 / "sqlite3" / "talker" / "talker.db3").resolve())
+    metadata = (ROSBAG2 / "sqlite3" / "talker" / "metadata.yaml").read_text()
+    assert "storage_identifier: sqlite3" in metadata
+    (folder / "metadata.yaml").write_text(metadata.replace("storage_identifier: sqlite3", 'storage_identifier: ""'))
+    log = RosBag(folder)
+    assert log.bag.container == "ROS 2 sqlite3" and len(log.bag.topics["/topic"]) == 10
+    assert log.metadata()["streams"]["/topic"] == {"category": "UI_PRIMITIVE", "ui_primitive_type": "TREETABLE"}
+    shown = {row[3] for row in _text_rows(log, "/topic")}
+    assert shown == {log.bag.message("/topic", i)[1].data for i in range(10)}
+    assert all(text.startswith("Hello, world! ") for text in shown)
+
+
+def test_a_bare_db3_file_opens():
+    log = RosBag(ROSBAG2 / "topics_and_services.db3")
+    assert log.name == "topics_and_services" and log.bag.container == "ROS 2 sqlite3"
+    assert len(log.bag.topics["/add_two_ints/_service_event"]) == 6
+    # rosbags has no definition of the service event type: the topic is named, the rest served.
+    assert "AddTwoInts_Event has no definition" in log.bag.problems["/add_two_ints/_service_event"]
+    assert [m.role for m in log.mappings if m.topic == "/add_two_ints/_service_event"] == ["unknown"]
+    assert [m.role for m in log.mappings if m.topic == "/rosout"] == ["text"]
+    log.convert(0)

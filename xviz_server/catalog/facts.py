@@ -40,6 +40,12 @@ MAX_TAGS = 100
 MAX_TAG = 100
 
 
+def _recording_format(info: dict[str, Any]) -> str:
+    """The container of a ROS bag or MCAP file, as its ``log_info.source`` names it (``MCAP bag drive``: ``MCAP``)."""
+    source = info.get("source")
+    return source.rpartition(" bag ")[0] or "ROS bag" if isinstance(source, str) else "ROS bag"
+
+
 def facts(kind: str, fmt: Format, metadata: dict[str, Any], index: TimeIndex, size: int | None, modified: float | None) -> dict[str, Any]:
     """The catalog's facts of a log of ``kind`` with this metadata and index, ``size`` bytes, modified at ``modified``."""
     metadata = complete_metadata(metadata, index)
@@ -56,7 +62,7 @@ def facts(kind: str, fmt: Format, metadata: dict[str, Any], index: TimeIndex, si
     description = info.get("description")
     return {
         "kind": kind,
-        "format": fmt.value,
+        "format": _recording_format(info) if kind == "rosbag" else fmt.value,
         "frames": len(index),
         "start_time": start,
         "end_time": end,

@@ -51,7 +51,7 @@ def inspect_bag(path: Path, config: str | None = None) -> dict[str, Any]:
             "first": first,
             "last": last,
             "maps_to": mappings[name].describe(),
-            "note": _stamp_note(dataset, name, int(info.times[0])) if count else "no message",
+            "note": dataset.bag.problems.get(name) or (_stamp_note(dataset, name, int(info.times[0])) if count else "no message"),
         })
     clock = dataset.settings.clock or next((m.topic for m in dataset.mappings if m.role == "points"
                                             and len(dataset.bag.topics[m.topic]) and dataset.settings.rate is None), None)

@@ -11,7 +11,7 @@ from ...exceptions import DatasetError
 from ..images import encode_like, fit_width
 from ..shared import reflectance_colors
 
-__all__ = ["byte_array", "cloud_points", "image_bytes", "compressed_image_bytes", "IMAGE_ENCODINGS"]
+__all__ = ["byte_array", "cloud_points", "scan_points", "image_bytes", "compressed_image_bytes", "IMAGE_ENCODINGS"]
 
 # sensor_msgs/PointField datatypes.
 _FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -90,6 +90,18 @@ def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_sca
             intensity_scale = 1 / np.iinfo(intensity.dtype).max
         return points, reflectance_colors(intensity if intensity_scale is None else intensity * intensity_scale)
     return points, None
+
+
+def scan_points(message: Any) -> np.ndarray:
+    """The returns of a ``sensor_msgs/LaserScan`` as points in its frame, float32 (N, 3): ranges outside
+    ``[range_min, range_max]`` and not finite are no returns, left out."""
+    ranges = np.asarray(message.ranges, dtype=np.float64)
+    angles = float(message.angle_min) + float(message.angle_increment) * np.arange(len(ranges))
+    keep = np.isfinite(ranges) & (ranges >= float(message.range_min)) & (ranges <= float(message.range_max)) & (ranges > 0)
+    points = np.zeros((int(keep.sum()), 3), dtype=np.float32)
+    points[:, 0] = ranges[keep] * np.cos(angles[keep])
+    points[:, 1] = ranges[keep] * np.sin(angles[keep])
+    return points
 
 
 def _pixels(message: Any, where: str) -> np.ndarray:
