@@ -225,6 +225,30 @@ def _cloud(m: Messages, fields: list[tuple[str, int, int]], step: int, data: byt
     )
 
 
+def test_messages_before_the_first_and_after_the_last_frame_are_shown(tmp_path: Path):
+    """Frames are the cloud's two messages; a marker 1 ms after the last, a string 5 s before the first (older than
+    the staleness) and an image between the frames only once: none is lost."""
+    from devkit.rosbag_kitti import marker
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS2_HUMBLE)
+    t0 = 1_700_000_000 * 10**9
+    xyz = np.array([[1.0, 2.0, 3.0]], np.float32)
+    cloud = _cloud(m, [("x", 0, 7), ("y", 4, 7), ("z", 8, 7)], 12, xyz.tobytes(), 1)
+    messages = [
+        ("/early", "std_msgs/msg/String", t0 - 5 * 10**9, m.std_msgs__String(data="before the first frame")),
+        ("/points", "sensor_msgs/msg/PointCloud2", t0, cloud),
+        ("/points", "sensor_msgs/msg/PointCloud2", t0 + 10**8, cloud),
+        ("/late", "visualization_msgs/msg/Marker", t0 + 10**8 + 10**6, marker(m, t0, action=0, kind=1, id=1, x=3.0, frame="lidar")),
+    ]
+    bag = RosBag(write_bag(tmp_path / "edges.mcap", "mcap", iter(messages)))
+    assert bag.clock.tolist() == [t0, t0 + 10**8]
+    first, last = (bag.convert(i)["updates"][0] for i in range(2))
+    assert [row["column_values"][3] for row in first["ui_primitives"]["/early"]["treetable"]["nodes"]] == ["before the first frame"]
+    assert "/late/polygons" not in first.get("primitives", {})
+    assert [p["base"]["object_id"] for p in last["primitives"]["/late/polygons"]["polygons"]] == ["boxes/1"]
+
+
 def test_cloud_layouts_endianness_nan_and_colours():
     from rosbags.typesys import Stores
 
@@ -232,6 +256,8 @@ def test_cloud_layouts_endianness_nan_and_colours():
     rng = np.random.default_rng(7)
     xyz = rng.normal(size=(50, 3))
     xyz[[3, 9]] = np.nan
+    xyz[[5, 20]] = 0.0  # beams without a return, as drivers write them: left out
+    xyz[30, :2] = 0.0  # a real point on the z axis: kept
     # Big-endian float64 x, y, z after a ring field, rgb packed in a float32, and a trailing time field.
     dtype = np.dtype([("ring", ">u2"), ("pad", "V6"), ("x", ">f8"), ("y", ">f8"), ("z", ">f8"), ("rgb", ">f4"), ("t", ">f4")])
     records = np.zeros(50, dtype)
@@ -241,12 +267,13 @@ def test_cloud_layouts_endianness_nan_and_colours():
     message = _cloud(m, [("ring", 0, 4), ("x", 8, 8), ("y", 16, 8), ("z", 24, 8), ("rgb", 32, 7), ("t", 36, 7)],
                      dtype.itemsize, records.tobytes(), 50, bigendian=True)
     points, colors = cloud_points(message, "test")
-    keep = np.isfinite(xyz).all(axis=1)
-    assert np.array_equal(points, xyz[keep].astype(np.float32))
+    keep = np.isfinite(xyz).all(axis=1) & (xyz != 0).any(axis=1)
+    assert keep.sum() == 46 and np.array_equal(points, xyz[keep].astype(np.float32))
     assert colors is not None and np.array_equal(colors, np.stack([(packed >> s) & 255 for s in (16, 8, 0)], 1)[keep])
     # uint8 intensity is scaled to 0..1, then coloured like KITTI's reflectance; colour "none" gives none.
     small = np.zeros(4, [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")])
     small["intensity"] = [0, 85, 170, 255]
+    small["x"] = 1.0
     message = _cloud(m, [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 2)], small.itemsize, small.tobytes(), 4)
     _, colors = cloud_points(message, "test")
     assert colors is not None and colors[:, 0].tolist() == [80, 106, 133, 160]

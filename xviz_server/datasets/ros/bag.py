@@ -70,6 +70,11 @@ _MESSAGE = 0x05  # MCAP opcodes
 _MESSAGE_INDEX = 0x07
 _ROS1_MESSAGE = 0x02  # ROS 1 record ops
 _ROS1_CONNECTION = 0x07
+#: Message types of raw sensor packets, which only their driver turns into points.
+DRIVER_PACKETS = frozenset({
+    "velodyne_msgs/msg/VelodyneScan", "velodyne_msgs/msg/VelodynePacket", "ouster_msgs/msg/PacketMsg",
+    "ouster_ros/msg/PacketMsg", "hesai_msgs/msg/PandarScan", "pandar_msgs/msg/PandarScan", "livox_ros_driver/msg/CustomMsg",
+})
 #: The most bytes of unpacked chunks a bag keeps: a frame reads a few neighbouring chunks (the last one read is
 #: always kept, even if larger).
 CHUNK_CACHE_BYTES = 32 << 20
@@ -186,7 +191,10 @@ class Bag:
             places = [i[1] for i in indexes if i[1] is not None]
             located = np.concatenate(places)[order] if len(places) == len(indexes) else None
             self.topics[name] = Topic(name, connections[0].msgtype, times[order], tuple(connections), located)
-            if connections[0].msgtype not in reader.typestore.fielddefs:
+            if connections[0].msgtype in DRIVER_PACKETS:
+                self.problems[name] = (f"{connections[0].msgtype} holds the raw packets of a sensor's driver, not points: "
+                                       "record the driver's point cloud topic, or replay the bag through the driver")
+            elif connections[0].msgtype not in reader.typestore.fielddefs:
                 self.problems[name] = f"its type {connections[0].msgtype} has no definition in the bag or rosbags' type store"
 
     @property

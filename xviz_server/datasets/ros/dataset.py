@@ -347,18 +347,22 @@ class RosBag:
             if mapping.stream is None:
                 continue
             try:
-                self._add(builder, mapping, t, snapshot, pose)
+                self._add(builder, mapping, t, snapshot, pose, frame)
             except DatasetError as exc:
                 self._warn(mapping.topic, str(exc))
         return builder.build(t / 1e9)
 
-    def _add(self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray) -> None:
+    def _add(self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray, frame: int) -> None:
         stream, topic = mapping.stream, mapping.topic
         assert stream is not None
         where = f"{self.path}: topic {topic}"
+        # The first frame also shows what was recorded before it, the last what was recorded after it.
+        info = self.bag.topics[topic]
+        reach = int(info.times[-1]) if frame == len(self.clock) - 1 and len(info) and info.times[-1] > t else t
+        since = min(t - self._staleness, int(info.times[0])) if frame == 0 and len(info) else t - self._staleness
         if mapping.role == "markers":
-            messages = self.bag.messages(topic, t - self._staleness, t + 1)
-            for marker in live_markers(messages, t):
+            messages = self.bag.messages(topic, since, reach + 1)
+            for marker in live_markers(messages, reach):
                 to_vehicle = self._resolve(marker.header.frame_id, snapshot, pose)
                 if to_vehicle is None:
                     self._warn(topic, f"{where}: frame {marker.header.frame_id!r} is not connected to the vehicle frame")
@@ -366,12 +370,12 @@ class RosBag:
                 draw_marker(builder, stream, marker, to_vehicle)
             return
         if mapping.role == "text":
-            rows = list(self.bag.messages(topic, max(t - self._staleness, self._after(topic, t, MAX_SHOWN)), t + 1))
+            rows = list(self.bag.messages(topic, max(since, self._after(topic, reach, MAX_SHOWN)), reach + 1))
             builder.treetable(stream, _TEXT_COLUMNS, [(i, None, _text_row(time, m)) for i, (time, m) in enumerate(reversed(rows))])
             return
         if mapping.role == "trajectory":
             self._trajectory(builder, mapping, t, snapshot, pose)
-        latest = self._latest(topic, t)
+        latest = self._latest(topic, reach, first=frame == 0)
         if latest is None:
             return
         time, message = latest
@@ -425,10 +429,14 @@ class RosBag:
             self._warned.add(topic)
             logger.warning("%s (left out of the frames)", message)
 
-    def _latest(self, topic: str, t: int) -> tuple[int, Any] | None:
+    def _latest(self, topic: str, t: int, first: bool = False) -> tuple[int, Any] | None:
+        """The message of ``topic`` shown at ``t``: the latest at or before it within the staleness; at the first
+        frame, the latest before it however old, else the first one if it comes before the second frame."""
         info = self.bag.topics[topic]
         index = info.at_or_before(t)
-        if index < 0 or t - int(info.times[index]) > self._staleness:
+        if first and index < 0 and len(info) and (len(self.clock) == 1 or info.times[0] < self.clock[1]):
+            index = 0
+        if index < 0 or (not first and t - int(info.times[index]) > self._staleness):
             return None
         return self.bag.message(topic, index)
 

@@ -33,7 +33,8 @@ def byte_array(data: Any) -> np.ndarray:
 
 
 def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_scale: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """The finite points of a ``PointCloud2``, float32 (N, 3), and their uint8 colours or ``None``.
+    """The finite points of a ``PointCloud2``, float32 (N, 3), and their uint8 colours or ``None``; points at
+    exactly (0, 0, 0), which drivers write for a beam with no return (an Ouster cloud keeps every beam), are left out.
 
     x, y and z may be of any type, offset and byte order; other fields are
     ignored except ``rgb``/``rgba`` (packed 0x00RRGGBB in a float32 or
@@ -69,9 +70,12 @@ def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_sca
     records = np.frombuffer(np.ascontiguousarray(data[: count * message.point_step]).data, dtype=dtype, count=count)
     points = np.empty((count, 3), dtype=np.float32)
     finite = np.ones(count, dtype=bool)
+    returned = np.zeros(count, dtype=bool)
     for column, axis in enumerate("xyz"):
         points[:, column] = records[axis]
         finite &= np.isfinite(points[:, column])
+        returned |= points[:, column] != 0
+    finite &= returned
     keep = None if finite.all() else finite
     if keep is not None:
         points = points[keep]
