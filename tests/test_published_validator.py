@@ -192,6 +192,13 @@ def _recording(relative: str) -> Callable[[Path], Served]:
     return make
 
 
+def _foxglove_sdk_mcap(root: Path) -> Served:
+    """Foxglove's schemas in protobuf and JSON, no profile, as the Foxglove SDK writes them."""
+    from foxglove_sdk_recording import write_sdk_recording
+
+    return Served(dataset=f"rosbag:{write_sdk_recording(root / 'sdk.mcap')}")
+
+
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 
@@ -218,6 +225,7 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "rosbag2-service-events": _recording("rosbag2/mcap/bag_with_topics_and_service_events"),
     "rosbag2-talker-strings": _recording("rosbag2/sqlite3/talker"),
     "rosbag2-bare-db3": _recording("rosbag2/topics_and_services.db3"),
+    "mcap-foxglove-sdk": _foxglove_sdk_mcap,
 }
 #: The sources that ``convert`` takes.
 DATASETS = [

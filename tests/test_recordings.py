@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from xviz_server.datasets.ros import RosBag
@@ -97,3 +98,48 @@ def test_a_bare_db3_file_opens():
     assert [m.role for m in log.mappings if m.topic == "/add_two_ints/_service_event"] == ["unknown"]
     assert [m.role for m in log.mappings if m.topic == "/rosout"] == ["text"]
     log.convert(0)
+
+
+# -- MCAP as the Foxglove SDK writes it ----------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sdk_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from foxglove_sdk_recording import write_sdk_recording
+
+    return write_sdk_recording(tmp_path_factory.mktemp("sdk") / "sdk.mcap")
+
+
+def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(sdk_recording: Path):
+    from foxglove_sdk_recording import FRAMES, POINTS, T0
+
+    log = RosBag(sdk_recording)
+    assert log.bag.problems == {} and log.bag.container == "MCAP"
+    roles = {m.topic: m.role for m in log.mappings}
+    assert roles == {"/camera": "image", "/raw": "image", "/lidar": "points", "/scan": "points", "/tf": "transforms",
+                     "/goal": "trajectory", "/gps": "origin", "/scene": "markers", "/log": "text", "/json_log": "text"}
+    assert log.pose_source.describe() == "/tf: world -> base_link" and len(log) == FRAMES
+    assert log.map_origin == (8.4, 49.0, 110.0)
+    update = log.convert(1)["updates"][0]
+    assert update["timestamp"] == (T0 + 100_000_000) / 1e9
+    assert update["poses"]["/vehicle_pose"]["position"] == [1.0, 0.0, 0.0]
+    primitives = update["primitives"]
+    (cloud,) = primitives["/lidar"]["points"]
+    assert np.array_equal(cloud["points"], POINTS[:2])  # the beam without a return left out
+    (scan,) = primitives["/scan"]["points"]  # the return at infinity left out
+    np.testing.assert_allclose(scan["points"], [[2.0, 0.0, 0.0], [0.0, 3.0, 0.0]], atol=1e-6)
+    assert [p["base"]["object_id"] for p in primitives["/scene/polygons"]["polygons"]] == ["car/0"]
+    assert [t["text"] for t in primitives["/scene/texts"]["texts"]] == ["car"]
+    assert [image["width_px"] for image in primitives["/camera"]["images"]] == [32]
+    # /goal is drawn as a trajectory in the vehicle frame: 10 m ahead of a vehicle at x=1, then 11 m.
+    (goal,) = primitives["/goal"]["polylines"]
+    np.testing.assert_allclose(goal["vertices"], [[9.0, 1.0, 0.0], [10.0, 1.0, 0.0]], atol=1e-6)
+    rows = [n["column_values"] for n in update["ui_primitives"]["/log"]["treetable"]["nodes"]]
+    assert [r[1:] for r in rows] == [["WARN", "planner", "frame 1"], ["WARN", "planner", "frame 0"]]
+    rows = [n["column_values"] for n in update["ui_primitives"]["/json_log"]["treetable"]["nodes"]]
+    assert [r[1:] for r in rows] == [["ERROR", "json", "json 1"], ["ERROR", "json", "json 0"]]
+    # Foxglove clients get the channels as written: protobuf schemas in base64, JSON as it is.
+    originals = {o.topic: o for o in log.originals}
+    assert (originals["/lidar"].encoding, originals["/lidar"].schema_name, originals["/lidar"].schema_encoding) == (
+        "protobuf", "foxglove.PointCloud", "protobuf")
+    assert (originals["/json_log"].encoding, originals["/json_log"].schema_encoding) == ("json", "jsonschema")
