@@ -411,6 +411,30 @@ def frame_digests(bag: RosBag, frames: int) -> list[str]:
             for frame in range(frames)]
 
 
+def ros1_profile_mcap(bag: Path, to: Path) -> Path:
+    """``bag`` (ROS 1) as ``mcap convert`` makes it: profile ros1, ros1msg schemas, ros1 messages, with mcap's writer."""
+    from mcap.writer import Writer
+    from rosbags.rosbag1 import Reader
+
+    with Reader(bag) as reader, to.open("wb") as out:
+        writer = Writer(out)
+        writer.start(profile="ros1", library="tests")
+        channels = {}
+        for connection in reader.connections:
+            schema = writer.register_schema(connection.msgtype.replace("/msg/", "/"), "ros1msg", connection.msgdef.data.encode())
+            channels[connection.id] = writer.register_channel(connection.topic, "ros1", schema)
+        for connection, time, data in reader.messages():
+            writer.add_message(channels[connection.id], time, data, time)
+        writer.finish()
+    return to
+
+
+def test_an_mcap_file_of_the_ros1_profile_serves_the_same_frames_as_its_bag(bags: dict[str, Path], tmp_path: Path):
+    converted = RosBag(ros1_profile_mcap(bags["ros1"], tmp_path / "drive.mcap"))
+    assert converted.bag.container == "MCAP" and converted.bag.problems == {}
+    assert frame_digests(converted, FRAMES) == frame_digests(RosBag(bags["ros1"]), FRAMES)
+
+
 def test_unindexed_ros1_bag_is_indexed_in_memory(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
     """A recording killed before it wrote its index: every message read, the frames those of the indexed bag."""
     unindexed = cut_recording(bags["ros1"], tmp_path / "unindexed.bag")

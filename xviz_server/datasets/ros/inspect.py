@@ -14,6 +14,7 @@ from typing import Any
 
 from ...exceptions import DatasetError
 from .dataset import RosBag
+from .wellknown import nanoseconds
 
 __all__ = ["inspect_bag", "render"]
 
@@ -29,7 +30,7 @@ def _stamp_note(bag: RosBag, topic: str, first: int) -> str:
     header = getattr(message, "header", None)
     if header is None:
         return ""
-    stamp = header.stamp.sec + header.stamp.nanosec / 1e9
+    stamp = nanoseconds(header.stamp) / 1e9
     offset = stamp - first / 1e9
     return f"header stamps on another clock ({offset:+.1f} s from record time)" if abs(offset) > OTHER_CLOCK else ""
 
