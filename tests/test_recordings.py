@@ -87,6 +87,9 @@ def test_a_metadata_yaml_without_storage_identifier_and_strings_as_text(tmp_path
     shown = {row[3] for row in _text_rows(log, "/topic")}
     assert shown == {log.bag.message("/topic", i)[1].data for i in range(10)}
     assert all(text.startswith("Hello, world! ") for text in shown)
+    # rcl_interfaces/Log of 2020 (Eloquent), whose definition rosbags reads wrongly from the bag: the standard one.
+    logged = {tuple(row[1:]) for row in _text_rows(log, "/rosout")}
+    assert logged == {("INFO", "minimal_publisher", f"Publishing: '{text}'") for text in shown}
 
 
 def test_a_bare_db3_file_opens():

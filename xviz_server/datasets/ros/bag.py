@@ -149,7 +149,8 @@ class Bag:
         from .reindex import MemoryIndexedReader
 
         try:
-            reader = rosbags.highlevel.AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+            self._standard = get_typestore(Stores.ROS2_HUMBLE)
+            reader = rosbags.highlevel.AnyReader([self.path], default_typestore=self._standard)
             if not reader.is2:
                 reader.readers = [MemoryIndexedReader(self.path)]
             for ros2 in reader.readers if reader.is2 else ():  # storage_identifier "": the storage of its files
@@ -359,6 +360,11 @@ class Bag:
         try:
             return self._reader.deserialize(data, msgtype)
         except Exception as exc:  # noqa: BLE001 - a message that does not match its type
+            if self._reader.is2 and msgtype in self._standard.fielddefs:  # a definition the bag holds wrongly
+                try:  # (rosbags makes "uint8 level" of an old sqlite3 bag's rcl_interfaces/Log): the standard one
+                    return self._standard.deserialize_cdr(bytes(data), msgtype)
+                except Exception:  # noqa: BLE001, S110 - the first reason is the one to give
+                    pass
             raise DatasetError(
                 f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {reason(exc)}",
                 path=self.path,
