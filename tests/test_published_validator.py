@@ -226,6 +226,7 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "rosbag2-talker-strings": _recording("rosbag2/sqlite3/talker"),
     "rosbag2-bare-db3": _recording("rosbag2/topics_and_services.db3"),
     "mcap-foxglove-sdk": _foxglove_sdk_mcap,
+    "ros1-turtlesim-twist": _recording("ros1/turtlesim.bag"),
 }
 #: The sources that ``convert`` takes.
 DATASETS = [

@@ -146,3 +146,31 @@ def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(s
     assert (originals["/lidar"].encoding, originals["/lidar"].schema_name, originals["/lidar"].schema_encoding) == (
         "protobuf", "foxglove.PointCloud", "protobuf")
     assert (originals["/json_log"].encoding, originals["/json_log"].schema_encoding) == ("json", "jsonschema")
+
+
+# -- ROS 1 ------------------------------------------------------------------------------
+
+
+def test_a_turtlesim_recording_shows_its_twist_as_time_series():
+    from rosbags.rosbag1 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = RECORDINGS / "ros1" / "turtlesim.bag"
+    store = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(path) as reader:  # the messages as rosbags reads them, to compare with
+        recorded = [(t, store.deserialize_ros1(data, c.msgtype)) for c, t, data in reader.messages()]
+    log = RosBag(path)
+    assert [m.describe() for m in log.mappings] == ["TIME_SERIES /turtle1/cmd_vel/linear_x, /turtle1/cmd_vel/angular_z"]
+    shown = 0
+    for frame, tick in enumerate(log.clock):
+        series = log.convert(frame)["updates"][0].get("time_series", [])
+        before = [(t, m) for t, m in recorded if t <= tick and tick - t <= 10**9]
+        if not before:
+            assert series == []
+            continue
+        t, message = before[-1]
+        values = {stream: value for s in series for stream, value in zip(s["streams"], s["values"]["doubles"])}
+        assert values == {"/turtle1/cmd_vel/linear_x": message.linear.x, "/turtle1/cmd_vel/angular_z": message.angular.z}
+        assert {s["timestamp"] for s in series} == {t / 1e9}
+        shown += 1
+    assert shown > len(log) // 2
