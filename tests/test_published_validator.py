@@ -227,6 +227,8 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "rosbag2-bare-db3": _recording("rosbag2/topics_and_services.db3"),
     "mcap-foxglove-sdk": _foxglove_sdk_mcap,
     "ros1-turtlesim-twist": _recording("ros1/turtlesim.bag"),
+    "ros1-embag-truck": _recording("ros1/embag/test.bag"),
+    "ros1-embag-strings": _recording("ros1/embag/test_2.bag"),
 }
 #: The sources that ``convert`` takes.
 DATASETS = [

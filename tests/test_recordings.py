@@ -4,6 +4,7 @@ each opened, converted and served (sources, licences and commits in tests/record
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -174,3 +175,44 @@ def test_a_turtlesim_recording_shows_its_twist_as_time_series():
         assert {s["timestamp"] for s in series} == {t / 1e9}
         shown += 1
     assert shown > len(log) // 2
+
+
+EMBAG = RECORDINGS / "ros1" / "embag"
+
+
+def test_a_truck_recording_cloud_odometry_and_a_scan_without_its_frame(caplog: pytest.LogCaptureFixture):
+    from rosbags.rosbag1 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = EMBAG / "test.bag"
+    store = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(path) as reader:  # the clouds as rosbags reads them, to compare with
+        clouds = [store.deserialize_ros1(data, c.msgtype) for c, _, data in reader.messages() if c.topic == "/luminar_pointcloud"]
+    log = RosBag(path)
+    assert {m.topic: m.role for m in log.mappings} == {"/base_pose_ground_truth": "pose", "/base_scan": "points",
+                                                       "/luminar_pointcloud": "points"}
+    # The PointCloud2 topic is the clock (not the LaserScan beside it, recorded 7 s later).
+    assert log.clock.tolist() == log.bag.topics["/luminar_pointcloud"].times.tolist()
+    for frame, cloud in enumerate(clouds):
+        update = log.convert(frame)["updates"][0]
+        records = np.frombuffer(bytes(cloud.data), np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3,
+                                                            "offsets": [0, 4, 8], "itemsize": cloud.point_step}))
+        xyz = np.stack([records[a] for a in "xyz"], axis=1)
+        returned = xyz[np.isfinite(xyz).all(axis=1) & (xyz != 0).any(axis=1)]
+        (points,) = update["primitives"]["/luminar_pointcloud"]["points"]
+        assert np.array_equal(points["points"], returned) and len(returned) > 30_000
+        assert "/base_scan" not in update["primitives"]  # its frame has no transform to the vehicle's: named once
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warnings == [f"{path}: topic /base_scan: frame 'base_laser_link' is not connected to the vehicle frame (left out of the frames)"]
+
+
+def test_strings_recorded_two_minutes_apart_each_shown():
+    log = RosBag(EMBAG / "test_2.bag")
+    shown = {(row[0], row[3]) for frame in (0, len(log) - 1)
+             for row in _text_rows_of(log.convert(frame)["updates"][0], "/chatter")}
+    assert shown == {(str(t / 1e9), log.bag.message("chatter", i)[1].data) for i, t in enumerate(log.bag.topics["chatter"].times)}
+
+
+def _text_rows_of(update: dict[str, object], stream: str) -> list[list[str]]:
+    table = update.get("ui_primitives", {}).get(stream)  # type: ignore[attr-defined]
+    return [node["column_values"] for node in table["treetable"]["nodes"]] if table else []

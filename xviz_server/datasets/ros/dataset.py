@@ -1,14 +1,18 @@
 """A bag as a dataset: its clock, its pose, and each frame converted to XVIZ on demand.
 
 Frames are the ticks of a clock: by default each message of the densest
-``PointCloud2`` topic, else 10 Hz over the bag's span. A frame holds, for
-every stream, the latest message recorded at or before its tick and not
-more than the staleness limit (1 s by default) before it, and the vehicle
-pose interpolated at the tick.
+``PointCloud2`` topic (else ``LaserScan``), else 10 Hz over the bag's span
+(the last tick at or after the last message). A frame holds, for every
+stream, the latest message recorded at or before its tick and not more than
+the staleness limit (1 s by default) before it, and the vehicle pose
+interpolated at the tick. The first frame also shows what was recorded
+before it, however old, and the last what was recorded after it.
 
-The pose comes from, in this order: ``/tf`` (the vehicle frame in the root
-of its tree: map, odom, world), a ``nav_msgs/Odometry`` topic, a
-``geometry_msgs/PoseStamped`` or ``PoseWithCovarianceStamped`` topic, and
+The pose comes from, in this order: ``/tf`` or another transform topic (the
+vehicle frame in the root of its tree: map, odom, world), a
+``nav_msgs/Odometry`` topic, a ``geometry_msgs/PoseStamped`` or
+``PoseWithCovarianceStamped`` topic (the earliest of a type; the others are
+drawn as trajectories), and
 last a ``sensor_msgs/NavSatFix`` topic (east-north-up metres from the first
 fix, heading from a ``sensor_msgs/Imu`` topic if there is one). The first
 fix of a NavSatFix topic is the ``map_origin``: the origin of the pose's
@@ -226,7 +230,7 @@ class RosBag:
             return self.bag.topics[self.settings.clock].times
         clouds = [self.bag.topics[m.topic] for m in self.mappings if m.role == "points"]
         if self.settings.rate is None and clouds and max(len(c) for c in clouds):
-            return max(clouds, key=len).times
+            return max(clouds, key=lambda c: (c.msgtype == CLOUD, len(c))).times  # PointCloud2 before LaserScan
         mapped = [self.bag.topics[m.topic].times for m in self.mappings if m.role != "excluded"]
         every = np.concatenate([t for t in mapped if len(t)] or [t.times for t in self.bag.topics.values() if len(t)])
         step = int(1e9 / (self.settings.rate or DEFAULT_RATE))
