@@ -29,6 +29,7 @@ from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.shared import EARTH_RADIUS
 from xviz_server.datasets.ros import RosBag, is_rosbag
 from xviz_server.datasets.ros.bag import ROS1_MAGIC
+from xviz_server.datasets.ros.inspect import inspect_bag
 from xviz_server.datasets.ros.sensors import cloud_points, compressed_image_bytes, image_bytes
 from xviz_server.exceptions import DatasetError
 from xviz_server.server import parse_dataset
@@ -247,6 +248,30 @@ def test_messages_before_the_first_and_after_the_last_frame_are_shown(tmp_path: 
     assert [row["column_values"][3] for row in first["ui_primitives"]["/early"]["treetable"]["nodes"]] == ["before the first frame"]
     assert "/late/polygons" not in first.get("primitives", {})
     assert [p["base"]["object_id"] for p in last["primitives"]["/late/polygons"]["polygons"]] == ["boxes/1"]
+
+
+def test_velodyne_driver_packets_are_named_as_such(tmp_path: Path):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register({**get_types_from_msg("time stamp\nuint8[1206] data", "velodyne_msgs/msg/VelodynePacket"),
+                    **get_types_from_msg("std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets", "velodyne_msgs/msg/VelodyneScan")})
+    types = store.types
+    t0 = 1_700_000_000 * 10**9
+    header = types["std_msgs/msg/Header"](seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=t0 // 10**9, nanosec=0), frame_id="velodyne")
+    packet = types["velodyne_msgs/msg/VelodynePacket"](stamp=header.stamp, data=np.zeros(1206, np.uint8))
+    path = tmp_path / "packets.bag"
+    with Writer(path) as writer:
+        connection = writer.add_connection("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", typestore=store)
+        for i in range(3):
+            scan = types["velodyne_msgs/msg/VelodyneScan"](header=header, packets=[packet] * 2)
+            writer.write(connection, t0 + i * 10**8, store.serialize_ros1(scan, "velodyne_msgs/msg/VelodyneScan"))
+    bag = RosBag(path)
+    assert bag.bag.problems == {"/velodyne_packets": "velodyne_msgs/msg/VelodyneScan holds the raw packets of a sensor's driver, "
+                                "not points: record the driver's point cloud topic, or replay the bag through the driver"}
+    assert [m.role for m in bag.mappings] == ["unknown"] and len(bag) == 3
+    assert [t["note"] for t in inspect_bag(path)["topics"]] == [bag.bag.problems["/velodyne_packets"]]
 
 
 def test_cloud_layouts_endianness_nan_and_colours():

@@ -26,6 +26,7 @@ the reason; its messages are still served as the file holds them.
 from __future__ import annotations
 
 import base64
+import contextlib
 import io
 import json
 import logging
@@ -159,9 +160,10 @@ class McapBag:
         else:
             for factory in factories:
                 try:
-                    decoder = factory.decoder_for(encoding, schema)
+                    with contextlib.redirect_stderr(io.StringIO()):  # the ROS 2 parser prints what it fails on
+                        decoder = factory.decoder_for(encoding, schema)
                 except Exception as exc:  # noqa: BLE001 - a schema that does not parse
-                    self.problems[topic] = f"its {schema.encoding} schema {name} does not parse: {reason(exc)}"
+                    self.problems[topic] = f"its {schema.encoding} schema {name} does not parse, at {reason(exc)!r}"
                     return name
                 if decoder is not None:
                     self._decoders[topic] = decoder
