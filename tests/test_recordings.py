@@ -216,3 +216,18 @@ def test_strings_recorded_two_minutes_apart_each_shown():
 def _text_rows_of(update: dict[str, object], stream: str) -> list[list[str]]:
     table = update.get("ui_primitives", {}).get(stream)  # type: ignore[attr-defined]
     return [node["column_values"] for node in table["treetable"]["nodes"]] if table else []
+
+
+@pytest.mark.parametrize(("relative", "container"), [
+    ("rosbag2/sqlite3/talker", "ROS 2 sqlite3"), ("rosbag2/topics_and_services.db3", "ROS 2 sqlite3"),
+    ("rosbag2/mcap/bag_with_topics_and_service_events", "ROS 2 mcap"), ("ros1/turtlesim.bag", "ROS 1"),
+    ("mcap-conformance/OneMessage/OneMessage-ch-chx-mx.mcap", "MCAP"),
+])
+def test_the_catalog_gives_a_recording_its_container_as_format(relative: str, container: str):
+    from xviz_server.catalog.facts import facts
+    from xviz_server.codec import Format
+    from xviz_server.index import TimeIndex
+
+    log = RosBag(RECORDINGS / relative)
+    index = TimeIndex.from_spans((float(t), float(t), i) for i, t in enumerate(log.times))
+    assert facts("rosbag", Format.BINARY, log.metadata(), index, None, None)["format"] == container
