@@ -250,6 +250,42 @@ def test_messages_before_the_first_and_after_the_last_frame_are_shown(tmp_path: 
     assert [p["base"]["object_id"] for p in last["primitives"]["/late/polygons"]["polygons"]] == ["boxes/1"]
 
 
+def test_a_ros1_tf_tree_of_two_turtles_gives_the_detected_or_chosen_pose(tmp_path: Path):
+    """Legacy tf/tfMessage on /tf: world -> turtle1 and world -> turtle2 moving; one turtle is the vehicle."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf/msg/tfMessage"))
+    types = store.types
+    t0 = 1_700_000_000 * 10**9
+
+    def edge(t: int, child: str, x: float) -> Any:
+        header = types["std_msgs/msg/Header"](seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9), frame_id="world")
+        transform = types["geometry_msgs/msg/Transform"](translation=types["geometry_msgs/msg/Vector3"](x=x, y=0.0, z=0.0),
+                                                         rotation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+        return types["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform)
+
+    path = tmp_path / "turtles.bag"
+    with Writer(path) as writer:
+        connection = writer.add_connection("/tf", "tf/msg/tfMessage", typestore=store)
+        for i in range(5):
+            t = t0 + i * 10**8
+            message = types["tf/msg/tfMessage"](transforms=[edge(t, "turtle1", float(i)), edge(t, "turtle2", 10.0 - i)])
+            writer.write(connection, t, store.serialize_ros1(message, "tf/msg/tfMessage"))
+    detected = RosBag(path)
+    assert detected.pose_source.describe() == "/tf: world -> turtle1"
+    assert [detected.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(5)] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    config = tmp_path / "turtle2.toml"
+    config.write_text('vehicle_frame = "turtle2"\nfixed_frame = "turtle1"\n')
+    chosen = RosBag(path, config=str(config))
+    assert chosen.pose_source.describe() == "/tf: turtle1 -> turtle2"
+    assert [chosen.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(5)] == [10.0, 8.0, 6.0, 4.0, 2.0]
+    config.write_text('fixed_frame = "sea"\n')
+    with pytest.raises(DatasetError, match="fixed_frame: the transform tree has no frame sea"):
+        _ = RosBag(path, config=str(config)).pose_source
+
+
 def test_velodyne_driver_packets_are_named_as_such(tmp_path: Path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore, get_types_from_msg

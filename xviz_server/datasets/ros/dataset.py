@@ -183,6 +183,11 @@ class RosBag:
             return None
         parents = {**{c: (p, IDENTITY) for c, p in moving.items()}, **self.tree.static}
         root, _ = Snapshot(parents).to_root(vehicle)
+        if self.settings.fixed_frame:  # the pair chosen
+            fixed = frame_name(self.settings.fixed_frame)
+            if fixed not in self.tree.frames or fixed == vehicle:
+                raise DatasetError(f"{self.config}: fixed_frame: the transform tree has no frame {fixed} apart from the vehicle's", path=self.config)
+            return PoseSource("tf", vehicle, self.tree.dynamic, fixed_frame=fixed)
         chain, frame = set(), vehicle
         while frame in parents and frame != root:
             chain.add(frame)
