@@ -196,7 +196,7 @@ async def test_a_bomb_in_a_bag_is_refused_named_and_the_server_stays_small(bomb:
         # The chunk is refused where it is first read: opening the bag (listing it) or playing it.
         errors = [logs["bomb"].get("error", "")] + [m["data"]["message"] for m in await server.session("bomb")
                                                     if m["type"] == "xviz/error"]
-        named = f"bomb{suffix}: chunk at byte {chunk} {says}"
+        named = f"log 'bomb': chunk at byte {chunk} {says}"  # the log's name and the cause, not the file's path
         assert any(named in error for error in errors), errors
         assert await server.get("/healthz") == (200, "ok\n")
         assert not [m for m in await server.session("good") if m["type"] == "xviz/error"]
@@ -249,7 +249,7 @@ async def test_tfrecords_with_a_huge_length_or_deep_nesting_are_refused_named(ba
         for log, session, says in (("huge", huge, "declares 3 GiB of data, more than the limit of 256 MiB"),
                                    ("deep", deep_session, "not a Waymo Frame")):
             errors = [logs[log]["error"]] + [m["data"]["message"] for m in session if m["type"] == "xviz/error"]
-            assert all(f"{log}.tfrecord: record 0 at offset 0: {says}" in error for error in errors), errors
+            assert all(f"log '{log}': record 0 at offset 0: {says}" in error for error in errors), errors  # no path
         assert not [m for m in good if m["type"] == "xviz/error"] and await server.get("/healthz") == (200, "ok\n")
         peaks = server.peaks()
         assert max(peaks[pid] - rss for pid, rss in before.items() if pid in peaks) < GROWTH

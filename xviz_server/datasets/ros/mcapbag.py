@@ -79,6 +79,11 @@ class _Channel:
     storage: int
 
 
+def _rows(entries: list[tuple[int, int, int, int, int]]) -> np.ndarray:
+    """Index rows (storage, channel, time, chunk, offset) as an int64 (N, 5) array."""
+    return np.array(entries, dtype=np.int64).reshape(-1, 5)
+
+
 def ros_type(name: str) -> str:
     """A ROS type name as rosbags writes it: ``sensor_msgs/PointCloud2`` -> ``sensor_msgs/msg/PointCloud2``."""
     parts = name.split("/")
@@ -112,17 +117,17 @@ class McapBag:
         #: Topics that cannot be decoded: the reason, by topic.
         self.problems: dict[str, str] = {}
         channels: dict[tuple[int, int], _Channel] = {}
-        entries: list[tuple[int, int, int, int, int]] = []  # storage, channel, time, chunk (-1: top level), offset
+        entries: list[np.ndarray] = []  # rows of storage, channel, time, chunk (-1: top level), offset
         for storage, file_path in enumerate(self._files):
             try:
-                entries += self._open(storage, file_path, channels)
+                entries.append(self._open(storage, file_path, channels))
             except (DatasetError, StoreError):
                 raise
             except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
                 raise DatasetError(f"{self.path}: cannot open the MCAP file: {reason(exc)}", path=self.path) from None
         self._decoders: dict[str, Callable[[bytes], Any]] = {}
         factories = _decoder_factories()
-        table = np.array(entries, dtype=np.int64).reshape(-1, 5)
+        table = np.concatenate(entries)
         by_topic: dict[str, list[_Channel]] = {}
         for channel in channels.values():
             by_topic.setdefault(self._topic_name(channel, by_topic), []).append(channel)
@@ -178,7 +183,7 @@ class McapBag:
 
     # -- the index ----------------------------------------------------------
 
-    def _open(self, storage: int, path: Path | StorePath, channels: dict[tuple[int, int], _Channel]) -> list[tuple[int, int, int, int, int]]:
+    def _open(self, storage: int, path: Path | StorePath, channels: dict[tuple[int, int], _Channel]) -> np.ndarray:
         from mcap.exceptions import McapError
         from mcap.reader import SeekingReader
 
@@ -198,41 +203,45 @@ class McapBag:
                 channels[(storage, schema_channel.id)] = _Channel(
                     schema_channel.id, schema_channel.topic, schema_channel.message_encoding,
                     summary.schemas.get(schema_channel.schema_id), storage)
-            entries: list[tuple[int, int, int, int, int]] = []
+            entries: list[np.ndarray] = []
             for number, index in enumerate(sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)):
                 chunk = _Chunk(index.chunk_start_offset, index.compression, index.compressed_size, index.uncompressed_size, 0)
                 self._chunks[storage].append(chunk)
                 if index.message_index_offsets:
-                    entries += self._message_indexes(storage, number, file, index, path)
+                    entries.append(self._message_indexes(storage, number, file, index, path))
                 else:
-                    entries += self._chunk_entries(storage, number, self._read_chunk(storage, number, file), channels, schemas)
-            if {e[1] for e in entries} - {c for s, c in channels if s == storage}:  # channels only in the chunks
+                    entries.append(self._chunk_entries(storage, number, self._read_chunk(storage, number, file), channels, schemas))
+            table = np.concatenate(entries)
+            if set(np.unique(table[:, 1]).tolist()) - {c for s, c in channels if s == storage}:  # channels only in chunks
                 for number in range(len(self._chunks[storage])):
                     self._chunk_entries(storage, number, self._read_chunk(storage, number, file), channels, schemas)
-            return entries
+            return table
 
-    def _message_indexes(self, storage: int, number: int, file: Any, index: Any, path: Any) -> list[tuple[int, int, int, int, int]]:
+    def _message_indexes(self, storage: int, number: int, file: Any, index: Any, path: Any) -> np.ndarray:
         start = min(index.message_index_offsets.values())
         if index.message_index_length > MAX_CHUNK_BYTES:
             raise DatasetError(f"{path}: the message indexes of the chunk at byte {index.chunk_start_offset} are too large", path=self.path)
         file.seek(start)
         data = file.read(index.message_index_length)
-        entries = []
+        entries: list[np.ndarray] = [_rows([])]
         position = 0
         while position + 15 <= len(data):
             opcode, length, channel, size = struct.unpack_from("<BQHI", data, position)
             if opcode != _MESSAGE_INDEX or size % 16 or position + 15 + size > len(data):
                 raise DatasetError(f"{path}: damaged message index at byte {start + position}", path=self.path)
-            pairs = np.frombuffer(data, "<u8", count=size // 8, offset=position + 15).reshape(-1, 2)
-            entries += [(storage, channel, int(t), number, int(o)) for t, o in pairs]
+            pairs = np.frombuffer(data, "<u8", count=size // 8, offset=position + 15).reshape(-1, 2).astype(np.int64)
+            rows = np.empty((len(pairs), 5), np.int64)
+            rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4] = storage, channel, pairs[:, 0], number, pairs[:, 1]
+            entries.append(rows)
             position += 9 + length
-        return entries
+        return np.concatenate(entries)
 
-    def _walk(self, storage: int, path: Any, file: Any, channels: dict[tuple[int, int], _Channel]) -> list[tuple[int, int, int, int, int]]:
+    def _walk(self, storage: int, path: Any, file: Any, channels: dict[tuple[int, int], _Channel]) -> np.ndarray:
         """Every message of a file read from its start; schemas and channels are learnt on the way."""
         size = file.seek(0, 2)
         position = len(MCAP_MAGIC)
-        entries: list[tuple[int, int, int, int, int]] = []
+        entries: list[np.ndarray] = [_rows([])]
+        top: list[tuple[int, int, int, int, int]] = []  # messages outside chunks
         schemas: dict[int, Any] = {}
         while position + 9 <= size:
             file.seek(position)
@@ -248,7 +257,7 @@ class McapBag:
                 self._learn(opcode, file.read(length), storage, schemas, channels)
             elif opcode == _MESSAGE and length >= 22:
                 channel, _, time = struct.unpack("<HIQ", file.read(14))
-                entries.append((storage, channel, time, -1, position))
+                top.append((storage, channel, time, -1, position))
             elif opcode == _CHUNK:
                 head = file.read(32)
                 _, _, uncompressed, crc, name_length = struct.unpack_from("<QQQII", head)
@@ -257,9 +266,9 @@ class McapBag:
                 self._chunks[storage].append(_Chunk(position, compression, compressed, uncompressed, crc))
                 number = len(self._chunks[storage]) - 1
                 data = self._read_chunk(storage, number, file)
-                entries += self._chunk_entries(storage, number, data, channels, schemas)
+                entries.append(self._chunk_entries(storage, number, data, channels, schemas))
             position = end
-        return entries
+        return np.concatenate([*entries, _rows(top)])
 
     def _learn(self, opcode: int, body: bytes, storage: int, schemas: dict[int, Any], channels: dict[tuple[int, int], _Channel]) -> None:
         from mcap.data_stream import ReadDataStream
@@ -275,7 +284,7 @@ class McapBag:
                                                                  schemas.get(record.schema_id), storage))
 
     def _chunk_entries(self, storage: int, number: int, data: bytes, channels: dict[tuple[int, int], _Channel],
-                       schemas: dict[int, Any] | None = None) -> list[tuple[int, int, int, int, int]]:
+                       schemas: dict[int, Any] | None = None) -> np.ndarray:
         """The messages of an unpacked chunk, by walking its records."""
         entries = []
         schemas = {} if schemas is None else schemas
@@ -291,7 +300,7 @@ class McapBag:
             elif opcode in (_SCHEMA, _CHANNEL):
                 self._learn(opcode, data[body:body + length], storage, schemas, channels)
             position = body + length
-        return entries
+        return _rows(entries)
 
     def _read_chunk(self, storage: int, number: int, file: Any) -> bytes:
         chunk = self._chunks[storage][number]
