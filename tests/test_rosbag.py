@@ -286,6 +286,31 @@ def test_a_ros1_tf_tree_of_two_turtles_gives_the_detected_or_chosen_pose(tmp_pat
         _ = RosBag(path, config=str(config)).pose_source
 
 
+def test_several_pose_topics_the_earliest_is_the_pose_the_others_trajectories(tmp_path: Path):
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS2_HUMBLE)
+    t0 = 1_700_000_000 * 10**9
+    messages = []
+    for topic, start, y in (("/late", 9_500_000_000, 5.0), ("/first", 0, 0.0), ("/second", 1_000_000_000, -5.0)):
+        for i in range(3):
+            t = t0 + start + i * 10**9
+            pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=float(i), y=y, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
+            messages.append((topic, "geometry_msgs/msg/PoseStamped", t, m.geometry_msgs__PoseStamped(header=m.header(t, "map"), pose=pose)))
+    path = write_bag(tmp_path / "poses.mcap", "mcap", iter(sorted(messages, key=lambda e: e[2])))
+    bag = RosBag(path)
+    assert bag.pose_source.topic == "/first"
+    assert {m.topic: m.role for m in bag.mappings} == {"/first": "pose", "/second": "trajectory", "/late": "trajectory"}
+    last = bag.convert(len(bag) - 1)["updates"][0]
+    assert last["poses"]["/vehicle_pose"]["position"][:2] == [2.0, 0.0]
+    for topic, y in (("/second", -5.0), ("/late", 5.0)):  # each drawn so far, in the vehicle frame (at x=2, y=0)
+        (line,) = last["primitives"][topic]["polylines"]
+        np.testing.assert_allclose(np.asarray(line["vertices"]).reshape(-1, 3)[:, :2], [[-2.0, y], [-1.0, y], [0.0, y]], atol=1e-6)
+    config = tmp_path / "late.toml"
+    config.write_text('pose = "/late"\n')
+    assert RosBag(path, config=str(config)).pose_source.topic == "/late"
+
+
 def test_velodyne_driver_packets_are_named_as_such(tmp_path: Path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore, get_types_from_msg
