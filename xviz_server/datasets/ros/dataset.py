@@ -400,7 +400,8 @@ class RosBag:
                     self._warn(topic, f"{where}: frame {message.header.frame_id!r} is not connected to the vehicle frame")
                     return
                 points = apply(to_vehicle, points)
-            builder.points(stream, points, colors)
+            if len(points):  # a cloud of no-return or NaN points alone draws nothing
+                builder.points(stream, points, colors)
         elif mapping.role == "image":
             width = self.settings.image_max_width or self.image_max_width
             data = (compressed_image_bytes if mapping.msgtype == COMPRESSED_IMAGE else image_bytes)(message, width, where)
