@@ -324,7 +324,7 @@ class RosBag:
             if mapping.stream is None:
                 continue
             info = self.bag.topics[mapping.topic]
-            if mapping.role == "markers":
+            if mapping.role in ("markers", "text"):
                 first, last = np.searchsorted(info.times, [t - self._staleness, t + 1], side="left").tolist()
             else:
                 index = info.at_or_before(t)

@@ -335,6 +335,15 @@ class McapBag:
         (length,) = struct.unpack_from("<Q", data, offset + 1)
         return memoryview(data)[offset + 31 : offset + 9 + length]
 
+    def declared(self, topic: str, first: int, last: int) -> dict[tuple[Any, ...], int]:
+        """What reading messages ``[first, last)`` of ``topic`` unpacks, from the index alone: each chunk that holds
+        them with the bytes it declares (a message outside chunks unpacks nothing)."""
+        info = self.topics[topic]
+        if last <= first or info.places is None:
+            return {}
+        parts = {(int(s), int(c)) for s, c in info.places[first:last, :2].tolist() if c >= 0}
+        return {(storage, chunk): int(self._chunks[storage][chunk].uncompressed_size) for storage, chunk in parts}
+
     def message(self, topic: str, index: int) -> tuple[int, Any]:
         """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
         info = self.topics[topic]
