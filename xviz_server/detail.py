@@ -243,6 +243,7 @@ class DetailChooser:
         self._probe: _Probe | None = None
         self._backoff: dict[str, tuple[float, float]] = {}  # level: (not probed before, seconds of the last wait)
         self._offered: deque[tuple[float, int]] = deque()  # (time, updates a live feed offered so far)
+        self._probed: float | None = None  # the rate the last probe that passed found
 
     @property
     def auto(self) -> bool:
@@ -260,6 +261,12 @@ class DetailChooser:
         """The level updates are made at now: the session's, or the level up while a probe sends it."""
         probe = self._probe
         return probe.level if probe is not None and probe.sent is None else self.level
+
+    @property
+    def estimate(self) -> float | None:
+        """Bytes a second the link is taken to carry: its capacity where measured, else the rate the last probe
+        that passed found, else what it carried over the window (a lower bound); ``None`` before anything."""
+        return self.meter.capacity or self._probed or self.meter.throughput(self.meter.window)
 
     @property
     def probing(self) -> Level | None:
@@ -393,14 +400,17 @@ class DetailChooser:
                 return None
         known = self.meter.capacity_over(now - probe.started, _KNOWN)
         if known is not None and probe.sent is not None:
+            self._probed = known
             return self._pass(now)
         if probe.sent is not None and self.meter.delivered >= probe.sent and probe.seen is not None and need is not None:
             # delivered without a queue worth measuring: taken if the link carried it no slower than the level
             # needs, over the time it was busy with it (else, over the time it took)
             took = now - probe.seen
             if probe.busy is not None and sample.busy is not None:
-                took = max(_TICK, sample.busy - probe.busy)
+                took = sample.busy - probe.busy
+            took = max(_TICK, took)
             if UP * (probe.sent - probe.written) >= need * took:
+                self._probed = (probe.sent - probe.written) / took
                 return self._pass(now)
             self._fail(now)
             return None

@@ -639,7 +639,7 @@ class Session:
     def _detail_changed(self, previous: Level, level: Level | None) -> list[Event]:
         if level is None:
             return []
-        events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.meter.capacity)]
+        events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.estimate)]
         if self.is_live and level.every != previous.every:
             events.append(ConfigureLive(self.decimate, {}))
         if self.is_live and self.chooser.levels.index(level) > self.chooser.levels.index(previous):
@@ -649,7 +649,7 @@ class Session:
         return events
 
     def _detail_notice(self) -> Send:
-        capacity = self.chooser.meter.capacity
+        capacity = self.chooser.estimate
         data = {
             "level": self.chooser.level.name,
             "auto": self.chooser.auto,

@@ -509,7 +509,7 @@ class FoxgloveSession:
     def _detail_changed(self, previous: Level, level: Level | None) -> list[Event]:
         if level is None:
             return []
-        events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.meter.capacity)]
+        events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.estimate)]
         if LEVEL_PARAMETER in self._watched:
             events.append(self._parameter_values([LEVEL_PARAMETER], None))
         return events
