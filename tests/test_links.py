@@ -114,6 +114,7 @@ async def test_each_level_of_a_frame_is_made_once_whatever_the_viewers_at_it(kit
     assert await loads(5) == one
 
 
+@pytest.mark.slow
 @shaped
 @pytest.mark.parametrize("mbps, expected", [(100, {"high"}), (20, {"low"}), (5, {"minimal"})])
 async def test_a_log_over_a_slow_link_starts_with_a_frame_that_fits_and_plays_in_real_time_at_the_level_the_link_carries(
@@ -298,6 +299,7 @@ async def test_the_user_picks_a_level_or_a_cap_and_bad_ones_are_named(kitti_root
             assert {level_of(n, d) for n, d in zip(NUMBERS, received)} == {"low"}
 
 
+@pytest.mark.slow
 @shaped
 async def test_detail_off_sends_every_byte_over_a_slow_link(kitti_root):
     with tc_link(50) as link:
@@ -373,6 +375,7 @@ async def test_a_foxglove_client_pins_a_level_by_url_and_by_parameter(kitti_root
             assert all(points == points_at(number, "medium") for number, points in clouds[-3:]), clouds
 
 
+@pytest.mark.slow
 async def test_a_foxglove_client_shares_each_level_of_a_frame_with_xviz_sessions_at_it(kitti_root):
     """The Foxglove messages of a level are made of the frame XVIZ sessions at that level get, made once for both."""
 
