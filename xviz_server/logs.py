@@ -128,23 +128,26 @@ class Log:
                 return data
         return await self._cache.get((self._key, number, fmt, streams), lambda: self._render(number, fmt, streams))
 
-    async def derived(self, number: int, name: str, job: Callable[..., bytes], *args: Any) -> bytes:
+    async def derived(self, number: int, name: str, job: Callable[..., bytes], *args: Any, level: Level = FULL) -> bytes:
         """Frame ``number`` made into something else by ``job(data, *args)``, made once and kept in the frame cache.
 
         ``name`` tells what ``job`` makes (frames of one log made by the same
         ``name`` are the same bytes); ``job`` runs where a frame job of that
-        size runs (:func:`~xviz_server.frames.placement`). Raises
+        size runs (:func:`~xviz_server.frames.placement`). Below full
+        detail, ``data`` is the frame at ``level`` as GLB (:meth:`frame`,
+        the same bytes that XVIZ sessions at that level are sent). Raises
         :class:`~xviz_server.exceptions.FrameError` naming the frame.
         """
 
         async def make() -> bytes:
-            data = await self._checked(number)
+            data = await (self._checked(number) if level is FULL else self.frame(number, Format.BINARY, None, level))
             try:
                 return await self._workers.run(frames.placement(len(data), detect_format(data)), job, data, *args)
             except DecodeError as exc:
                 raise self._corrupt(number, exc) from None
 
-        return await self._cache.get((self._key, number, name), make)
+        key = (self._key, number, name) if level is FULL else (self._key, number, name, level.name)
+        return await self._cache.get(key, make)
 
     async def original_messages(self, number: int) -> bytes:
         """The original messages of frame ``number`` (see :attr:`originals`), packed, each record's channel its
