@@ -59,13 +59,15 @@ class TcLink:
     peer: str
     latency: float = 0.1
     shaped: bool = False
+    bucket: int | None = None
 
     def shape(self, mbps: float) -> None:
-        """Carry at most ``mbps`` Mbit/s towards the namespace (bursts of 10 ms of it, ``latency`` s of queue).
+        """Carry at most ``mbps`` Mbit/s towards the namespace (bursts of :attr:`bucket` bytes, by default 10 ms
+        of the rate; ``latency`` s of queue).
 
         A change keeps the packets queued (a new qdisc would drop them, and TCP would stall on its timeouts).
         """
-        burst = max(_LEAST_BURST, int(mbps * 125_000 / 100))
+        burst = self.bucket or max(_LEAST_BURST, int(mbps * 125_000 / 100))
         verb = "change" if self.shaped else "add"
         _run(f"tc qdisc {verb} dev {self.device} root tbf rate {mbps}mbit burst {burst} latency {self.latency * 1000:g}ms")
         self.shaped = True
@@ -96,12 +98,14 @@ class TcLink:
 
 
 @contextlib.contextmanager
-def tc_link(mbps: float, latency: float = 0.1) -> Iterator[TcLink]:
-    """A :class:`TcLink` shaped to ``mbps``, removed on exit; names unique to this process (``xvl<pid><letter>``)."""
+def tc_link(mbps: float, latency: float = 0.1, bucket: int | None = None, prefix: str = "xvl") -> Iterator[TcLink]:
+    """A :class:`TcLink` shaped to ``mbps`` (a ``bucket`` of that many bytes, else 10 ms of the rate; a queue of
+    ``latency`` seconds), removed on exit; names unique to this process (``<prefix><pid><letter>``, at most
+    15 characters with ``prefix`` of at most 5)."""
     number = next(_LINKS)
-    name = f"xvl{os.getpid()}{chr(97 + number % 26)}"
+    name = f"{prefix}{os.getpid()}{chr(97 + number % 26)}"
     subnet = f"10.{200 + number % 50}.{os.getpid() % 250}"
-    link = TcLink(name, f"{name}h", f"{subnet}.1", f"{subnet}.2", latency)
+    link = TcLink(name, f"{name}h", f"{subnet}.1", f"{subnet}.2", latency, bucket=bucket)
     try:
         for command in (
             f"ip netns add {name}",

@@ -14,7 +14,7 @@ from devkit.argoverse2_log import CAMERAS, ego, sweep, write_av2_log  # noqa: E4
 from devkit.s3 import moto_process, proxied  # noqa: E402
 from helpers import client, running_server, timestamps  # noqa: E402
 from xviz_server.datasets import argoverse2, detect, open_dataset  # noqa: E402
-from xviz_server.exceptions import DatasetError  # noqa: E402
+from xviz_server.exceptions import DatasetError, FrameSizeError  # noqa: E402
 
 LOG = "0c6e62d7-bdfa-3061-8d3d-03b13aa21f68"
 
@@ -141,3 +141,13 @@ def test_a_real_log_of_the_av2_devkit_reads_with_its_cuboids_and_poses():
         row = int(np.flatnonzero(poses["timestamp_ns"].to_numpy() <= stamp)[-1])
         assert update["poses"]["/vehicle_pose"]["position"] == pytest.approx(
             [poses[c][row].as_py() for c in ("tx_m", "ty_m", "tz_m")])
+
+
+def test_a_frame_whose_files_pass_the_frame_budget_is_refused_unread(written):
+    log = open_dataset("argoverse2", written.folder)
+    index = next(i for i, frame in enumerate(log._frames) if "lidar" in frame and len(frame) == 2)
+    for file in log._frames[index].values():
+        with open(file, "r+b") as opened:  # sparse: 70 MiB each, nothing written
+            opened.truncate(70 << 20)
+    with pytest.raises(FrameSizeError, match=rf"frame {index}: its messages and images would unpack 140 MiB"):
+        log.convert(index)

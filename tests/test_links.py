@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import struct
 import math
 import time
 import urllib.request
@@ -116,33 +117,34 @@ async def test_each_level_of_a_frame_is_made_once_whatever_the_viewers_at_it(kit
 @pytest.mark.slow
 @shaped
 @pytest.mark.parametrize("mbps, expected", [(100, {"high"}), (20, {"low"}), (5, {"minimal"})])
-async def test_a_log_over_a_slow_link_starts_within_2_s_and_plays_in_real_time_at_the_level_the_link_carries(
+async def test_a_log_over_a_slow_link_starts_with_a_frame_that_fits_and_plays_in_real_time_at_the_level_the_link_carries(
     kitti_root, caplog, mbps, expected
 ):
     caplog.set_level(logging.INFO, "xviz_server.session")
-    with tc_link(mbps) as link:
+    with tc_link(mbps, prefix="xl-") as link:
         async with XVIZServer(Settings(host=link.host, port=0, data_dir=kitti_root)) as server:
             async with await connect_through(link, server, "/?log=kitti&profile=default") as websocket:
                 await websocket.recv()
-                first, (start, _) = await whole_log(websocket, "first")
+                started = time.monotonic()
+                first, _ = await whole_log(websocket, "first")
+                more = first
+                while level_of(NUMBERS[-1], more[-1]) not in expected and time.monotonic() - started < 8:  # a climb
+                    more, _ = await whole_log(websocket, "more")
                 again, (_, seconds) = await whole_log(websocket, "again")
                 text = await asyncio.to_thread(metrics, server)
-    # Nothing is known of the link before the first frame: it is sent one level down (0.76 MB: 1.2 s at 5 Mbit/s).
-    assert level_of(NUMBERS[0], first[0]) == LEVELS[START].name
-    assert start <= 2, f"the first frame took {start:.2f} s"
-    levels = [level_of(number, data) for number, data in zip(NUMBERS, first)]
-    assert set(levels[-10:]) == expected, levels  # within the first seconds
+    # Nothing is known of the link before the first frame: it is sent at a level that arrives within 0.5 s at 5 Mbit/s.
+    assert level_of(NUMBERS[0], first[0]) == LEVELS[START].name and len(first[0]) <= 0.5 * 5 * 125_000
     levels = [level_of(number, data) for number, data in zip(NUMBERS, again)]
     assert set(levels) == expected, levels
     if mbps <= 20:  # at 100 Mbit/s the server and this client, one process, may not keep up on a shared machine
         assert seconds <= SPAN, f"{seconds:.2f} s for a log of {SPAN} s"
     assert f'xviz_sessions_by_detail{{level="{levels[-1]}"}} 1.0' in text
-    assert f'xviz_sessions_by_detail{{level="{LEVELS[START].name}"}} {float(levels[-1] == LEVELS[START].name)}' in text
     changes = [r.getMessage() for r in caplog.records if r.getMessage().startswith("detail changed")]
     if expected == {LEVELS[START].name}:
         assert changes == []
-    else:
-        assert len(changes) == 1 and f"previous={LEVELS[START].name} auto=True link_mbps=" in changes[0], changes
+    else:  # a climb to the level the link carries: every change a step up, none back down
+        names = [LEVELS[START].name] + [change.split()[3].removeprefix("detail=") for change in changes]
+        assert all(LEVEL[a].share < LEVEL[b].share for a, b in zip(names, names[1:])) and names[-1] == levels[-1], changes
 
 
 async def test_a_slow_reader_is_no_slow_link(kitti_root):
@@ -154,47 +156,120 @@ async def test_a_slow_reader_is_no_slow_link(kitti_root):
     assert received == [made(number, "full") for number in NUMBERS[:7]]
 
 
-@pytest.mark.slow
+FOXGLOVE = "foxglove.websocket.v1"
+
+
+class LiveViewer:
+    """What a live viewer behind a link received: (seconds since it connected, bytes) of each update.
+
+    An XVIZ viewer's update is a state update; a Foxglove client (subscribed
+    to every channel) has an update in the messages before each ``time`` message.
+    """
+
+    def __init__(self, websocket) -> None:
+        self.websocket = websocket
+        self.start = time.monotonic()
+        self.updates: list[tuple[float, int]] = []
+        self._bytes = 0  # of a Foxglove update's messages so far
+
+    async def read(self, until: float) -> None:
+        """Read until ``until`` seconds since the start."""
+        while (now := time.monotonic() - self.start) < until:
+            try:
+                data = await asyncio.wait_for(self.websocket.recv(), until - now)
+            except asyncio.TimeoutError:
+                return
+            if self.websocket.subprotocol == FOXGLOVE:
+                await self._foxglove(data)
+            elif isinstance(data, bytes) and decode(data)["type"] == "xviz/state_update":
+                self.updates.append((time.monotonic() - self.start, len(data)))
+
+    async def _foxglove(self, data: str | bytes) -> None:
+        if isinstance(data, str):
+            message = json.loads(data)
+            if message["op"] == "advertise":
+                subscriptions = [{"id": channel["id"], "channelId": channel["id"]} for channel in message["channels"]]
+                await self.websocket.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+        elif data[0] == 0x01:
+            self._bytes += len(data)
+        elif data[0] == 0x02 and self._bytes:
+            self.updates.append((time.monotonic() - self.start, self._bytes))
+            self._bytes = 0
+
+    def longest_gap(self, start: float, end: float) -> float:
+        """The longest time without an update from ``start`` (or the first update after it) to ``end``."""
+        times = [t for t, _ in self.updates if start <= t < end]
+        return max(b - a for a, b in zip(times, [*times[1:], end])) if times else math.inf
+
+
+def level_changes(caplog, since: float) -> list[tuple[float, str]]:
+    """The changes of level logged after the wall clock's ``since``: (seconds after it, level)."""
+    found = []
+    for record in caplog.records:
+        if record.getMessage().startswith("detail changed") and record.created >= since:
+            found.append((record.created - since, record.getMessage().split()[3].removeprefix("detail=")))
+    return found
+
+
+async def connect_live(link, server, face: str):
+    """A live session of ``face`` (XVIZ or Foxglove) from the far side of ``link``."""
+    sock = await asyncio.to_thread(link.connect, server.port)
+    url = f"ws://{link.host}:{server.port}/?session_type=live&profile=default"
+    return connect(url, sock=sock, max_size=None, subprotocols=[FOXGLOVE] if face == FOXGLOVE else None)
+
+
 @shaped
-async def test_a_live_link_dropping_from_100_to_5_mbps_then_recovering(kitti_log, caplog):
+@pytest.mark.slow
+@pytest.mark.parametrize("face", ["xviz", FOXGLOVE])
+@pytest.mark.parametrize("bucket", [32_000, 64_000, 256_000])
+async def test_a_live_session_behind_a_5_mbps_token_bucket_starts_with_a_frame_that_fits_and_takes_no_level_that_stalls(
+    kitti_log, caplog, bucket, face
+):
+    """Frames smaller than the bucket leave at the wire's speed: no measure of the link, and no reason to step up."""
     caplog.set_level(logging.INFO, "xviz_server.session")
-    with tc_link(100) as link:
+    with tc_link(5, latency=0.2, bucket=bucket, prefix="xl-") as link:
         settings = Settings(host=link.host, port=0, live_from=kitti_log, loop=True)
-        async with XVIZServer(settings) as server, await connect_through(link, server, "/?session_type=live&profile=default") as websocket:
-            arrivals: list[tuple[float, str]] = []
-            start = time.monotonic()
+        async with XVIZServer(settings) as server, await connect_live(link, server, face) as websocket:
+            since = time.time()
+            viewer = LiveViewer(websocket)
+            await viewer.read(12)
+    first = viewer.updates[0]
+    assert first[1] <= 0.5 * 5 * 125_000  # the first update arrives within half a second on the link
+    changes = level_changes(caplog, since)
+    # A probe finds the level up too slow, and it is not taken; if one lets it through (a bucket larger than a
+    # probe; on a loaded machine, seldom, a probe misread), the level is undone within 2 s.
+    ups = [t for t, level in changes if level != "minimal"]
+    downs = [t for t, level in changes if level == "minimal"]
+    assert len(ups) == len(downs) and all(0 < b - a <= 2 for a, b in zip(ups, downs)), changes
+    if bucket < 200_000:
+        assert len(ups) <= 1, changes
+    assert viewer.longest_gap(first[0], 12) <= 1.0, viewer.updates  # no stall
 
-            async def read(until: float) -> None:
-                while time.monotonic() - start < until:
-                    data = await asyncio.wait_for(websocket.recv(), 30)
-                    if isinstance(data, bytes) and len(data) > 10_000:
-                        cloud = decode(data)["data"]["updates"][0]["primitives"]["/lidar/points"]["points"][0]
-                        arrivals.append((time.monotonic() - start, len(cloud["points"])))
 
-            def changes(after: float) -> list[tuple[float, str]]:
-                """The changes of level after ``after`` seconds: (seconds, level)."""
-                found = []
-                for record in caplog.records:
-                    if record.getMessage().startswith("detail changed"):
-                        found.append((record.created - server_started, record.getMessage().split()[3].removeprefix("detail=")))
-                return [change for change in found if change[0] > after]
-
-            server_started = time.time() - (time.monotonic() - start)
-            await read(5)
-            assert [level for _, level in changes(0)] in ([], ["high"])  # it starts at high, the level 100 Mbit/s carries
+@shaped
+@pytest.mark.slow
+@pytest.mark.parametrize("face", ["xviz", FOXGLOVE])
+async def test_a_live_link_from_20_to_5_to_20_mbps(kitti_log, caplog, face):
+    """A token bucket of 64 KB with a queue of 200 ms, as many shapers have, whose rate changes twice."""
+    caplog.set_level(logging.INFO, "xviz_server.session")
+    with tc_link(20, latency=0.2, bucket=64_000, prefix="xl-") as link:
+        settings = Settings(host=link.host, port=0, live_from=kitti_log, loop=True)
+        async with XVIZServer(settings) as server, await connect_live(link, server, face) as websocket:
+            since = time.time()
+            viewer = LiveViewer(websocket)
+            await viewer.read(8)
+            assert [level for _, level in level_changes(caplog, since)] == ["low"]  # a climb from the start
             link.shape(5)
-            await read(14)
-            down = changes(5)
-            assert down and down[0][1] in ("minimal", "sparse") and down[0][0] <= 5 + 2.5, down  # down within 2 s (and a tick)
-            assert down[-1][1] in ("minimal", "sparse"), down
-            settled = [t for t, _ in arrivals if 10 <= t < 14]
-            assert len(settled) >= 4 * 8, f"{len(settled)} updates in the last 4 s at 5 Mbit/s"
-            link.shape(100)
-            await read(24)
-            up = changes(14)
-            assert up and up[-1][1] == "high" and up[-1][0] <= 14 + 10, up  # back up within 10 s
-            times = [t for t, _ in changes(0)]
-            assert all(b - a >= 5 for a, b in zip(times, times[1:])), changes(0)  # at most one change in 5 s
+            await viewer.read(20)
+            down = level_changes(caplog, since)[1:]
+            assert down and down[0][1] == "minimal" and down[0][0] <= 8 + 2.5, down  # down within 2 s (and a tick)
+            link.shape(20)
+            await viewer.read(45)
+    changes = level_changes(caplog, since)
+    assert [level for _, level in changes] == ["low", "minimal", "low"], changes  # back up, once
+    times = [t for t, _ in changes]
+    assert all(b - a >= 5 for a, b in zip(times, times[1:])), changes  # at most one change in 5 s
+    assert viewer.longest_gap(viewer.updates[0][0], 45) <= 2.0  # no stall
 
 
 async def test_the_user_picks_a_level_or_a_cap_and_bad_ones_are_named(kitti_root):
@@ -249,3 +324,79 @@ def test_the_published_client_reads_every_level(tmp_path):
         assert f'"length": {3 * len(cloud["points"])}' in parsed, level.name  # the positions, as drawn
         assert parsed.count("$bytes") >= 4  # the four camera images
     assert Counter(result["raw"]["type"] for result in results[1:]) == {"xviz/state_update": len(LEVELS) - 1}
+
+
+@cache
+def points_at(number: int, level_name: str) -> int:
+    """How many lidar points frame ``number`` has at a level."""
+    return len(decode(made(number, level_name))["data"]["updates"][0]["primitives"]["/lidar/points"]["points"][0]["points"])
+
+
+async def foxglove_clouds(websocket, count: int) -> list[tuple[int, int]]:
+    """(frame number, points) of the next ``count`` point clouds a Foxglove client subscribed to the lidar gets."""
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
+    by_time = {round(decode(made(n, "full"))["data"]["updates"][0]["timestamp"] * 1e9): n for n in NUMBERS}
+    clouds = []
+    while len(clouds) < count:
+        data = await asyncio.wait_for(websocket.recv(), 30)
+        if isinstance(data, bytes) and data[0] == 0x01:
+            stamp = int.from_bytes(data[5:13], "little")
+            cloud = PointCloud.FromString(data[13:])
+            clouds.append((by_time[stamp], len(cloud.data) // cloud.point_stride))
+    return clouds
+
+
+async def test_a_foxglove_client_pins_a_level_by_url_and_by_parameter(kitti_root):
+    async with running_server(kitti_root) as server:
+        url = f"ws://127.0.0.1:{server.port}/?log=kitti&profile=low"
+        async with connect(url, subprotocols=[FOXGLOVE], max_size=None) as websocket:
+            info = json.loads(await websocket.recv())
+            assert {"parameters", "parametersSubscribe"} <= set(info["capabilities"])
+            channels = json.loads(await websocket.recv())["channels"]
+            lidar = next(channel["id"] for channel in channels if channel["topic"] == "/lidar/points")
+            await websocket.send(json.dumps({"op": "subscribeParameterUpdates", "parameterNames": ["/xviz_server/level"]}))
+            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": lidar}]}))
+            for number, points in await foxglove_clouds(websocket, 3):
+                assert points == points_at(number, "low")  # the very cloud an XVIZ session at low gets
+            await websocket.send(json.dumps({"op": "getParameters", "parameterNames": [], "id": "g"}))
+            set_ = {"op": "setParameters", "parameters": [{"name": "/xviz_server/profile", "value": "medium"}], "id": "s"}
+            await websocket.send(json.dumps(set_))
+            answers = []
+            while len(answers) < 3:
+                data = await asyncio.wait_for(websocket.recv(), 10)
+                if isinstance(data, str) and json.loads(data)["op"] == "parameterValues":
+                    answers.append(json.loads(data))
+            values = {answer.get("id"): {p["name"]: p["value"] for p in answer["parameters"]} for answer in answers}
+            assert values["g"] == {"/xviz_server/profile": "low", "/xviz_server/level": "low"}
+            assert values[None] == {"/xviz_server/level": "medium"}  # told, as subscribed
+            assert values["s"] == {"/xviz_server/profile": "medium"}
+            clouds = await foxglove_clouds(websocket, 6)
+            assert all(points == points_at(number, "medium") for number, points in clouds[-3:]), clouds
+
+
+@pytest.mark.slow
+async def test_a_foxglove_client_shares_each_level_of_a_frame_with_xviz_sessions_at_it(kitti_root):
+    """The Foxglove messages of a level are made of the frame XVIZ sessions at that level get, made once for both."""
+
+    async def misses(faces: list[str]) -> float:
+        async with running_server(kitti_root) as server:
+            for face in faces:
+                url = f"ws://127.0.0.1:{server.port}/?log=kitti&profile=minimal"
+                async with connect(url, subprotocols=[FOXGLOVE] if face == FOXGLOVE else None, max_size=None) as websocket:
+                    await websocket.recv()
+                    if face == FOXGLOVE:
+                        channels = json.loads(await websocket.recv())["channels"]
+                        lidar = next(channel["id"] for channel in channels if channel["topic"] == "/lidar/points")
+                        await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": lidar}]}))
+                        speed = struct.pack("<BBfBQI", 0x03, 0, 100.0, 0, 0, 1) + b"r"  # play, at 100 times real time
+                        await websocket.send(speed)
+                        clouds = await foxglove_clouds(websocket, len(NUMBERS))
+                        assert [points for _, points in clouds] == [points_at(number, "minimal") for number in NUMBERS]
+                    else:
+                        assert (await whole_log(websocket, "all"))[0] == [made(number, "minimal") for number in NUMBERS]
+            return metric(await asyncio.to_thread(metrics, server), "xviz_cache_misses_total")
+
+    xviz = await misses(["xviz"])
+    both = await misses(["xviz", FOXGLOVE])
+    assert both == xviz + len(NUMBERS)  # one conversion a frame, of the level XVIZ made: not the level again

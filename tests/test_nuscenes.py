@@ -14,7 +14,7 @@ from devkit.nuscenes_scene import CAMERAS, LIDAR_ON_CAR, car, ego, sweep_points,
 from helpers import client, foxglove_client, http_get, running_server, timestamps
 from xviz_server.datasets import detect, open_dataset
 from xviz_server.datasets import nuscenes
-from xviz_server.exceptions import DatasetError
+from xviz_server.exceptions import DatasetError, FrameSizeError
 
 
 @pytest.fixture
@@ -180,3 +180,14 @@ async def test_the_published_foxglove_client_gets_every_sweep_and_image_as_chann
     assert len(sent) == len(root.lidar["scene-0061"])
     assert all(abs(ns - t * 1000) < 1000 for ns, t in zip(sent, root.lidar["scene-0061"]))
     assert len(out["topics"]["/camera/cam_front"]["summaries"]) == sum(c == "CAM_FRONT" for c, _ in root.images["scene-0061"])
+
+
+def test_a_frame_whose_files_pass_the_frame_budget_is_refused_unread(root):
+    scene = open_dataset("nuscenes", root.root, scene="scene-0061")
+    index = next(i for i in range(len(scene)) if len(scene._images[i]) == 2 and scene._is_sweep(scene._frames[i]))
+    for capture in [*scene._images[index].values(), scene._frames[index]]:
+        with open(root.root / capture["filename"], "r+b") as file:  # sparse: 60 MiB each, nothing written
+            file.truncate(60 << 20)
+    with pytest.raises(FrameSizeError, match=rf"scene-0061: frame {index}: its messages and images would unpack 180 MiB"):
+        scene.convert(index)
+    assert scene.convert(index + 1)

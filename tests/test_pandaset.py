@@ -16,7 +16,7 @@ pytest.importorskip("pandas", reason="PandaSet sequences need pandas: pip instal
 from devkit.pandaset_sequence import CAMERAS, PARKED_POSITION, T0, local_points, pose, write_sequence  # noqa: E402
 from helpers import client, running_server, timestamps  # noqa: E402
 from xviz_server.datasets import detect, open_dataset, pandaset  # noqa: E402
-from xviz_server.exceptions import DatasetError  # noqa: E402
+from xviz_server.exceptions import DatasetError, FrameSizeError  # noqa: E402
 
 
 @pytest.fixture
@@ -81,3 +81,14 @@ async def test_found_and_served(sequence: Path):
             assert "/camera/front_camera" in (await c.recv())["data"]["streams"]
             await c.send("transform_log", {"id": "p"})
             assert len(timestamps(await c.until("transform_log_done", "p"))) == 5
+
+
+def test_a_frame_whose_files_declare_more_than_the_frame_budget_is_refused_unread(sequence: Path):
+    sweep = sequence / "lidar" / "02.pkl.gz"
+    data = bytearray(sweep.read_bytes())
+    data[-4:] = (200 << 20).to_bytes(4, "little")  # the gzip trailer says 200 MiB
+    sweep.write_bytes(bytes(data))
+    log = open_dataset("pandaset", sequence)
+    with pytest.raises(FrameSizeError, match=r"frame 2: its messages and images would unpack 200\.\d MiB, more than the limit of 128 MiB"):
+        log.convert(2)
+    assert log.convert(3)["updates"][0]["primitives"]["/lidar/points"]

@@ -19,7 +19,7 @@ from helpers import client, running_server, timestamps  # noqa: E402
 from xviz_server.datasets import detect, open_dataset  # noqa: E402
 from xviz_server.datasets.waymo import parquet  # noqa: E402
 from xviz_server.datasets.waymo.segment import WaymoRecordSegment  # noqa: E402
-from xviz_server.exceptions import DatasetError  # noqa: E402
+from xviz_server.exceptions import DatasetError, FrameSizeError  # noqa: E402
 
 SEGMENT = "15_000_020_000"
 
@@ -121,3 +121,14 @@ def test_without_pyarrow_the_error_names_the_extra(v2: Path):
               f"try:\n    open_dataset('waymo', {str(v2)!r})\nexcept DatasetError as exc:\n    print(exc)\n")
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "reading Waymo v2 segments needs the package 'pyarrow': pip install 'xviz-server[parquet]'", out.stderr
+
+
+def test_a_frame_whose_row_groups_declare_more_than_the_frame_budget_is_refused_unread(v2: Path, monkeypatch):
+    from xviz_server import unpack
+
+    root = v2.parent.parent
+    declared = sum(pq.ParquetFile(root / part / f"{SEGMENT}.parquet").metadata.row_group(0).total_byte_size
+                   for part in parquet.COMPONENTS[1:])
+    monkeypatch.setattr(unpack, "MAX_FRAME_BYTES", declared - 1)
+    with pytest.raises(FrameSizeError, match=rf"segment {SEGMENT}: frame \d: its messages and images would unpack"):
+        open_dataset("waymo", v2).convert(1)

@@ -18,9 +18,7 @@ subscription's bounded queue, and the socket's write buffer.
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import logging
-import random
 import time
 from collections.abc import Callable, Coroutine
 from typing import Any
@@ -33,10 +31,11 @@ from websockets.frames import CloseCode
 from .budget import LogThrottle
 from .codec import Format
 from .exceptions import XVIZError
-from .detail import SAMPLE_INTERVAL
-from .flow import backlog, close, limit_unsent, link_times, watch_progress
+from .detail import Sample
+from .flow import close, watch_progress
 from .framing import ready_to_write, write_message
 from .levels import LEVELS, Level
+from .linkwatch import is_loopback, sample_link
 from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription, watch_lag
 from .logfmt import ending, log_event, peer, redact_url
 from .logs import Catalog, Log
@@ -76,7 +75,7 @@ class Connection:
             live=live.names(),
             lag_timeout=settings.live_lag_timeout,
             detail=settings.detail == "auto",
-            local=_is_loopback(websocket),
+            local=is_loopback(websocket),
             repeated=repeated(urlsplit(self.path).query),
         )
         self._logs: dict[str, Log] = {}
@@ -97,7 +96,7 @@ class Connection:
         started = time.monotonic()
         self.metrics.sessions.inc()
         self.metrics.sessions_open.inc()
-        self.metrics.sessions_by_detail.labels(self.session.level.name).inc()
+        self.metrics.sessions_by_detail.labels(self.session.chooser.level.name).inc()
         remote = peer(self.websocket)
         log_event(logger, "session start", remote=remote, path=redact_url(self.path))
         try:
@@ -117,7 +116,7 @@ class Connection:
                 task.cancel()
             await asyncio.gather(*self._tasks, return_exceptions=True)
             self.metrics.sessions_open.dec()
-            self.metrics.sessions_by_detail.labels(self.session.level.name).dec()
+            self.metrics.sessions_by_detail.labels(self.session.chooser.level.name).dec()
             log = self.session.log.name if self.session.log else None
             duration, fmt = round(time.monotonic() - started, 3), self.session.format.value
             log_event(logger, "session end", remote=remote, log=log, format=fmt, frames=self.frames_sent,
@@ -380,25 +379,19 @@ class Connection:
         """Start sampling the connection's delivery once the session's level depends on it."""
         if not self._measuring and self.session.chooser.measures:
             self._measuring = True
-            limit_unsent(self.websocket.transport)
             self._spawn("measuring the link", self._measure())
 
     async def _measure(self) -> None:
         """Sample the connection's delivery for the session, which chooses the level of detail from it, while
         the level depends on it."""
-        transport = self.websocket.transport
-        before, times = time.monotonic(), link_times(transport)
-        while not transport.is_closing() and self.session.chooser.measures:
-            # at jittered times, so as never to keep step with a feed's updates
-            await asyncio.sleep(SAMPLE_INTERVAL * random.uniform(0.5, 1.5))
-            now, previous, times = time.monotonic(), times, link_times(transport)
-            reader = times is not None and previous is not None and (times[1] - previous[1]) / 1e6 >= (now - before) / 2
-            busy = None if times is None else (times[0] - times[1]) / 1e6
-            before = now
-            offered = None if self._subscription is None else self._subscription.offered
-            events = self.session.link_sampled(now, self.bytes_written, backlog(transport), reader, offered, busy)
-            await self._execute(events)
-        self._measuring = False
+        try:
+            await sample_link(self.websocket.transport, lambda: self.bytes_written, self._sampled, lambda: self.session.chooser.measures)
+        finally:
+            self._measuring = False
+
+    async def _sampled(self, sample: Sample) -> None:
+        offered = None if self._subscription is None else self._subscription.offered
+        await self._execute(self.session.link_sampled(sample.time, sample.written, sample.backlog, sample.reader, offered, sample.busy))
 
     def _detail_changed(self, event: DetailChanged) -> None:
         self.metrics.sessions_by_detail.labels(event.previous.name).dec()
@@ -427,11 +420,3 @@ def request_target(websocket: ServerConnection) -> tuple[str, str, dict[str, str
     url = urlsplit(target)
     return target, unquote(url.path), dict(parse_qsl(url.query, keep_blank_values=True))
 
-
-def _is_loopback(websocket: ServerConnection) -> bool:
-    """Whether the client is on this host (a loopback address)."""
-    address = websocket.remote_address
-    try:
-        return bool(address) and ipaddress.ip_address(address[0]).is_loopback
-    except ValueError:  # a Unix socket's path
-        return False

@@ -128,23 +128,26 @@ class Log:
                 return data
         return await self._cache.get((self._key, number, fmt, streams), lambda: self._render(number, fmt, streams))
 
-    async def derived(self, number: int, name: str, job: Callable[..., bytes], *args: Any) -> bytes:
+    async def derived(self, number: int, name: str, job: Callable[..., bytes], *args: Any, level: Level = FULL) -> bytes:
         """Frame ``number`` made into something else by ``job(data, *args)``, made once and kept in the frame cache.
 
         ``name`` tells what ``job`` makes (frames of one log made by the same
         ``name`` are the same bytes); ``job`` runs where a frame job of that
-        size runs (:func:`~xviz_server.frames.placement`). Raises
+        size runs (:func:`~xviz_server.frames.placement`). Below full
+        detail, ``data`` is the frame at ``level`` as GLB (:meth:`frame`,
+        the same bytes that XVIZ sessions at that level are sent). Raises
         :class:`~xviz_server.exceptions.FrameError` naming the frame.
         """
 
         async def make() -> bytes:
-            data = await self._checked(number)
+            data = await (self._checked(number) if level is FULL else self.frame(number, Format.BINARY, None, level))
             try:
                 return await self._workers.run(frames.placement(len(data), detect_format(data)), job, data, *args)
             except DecodeError as exc:
                 raise self._corrupt(number, exc) from None
 
-        return await self._cache.get((self._key, number, name), make)
+        key = (self._key, number, name) if level is FULL else (self._key, number, name, level.name)
+        return await self._cache.get(key, make)
 
     async def original_messages(self, number: int) -> bytes:
         """The original messages of frame ``number`` (see :attr:`originals`), packed, each record's channel its
@@ -331,6 +334,7 @@ class Catalog:
         self._found: dict[str, Found | StoredLog | StoredDataset] = {}
         self._open: dict[str, asyncio.Task[Log]] = {}
         self._stamps: dict[str, tuple[int, ...]] = {}  # what stamp_of() said when each was opened
+        self._failed: dict[str, tuple[int, ...]] = {}  # the version of each log whose failure to open was logged
         self._preload_bytes = preload_bytes
         self._preloads: dict[str, asyncio.Task[None]] = {}
         self._preloading = asyncio.Lock()  # one log read in at a time, however many sessions open
@@ -439,7 +443,13 @@ class Catalog:
             task = asyncio.ensure_future(self.load(found))
             self._open[name] = task
             self._stamps[name] = stamp
-        log = await asyncio.shield(task)
+        try:
+            log = await asyncio.shield(task)
+        except XVIZError as exc:
+            if self._failed.get(name) != stamp:  # once per version of the log
+                self._failed[name] = stamp
+                logger.warning("log %r (%s) cannot be opened: %s", name, getattr(found, "path", found.name), exc)
+            raise
         if preload and name not in self._preloads and isinstance(found, Found) and found.kind == LOG and self._preload_bytes > 0:
             self._preloads[name] = asyncio.ensure_future(self._preload(log, found.path))
         return log

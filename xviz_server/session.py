@@ -241,8 +241,6 @@ _URL_KEYS = frozenset(URL_START_KEYS + ("logGuid", "speed", "max_mbps", "detail_
 DETAIL_NOTICE = "xviz-server/detail"
 #: Updates queued for a live viewer after its level went down that are skipped for the latest complete state.
 STALE_QUEUE = 3
-#: Seconds over which a live feed's rate of updates is measured.
-RATE_WINDOW = 4.0
 #: Configuration keys about the level of detail: the session's own, never passed on to a live source.
 DETAIL_KEYS = ("profile", "max_mbps")
 
@@ -283,7 +281,6 @@ class Session:
     chooser: DetailChooser = field(init=False)
     _url_cap: float | None = field(init=False, default=None)
     _clock: float = field(init=False, default=0.0)  # time of the latest sample
-    _offered: list[tuple[float, int]] = field(init=False, default_factory=list)  # (time, updates a feed offered)
 
     def __post_init__(self) -> None:
         self.chooser = DetailChooser(enabled=self.detail, local=self.local)
@@ -353,12 +350,7 @@ class Session:
         counts them; for a live session, the updates its feed ``offered`` it so far (for the feed's rate)."""
         self._clock = time
         if offered is not None:
-            self._offered.append((time, offered))
-            while len(self._offered) > 2 and time - self._offered[1][0] >= RATE_WINDOW:
-                del self._offered[0]
-            (t0, n0), (t1, n1) = self._offered[0], self._offered[-1]
-            if t1 - t0 >= RATE_WINDOW / 2 and n1 > n0:
-                self.chooser.rate = (n1 - n0) / (t1 - t0) / (self.config.decimate or 1)
+            self.chooser.offered(time, offered, self.config.decimate or 1)
         previous = self.chooser.level
         return self._detail_changed(previous, self.chooser.sample(Sample(time, written, backlog, reader, busy)))
 
@@ -532,12 +524,13 @@ class Session:
     @property
     def decimate(self) -> int:
         """A live viewer gets every ``decimate``-th update: its own choice times its level's."""
-        return (self.config.decimate or 1) * self.level.every
+        return (self.config.decimate or 1) * self.chooser.level.every
 
     @property
     def level(self) -> Level:
-        """The level of detail of what is sent now."""
-        return self.chooser.level
+        """The level of detail of what is sent now: the session's, or a level up being probed
+        (see :attr:`xviz_server.detail.DetailChooser.sending`)."""
+        return self.chooser.sending
 
     # -- handlers -------------------------------------------------------
 
@@ -655,7 +648,7 @@ class Session:
     def _detail_changed(self, previous: Level, level: Level | None) -> list[Event]:
         if level is None:
             return []
-        events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.meter.capacity)]
+        events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.estimate)]
         if self.is_live and level.every != previous.every:
             events.append(ConfigureLive(self.decimate, {}))
         if self.is_live and self.chooser.levels.index(level) > self.chooser.levels.index(previous):
@@ -665,9 +658,9 @@ class Session:
         return events
 
     def _detail_notice(self) -> Send:
-        capacity = self.chooser.meter.capacity
+        capacity = self.chooser.estimate
         data = {
-            "level": self.level.name,
+            "level": self.chooser.level.name,
             "auto": self.chooser.auto,
             "levels": [level.name for level in self.chooser.levels] if self.chooser.enabled else [FULL.name],
             "link_mbps": None if capacity is None else round(capacity * 8 / 1e6, 1),

@@ -36,10 +36,10 @@ from typing import Any, Callable
 
 from zlib_ng import zlib_ng
 
-from .exceptions import DatasetError, OversizeError
+from .exceptions import DatasetError, FrameSizeError, OversizeError
 
 __all__ = [
-    "MAX_CHUNK_BYTES", "MAX_FRAME_BYTES", "MAX_RECORD_BYTES", "MAX_FILE_RATIO", "COMPRESSIONS", "unpack", "unpack_unsized", "BoundedReader",
+    "MAX_CHUNK_BYTES", "MAX_FRAME_BYTES", "check_frame", "MAX_RECORD_BYTES", "MAX_FILE_RATIO", "COMPRESSIONS", "unpack", "unpack_unsized", "BoundedReader",
     "check_declared", "size_text", "zstd_module",
 ]
 
@@ -157,6 +157,17 @@ class BoundedReader(io.RawIOBase):
     def close(self) -> None:
         self._inner.close()
         super().close()
+
+
+def check_frame(declared: int, frame: int, where: str, path: object = None) -> None:
+    """Refuse frame ``frame`` unread if its parts declare more than :data:`MAX_FRAME_BYTES` in all: a
+    :class:`~xviz_server.exceptions.FrameSizeError` naming ``where``."""
+    if declared > MAX_FRAME_BYTES:
+        raise FrameSizeError(
+            f"{where}: frame {frame}: its messages and images would unpack {size_text(declared)}, more than the "
+            f"limit of {size_text(MAX_FRAME_BYTES)} for one frame: refused unread",
+            size=declared, limit=MAX_FRAME_BYTES, frame=frame, path=path,
+        )
 
 
 def check_declared(declared: int, where: str, limit: int = MAX_CHUNK_BYTES) -> None:

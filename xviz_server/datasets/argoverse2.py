@@ -42,7 +42,8 @@ from ..exceptions import DatasetError
 from ..storepath import StoreTree
 from . import DEFAULT_IMAGE_WIDTH, require
 from .images import scale_jpegs
-from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, frame_clock, quaternion_matrix, to_vehicle, yaw_of
+from ..unpack import check_frame
+from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, file_size, frame_clock, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
 
 __all__ = ["Argoverse2Log", "is_argoverse2_log", "MAX_FILE_BYTES", "CAMERAS"]
@@ -107,7 +108,7 @@ class Argoverse2Log(SensorLog):
 
     def _bytes(self, file: Where) -> bytes:
         try:
-            size = file.stat().st_size if isinstance(file, Path) else file.files[file.key]
+            size = file_size(file)
             if size > MAX_FILE_BYTES:
                 raise DatasetError(f"{file}: {size} bytes, more than the {MAX_FILE_BYTES} a file may have", path=file)
             return file.read_bytes()
@@ -160,6 +161,7 @@ class Argoverse2Log(SensorLog):
 
     def read(self, index: int) -> SensorFrame:
         stamp, captures = self._clock[index], self._frames[index]
+        check_frame(sum(file_size(file) for file in captures.values()), index, str(self.path), self.path)
         images = {camera: self._bytes(file) for camera, file in captures.items() if camera != "lidar"}
         scaling = scale_jpegs(images, self.image_max_width)  # beside the lidar work
         pose = self._pose_at(stamp)

@@ -50,7 +50,8 @@ import orjson
 from ..exceptions import DatasetError
 from . import DEFAULT_IMAGE_WIDTH
 from .images import scale_jpegs
-from .sensors import SensorFrame, SensorLog, check_points, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
+from ..unpack import check_frame
+from .sensors import SensorFrame, SensorLog, check_points, file_size, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
 
 __all__ = ["NuScenesScene", "is_nuscenes", "scenes", "MAX_TABLE_BYTES", "MAX_SWEEP_BYTES", "LIDAR"]
@@ -220,6 +221,9 @@ class NuScenesScene(SensorLog):
 
     def read(self, index: int) -> SensorFrame:
         row = self._frames[index]
+        files = [*self._images[index].values(), *([row] if self._is_sweep(row) else [])]
+        check_frame(sum(file_size(self.root / str(capture.get("filename"))) for capture in files), index,
+                    f"{self.root}: {self.name}", self.root)
         images = {camera: self._image(capture) for camera, capture in self._images[index].items()}
         scaling = scale_jpegs(images, self.image_max_width)  # beside the lidar work
         pose = self.pose(index)

@@ -24,13 +24,16 @@ the first frame at or after it (see :func:`~xviz_server.datasets.sensors.frame_c
 Pickles can run code, so they are read only through :class:`FrameUnpickler`,
 which builds pandas DataFrames and their parts and nothing else: any other
 class or function a pickle names is refused by name before it is called. A
-gzip file unpacking to more than :data:`MAX_PICKLE_BYTES` is refused. Reading
+gzip file unpacking to more than :data:`MAX_PICKLE_BYTES` is refused, and a frame
+whose files declare more than :data:`~xviz_server.unpack.MAX_FRAME_BYTES` in all
+is refused unread. Reading
 needs pandas (``pip install 'xviz-server[pandaset]'``).
 """
 
 from __future__ import annotations
 
 import io
+import os
 import pickle
 from functools import cached_property
 from pathlib import Path
@@ -40,16 +43,16 @@ import numpy as np
 import orjson
 
 from ..exceptions import DatasetError
-from ..unpack import unpack_unsized
 from . import DEFAULT_IMAGE_WIDTH, require
 from .images import scale_jpegs
-from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
+from ..unpack import MAX_FRAME_BYTES, check_frame, unpack_unsized
+from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, file_size, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
 from .waymo.log import ScaledImages
 
 __all__ = ["PandaSetSequence", "FrameUnpickler", "is_pandaset_sequence", "MAX_PICKLE_BYTES", "CAMERAS"]
 
-#: The most a gzipped pickle may unpack to (a sweep is about 170 000 points, 8 MB).
-MAX_PICKLE_BYTES = 256 << 20
+#: The most a gzipped pickle may unpack to (a sweep is about 170 000 points, 8 MB), at most a frame's budget.
+MAX_PICKLE_BYTES = MAX_FRAME_BYTES
 #: The largest camera image read.
 MAX_IMAGE_BYTES = 64 << 20
 CAMERAS = ("front_left_camera", "front_camera", "front_right_camera", "left_camera", "right_camera", "back_camera")
@@ -114,6 +117,17 @@ def read_frame(path: Path) -> Any:
     if not isinstance(frame, pandas.DataFrame):
         raise DatasetError(f"{path}: a pickled {type(frame).__name__}, not a DataFrame", path=path)
     return frame
+
+
+def unpacked_size(path: Path) -> int:
+    """What a gzip file declares it unpacks to (its trailer's size, modulo 4 GiB; 0 if it has none): a declaration,
+    which :func:`read_frame` holds it to."""
+    try:
+        with path.open("rb") as file:
+            file.seek(-4, os.SEEK_END)
+            return int.from_bytes(file.read(4), "little")
+    except OSError:
+        return 0
 
 
 def is_pandaset_sequence(path: Path) -> bool:
@@ -192,6 +206,12 @@ class PandaSetSequence(SensorLog):
 
     def read(self, index: int) -> SensorFrame:
         captures = self._frames[index]
+        number = self._sweep_number(index)
+        pickles = [self.path / "annotations" / "cuboids" / f"{number:02d}.pkl.gz"]
+        if "lidar" in captures:
+            pickles.append(self.path / "lidar" / f"{captures['lidar']:02d}.pkl.gz")
+        declared = sum(file_size(file) for camera, file in captures.items() if camera != "lidar")
+        check_frame(declared + sum(map(unpacked_size, pickles)), index, str(self.path), self.path)
         images = {camera: self._image(file) for camera, file in captures.items() if camera != "lidar"}
         scaling = scale_jpegs(images, self.image_max_width)  # beside the lidar work
         pose = self.pose(index)

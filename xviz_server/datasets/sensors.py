@@ -30,10 +30,10 @@ import numpy as np
 
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..exceptions import DatasetError
-from ..storepath import StorePath
+from ..storepath import StorePath, StoreTree
 from .shared import footprints, intensity_colors, pose_angles
 
-__all__ = ["DriveLog", "SensorFrame", "SensorLog", "draw_boxes", "declare_boxes", "frame_clock", "frame_of", "captures_by_frame", "moved", "declare_cameras", "posed", "quaternion_matrix", "yaw_of", "TRAJECTORY_FRAMES"]
+__all__ = ["DriveLog", "SensorFrame", "SensorLog", "draw_boxes", "declare_boxes", "frame_clock", "frame_of", "captures_by_frame", "moved", "file_size", "declare_cameras", "posed", "quaternion_matrix", "yaw_of", "TRAJECTORY_FRAMES"]
 
 #: How many frames ahead ``/vehicle/trajectory`` reaches.
 TRAJECTORY_FRAMES = 20
@@ -273,6 +273,15 @@ def to_vehicle(pose: np.ndarray, centers: np.ndarray, yaws: np.ndarray) -> tuple
     """World box centres (N, 3) and headings (N,) in the vehicle frame of ``pose``."""
     centers = (np.asarray(centers, dtype=np.float64).reshape(-1, 3) - pose[:3, 3]) @ pose[:3, :3]
     return centers, np.asarray(yaws, dtype=np.float64) - yaw_of(pose[:3, :3])
+
+
+def file_size(file: Path | StoreTree) -> int:
+    """The size of a file a frame reads, as its folder or its store's listing says (0 if it has none: reading it then
+    fails by name)."""
+    try:
+        return file.stat().st_size if isinstance(file, Path) else file.files.get(file.key, 0)
+    except OSError:
+        return 0
 
 
 def check_points(data: np.ndarray, where: str, path: object) -> np.ndarray:

@@ -16,6 +16,10 @@ A live feed is followed as an XVIZ live viewer follows it: a bounded
 subscription (``live_queue`` updates, the oldest dropped when the client
 falls behind), each update's messages converted once for every Foxglove
 client of the feed (:mod:`.live`).
+
+Frames and live updates are converted at the session's level of detail,
+chosen from samples of this connection's link (:mod:`xviz_server.linkwatch`)
+as for an XVIZ session.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from operator import itemgetter
@@ -36,14 +40,16 @@ from websockets.frames import CloseCode
 
 from ..budget import LogThrottle
 from ..connection import request_target
+from ..detail import Sample
 from ..exceptions import XVIZError
 from ..flow import close, watch_progress
 from ..live import FeedEvent, LiveRegistry, LiveUpdate, watch_lag
 from ..logfmt import ending, log_event, peer, redact_url
 from ..logs import Catalog, Log
 from ..metrics import Metrics
+from ..linkwatch import is_loopback, sample_link
 from ..records import unpack
-from ..session import Close, LookUpLive, OpenLog, Send, SubscribeLive
+from ..session import Close, DetailChanged, LookUpLive, OpenLog, Send, SubscribeLive
 from ..settings import Settings
 from ..version import __version__
 from .convert import Channel, Plan, nanoseconds, plan
@@ -88,6 +94,10 @@ class _OpenLog:
         end = self.log.index.end_time
         return 0 if end is None else nanoseconds(end)
 
+    @property
+    def frames(self) -> int:
+        return len(self.times)
+
 
 class FoxgloveConnection:
     """One WebSocket connection speaking the Foxglove protocol, with its own playback of one log, or a live feed."""
@@ -107,14 +117,19 @@ class FoxgloveConnection:
             available=catalog.available(),
             server_name=f"xviz-server {__version__}",
             lag_timeout=settings.live_lag_timeout,
+            detail=settings.detail == "auto",
+            local=is_loopback(websocket),
         )
         self._log: _OpenLog | None = None
         self._player: asyncio.Task[None] | None = None
         self._follower: asyncio.Task[None] | None = None
         self._update: tuple[LiveUpdate, LivePlan] | None = None  # the live update the session is deciding about
         self._watch: asyncio.Task[None] | None = None
+        self._measure: asyncio.Task[None] | None = None  # sampling the link, while the level depends on it
+        self._offered: Callable[[], int] | None = None  # updates a live feed offered this client so far
         self.messages_sent = 0
         self.bytes_sent = 0
+        self.bytes_written = 0  # every message's bytes, as handed to the connection
         self._mistakes = LogThrottle()  # lines logged about the client's mistakes
 
     async def run(self) -> None:
@@ -127,12 +142,14 @@ class FoxgloveConnection:
         self._watch = asyncio.ensure_future(watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
         try:
             await self._execute(self.session.connect())
+            self._follow_link()
             async for message in self.websocket:
                 await self._execute(self.session.receive(message))
+                self._follow_link()
         except ConnectionClosed:
             pass
         finally:
-            tasks = [task for task in (self._player, self._watch, self._follower) if task is not None]
+            tasks = [task for task in (self._player, self._watch, self._follower, self._measure) if task is not None]
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
@@ -163,10 +180,26 @@ class FoxgloveConnection:
                 self._follower = asyncio.ensure_future(self._follow(event.name))
             elif isinstance(event, SendLive):
                 await self._send_live(event)
+            elif isinstance(event, DetailChanged):
+                mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
+                log_event(logger, "detail changed", remote=peer(self.websocket), detail=event.level.name,
+                          previous=event.previous.name, auto=event.auto, link_mbps=mbps)
             elif isinstance(event, Close):
                 await close(self.websocket, event.code, event.reason)
 
+    def _follow_link(self) -> None:
+        """Sample the connection's delivery for the session's level of detail once it depends on it."""
+        if self._measure is None and self.session.chooser.measures:
+
+            async def sampled(sample: Sample) -> None:
+                await self._execute(self.session.link_sampled(sample, None if self._offered is None else self._offered()))
+
+            sampling = sample_link(self.websocket.transport, lambda: self.bytes_written, sampled, lambda: self.session.chooser.measures)
+            self._measure = asyncio.ensure_future(sampling)
+            self._measure.add_done_callback(lambda _: setattr(self, "_measure", None))
+
     async def _write(self, data: bytes, text: bool) -> None:
+        self.bytes_written += len(data)  # before: the bytes are in the transport while send waits
         await self.websocket.send(data, text=text)
         self.messages_sent += 1
         self.bytes_sent += len(data)
@@ -220,7 +253,9 @@ class FoxgloveConnection:
     async def _messages(self, position: int, *, report: bool = True) -> list[Message]:
         """The messages of the frame at ``position``, in time order; with ``report``, a status for a part missing."""
         assert self._log is not None
-        messages, errors = await frame_messages(self._log.log, self._log.plan, int(self._log.log.index.frames[position]))
+        level = self.session.level
+        messages, errors = await frame_messages(self._log.log, self._log.plan, int(self._log.log.index.frames[position]), level)
+        self.session.update_made(level, sum(len(payload) for _, _, payload in messages))
         for error in errors if report else ():
             await self._execute(self.session.frame_failed(error))
         return messages
@@ -246,6 +281,7 @@ class FoxgloveConnection:
             await self._execute(self.session.live_failed(name))
             return
         subscription = feed.subscribe(self.settings.live_queue)
+        self._offered = lambda: subscription.offered
         lag = asyncio.ensure_future(watch_lag(subscription, self.websocket.transport, self.settings.live_lag_timeout, self._lagging))
         try:
             channels = feed_plan(feed)
@@ -280,11 +316,13 @@ class FoxgloveConnection:
         assert self._update is not None
         update, channels = self._update
         if event.targets:
+            level = self.session.level
             try:
-                packed = await converted(update, channels, self.live.workers)
+                packed = await converted(update, channels, self.live.workers, level)
             except XVIZError as exc:
                 await self._execute(self.session.frame_failed(exc))
             else:
+                self.session.update_made(level, len(packed))
                 await self._send(list(unpack(packed)), event.targets)
         if event.time is not None:
             await self._write(time_message(event.time), text=False)

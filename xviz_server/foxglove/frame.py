@@ -12,6 +12,7 @@ from __future__ import annotations
 from operator import itemgetter
 
 from ..exceptions import XVIZError
+from ..levels import FULL, Level
 from ..logs import Log
 from ..records import unpack
 from .convert import CONVERTED, Plan, convert
@@ -22,15 +23,15 @@ __all__ = ["Message", "frame_messages"]
 Message = tuple[int, int, memoryview]
 
 
-async def frame_messages(log: Log, plan: Plan, number: int) -> tuple[list[Message], list[XVIZError]]:
+async def frame_messages(log: Log, plan: Plan, number: int, level: Level = FULL) -> tuple[list[Message], list[XVIZError]]:
     """The messages of frame ``number`` of ``log`` on the channels of ``plan``, in time order (at one time, the
-    converted ones first), and why the part that could not be had is missing: a converted frame that cannot be
-    read or converted, original messages that cannot be read (each a
+    converted ones first), the converted ones at ``level`` of detail, and why the part that could not be had is
+    missing: a converted frame that cannot be read or converted, original messages that cannot be read (each a
     :class:`~xviz_server.exceptions.FrameError` naming the frame)."""
     errors: list[XVIZError] = []
     converted: list[Message] = []
     try:
-        converted = list(unpack(await log.derived(number, CONVERTED, convert, plan)))
+        converted = list(unpack(await log.derived(number, CONVERTED, convert, plan, level=level)))
     except XVIZError as exc:
         errors.append(exc)
     if not plan.originals:

@@ -5,7 +5,8 @@ gives for its metadata (:func:`feed_plan`, made once per metadata). Each
 update's messages are :func:`~xviz_server.foxglove.convert.convert` of its
 GLB bytes, made by the first Foxglove client to ask and kept with the update
 (:meth:`~xviz_server.live.LiveUpdate.derived`): the other clients of the
-feed get the same bytes.
+feed get the same bytes. Below full detail they are made of the update's
+encoding at that level, the one XVIZ viewers at the level are sent.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 from weakref import WeakKeyDictionary
 
+from ..levels import FULL, Level
 from ..live import LiveFeed, LiveUpdate
 from ..work import Workers
 from .convert import CONVERTED, Plan, convert, nanoseconds, plan
@@ -45,13 +47,14 @@ def feed_plan(feed: LiveFeed) -> LivePlan | None:
     return held
 
 
-async def converted(update: LiveUpdate, channels: LivePlan, workers: Workers) -> bytes:
-    """The Foxglove messages of ``update`` on ``channels``, packed (:func:`~xviz_server.records.pack`).
+async def converted(update: LiveUpdate, channels: LivePlan, workers: Workers, level: Level = FULL) -> bytes:
+    """The Foxglove messages of ``update`` at ``level`` of detail on ``channels``, packed
+    (:func:`~xviz_server.records.pack`).
 
     Raises :class:`~xviz_server.exceptions.DecodeError` for an update that
     cannot be converted (one of its updates has no timestamp).
     """
-    return await asyncio.shield(update.derived((CONVERTED, channels), convert, channels.plan, workers=workers))
+    return await asyncio.shield(update.derived((CONVERTED, channels), convert, channels.plan, workers=workers, level=level))
 
 
 def update_time(update: LiveUpdate) -> int | None:

@@ -25,6 +25,17 @@ message. A client that falls behind is told once per run of dropped updates
 ``lag_timeout`` seconds. A live feed plays as its source sends: no
 ``playbackControl`` capability, and a playback control request is answered
 with a status.
+
+Level of detail, as on the XVIZ face (see :mod:`xviz_server.detail`): the
+session owns a :class:`~xviz_server.detail.DetailChooser`, fed the
+connection's delivery (:meth:`FoxgloveSession.link_sampled`) and the bytes
+of the frames made for it (:meth:`FoxgloveSession.update_made`); frames
+are converted at :attr:`FoxgloveSession.level`. The client pins a level
+with ``?profile=NAME`` (or ``auto``) and caps the link with
+``?max_mbps=N`` in the URL, or sets the parameter :data:`PROFILE_PARAMETER`
+(the ``parameters`` capability: the Foxglove app's Parameters panel);
+:data:`LEVEL_PARAMETER` tells the level sent now, to clients that get or
+subscribe to it (``parametersSubscribe``).
 """
 
 from __future__ import annotations
@@ -37,8 +48,10 @@ from typing import Any, Protocol, TypeGuard
 from websockets.frames import CloseCode
 
 from ..budget import MAX_ITEMS, Problems, shown, too_many
+from ..detail import DetailChooser, Sample
 from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
-from ..session import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
+from ..levels import Level, profile_level
+from ..session import Close, DetailChanged, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
 from .convert import Channel
 from .wire import (
     CLIENT_MESSAGE_DATA, ENDED, PAUSED, PLAYBACK_CONTROL_REQUEST, PLAYING, SERVICE_CALL_REQUEST, PlaybackControl,
@@ -47,22 +60,24 @@ from .wire import (
 
 __all__ = [
     "FoxgloveLog", "Play", "Stop", "SendLatest", "SendLive", "FoxgloveSession", "CAPABILITIES", "LIVE_CAPABILITIES",
-    "MAX_SPEED",
+    "MAX_SPEED", "PROFILE_PARAMETER", "LEVEL_PARAMETER",
 ]
 
 #: What ``serverInfo`` says this server does for a recorded log.
-CAPABILITIES = ("time", "playbackControl")
+CAPABILITIES = ("time", "playbackControl", "parameters", "parametersSubscribe")
 #: What it says for a live feed, which plays as its source sends.
-LIVE_CAPABILITIES = ("time",)
+LIVE_CAPABILITIES = ("time", "parameters", "parametersSubscribe")
+
+#: The parameter that pins the level of detail (a level's name) or leaves it to the link (``auto``).
+PROFILE_PARAMETER = "/xviz_server/profile"
+#: The parameter that tells the level sent now (read only).
+LEVEL_PARAMETER = "/xviz_server/level"
 
 #: The fastest playback a client may ask for, as a factor of real time.
 MAX_SPEED = 100.0
 
 #: Client operations of the protocol that this server does not offer (their capability is not advertised).
-_UNOFFERED = frozenset({
-    "advertise", "unadvertise", "getParameters", "setParameters", "subscribeParameterUpdates",
-    "unsubscribeParameterUpdates", "subscribeConnectionGraph", "unsubscribeConnectionGraph", "fetchAsset",
-})
+_UNOFFERED = frozenset({"advertise", "unadvertise", "subscribeConnectionGraph", "unsubscribeConnectionGraph", "fetchAsset"})
 
 _UINT32 = 1 << 32
 
@@ -84,6 +99,9 @@ class FoxgloveLog(Protocol):
 
     @property
     def end_time(self) -> int: ...  # nanoseconds
+
+    @property
+    def frames(self) -> int: ...  # how many frames it has
 
 
 @dataclass(frozen=True)
@@ -128,7 +146,7 @@ class SendLive:
     time: int | None
 
 
-Event = Send | OpenLog | Play | Stop | SendLatest | LookUpLive | SubscribeLive | SendLive | Close
+Event = Send | OpenLog | Play | Stop | SendLatest | LookUpLive | SubscribeLive | SendLive | Close | DetailChanged
 
 
 @dataclass
@@ -141,6 +159,10 @@ class FoxgloveSession:
     server_name: str = "xviz-server"
     #: Seconds a live client may keep dropping updates before it is closed.
     lag_timeout: float = 30.0
+    #: Whether levels of detail are on (``--detail auto``); ``local``: the client is on this host.
+    detail: bool = True
+    local: bool = False
+    chooser: DetailChooser = field(init=False)
     log: FoxgloveLog | None = field(init=False, default=None)
     #: The live feed followed (or waited for), once the session chose one.
     feed: str | None = field(init=False, default=None)
@@ -159,12 +181,21 @@ class FoxgloveSession:
     _unfound: XVIZError | None = field(init=False, default=None)  # no log of that name: a live feed, if one runs
     _base: int = field(init=False, default=0)  # a live channel's id is its number in the feed's plan plus this
     _behind: bool = field(init=False, default=False)  # the live client is dropping updates
+    _profile: str = field(init=False, default="auto")  # the level asked for (a level's name), or auto
+    _watched: set[str] = field(init=False, default_factory=set)  # parameters the client subscribed to
+    _detail_errors: list[Send] = field(init=False, default_factory=list)  # about the URL's profile or max_mbps
+    _clock: float = field(init=False, default=0.0)  # the time of the last sample
+    _live_updates: int = field(init=False, default=0)  # live updates at hand so far
+
+    def __post_init__(self) -> None:
+        self.chooser = DetailChooser(enabled=self.detail, local=self.local)
 
     # -- inputs -------------------------------------------------------------
 
     def connect(self) -> list[Event]:
         """The connection opened: open the log its URL names, or look up the live feed it names."""
         name = self._asked = self.query.get("log") or self.query.get("logGuid") or self.path.strip("/") or None
+        self._detail_errors = self._url_detail()
         if self.query.get("session_type", "").upper() == "LIVE":
             self._live = True
             return [LookUpLive(name)]
@@ -180,8 +211,9 @@ class FoxgloveSession:
         self.log = log
         self.position = log.start_time
         self._channels = {channel.id: channel for channel in log.channels}
+        self._set_rate()
         advertise = text("advertise", channels=[channel.advertisement() for channel in log.channels])
-        return [self._server_info(), Send(advertise, text=True)]
+        return [self._server_info(), *self._take_detail_errors(), Send(advertise, text=True)]
 
     def log_failed(self, error: XVIZError) -> list[Event]:
         """The log cannot be served; a name that is no recorded log may be a running live feed's."""
@@ -296,6 +328,10 @@ class FoxgloveSession:
         self._behind = behind
         if time is not None:
             self.position = time
+        self._live_updates += 1
+        if self._live_updates % self.chooser.level.every:  # a level that sends every n-th update skips this one
+            events.append(SendLive({}, time))
+            return events
         events.append(SendLive({cid - self._base: sid for cid, sid in self._by_channel.items()}, time))
         return events
 
@@ -313,6 +349,18 @@ class FoxgloveSession:
             return self._on_subscribe(message.get("subscriptions"))
         if op == "unsubscribe":
             return self._on_unsubscribe(message.get("subscriptionIds"))
+        if op == "getParameters":
+            return [self._parameter_values(_names(message, "getParameters"), message.get("id"))]
+        if op == "setParameters":
+            return self._on_set_parameters(message)
+        if op == "subscribeParameterUpdates":
+            names = _names(message, "subscribeParameterUpdates")
+            self._watched |= set(names or _PARAMETERS)
+            return []
+        if op == "unsubscribeParameterUpdates":
+            names = _names(message, "unsubscribeParameterUpdates")
+            self._watched -= set(names or _PARAMETERS)
+            return []
         if op in _UNOFFERED:
             raise FoxgloveProtocolError(f"{op!r} is not offered by this server (its capability is not in serverInfo)")
         raise FoxgloveProtocolError(f"unknown op {shown(op)}")
@@ -396,6 +444,7 @@ class FoxgloveSession:
             self.position = seek
         changed = seek is not None or request.play != self.playing or request.speed != self.speed
         self.speed = request.speed
+        self._set_rate()
         self.playing = request.play
         self._started = True  # the client controls playback: subscribing no longer starts it
         events: list[Event] = []
@@ -409,6 +458,106 @@ class FoxgloveSession:
         events.append(self._state(PLAYING if self.playing else PAUSED, seek is not None, request.request_id))
         return events
 
+    # -- level of detail ---------------------------------------------------------
+
+    @property
+    def level(self) -> Level:
+        """The level of detail frames are made at now (see :attr:`xviz_server.detail.DetailChooser.sending`)."""
+        return self.chooser.sending
+
+    def link_sampled(self, sample: Sample, offered: int | None = None) -> list[Event]:
+        """A sample of the connection's delivery (see :class:`xviz_server.detail.Sample`); for a live feed, the
+        updates it ``offered`` this client so far (for its rate)."""
+        self._clock = sample.time
+        if offered is not None:
+            self.chooser.offered(sample.time, offered)
+        previous = self.chooser.level
+        return self._detail_changed(previous, self.chooser.sample(sample))
+
+    def update_made(self, level: Level, size: int) -> None:
+        """A frame (or live update) of ``size`` bytes was made at ``level`` for this client."""
+        self.chooser.made(level, size)
+
+    def _url_detail(self) -> list[Send]:
+        """Apply the URL's ``profile`` and ``max_mbps``; a status for each that cannot be used."""
+        errors = []
+        fixed: Level | None = None
+        profile = self.query.get("profile")
+        if profile is not None:
+            try:
+                fixed = profile_level(profile)
+                self._profile = profile if fixed is not None else "auto"
+            except ValueError as exc:
+                errors.append(self._status(ERROR, f"profile: {exc}; the level of detail is chosen from the link", kind="profile"))
+        cap: float | None = None
+        given = self.query.get("max_mbps")
+        if given is not None:
+            try:
+                cap = float(given)
+                if not (math.isfinite(cap) and cap > 0):
+                    raise ValueError(given)
+            except ValueError:
+                cap = None
+                message = f"bad connection URL parameter 'max_mbps': {given[:60]!r} is not a positive number of Mbit/s; no cap"
+                errors.append(self._status(ERROR, message, kind="max_mbps"))
+        self.chooser.choose(fixed, None if cap is None else cap * 125_000, self._clock)
+        return errors
+
+    def _take_detail_errors(self) -> list[Send]:
+        errors, self._detail_errors = self._detail_errors, []
+        return errors
+
+    def _set_rate(self) -> None:
+        """The content's updates a second, for the chooser: a log's frames a second times the speed."""
+        log = self.log
+        if log is not None and log.frames > 1 and log.end_time > log.start_time:
+            self.chooser.rate = (log.frames - 1) / ((log.end_time - log.start_time) / 1e9) * self.speed
+
+    def _detail_changed(self, previous: Level, level: Level | None) -> list[Event]:
+        if level is None:
+            return []
+        events: list[Event] = [DetailChanged(level, previous, self.chooser.auto, self.chooser.estimate)]
+        if LEVEL_PARAMETER in self._watched:
+            events.append(self._parameter_values([LEVEL_PARAMETER], None))
+        return events
+
+    def _on_set_parameters(self, message: dict[str, Any]) -> list[Event]:
+        parameters = message.get("parameters")
+        if not isinstance(parameters, list) or not all(isinstance(p, dict) and isinstance(p.get("name"), str) for p in parameters):
+            raise FoxgloveProtocolError("setParameters: 'parameters' must be a list of {name, value}")
+        _check_count("setParameters", parameters)
+        events: list[Event] = []
+        names = []
+        for parameter in parameters:
+            name, value = parameter["name"], parameter.get("value")
+            names.append(name)
+            if name != PROFILE_PARAMETER:
+                what = "is read only" if name == LEVEL_PARAMETER else "is no parameter of this server"
+                events.append(self._status(ERROR, f"setParameters: {name[:100]!r} {what}", kind="invalid"))
+                continue
+            try:
+                fixed = profile_level(value if isinstance(value, str) else "auto" if value is None else repr(value))
+            except ValueError as exc:
+                events.append(self._status(ERROR, f"setParameters: {PROFILE_PARAMETER}: {exc}", kind="invalid"))
+                continue
+            self._profile = value if fixed is not None else "auto"
+            previous = self.chooser.level
+            events += self._detail_changed(previous, self.chooser.choose(fixed, self.chooser.cap, self._clock))
+            if PROFILE_PARAMETER in self._watched:
+                events.append(self._parameter_values([PROFILE_PARAMETER], None))
+        request = message.get("id")
+        if isinstance(request, str):
+            events.append(self._parameter_values(names, request))
+        return events
+
+    def _parameter_values(self, names: list[str] | None, request: Any) -> Send:
+        values = {PROFILE_PARAMETER: self._profile, LEVEL_PARAMETER: self.chooser.level.name}
+        shown = [{"name": name, "value": values[name]} for name in (names or _PARAMETERS) if name in values]
+        fields: dict[str, Any] = {"parameters": shown}
+        if isinstance(request, str):
+            fields["id"] = request
+        return Send(text("parameterValues", **fields), text=True)
+
     # -- helpers ----------------------------------------------------------------
 
     def _play(self, start: int, *, seek: bool = False, once: bool = False) -> Play:
@@ -417,7 +566,8 @@ class FoxgloveSession:
 
     def _follow(self, name: str) -> list[Event]:
         self.feed = name
-        return [self._server_info(), SubscribeLive(name)]
+        self.chooser.live = True
+        return [self._server_info(), *self._take_detail_errors(), SubscribeLive(name)]
 
     def _waiting(self, name: str) -> Send:
         return self._status(INFO, f"live feed {name!r} has not started yet; waiting for it", kind="waiting")
@@ -445,6 +595,19 @@ class FoxgloveSession:
         if self.feed is not None:
             return f" in live feed {self.feed!r}"
         return f" in log {self.log.name!r}" if self.log is not None else ""
+
+
+#: The parameters this server has.
+_PARAMETERS = (PROFILE_PARAMETER, LEVEL_PARAMETER)
+
+
+def _names(message: dict[str, Any], op: str) -> list[str]:
+    """The ``parameterNames`` of a parameters op (empty: all)."""
+    names = message.get("parameterNames", [])
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        raise FoxgloveProtocolError(f"{op}: 'parameterNames' must be a list of strings")
+    _check_count(op, names)
+    return names
 
 
 def _check_count(op: str, items: list[Any]) -> None:

@@ -35,7 +35,7 @@ from ..messages import XVIZ_VERSION, envelope, unwrap
 from ..layout import check_log_name
 from ..session import LiveFacts, Variant
 from ..frames import placement, render, render_message
-from ..levels import FULL
+from ..levels import FULL, Level
 from ..state import COMPLETE_TYPES, complete_state
 from ..work import Workers
 
@@ -54,6 +54,8 @@ class LiveUpdate:
         self.message = message
         self._encodings: dict[Variant, asyncio.Future[bytes]] = {}
         self._derived: dict[Hashable, asyncio.Future[bytes]] = {}
+        #: What each derived product was asked with: (name, job, args, level), by its key.
+        self.recipes: dict[Hashable, tuple[Hashable, Callable[..., bytes], tuple[Any, ...], Level]] = {}
         if original is not None:
             future = asyncio.get_running_loop().create_future()
             future.set_result(original)
@@ -77,18 +79,23 @@ class LiveUpdate:
             self._encodings[variant] = future
         return future
 
-    def derived(self, name: Hashable, job: Callable[..., bytes], *args: Any, workers: Workers) -> asyncio.Future[bytes]:
-        """This update made into something else by ``job(glb, *args)`` (``glb``: its GLB bytes), made once.
+    def derived(
+        self, name: Hashable, job: Callable[..., bytes], *args: Any, workers: Workers, level: Level = FULL
+    ) -> asyncio.Future[bytes]:
+        """This update made into something else by ``job(glb, *args)`` (``glb``: its GLB bytes at ``level``, the
+        encoding XVIZ viewers at that level share), made once.
 
-        ``name`` tells what ``job`` makes: the first viewer to ask for a
-        ``name`` starts the job, the others get its future. ``job`` runs
-        where a frame job of that size runs (:func:`~xviz_server.frames.placement`).
+        ``name`` tells what ``job`` makes (of the update at ``level``): the
+        first viewer to ask for it starts the job, the others get its future.
+        ``job`` runs where a frame job of that size runs (:func:`~xviz_server.frames.placement`).
         """
-        future = self._derived.get(name)
+        key = (name, level.name)
+        future = self._derived.get(key)
         if future is None:
-            future = asyncio.ensure_future(self._derive(job, args, workers))
+            future = asyncio.ensure_future(self._derive(job, args, workers, level))
+            self.recipes[key] = (name, job, args, level)
             future.add_done_callback(lambda done: done.cancelled() or done.exception())  # a viewer that asks is told
-            self._derived[name] = future
+            self._derived[key] = future
         return future
 
     @property
@@ -96,8 +103,8 @@ class LiveUpdate:
         """The variants asked for so far."""
         return list(self._encodings)
 
-    async def _derive(self, job: Callable[..., bytes], args: tuple[Any, ...], workers: Workers) -> bytes:
-        glb = await self.encoded(Variant(Format.BINARY), workers)
+    async def _derive(self, job: Callable[..., bytes], args: tuple[Any, ...], workers: Workers, level: Level) -> bytes:
+        glb = await self.encoded(Variant(Format.BINARY, level=level), workers)
         return await workers.run(placement(len(glb), Format.BINARY), job, glb, *args)
 
     async def _encode(self, variant: Variant, workers: Workers) -> bytes:
@@ -264,6 +271,9 @@ class LiveFeed:
         for variant in self._latest.variants if self._latest is not None and self._subscribers else ():
             if variant.level is not FULL:
                 update.prepare(variant, self.registry.workers)
+        for name, job, args, level in self._latest.recipes.values() if self._latest is not None and self._subscribers else ():
+            if level is not FULL:  # and what Foxglove clients made of those levels
+                update.derived(name, job, *args, workers=self.registry.workers, level=level)
         self._latest = update
         for listener in self.registry.listeners:  # first: the broker's write then goes on beside the fan-out
             listener(self, update)

@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from ...exceptions import DatasetError
+from ...unpack import check_frame
 from .. import DEFAULT_IMAGE_WIDTH, require
 from ..images import scale_jpegs
 from .log import CAMERAS, LIDARS, ScaledImages, WaymoFrame, WaymoLog
@@ -117,15 +118,22 @@ class _Component:
             has = stats is not None and stats.has_min_max
             self.spans.append((int(stats.min), int(stats.max)) if has else None)  # type: ignore[union-attr]
 
+    def _groups(self, micros: int | None) -> list[int]:
+        """The row groups that may hold frame ``micros`` (all, for ``None``), by their statistics."""
+        return [group for group, span in enumerate(self.spans)
+                if micros is None or span is None or span[0] <= micros <= span[1]]
+
+    def declared(self, micros: int) -> int:
+        """What the row groups holding frame ``micros`` declare they decode to, in all."""
+        return sum(self.file.metadata.row_group(group).total_byte_size for group in self._groups(micros))
+
     def read(self, columns: Sequence[str], micros: int | None = None) -> dict[str, list[Any]]:
         """The rows (of frame ``micros``, or all) as lists by column; columns the file lacks are left out."""
         pc = require("pyarrow.compute", "Waymo v2 segments", "parquet")
         wanted = [column for column in columns if column in self.columns]
         names = sorted({*wanted, _TIME} if micros is not None and _TIME in self.columns else wanted)
         rows: dict[str, list[Any]] = {column: [] for column in wanted}
-        for group, span in enumerate(self.spans):
-            if micros is not None and span is not None and not span[0] <= micros <= span[1]:
-                continue
+        for group in self._groups(micros):
             declared = self.file.metadata.row_group(group).total_byte_size
             if declared > MAX_ROW_GROUP_BYTES:
                 raise DatasetError(f"{self.path}: row group {group} declares {declared} bytes decoded, more than "
@@ -209,6 +217,8 @@ class WaymoParquetSegment(WaymoLog):
         micros = int(self._poses[0][index])
         pose = self._poses[1][index]
         where = f"{self.root}: segment {self.name}, frame {micros}"
+        check_frame(sum(component.declared(micros) for component in self._files.values() if component is not None),
+                    index, f"{self.root}: segment {self.name}", self.path)
         images = self._images(micros)
         scaling = scale_jpegs(images, self.image_max_width)  # beside the lidar work
         points, intensity, in_zone = self._lidar(micros, pose, where)
