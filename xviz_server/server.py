@@ -332,6 +332,11 @@ class XVIZServer:
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
         if (page := await self.viewer.respond(connection, request)) is not None:
             return page
+        if path.startswith(LOG_PATH) and (name := _layout_path(path)) is not None:
+            if (refused := self._viewer_refusal(connection, request)) is not None:
+                return refused
+            await self._ready.wait()
+            return await self._layout(connection, name)
         if path.startswith(LOG_PATH) and (name := _export_path(path)) is not None:
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
@@ -349,8 +354,8 @@ class XVIZServer:
 
     async def _export(self, connection: ServerConnection, name: str, query: dict[str, str]) -> Response:
         """A clip of log ``name`` as an MCAP file, sent as it is written (see :mod:`xviz_server.foxglove.export`)."""
-        from .foxglove.convert import plan
         from .foxglove.export import export, parse_range
+        from .foxglove.frame import log_plan
 
         try:
             span = parse_range(query)
@@ -368,7 +373,21 @@ class XVIZServer:
         head.headers["Content-Type"] = "application/octet-stream"
         filename = name.replace("/", "_") + ".mcap"
         head.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
-        return streamed(head, self._counted(export(log, plan(log.metadata, log.originals), span, self.workers)), self.settings.idle_timeout)
+        return streamed(head, self._counted(export(log, await log_plan(log), span, self.workers)), self.settings.idle_timeout)
+
+    async def _layout(self, connection: ServerConnection, name: str) -> Response:
+        """Lichtblick's first layout for log ``name`` (see :mod:`xviz_server.foxglove.layout`)."""
+        from .foxglove.frame import log_plan
+        from .foxglove.layout import app_layout
+
+        try:
+            log = await self.catalog.open(name, preload=False)
+        except LogNotFound as exc:
+            return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
+        except XVIZError as exc:
+            return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
+        layout = app_layout(await log_plan(log))
+        return _response(connection, HTTPStatus.OK, orjson.dumps(layout, option=orjson.OPT_INDENT_2), "application/json")
 
     def _too_many(self, connection: ServerConnection, what: str) -> Response:
         logger.warning("refused %s: %d sessions and exports open", what, self.settings.max_sessions)
@@ -445,6 +464,13 @@ def _export_path(path: str) -> str | None:
     from .foxglove.export import export_path
 
     return export_path(path)
+
+
+def _layout_path(path: str) -> str | None:
+    """The log a layout URL names (see :func:`~xviz_server.foxglove.layout.layout_path`), or ``None``."""
+    from .foxglove.layout import layout_path
+
+    return layout_path(path)
 
 
 def _process_response(connection: ServerConnection, request: Request, response: Response) -> None:

@@ -54,11 +54,12 @@ class ExportRange:
     end: float | None
 
 
-def export_path(path: str) -> str | None:
-    """The log an export URL path (``/api/logs/NAME/export``, percent-decoded) names, or ``None``."""
-    if not (path.startswith(_PREFIX) and path.endswith(_SUFFIX)) or len(path) <= len(_PREFIX) + len(_SUFFIX):
+def export_path(path: str, suffix: str = _SUFFIX) -> str | None:
+    """The log an export URL path (``/api/logs/NAME/export``, percent-decoded) names, or ``None``; with ``suffix``,
+    the log of another resource of a log (``/api/logs/NAME/SUFFIX``)."""
+    if not (path.startswith(_PREFIX) and path.endswith(suffix)) or len(path) <= len(_PREFIX) + len(suffix):
         return None
-    return unquote(path[len(_PREFIX):-len(_SUFFIX)])
+    return unquote(path[len(_PREFIX):-len(suffix)])
 
 
 def parse_range(query: Mapping[str, str]) -> ExportRange:
