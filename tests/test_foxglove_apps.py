@@ -18,7 +18,7 @@ from xviz_server.codec import Format, decode, encode
 from xviz_server.foxglove.convert import plan, read_survey, survey
 from xviz_server.messages import envelope
 
-from helpers import foxglove_client, running_server
+from helpers import foxglove_client, http_get, running_server
 
 #: The JSON types a property may have in Foxglove's and Lichtblick's JSON Schema parser (``parseJsonSchema``):
 #: one, as a string; ``oneOf`` only of numeric constants.
@@ -142,3 +142,47 @@ async def test_the_vehicle_moves_in_map_by_its_map_origin(kitti_root: Path, kitt
     assert math.hypot(translations[-1]["x"], translations[-1]["y"]) > 5  # this excerpt drives about 9 m
     # The pose channel says the same as the transform.
     assert [(p["frame_id"], p["position"]) for p in poses] == [("map", t) for t in translations]
+
+
+async def test_a_live_feed_moves_the_vehicle_from_its_first_map_origin(kitti_root: Path, kitti_log: Path) -> None:
+    from test_foxglove import foxglove_subscribed, kitti_source
+
+    updates = kitti_updates(kitti_log)
+    origins = [update["poses"]["/vehicle_pose"]["map_origin"] for update in updates]
+    metadata, frames = kitti_source(kitti_log)
+    async with running_server(kitti_root) as server:
+        feed = server.live.feed("car")
+        feed.set_metadata(metadata)
+        url = f"ws://127.0.0.1:{server.port}/?session_type=live&log=car"
+        reading = asyncio.ensure_future(foxglove_client(url, "foxglove.websocket.v1", options=("--times", str(len(frames)))))
+        await foxglove_subscribed(server, every=True)
+        for frame in frames:
+            await feed.publish(frame)
+        out = await reading
+    translations = [{k: t["translation"].get(k, 0.0) for k in "xyz"} for t in out["topics"]["/vehicle_pose"]["summaries"]]
+    assert len(translations) == len(frames)
+    for translation, origin in zip(translations, origins):
+        assert math.hypot(translation["x"], translation["y"]) == pytest.approx(haversine(origins[0], origin), rel=0.01, abs=0.05)
+
+
+async def test_the_first_layout_shows_the_cloud_the_camera_the_car_and_a_plot(kitti_root: Path) -> None:
+    async with running_server(kitti_root) as server:
+        status, headers, body = await asyncio.to_thread(http_get, server.port, "/api/logs/kitti/layout.json")
+        missing, _, _ = await asyncio.to_thread(http_get, server.port, "/api/logs/nothing/layout.json")
+        async with connect(f"ws://127.0.0.1:{server.port}/?log=kitti", subprotocols=["foxglove.websocket.v1"]) as ws:  # type: ignore[list-item]
+            await ws.recv()
+            advertised = {c["topic"]: c for c in json.loads(await ws.recv())["channels"]}
+    assert status == 200 and headers["Content-Type"] == "application/json" and missing == 404
+    layout = json.loads(body)
+    panels = layout["configById"]
+    three_d = panels["3D!xviz"]
+    assert three_d["followTf"] == "/vehicle_pose"
+    shown = {topic for topic, settings in three_d["topics"].items() if settings["visible"]}
+    assert {"/lidar/points", "/vehicle_pose/pose", "/vehicle/trajectory"} <= shown <= set(advertised)
+    assert advertised[panels["Image!xviz"]["imageMode"]["imageTopic"]]["schemaName"] == "foxglove.CompressedImage"
+    plotted = panels["Plot!xviz"]["paths"][0]["value"].removesuffix(".value")
+    assert json.loads(advertised[plotted]["schema"])["properties"]["value"]["type"] == "number"
+    # The layout tree places each configured panel once.
+    def leaves(node: Any) -> list[str]:
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+    assert sorted(leaves(layout["layout"])) == sorted(panels)
