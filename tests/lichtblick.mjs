@@ -12,7 +12,7 @@
 // reach besides this machine's loopback).
 //
 // Prints one JSON object: the topics the Topics tab lists (name and schema), the problems the Problems tab lists,
-// each Raw Messages panel's distinct texts in the order shown, each Plot panel's most pixels of the series colour,
+// each Raw Messages panel's distinct texts in the order shown, each Plot panel's pixels of the series colour at the end,
 // whether the 3D panel's canvas shows a picture (varied pixels), the page errors and console errors and warnings,
 // the requests to other hosts (refused: the tests use no network).
 import {launch} from './chromium.mjs';
@@ -71,23 +71,14 @@ try {
   await page.goto(options.url, {waitUntil: 'domcontentloaded', timeout: options.timeout});
   report.steps.push('loaded');
 
-  // Raw Messages and Plot panels, read while the log plays.
-  const panel = id => page.locator(`[data-testid~="${id}"]`);
+  // Raw Messages panels, read while the log plays; Plot panels once it is over.
+  const panel = id => page.locator(`[data-testid~="${id}"]`).first();
+  const rawPanels = options.panels.filter(id => id.startsWith('RawMessages!'));
   const read = async () => {
-    for (const id of options.panels) {
-      const box = panel(id);
-      if (await box.count() === 0) continue;
-      if (id.startsWith('RawMessages!')) {
-        const text = (await box.first().innerText().catch(() => '')).replace(/\s+/g, ' ').trim();
-        const seen = report.raw[id] || (report.raw[id] = []);
-        if (text && seen[seen.length - 1] !== text) seen.push(text);
-      } else if (id.startsWith('Plot!')) {
-        const shot = await box.first().screenshot().catch(() => null);
-        if (shot) {
-          const count = await page.evaluate(([data, color]) => countColour(data, color), [shot.toString('base64'), options.plotColor]);
-          report.plots[id] = Math.max(report.plots[id] || 0, count);
-        }
-      }
+    for (const id of rawPanels) {
+      const text = (await panel(id).innerText({timeout: 1000}).catch(() => '')).replace(/\s+/g, ' ').trim();
+      const seen = report.raw[id] || (report.raw[id] = []);
+      if (text && seen[seen.length - 1] !== text) seen.push(text);
     }
   };
   const done = () => Object.entries(options.until || {})
@@ -95,8 +86,13 @@ try {
   while (Date.now() < deadline && !done()) {
     await read();
   }
-  await read();
   report.steps.push(done() ? 'played' : 'timeout');
+  for (const id of options.panels.filter(id => id.startsWith('Plot!'))) {
+    const shot = await panel(id).screenshot({timeout: 10000}).catch(() => null);
+    if (shot) {
+      report.plots[id] = await page.evaluate(([data, color]) => window.countColour(data, color), [shot.toString('base64'), options.plotColor]);
+    }
+  }
 
   // The 3D panel: a picture, not one flat colour.
   const canvas = page.locator('[data-testid~="3D!xviz"] canvas').first();

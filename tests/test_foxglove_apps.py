@@ -19,6 +19,7 @@ from xviz_server.foxglove.convert import plan, read_survey, survey
 from xviz_server.messages import envelope
 
 from helpers import foxglove_client, http_get, running_server
+from test_foxglove import foxglove_subscribed, kitti_source, opened
 
 #: The JSON types a property may have in Foxglove's and Lichtblick's JSON Schema parser (``parseJsonSchema``):
 #: one, as a string; ``oneOf`` only of numeric constants.
@@ -61,8 +62,7 @@ async def test_every_advertised_json_schema_has_one_type_per_property(kitti_root
     async with running_server(kitti_root) as server:
         out = await foxglove_client(f"ws://127.0.0.1:{server.port}/?log=kitti", "foxglove.websocket.v1")
         async with connect(f"ws://127.0.0.1:{server.port}/?log=kitti", subprotocols=["foxglove.websocket.v1"]) as ws:  # type: ignore[list-item]
-            await ws.recv()
-            advertised = json.loads(await ws.recv())["channels"]
+            _, advertised = await opened(ws)
     json_schemas = {c["topic"]: json.loads(c["schema"]) for c in advertised if c["schemaEncoding"] == "jsonschema"}
     assert "/vehicle/velocity" in json_schemas
     assert {topic: parser_problems(schema) for topic, schema in json_schemas.items()} == {topic: [] for topic in json_schemas}
@@ -96,8 +96,7 @@ async def test_the_time_comes_before_the_messages_it_stamps_with_their_xviz_time
     payloads: dict[int, list[bytes]] = {}
     async with running_server(kitti_root) as server:
         async with connect(f"ws://127.0.0.1:{server.port}/?log=kitti", subprotocols=["foxglove.websocket.v1"], max_size=None) as ws:  # type: ignore[list-item]
-            await ws.recv()
-            channels = json.loads(await ws.recv())["channels"]
+            _, channels = await opened(ws)
             await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
             clock: int | None = None
             times: list[int] = []
@@ -145,8 +144,6 @@ async def test_the_vehicle_moves_in_map_by_its_map_origin(kitti_root: Path, kitt
 
 
 async def test_a_live_feed_moves_the_vehicle_from_its_first_map_origin(kitti_root: Path, kitti_log: Path) -> None:
-    from test_foxglove import foxglove_subscribed, kitti_source
-
     updates = kitti_updates(kitti_log)
     origins = [update["poses"]["/vehicle_pose"]["map_origin"] for update in updates]
     metadata, frames = kitti_source(kitti_log)
@@ -170,8 +167,7 @@ async def test_the_first_layout_shows_the_cloud_the_camera_the_car_and_a_plot(ki
         status, headers, body = await asyncio.to_thread(http_get, server.port, "/api/logs/kitti/layout.json")
         missing, _, _ = await asyncio.to_thread(http_get, server.port, "/api/logs/nothing/layout.json")
         async with connect(f"ws://127.0.0.1:{server.port}/?log=kitti", subprotocols=["foxglove.websocket.v1"]) as ws:  # type: ignore[list-item]
-            await ws.recv()
-            advertised = {c["topic"]: c for c in json.loads(await ws.recv())["channels"]}
+            advertised = {c["topic"]: c for c in (await opened(ws))[1]}
     assert status == 200 and headers["Content-Type"] == "application/json" and missing == 404
     layout = json.loads(body)
     panels = layout["configById"]

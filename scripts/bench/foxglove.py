@@ -104,8 +104,8 @@ async def foxglove_log(port: int, expected: int) -> tuple[int, float]:
     and the seconds from asking to play to the last message."""
     async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None) as websocket:
         json.loads(await websocket.recv())
-        while (advertise := json.loads(await websocket.recv()))["op"] != "advertise":
-            pass
+        while isinstance(message := await websocket.recv(), bytes) or (advertise := json.loads(message))["op"] != "advertise":
+            pass  # the log's start time comes before the channels
         channels = advertise["channels"]
         await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 0, 0, 0))  # take control: paused
         await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))

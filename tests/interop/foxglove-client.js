@@ -178,7 +178,7 @@ function main() {
   });
   client.on('time', () => {
     out.times += 1;
-    touch();
+    if (out.arrivals.length > 0) touch();  // the wait starts with the first message, not the start time
   });
 }
 
