@@ -53,7 +53,7 @@ from xviz_server.exceptions import DatasetError, DecodeError, EncodeError, Messa
 from xviz_server.index import TimeIndex
 from xviz_server.session import Send, Session
 
-pytestmark = pytest.mark.skipif(not KITTI_LOG.is_dir(), reason=f"needs the shared data in {SHARED_DIR}")
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(not KITTI_LOG.is_dir(), reason=f"needs the shared data in {SHARED_DIR}")]
 
 PROFILES = {
     # The same examples on every run (no flaky CI), few enough for a few seconds per parser.
