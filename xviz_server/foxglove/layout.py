@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Any
 
 from .convert import ROOT_FRAME, Plan
-from .export import export_path
+from .export import log_path
 
 __all__ = ["app_layout", "layout_path", "LAYOUT_SUFFIX"]
 
@@ -29,7 +29,7 @@ _THREE_D, _IMAGE, _PLOT = "3D!xviz", "Image!xviz", "Plot!xviz"
 
 def layout_path(path: str) -> str | None:
     """The log a layout URL path (``/api/logs/NAME/layout.json``, percent-decoded) names, or ``None``."""
-    return export_path(path, LAYOUT_SUFFIX)
+    return log_path(path, LAYOUT_SUFFIX)
 
 
 def app_layout(plan: Plan) -> dict[str, Any]:
