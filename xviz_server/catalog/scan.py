@@ -16,16 +16,19 @@ Every method blocks (for a thread).
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..datasets import FILE_KINDS
+from ..datasets import FILE_KINDS, file_refusal
 from ..layout import FRAME_FILE, INDEX_FILE, LOG, place_of, split_place, stamp_from, stamp_of
 from .db import Row
 
 __all__ = ["LocalScan", "source_kind", "version_of"]
+
+logger = logging.getLogger(__name__)
 
 #: Rows handed over at a time by :meth:`LocalScan.walk`.
 BATCH = 1000
@@ -180,6 +183,8 @@ class LocalScan:
                 if suffix not in FILE_KINDS:
                     continue
                 kind = self._detect(Path(entry.path))
+                if kind is None:
+                    logger.warning("%s: left out of the catalog: %s", entry.path, file_refusal(Path(entry.path)))
                 version = version_of(entry.path) if kind is not None else None
                 if kind is not None and version is not None:
                     folder.children.add(stem)

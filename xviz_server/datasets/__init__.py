@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, 
 
 __all__ = [
     "Dataset", "KINDS", "FILE_KINDS", "SCENE_KINDS", "SCENE", "scenes", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "require", "detect", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
+    "open_dataset", "require", "detect", "file_refusal", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
 ]
 
 
@@ -149,6 +149,16 @@ def detect(path: Path) -> str | None:
         return next((kind for kind in KINDS if _member(kind, 2)(path)), None)
     kind = FILE_KINDS.get(path.suffix)
     return kind if kind is not None and _member(kind, 2)(path) else None
+
+
+def file_refusal(path: Path) -> str:
+    """Why a file named as a dataset of :data:`FILE_KINDS` is not one (:func:`detect` said so), for the log line
+    that leaves it out; it reads the file's first bytes."""
+    if path.suffix == ".tfrecord":
+        from .waymo.tfrecord import header_problem
+
+        return header_problem(path) or "not a Waymo segment"
+    return f"not a {FILE_KINDS.get(path.suffix, 'dataset')} file: its first bytes are not its format's"
 
 
 #: The most datasets a worker process keeps open (with what each caches), the least recently used closed first.
