@@ -32,10 +32,7 @@
 // The canvas is screenshotted (which makes the browser composite a frame, and on a
 // software renderer costs time) only once the page has a frame to draw: the mark
 // "xviz:first-frame"; what the screenshot shows is what a person would see then.
-import {createRequire} from 'node:module';
-
-const require = createRequire(new URL('../viewer/package.json', import.meta.url));
-const {chromium} = require('playwright-core');
+import {launch} from './chromium.mjs';
 
 const options = {frames: 3, timeout: 30000, draw: true, viewport: {width: 1280, height: 800}, ...JSON.parse(process.argv[2])};
 const CANVAS = '#deckgl-overlay';
@@ -44,20 +41,7 @@ const DRAWN_STDDEV = 4;
 // A changed picture differs from the one before by this mean grey level, or more.
 const CHANGED = 2;
 
-const browser = await chromium.launch({
-  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-  headless: true,
-  args: [
-    '--no-sandbox',
-    '--use-angle=swiftshader',
-    '--enable-unsafe-swiftshader',
-    '--disable-background-networking',
-    '--disable-component-update',
-    '--disable-sync',
-    '--no-first-run',
-    '--disable-quic'
-  ]
-});
+const browser = await launch();
 const report = {
   failedRequests: [],
   externalRequests: [],

@@ -72,7 +72,7 @@ async def test_published_client_decodes_every_frame(kitti_root: Path, kitti_log:
     transforms = topics["/vehicle_pose"]["summaries"]
     assert len(transforms) == len(updates) and {(t["parent"], t["child"]) for t in transforms} == {("map", "/vehicle_pose")}
     assert topics["/vehicle/velocity"]["count"] == len(updates)
-    assert out["times"] == len(updates)
+    assert out["times"] == 1 + len(updates)  # the start time before the channels, then one per frame
 
 
 async def foxglove(server: Any, path: str = "/?log=kitti", subprotocols: list[str] | None = None) -> ClientConnection:
@@ -80,8 +80,14 @@ async def foxglove(server: Any, path: str = "/?log=kitti", subprotocols: list[st
 
 
 async def opened(websocket: ClientConnection) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """``serverInfo``, then (for a recorded log) the log's start time as a time message, then ``advertise``."""
     info = json.loads(await asyncio.wait_for(websocket.recv(), 10))
-    advertise = json.loads(await asyncio.wait_for(websocket.recv(), 10))
+    following = await asyncio.wait_for(websocket.recv(), 10)
+    if "dataStartTime" in info:
+        start = info["dataStartTime"]["sec"] * 10**9 + info["dataStartTime"]["nsec"]
+        assert following == struct.pack("<BQ", 0x02, start)
+        following = await asyncio.wait_for(websocket.recv(), 10)
+    advertise = json.loads(following)
     assert info["op"] == "serverInfo" and advertise["op"] == "advertise"
     return info, advertise["channels"]
 

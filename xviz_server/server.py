@@ -362,6 +362,11 @@ class XVIZServer:
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
         if (page := await self.viewer.respond(connection, request)) is not None:
             return page
+        if path.startswith(LOG_PATH) and (name := _layout_path(path)) is not None:
+            if (refused := self._viewer_refusal(connection, request)) is not None:
+                return refused
+            await self._ready.wait()
+            return await self._layout(connection, name)
         if path.startswith(LOG_PATH) and (name := _file_path(path)) is not None:
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
@@ -388,8 +393,8 @@ class XVIZServer:
 
     async def _export(self, connection: ServerConnection, name: str, query: dict[str, list[str]]) -> Response:
         """A clip of log ``name`` as an MCAP file, sent as it is written (see :mod:`xviz_server.foxglove.export`)."""
-        from .foxglove.convert import plan
         from .foxglove.export import export, first_error, parse_range
+        from .foxglove.frame import log_plan
 
         try:
             span = parse_range(query)
@@ -404,7 +409,7 @@ class XVIZServer:
         if self._open() >= self.settings.max_sessions:
             return self._too_many(connection, "an export")
         self._admit(connection)
-        the_plan = plan(log.metadata, log.originals)
+        the_plan = await log_plan(log)
         if (error := await first_error(log, the_plan, positions)) is not None:
             logger.warning("refused an export of log %r: its first frame cannot be read: %s", name, error)
             return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"the clip's first frame cannot be read: {error}\n")
@@ -415,9 +420,23 @@ class XVIZServer:
         head.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
         return streamed(head, export(log, the_plan, positions, self.workers), self.settings.idle_timeout)
 
+    async def _layout(self, connection: ServerConnection, name: str) -> Response:
+        """Lichtblick's first layout for log ``name`` (see :mod:`xviz_server.foxglove.layout`)."""
+        from .foxglove.frame import log_plan
+        from .foxglove.layout import app_layout
+
+        try:
+            log = await self.catalog.open(name, preload=False)
+        except LogNotFound as exc:
+            return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
+        except XVIZError as exc:
+            return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
+        layout = app_layout(await log_plan(log))
+        return _response(connection, HTTPStatus.OK, orjson.dumps(layout, option=orjson.OPT_INDENT_2), "application/json")
+
     async def _file(self, connection: ServerConnection, request: Request, name: str) -> Response:
         """Log ``name`` as a whole MCAP file, or the byte range of it the request asks for (see :mod:`.ranges`)."""
-        from .foxglove.convert import plan
+        from .foxglove.frame import log_plan
         from .foxglove.seekable import read_file
         from .ranges import decide
 
@@ -428,7 +447,7 @@ class XVIZServer:
             log = await self.catalog.open(name, preload=False)
             stamp = self.catalog.stamp(name)
             version = ",".join(map(str, stamp)) if stamp else await self.indexer.version(name) or ""
-            built = await self._files.get(log, plan(log.metadata, log.originals), version)
+            built = await self._files.get(log, await log_plan(log), version)
         except LogNotFound as exc:
             return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
         except XVIZError as exc:
@@ -536,6 +555,13 @@ def _export_path(path: str) -> str | None:
     from .foxglove.export import export_path
 
     return export_path(path)
+
+
+def _layout_path(path: str) -> str | None:
+    """The log a layout URL names (see :func:`~xviz_server.foxglove.layout.layout_path`), or ``None``."""
+    from .foxglove.layout import layout_path
+
+    return layout_path(path)
 
 
 def _file_path(path: str) -> str | None:

@@ -51,6 +51,7 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from websockets.asyncio.client import connect
 from websockets.typing import Subprotocol
@@ -103,10 +104,7 @@ async def foxglove_log(port: int, expected: int) -> tuple[int, float]:
     """Bytes of the whole log (``expected`` messages) as a Foxglove client playing it at the fastest speed gets it,
     and the seconds from asking to play to the last message."""
     async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None) as websocket:
-        json.loads(await websocket.recv())
-        while (advertise := json.loads(await websocket.recv()))["op"] != "advertise":
-            pass
-        channels = advertise["channels"]
+        _, channels = await opened(websocket)
         await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 0, 0, 0))  # take control: paused
         await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
         began, received, count = time.perf_counter(), 0, 0
@@ -137,12 +135,19 @@ async def http_get(port: int, path: str) -> tuple[float, float, int]:
     return first, time.perf_counter() - began, size
 
 
+async def opened(websocket: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """``serverInfo`` and the advertised channels (the log's start time, a binary time message, comes between)."""
+    info = json.loads(await websocket.recv())
+    while isinstance(message := await websocket.recv(), bytes):
+        pass
+    return info, json.loads(message)["channels"]
+
+
 async def seeker(port: int, seeks: int, seed: int) -> list[float]:
     """Seconds from each seek request to the first message at the frame sought."""
     rng = random.Random(seed)
     async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None) as websocket:
-        info = json.loads(await websocket.recv())
-        channels = json.loads(await websocket.recv())["channels"]
+        info, channels = await opened(websocket)
         await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 0, 0, 0))  # paused
         await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
         start = info["dataStartTime"]["sec"] * 10**9 + info["dataStartTime"]["nsec"]
@@ -234,6 +239,7 @@ async def live_viewer(url: str, seconds: float, subscribed: asyncio.Event, foxgl
                     await client.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
                     break
         client.protocol.keep = 16 if foxglove else 65536
+        current: int | None = None
         subscribed.set()
         deadline = time.perf_counter() + seconds
         while (left := deadline - time.perf_counter()) > 0:
@@ -241,8 +247,11 @@ async def live_viewer(url: str, seconds: float, subscribed: asyncio.Event, foxgl
                 length, head, arrived = await asyncio.wait_for(client.recv(), left)
             except asyncio.TimeoutError:
                 break
-            if foxglove and head[:1] == b"\x02":  # a time message
-                arrivals[struct.unpack_from("<Q", head, 1)[0]] = arrived
+            if foxglove and head[:1] == b"\x02":  # a time message: the update's messages follow it
+                current = struct.unpack_from("<Q", head, 1)[0]
+                arrivals[current] = arrived
+            elif foxglove and head[:1] == b"\x01" and current is not None:  # the update is in once its last message is
+                arrivals[current] = arrived
             elif not foxglove and length > 100_000:
                 arrivals[nanoseconds(envelope_of(head)["data"]["updates"][0]["timestamp"])] = arrived
     finally:

@@ -8,7 +8,7 @@
 //   node foxglove-client.js URL SUBPROTOCOL [--idle-ms N] [--timeout-ms N] [--times N] [--send JSON]...
 //
 // It stops once no message has come for --idle-ms (default 1500) after the
-// first one, once --times time messages have come (a live feed goes on), or
+// first one (with --times N: after the Nth time message, whose messages follow it), or
 // after --timeout-ms (default 30000). Each --send is a text
 // message sent once the channels are advertised and subscribed to.
 //
@@ -19,7 +19,7 @@
 // A summary says what the decoded message holds: for foxglove.PointCloud
 // {"points", "stride", "frame_id", "fields"}; for foxglove.CompressedImage
 // {"format", "magic" (first bytes, hex), "bytes"}; for foxglove.FrameTransform
-// {"parent", "child", "translation"}; for foxglove.SceneUpdate {"entities",
+// {"parent", "child", "translation"}; for foxglove.PoseInFrame {"frame_id", "position"}; for foxglove.SceneUpdate {"entities",
 // "deletions"}; for JSON channels the decoded value; for sensor_msgs/PointCloud2
 // {"width", "height", "point_step", "fields", "bytes", "frame_id"}; for
 // sensor_msgs/Image {"encoding", "width", "height", "bytes"}; for
@@ -101,6 +101,10 @@ function summary(schemaName, value) {
       return {format: value.format, magic: Buffer.from(value.data.subarray(0, 4)).toString('hex'), bytes: value.data.length};
     case 'foxglove.FrameTransform':
       return {parent: value.parent_frame_id, child: value.child_frame_id, translation: value.translation || {}};
+    case 'foxglove.PoseInFrame': {
+      const position = (value.pose && value.pose.position) || {};
+      return {frame_id: value.frame_id, position: {x: position.x || 0, y: position.y || 0, z: position.z || 0}};
+    }
     case 'foxglove.SceneUpdate':
       return {entities: (value.entities || []).length, deletions: (value.deletions || []).length};
     default:
@@ -126,7 +130,11 @@ function main() {
     setTimeout(() => process.exit(0), 100);
   };
   const deadline = setTimeout(() => { out.errors.push('timeout'); finish(); }, opts.timeoutMs);
-  const touch = () => { clearTimeout(idle); idle = setTimeout(finish, opts.idleMs); };
+  // With --times, the idle wait starts only once that many time messages have come (their messages follow them).
+  const touch = () => {
+    clearTimeout(idle);
+    if (opts.times === Infinity || out.times >= opts.times) idle = setTimeout(finish, opts.idleMs);
+  };
 
   ws.on('open', () => { out.subprotocol = ws.protocol; });
   client.on('error', error => out.errors.push(String(error && error.message || error)));
@@ -170,8 +178,7 @@ function main() {
   });
   client.on('time', () => {
     out.times += 1;
-    if (out.times >= opts.times) finish();
-    else touch();
+    if (out.arrivals.length > 0) touch();  // the wait starts with the first message, not the start time
   });
 }
 

@@ -4,8 +4,9 @@ One :class:`FoxgloveConnection` per WebSocket connection that chose a
 Foxglove subprotocol. It reads the client's messages into the session,
 opens the log the session names, and runs this connection's player: the
 log's messages from a time on, each sent at its log time (paced at the
-session's speed) to the subscriptions that want it, then a ``time``
-message: each frame's Foxglove messages (converted once per frame and kept
+session's speed) to the subscriptions that want it, after a ``time``
+message of that time (Foxglove and Lichtblick stamp a message with the last
+time they were sent): each frame's Foxglove messages (converted once per frame and kept
 in the frame cache, see :meth:`~xviz_server.logs.Log.derived`) at the
 frame's time and, for a log read from a ROS bag or MCAP file, its original
 messages at theirs (see :mod:`~xviz_server.foxglove.frame`). ``send``
@@ -52,8 +53,8 @@ from ..records import unpack
 from ..session import Close, DetailChanged, LookUpLive, OpenLog, Send, SubscribeLive
 from ..settings import Settings
 from ..version import __version__
-from .convert import Channel, Plan, nanoseconds, plan
-from .frame import Message, frame_messages
+from .convert import Channel, Plan, nanoseconds
+from .frame import Message, frame_messages, log_plan
 from .live import LivePlan, converted, feed_plan, update_time
 from .session import Event, FoxgloveSession, Play, SendLatest, SendLive, Stop
 from .wire import message_header, time_message
@@ -67,14 +68,11 @@ class _OpenLog:
     """A log with its Foxglove channels, as the session sees it."""
 
     log: Log
+    plan: Plan
 
     @property
     def name(self) -> str:
         return self.log.name
-
-    @cached_property
-    def plan(self) -> Plan:
-        return plan(self.log.metadata, self.log.originals)
 
     @property
     def channels(self) -> tuple[Channel, ...]:
@@ -210,7 +208,7 @@ class FoxgloveConnection:
         except XVIZError as exc:
             await self._execute(self.session.log_failed(exc))
             return
-        self._log = _OpenLog(log)
+        self._log = _OpenLog(log, await log_plan(log))
         await self._execute(self.session.log_opened(self._log))
 
     async def _stop(self) -> None:
@@ -240,8 +238,9 @@ class FoxgloveConnection:
                     if request.once and at > request.start:
                         return
                     await asyncio.sleep(max(0.0, clock + (at - request.start) / 1e9 / request.speed - loop.time()))
-                    await self._send(group, self.session.frame(at, position))
+                    # The time first: the apps stamp a message with the last time they were sent.
                     await self._write(time_message(at), text=False)
+                    await self._send(group, self.session.frame(at, position))
                 if request.once:
                     return
             await self._execute(self.session.ended())
@@ -295,6 +294,7 @@ class FoxgloveConnection:
                     elif item.kind == "gone":
                         await self._execute(self.session.live_gone())
                 elif channels is not None:
+                    channels = feed_plan(feed, item) or channels
                     self._update = item, channels
                     behind = subscription.lagging_since is not None
                     await self._execute(self.session.live_update(update_time(item), subscription.take_drops(), behind))
@@ -315,6 +315,8 @@ class FoxgloveConnection:
         """Send the live update at hand to ``event.targets``, converted once for every client of the feed."""
         assert self._update is not None
         update, channels = self._update
+        if event.time is not None:
+            await self._write(time_message(event.time), text=False)
         if event.targets:
             level = self.session.level
             try:
@@ -324,8 +326,6 @@ class FoxgloveConnection:
             else:
                 self.session.update_made(level, len(packed))
                 await self._send(list(unpack(packed)), event.targets)
-        if event.time is not None:
-            await self._write(time_message(event.time), text=False)
 
 
 def _by_time(tick: int, messages: list[Message]) -> Iterator[tuple[int, list[Message]]]:

@@ -17,9 +17,17 @@ points                        ``foxglove.PointCloud`` (x, y, z as float32 and
 images                        ``foxglove.CompressedImage``
 polygons, polylines, circles, ``foxglove.SceneUpdate``, one entity per object
 texts, stadiums               (its XVIZ object id when it has one)
-time series                   JSON ``{"timestamp", "value"}``
+time series                   JSON ``{"timestamp", "value"}``, the value of
+                              one JSON type: the stream's ``scalar_type``,
+                              else its first value's (:func:`survey`)
 anything else                 JSON: the stream's XVIZ content as it is
 ============================  ==============================================
+
+A pose is placed in ``map``, whose origin is the log's (its first
+``map_origin``): a pose's translation is its ``position`` plus the east,
+north and up metres of its own ``map_origin`` from the log's, so that the
+vehicle moves as in streetscape.gl whether a log moves it by its position
+or by its map origin.
 
 A primitive stream's frame is the pose stream's frame when its coordinate
 is ``VEHICLE_RELATIVE`` and ``map`` otherwise; its ``transform`` (a 4 x 4
@@ -65,11 +73,15 @@ from google.protobuf.timestamp_pb2 import Timestamp
 
 from ..codec import decode
 from ..codec.image import sniff_image
+from ..datasets.ros.geometry import enu
 from ..exceptions import DecodeError
 from ..records import OriginalTopic, pack
 from .schemas import Schema, json_schema, protobuf_schema
 
-__all__ = ["CONVERTED", "CONVERTED_PREFIX", "Channel", "Plan", "plan", "convert", "nanoseconds", "ROOT_FRAME"]
+__all__ = [
+    "CONVERTED", "CONVERTED_PREFIX", "Channel", "Plan", "plan", "Survey", "survey", "read_survey", "first_origin", "convert", "nanoseconds",
+    "ROOT_FRAME",
+]
 
 #: The frame cache's name for a frame's Foxglove messages (see :meth:`~xviz_server.logs.Log.derived`).
 CONVERTED = "foxglove"
@@ -81,11 +93,17 @@ CONVERTED_PREFIX = "/xviz"
 ROOT_FRAME = "map"
 
 _SCENE_TYPES = frozenset({"POLYGON", "POLYLINE", "CIRCLE", "TEXT", "STADIUM"})
-_TIME_SERIES_SCHEMA = {
-    "type": "object",
-    "properties": {"timestamp": {"type": "number"}, "value": {"type": ["number", "string", "boolean"]}},
-    "required": ["timestamp", "value"],
-}
+#: The JSON type of a time series' value, by the stream's XVIZ ``scalar_type``.
+_SCALAR_TYPES = {"FLOAT": "number", "INT32": "integer", "STRING": "string", "BOOL": "boolean"}
+
+
+def _time_series_schema(value_type: str) -> dict[str, Any]:
+    """A time series channel's JSON Schema: one JSON type for ``value``, as Foxglove's and Lichtblick's parsers need."""
+    return {
+        "type": "object",
+        "properties": {"timestamp": {"type": "number"}, "value": {"type": value_type}},
+        "required": ["timestamp", "value"],
+    }
 
 
 @dataclass(frozen=True)
@@ -122,10 +140,18 @@ class Plan:
     targets: Mapping[str, tuple[tuple[int, str], ...]] = field(default_factory=dict)
     #: The frame each primitive stream is drawn in, and its pose there (position, quaternion).
     frames: Mapping[str, tuple[str, tuple[float, ...], tuple[float, ...]]] = field(default_factory=dict)
+    #: The JSON type of each time series stream's value: ``number``, ``integer``, ``string`` or ``boolean``.
+    values: Mapping[str, str] = field(default_factory=dict)
+    #: Where ``map`` is: the log's own origin (longitude, latitude, altitude), its first pose's ``map_origin``.
+    origin: tuple[float, float, float] | None = None
 
 
-def plan(metadata: Mapping[str, Any], originals: Sequence[OriginalTopic] = ()) -> Plan:
+def plan(metadata: Mapping[str, Any], originals: Sequence[OriginalTopic] = (), first: Survey | None = None) -> Plan:
     """The channels of a log whose XVIZ metadata is ``metadata``, numbered from 1 in stream order.
+
+    ``first`` is what :func:`survey` found in the log's first frame: the
+    log's origin, and the kind of each time series' value where the metadata
+    does not give its ``scalar_type`` (else ``number``).
 
     A log read from a recording also has a channel of each of its
     ``originals``, after the converted ones, under the topic's own name and
@@ -139,6 +165,8 @@ def plan(metadata: Mapping[str, Any], originals: Sequence[OriginalTopic] = ()) -
     channels: list[Channel] = []
     targets: dict[str, tuple[tuple[int, str], ...]] = {}
     frames: dict[str, tuple[str, tuple[float, ...], tuple[float, ...]]] = {}
+    values: dict[str, str] = {}
+    first = first or Survey()
 
     def add(stream: str, topic: str, kind: str, schema: Schema) -> None:
         if prefix:
@@ -164,7 +192,9 @@ def plan(metadata: Mapping[str, Any], originals: Sequence[OriginalTopic] = ()) -
             frames[name] = (vehicle if relative else ROOT_FRAME, *_matrix_pose(info.get("transform")))
             continue
         if category == "TIME_SERIES":
-            add(name, name, "time_series", json_schema(name, _TIME_SERIES_SCHEMA))
+            scalar = str(info.get("scalar_type", "")).upper()
+            values[name] = _SCALAR_TYPES.get(scalar) or first.values.get(name, "number")
+            add(name, name, "time_series", json_schema(name, _time_series_schema(values[name])))
             continue
         description = f"the XVIZ {category.lower() or 'unknown'} stream {name} as XVIZ carries it"
         add(name, name, "json", json_schema(name, {"type": "object", "description": description}))
@@ -173,7 +203,56 @@ def plan(metadata: Mapping[str, Any], originals: Sequence[OriginalTopic] = ()) -
         Channel(id, original.topic, "", "original", Schema(original.encoding, original.schema_name, original.schema_encoding, original.schema))
         for id, original in zip(ids, originals)
     ]
-    return Plan(tuple(channels), ids, targets, frames)
+    return Plan(tuple(channels), ids, targets, frames, values, first.origin)
+
+
+@dataclass(frozen=True)
+class Survey:
+    """What a log's first frame tells that its metadata may not (see :func:`survey`)."""
+
+    #: The first ``map_origin`` of a pose (of ``/vehicle_pose`` if it has one): longitude, latitude, altitude.
+    origin: tuple[float, float, float] | None = None
+    #: The JSON type of each time series' first value.
+    values: Mapping[str, str] = field(default_factory=dict)
+
+
+def survey(data: bytes) -> bytes:
+    """What the XVIZ state update ``data`` tells of its log (:class:`Survey`), as JSON (see :func:`read_survey`).
+
+    Raises :class:`~xviz_server.exceptions.DecodeError` for a frame that is
+    not a state update.
+    """
+    updates = _updates(decode(data))
+    values: dict[str, str] = {}
+    for update in updates:
+        for stream, content in _streams(update):
+            if isinstance(content, dict) and "value" in content and stream not in values:
+                value = content["value"]
+                values[stream] = "boolean" if isinstance(value, bool) else "string" if isinstance(value, str) else "number"
+    return orjson.dumps({"origin": first_origin(updates), "values": values})
+
+
+def first_origin(updates: Sequence[Any]) -> tuple[float, float, float] | None:
+    """The first ``map_origin`` of a pose in ``updates`` (an XVIZ state update's), ``/vehicle_pose``'s first:
+    longitude, latitude, altitude."""
+    for update in updates:
+        poses = _mapping(_mapping(update).get("poses"))
+        for name in sorted(poses, key=lambda name: name != "/vehicle_pose"):
+            found = _mapping(poses[name]).get("map_origin")
+            if isinstance(found, dict):
+                try:
+                    return (float(found.get("longitude") or 0.0), float(found.get("latitude") or 0.0),
+                            float(found.get("altitude") or 0.0))
+                except (TypeError, ValueError):
+                    return None
+    return None
+
+
+def read_survey(data: bytes) -> Survey:
+    """The :class:`Survey` that :func:`survey` wrote."""
+    facts = orjson.loads(data)
+    origin = facts.get("origin")
+    return Survey(None if origin is None else (origin[0], origin[1], origin[2]), facts.get("values") or {})
 
 
 def convert(data: bytes, plan: Plan) -> bytes:
@@ -182,14 +261,8 @@ def convert(data: bytes, plan: Plan) -> bytes:
     Raises :class:`~xviz_server.exceptions.DecodeError` for a frame that is
     not a state update.
     """
-    message = decode(data)
-    updates = message.get("data", {}).get("updates") if isinstance(message, dict) else None
-    if message.get("type") != "xviz/state_update" or not isinstance(updates, list):
-        raise DecodeError("frame is not an xviz/state_update")
     out: list[tuple[int, int, bytes]] = []
-    for update in updates:
-        if not isinstance(update, dict) or not isinstance(update.get("timestamp"), (int, float)):
-            raise DecodeError("a state update's update has no timestamp")
+    for update in _updates(decode(data)):
         time = nanoseconds(update["timestamp"])
         for stream, content in _streams(update):
             for channel, kind in plan.targets.get(stream, ()):
@@ -200,6 +273,17 @@ def convert(data: bytes, plan: Plan) -> bytes:
 
 
 # --------------------------------------------------------------- the streams of an update
+
+
+def _updates(message: Any) -> list[dict[str, Any]]:
+    """The updates of a decoded state update, each with a timestamp; raises :class:`DecodeError` otherwise."""
+    updates = message.get("data", {}).get("updates") if isinstance(message, dict) else None
+    if not isinstance(message, dict) or message.get("type") != "xviz/state_update" or not isinstance(updates, list):
+        raise DecodeError("frame is not an xviz/state_update")
+    for update in updates:
+        if not isinstance(update, dict) or not isinstance(update.get("timestamp"), (int, float)):
+            raise DecodeError("a state update's update has no timestamp")
+    return updates
 
 
 def _streams(update: Mapping[str, Any]) -> Iterator[tuple[str, Any]]:
@@ -223,15 +307,31 @@ def _transform(stream: str, pose: Any, time: int, plan: Plan) -> bytes | None:
         return None
     return FrameTransform(
         timestamp=_stamp(time), parent_frame_id=ROOT_FRAME, child_frame_id=stream,
-        translation=Vector3(**_xyz(pose.get("position"))), rotation=_rpy_quaternion(pose.get("orientation")),
+        translation=_translation(pose, plan), rotation=_rpy_quaternion(pose.get("orientation")),
     ).SerializeToString()
 
 
 def _pose(stream: str, pose: Any, time: int, plan: Plan) -> bytes | None:
     if not isinstance(pose, dict):
         return None
-    place = Pose(position=Vector3(**_xyz(pose.get("position"))), orientation=_rpy_quaternion(pose.get("orientation")))
+    place = Pose(position=_translation(pose, plan), orientation=_rpy_quaternion(pose.get("orientation")))
     return PoseInFrame(timestamp=_stamp(time), frame_id=ROOT_FRAME, pose=place).SerializeToString()
+
+
+def _translation(pose: Mapping[str, Any], plan: Plan) -> Vector3:
+    """Where a pose is in ``map``: its ``position`` from its ``map_origin``, plus that origin's east, north and up
+    metres from the log's (:attr:`Plan.origin`), as streetscape.gl places the vehicle."""
+    x, y, z = _xyz(pose.get("position")).values()
+    origin = pose.get("map_origin")
+    if plan.origin is not None and isinstance(origin, dict):
+        longitude, latitude, altitude = plan.origin
+        try:
+            east, north, up = enu(float(origin.get("latitude") or 0.0), float(origin.get("longitude") or 0.0),
+                                  float(origin.get("altitude") or 0.0), (latitude, longitude, altitude)).tolist()
+        except (TypeError, ValueError):
+            east = north = up = 0.0
+        x, y, z = x + east, y + north, z + up
+    return Vector3(x=x, y=y, z=z)
 
 
 def _location(stream: str, pose: Any, time: int, plan: Plan) -> bytes | None:
@@ -331,7 +431,28 @@ def _scene(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:
 
 
 def _time_series(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:
-    return orjson.dumps(content)
+    """``{"timestamp", "value"}`` with the value as the channel's one JSON type; none for a value that is not one."""
+    value = _as_type(content["value"], plan.values.get(stream, "number"))
+    if value is None:
+        return None
+    try:
+        stamp = float(content["timestamp"])
+    except (TypeError, ValueError):
+        return None
+    return orjson.dumps({"timestamp": stamp, "value": value})
+
+
+def _as_type(value: Any, kind: str) -> float | int | str | bool | None:
+    """``value`` as the JSON type ``kind`` (numbers and booleans stand for each other), or ``None``."""
+    if kind == "string":
+        return value if isinstance(value, str) else orjson.dumps(value, option=orjson.OPT_SERIALIZE_NUMPY).decode()
+    if isinstance(value, str):
+        return value.lower() == "true" if kind == "boolean" and value.lower() in ("true", "false") else None
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    if kind == "boolean":
+        return bool(value)
+    return int(value) if kind == "integer" else float(value)
 
 
 def _json(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:

@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 from weakref import WeakKeyDictionary
 
 from ..levels import FULL, Level
 from ..live import LiveFeed, LiveUpdate
 from ..work import Workers
-from .convert import CONVERTED, Plan, convert, nanoseconds, plan
+from .convert import CONVERTED, Plan, convert, first_origin, nanoseconds, plan
 
 __all__ = ["LivePlan", "feed_plan", "converted", "update_time"]
 
@@ -36,14 +36,23 @@ class LivePlan:
 _plans: WeakKeyDictionary[LiveFeed, LivePlan] = WeakKeyDictionary()
 
 
-def feed_plan(feed: LiveFeed) -> LivePlan | None:
-    """The channels of ``feed`` under its current metadata, or ``None`` before it has any."""
+def feed_plan(feed: LiveFeed, update: LiveUpdate | None = None) -> LivePlan | None:
+    """The channels of ``feed`` under its current metadata, or ``None`` before it has any.
+
+    The feed's origin (where ``map`` is) is the first ``map_origin`` of the
+    first ``update`` that has one under this metadata: from then on every
+    client of the feed gets the same plan.
+    """
     metadata = feed.metadata
     if metadata is None:
         return None
     held = _plans.get(feed)
     if held is None or held.metadata is not metadata:
         held = _plans[feed] = LivePlan(metadata, plan(metadata))
+    if update is not None and held.plan.origin is None:
+        origin = first_origin(update.message["data"]["updates"])
+        if origin is not None:
+            held = _plans[feed] = LivePlan(metadata, replace(held.plan, origin=origin))
     return held
 
 

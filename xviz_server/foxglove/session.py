@@ -55,7 +55,7 @@ from ..session import Close, DetailChanged, LiveFacts, LookUpLive, OpenLog, Send
 from .convert import Channel
 from .wire import (
     CLIENT_MESSAGE_DATA, ENDED, PAUSED, PLAYBACK_CONTROL_REQUEST, PLAYING, SERVICE_CALL_REQUEST, PlaybackControl,
-    parse_playback_control, parse_text, playback_state, text,
+    parse_playback_control, parse_text, playback_state, text, time_message,
 )
 
 __all__ = [
@@ -207,13 +207,18 @@ class FoxgloveSession:
         return [OpenLog(name)]
 
     def log_opened(self, log: FoxgloveLog) -> list[Event]:
-        """The log is open: say what the server offers, and advertise the log's channels."""
+        """The log is open: say what the server offers, the log's start time, and advertise the log's channels.
+
+        The time comes before the channels: Lichtblick starts its timeline at
+        the time it has when the channels come (else at 0).
+        """
         self.log = log
         self.position = log.start_time
         self._channels = {channel.id: channel for channel in log.channels}
         self._set_rate()
         advertise = text("advertise", channels=[channel.advertisement() for channel in log.channels])
-        return [self._server_info(), *self._take_detail_errors(), Send(advertise, text=True)]
+        return [self._server_info(), *self._take_detail_errors(), Send(time_message(log.start_time), text=False),
+                Send(advertise, text=True)]
 
     def log_failed(self, error: XVIZError) -> list[Event]:
         """The log cannot be served; a name that is no recorded log may be a running live feed's."""

@@ -1,0 +1,131 @@
+// Drive the real Lichtblick web app in headless Chromium, connected to this server like a user, and report what
+// it shows.
+//
+//   node tests/lichtblick.mjs '{"url": "http://127.0.0.1:APP/?ds=foxglove-websocket&ds.url=ws://...", ...}'
+//
+// The app is a build of Lichtblick's web app (see tests/test_lichtblick.py) served on loopback, its default
+// layout (the panels a first open shows) put in its index.html as its Docker image does. Options: url;
+// screenshot (PNG of the page at the end); panels (ids of the layout's panels to read while it plays: a Raw
+// Messages panel's text, a Plot panel's count of pixels of colour `plotColor`); until ({panel id: text} that Raw
+// Messages panels show when playback is over: the panels are read until each has shown its text, or the timeout);
+// timeout (ms, default 60000); viewport ({width, height}, default 1400x900); hosts (more host names the page may
+// reach besides this machine's loopback).
+//
+// Prints one JSON object: the topics the Topics tab lists (name and schema), the problems the Problems tab lists,
+// each Raw Messages panel's distinct texts in the order shown, each Plot panel's pixels of the series colour at the end,
+// whether the 3D panel's canvas shows a picture (varied pixels), the page errors and console errors and warnings,
+// the requests to other hosts (refused: the tests use no network).
+import {launch} from './chromium.mjs';
+
+const options = {timeout: 60000, viewport: {width: 1400, height: 900}, panels: [], hosts: [], ...JSON.parse(process.argv[2])};
+const LOOPBACK = new Set(['127.0.0.1', 'localhost', '[::1]', ...options.hosts]);
+
+const browser = await launch();
+const report = {topics: [], problems: [], raw: {}, plots: {}, drawn3d: false, pageErrors: [], consoleErrors: [],
+  consoleWarnings: [], externalRequests: [], steps: []};
+const deadline = Date.now() + options.timeout;
+try {
+  const page = await browser.newPage({viewport: options.viewport});
+  page.on('pageerror', error => report.pageErrors.push(String(error)));
+  page.on('console', message => {
+    if (message.type() === 'error') report.consoleErrors.push(message.text());
+    if (message.type() === 'warning') report.consoleWarnings.push(message.text());
+  });
+  await page.route('**/*', route => {
+    const url = new URL(route.request().url());
+    if (['http:', 'https:', 'ws:', 'wss:'].includes(url.protocol) && !LOOPBACK.has(url.hostname)) {
+      report.externalRequests.push(url.origin);
+      return route.abort();
+    }
+    return route.continue();
+  });
+  await page.addInitScript(() => {
+    // The RGBA pixels of a PNG, decoded by the page's own image decoder.
+    window.pixelsOf = async base64 => {
+      const image = new Image();
+      image.src = `data:image/png;base64,${base64}`;
+      await image.decode();
+      const canvas = new OffscreenCanvas(image.width, image.height);
+      const context = canvas.getContext('2d');
+      context.drawImage(image, 0, 0);
+      return context.getImageData(0, 0, image.width, image.height).data;
+    };
+    // Pixels of one colour (#rrggbb, within 40 per channel) in a PNG.
+    window.countColour = async (base64, hex) => {
+      const data = await window.pixelsOf(base64);
+      const want = [1, 3, 5].map(i => parseInt(hex.slice(i, i + 2), 16));
+      let count = 0;
+      for (let i = 0; i < data.length; i += 4) {
+        if (Math.abs(data[i] - want[0]) < 40 && Math.abs(data[i + 1] - want[1]) < 40 && Math.abs(data[i + 2] - want[2]) < 40) count++;
+      }
+      return count;
+    };
+    // How many colours a PNG shows (one pixel in 97 looked at): a flat or empty view shows a few.
+    window.colours = async base64 => {
+      const data = await window.pixelsOf(base64);
+      const seen = new Set();
+      for (let i = 0; i < data.length; i += 4 * 97) seen.add((data[i] << 16) | (data[i + 1] << 8) | data[i + 2]);
+      return seen.size;
+    };
+  });
+  await page.goto(options.url, {waitUntil: 'domcontentloaded', timeout: options.timeout});
+  report.steps.push('loaded');
+
+  // Raw Messages panels, read while the log plays; Plot panels once it is over.
+  const panel = id => page.locator(`[data-testid~="${id}"]`).first();
+  const rawPanels = options.panels.filter(id => id.startsWith('RawMessages!'));
+  const read = async () => {
+    for (const id of rawPanels) {
+      const text = (await panel(id).innerText({timeout: 1000}).catch(() => '')).replace(/\s+/g, ' ').trim();
+      const seen = report.raw[id] || (report.raw[id] = []);
+      if (text && seen[seen.length - 1] !== text) seen.push(text);
+    }
+  };
+  const done = () => Object.entries(options.until || {})
+    .every(([id, want]) => (report.raw[id] || []).some(text => text.includes(want)));
+  while (Date.now() < deadline && !done()) {
+    await read();
+  }
+  report.steps.push(done() ? 'played' : 'timeout');
+  for (const id of options.panels.filter(id => id.startsWith('Plot!'))) {
+    const shot = await panel(id).screenshot({timeout: 10000}).catch(() => null);
+    if (shot) {
+      report.plots[id] = await page.evaluate(([data, color]) => window.countColour(data, color), [shot.toString('base64'), options.plotColor]);
+    }
+  }
+
+  // The 3D panel: a picture, not one flat colour.
+  const canvas = page.locator('[data-testid~="3D!xviz"] canvas').first();
+  if (await canvas.count()) {
+    const shot = await canvas.screenshot().catch(() => null);
+    if (shot) {
+      report.drawn3d = await page.evaluate(base64 => window.colours(base64), shot.toString('base64')) > 20;
+    }
+  }
+  if (options.screenshot) await page.screenshot({path: options.screenshot});
+
+  // The Topics tab of the left sidebar: every topic the app took, with its schema.
+  const tab = async name => {
+    const button = page.getByRole('tab', {name: new RegExp(`^${name}`)}).first();
+    if (await button.count() === 0) return false;
+    await button.click();
+    return true;
+  };
+  if (await tab('Topics')) {
+    const rows = page.locator('[data-testid="TopicListDragHandle"]');
+    await rows.first().waitFor({timeout: Math.max(1000, deadline - Date.now())}).catch(() => {});
+    report.topics = await page.evaluate(() => [...document.querySelectorAll('[data-testid="TopicListDragHandle"]')]
+      .map(handle => handle.parentElement.innerText.split('\n').map(line => line.trim()).filter(Boolean)));
+    report.steps.push('topics');
+  }
+  if (await tab('Problems')) {
+    report.problems = (await page.locator('[role="tabpanel"], .MuiAccordion-root').allInnerTexts().catch(() => []))
+      .map(text => text.trim()).filter(Boolean);
+    report.steps.push('problems');
+  }
+} catch (error) {
+  report.pageErrors.push(`driver: ${error && error.stack || error}`);
+} finally {
+  await browser.close();
+}
+process.stdout.write(JSON.stringify(report));

@@ -1,0 +1,184 @@
+"""The real Lichtblick web app in Chromium, connected to this server as a user connects: every channel listed, a Plot
+drawn, each message at its log's time, the vehicle moving, and the first layout the server offers.
+
+Lichtblick is not in this repository: build its web app from its public source as its Dockerfile does
+(``yarn install`` and ``yarn run web:build:prod``; the static files land in ``web/.webpack``) and point
+``XVIZ_LICHTBLICK_DIR`` at that folder. Without it these tests are skipped. The app is served here on loopback
+with a layout put in its ``index.html`` where its Docker image puts ``/lichtblick/default-layout.json``: the one
+``GET /api/logs/NAME/layout.json`` answers, and panels of the test's own that read what the app shows.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import json
+import math
+import os
+import re
+import threading
+from collections.abc import Iterator
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+from urllib.parse import quote
+
+import pytest
+from websockets.asyncio.client import connect
+
+from devkit.rosbag_kitti import RAW, write_bag
+from xviz_server.datasets.kitti import KittiDrive
+
+from helpers import foxglove_client, http_get, running_server
+from test_foxglove import opened
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+DRIVER = REPO / "tests" / "lichtblick.mjs"
+ARTIFACTS = REPO / "tests" / "artifacts"
+APP = os.environ.get("XVIZ_LICHTBLICK_DIR")
+PLACEHOLDER = "/*LICHTBLICK_SUITE_DEFAULT_LAYOUT_PLACEHOLDER*/"
+#: The colour of the test's Plot series, counted in the Plot panel's pixels.
+PLOT_COLOUR = "#ff00ff"
+
+if not APP or not (Path(APP) / "index.html").is_file():
+    pytest.skip("set XVIZ_LICHTBLICK_DIR to a Lichtblick web build (its Dockerfile's yarn run web:build:prod: web/.webpack)",
+                allow_module_level=True)
+
+class _AppHandler(SimpleHTTPRequestHandler):
+    """Lichtblick's static files, with ``index.html`` carrying the layout (as its Docker image's entrypoint does)."""
+
+    layout = b"{}"
+
+    def do_GET(self) -> None:  # noqa: N802 (the standard library's name)
+        if self.path.split("?")[0] in ("/", "/index.html"):
+            page = (Path(self.directory) / "index.html").read_bytes().replace(PLACEHOLDER.encode(), self.layout)
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html")
+            self.send_header("Content-Length", str(len(page)))
+            self.end_headers()
+            self.wfile.write(page)
+            return
+        super().do_GET()
+
+    def log_message(self, format: str, *args: Any) -> None:
+        pass
+
+
+@pytest.fixture
+def app() -> Iterator[Any]:
+    """Serve the app on loopback; call the result with a layout to get the app's address."""
+    handler = type("Handler", (_AppHandler,), {})
+    server = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(handler, directory=APP))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+
+    def serve(layout: dict[str, Any]) -> str:
+        handler.layout = json.dumps(layout).encode()
+        return f"http://127.0.0.1:{server.server_address[1]}/"
+
+    yield serve
+    server.shutdown()
+    thread.join()
+
+
+async def advertised(port: int, log: str) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The server's ``serverInfo`` and the channels it advertises for ``log``."""
+    async with connect(f"ws://127.0.0.1:{port}/?log={log}", subprotocols=["foxglove.websocket.v1"]) as ws:  # type: ignore[list-item]
+        return await opened(ws)
+
+
+def with_probes(served: dict[str, Any], velocity: str, pose: str) -> dict[str, Any]:
+    """The server's layout with the test's own panels beside it: a Plot of the ``velocity`` series in one colour, and
+    as Raw Messages the vehicle's transform (topic ``pose``) and the ``velocity`` messages (the panel shows each
+    message's receive time, the time the app stamped it with, above the message)."""
+    layout = json.loads(json.dumps(served))
+    config = layout["configById"]
+    config["Plot!xviz"] = {
+        "paths": [{"value": f"{velocity}.value", "enabled": True, "timestampMethod": "receiveTime", "color": PLOT_COLOUR}],
+        "showLegend": False, "legendDisplay": "none", "showXAxisLabels": True, "showYAxisLabels": True, "isSynced": True,
+        "xAxisVal": "timestamp",
+    }
+    raw = {"diffEnabled": False, "diffMethod": "custom", "diffTopicPath": "", "showFullMessageForDiff": False, "expansion": "all"}
+    config["RawMessages!pose"] = {**raw, "topicPath": f"{pose}.translation"}
+    config["RawMessages!stamps"] = {**raw, "topicPath": velocity}
+    layout["layout"] = {
+        "first": "3D!xviz",
+        "second": {
+            "first": {"first": "Image!xviz", "second": "Plot!xviz", "direction": "column"},
+            "second": {"first": "RawMessages!pose", "second": "RawMessages!stamps", "direction": "column"},
+            "direction": "column",
+        },
+        "direction": "row", "splitPercentage": 50,
+    }
+    return layout
+
+
+async def drive(url: str, shot: Path, **options: Any) -> dict[str, Any]:
+    arguments = {"url": url, "screenshot": str(shot), "plotColor": PLOT_COLOUR, "timeout": 90_000, **options}
+    process = await asyncio.create_subprocess_exec(
+        "node", str(DRIVER), json.dumps(arguments), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+    )
+    stdout, stderr = await process.communicate()
+    assert process.returncode == 0, stderr.decode()
+    report: dict[str, Any] = json.loads(stdout)
+    print(json.dumps({k: v for k, v in report.items() if k != "consoleWarnings"}, indent=1)[:4000])
+    return report
+
+
+def numbers(text: str, key: str) -> list[float]:
+    """The numbers after ``key`` in a Raw Messages panel's text."""
+    return [float(value) for value in re.findall(rf"\b{key} (-?[0-9.]+(?:e-?\d+)?)", text)]
+
+
+async def check_log(app: Any, server: Any, log: str, velocity: str, pose: str, shot: str) -> dict[str, Any]:
+    """Open ``log`` in the app as a user does (a Foxglove WebSocket connection by URL) and check what it shows."""
+    status, _, body = await asyncio.to_thread(http_get, server.port, f"/api/logs/{quote(log)}/layout.json")
+    assert status == 200
+    info, channels = await advertised(server.port, log)
+    socket = f"ws://127.0.0.1:{server.port}/?log={log}"
+    url = app(with_probes(json.loads(body), velocity, pose)) + f"?ds=foxglove-websocket&ds.url={quote(socket, safe='')}"
+    ARTIFACTS.mkdir(exist_ok=True)
+    # Played to the end once the last frame's message shows (else the driver stops at its timeout).
+    end = info["dataEndTime"]["sec"] + info["dataEndTime"]["nsec"] / 1e9
+    last = f"@ {info['dataEndTime']['sec']}.{info['dataEndTime']['nsec']:09d} sec"
+    out = await foxglove_client(socket, "foxglove.websocket.v1")
+    transforms = out["topics"][pose]["summaries"]
+    assert {k: transforms[0]["translation"].get(k, 0.0) for k in "xy"} == {"x": 0.0, "y": 0.0}
+    moved = tuple(transforms[-1]["translation"].get(k, 0.0) for k in "xy")
+    report = await drive(url, ARTIFACTS / shot, panels=["RawMessages!pose", "RawMessages!stamps", "Plot!xviz"],
+                         until={"RawMessages!stamps": last, "RawMessages!pose": f"x {moved[0]!r}"})
+    assert report["externalRequests"] == [] and report["pageErrors"] == []
+    # Every advertised channel is listed, under its schema; no problem with a schema.
+    listed = {row[0]: row[1] if len(row) > 1 else None for row in report["topics"]}
+    assert {c["topic"]: c["schemaName"] for c in channels} == listed
+    assert not [p for p in report["problems"] if "schema" in p.lower() or "unsupported" in p.lower()], report["problems"]
+    # A Plot of the velocity draws its line.
+    assert report["plots"].get("Plot!xviz", 0) > 100
+    # Each velocity message as the app shows it: received at the time the message carries (its XVIZ timestamp).
+    shown = [(re.search(r"@ (\d+\.\d+) sec", text), re.search(r"timestamp (\d+\.\d+)", text))
+             for text in report["raw"].get("RawMessages!stamps", [])]
+    pairs = [(float(receive[1]), float(stamp[1])) for receive, stamp in shown if receive and stamp]
+    # On a loaded machine the app may paint only the last of them: that one is checked at least (a message stamped
+    # with the time before its own, as when the time came after it, would show the previous frame's time).
+    assert pairs and pairs[-1][1] == pytest.approx(end, abs=1e-6), report["raw"].get("RawMessages!stamps")
+    assert all(abs(receive - stamp) < 1e-6 for receive, stamp in pairs), pairs
+    # The vehicle's transform moved over the drive: at the end it is where the server's last transform puts it, far
+    # from the first one's (the origin of map).
+    texts = report["raw"].get("RawMessages!pose", [])
+    places = [(x[0], y[0]) for x, y in ((numbers(t, "x"), numbers(t, "y")) for t in texts) if x and y]
+    assert places and places[-1] == pytest.approx(moved, abs=1e-6) and math.hypot(*places[-1]) > 5, texts
+    assert report["drawn3d"]
+    return report
+
+
+async def test_lichtblick_shows_a_kitti_log(app: Any, kitti_root: Path) -> None:
+    async with running_server(kitti_root) as server:
+        await check_log(app, server, "kitti", "/vehicle/velocity", "/vehicle_pose", "lichtblick-kitti.png")
+
+
+async def test_lichtblick_shows_a_ros2_mcap(app: Any, shared_dir: Path, tmp_path: Path) -> None:
+    bag = write_bag(tmp_path / "drive.mcap", "mcap", drive=KittiDrive(shared_dir / "data" / RAW), frames=25)
+    async with running_server(None, dataset=[f"rosbag:{bag}"]) as server:
+        await check_log(app, server, "drive", "/xviz/odom/speed", "/xviz/vehicle_pose", "lichtblick-ros2-mcap.png")
