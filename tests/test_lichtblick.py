@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import io
 import json
 import math
 import os
@@ -24,6 +25,7 @@ from typing import Any
 from urllib.parse import quote
 
 import pytest
+from mcap.reader import make_reader
 from websockets.asyncio.client import connect
 
 from devkit.rosbag_kitti import RAW, write_bag
@@ -182,3 +184,46 @@ async def test_lichtblick_shows_a_ros2_mcap(app: Any, shared_dir: Path, tmp_path
     bag = write_bag(tmp_path / "drive.mcap", "mcap", drive=KittiDrive(shared_dir / "data" / RAW), frames=25)
     async with running_server(None, dataset=[f"rosbag:{bag}"]) as server:
         await check_log(app, server, "drive", "/xviz/odom/speed", "/xviz/vehicle_pose", "lichtblick-ros2-mcap.png")
+
+
+SEEK_DRIVER = REPO / "tests" / "lichtblick-seek.mjs"
+
+
+async def test_lichtblick_seeks_to_the_middle_of_a_log_file_reading_a_few_chunks(app: Any, kitti_root: Path) -> None:
+    async with running_server(kitti_root) as server:
+        file = f"http://127.0.0.1:{server.port}/api/logs/kitti/file.mcap"
+        status, headers, _ = await asyncio.to_thread(http_get, server.port, "/api/logs/kitti/file.mcap", "HEAD")
+        assert status == 200
+        size = int(headers["Content-Length"])
+        log = await server.catalog.open("kitti")
+        starts = sorted(float(t) for t in log.index.start)
+        middle = starts[0] + (starts[-1] - starts[0]) / 2
+        shown = max(t for t in starts if t <= middle)  # the frame the app shows at the middle
+        raw = {"diffEnabled": False, "diffMethod": "custom", "diffTopicPath": "", "showFullMessageForDiff": False, "expansion": "all"}
+        layout = {"configById": {"RawMessages!seek": {**raw, "topicPath": "/vehicle_pose.timestamp"}}, "globalVariables": {},
+                  "userNodes": {}, "playbackConfig": {"speed": 1}, "layout": "RawMessages!seek"}
+        url = app(layout) + f"?ds=remote-file&ds.url={quote(file, safe='')}"
+        sec, nsec = divmod(round(shown * 1e9), 10**9)
+        options = {"url": url, "metrics": f"http://127.0.0.1:{server.port}/metrics", "panel": "RawMessages!seek",
+                   "until": [f"{sec}", f"{nsec}"], "fraction": 0.5, "timeout": 90_000}
+        process = await asyncio.create_subprocess_exec(
+            "node", str(SEEK_DRIVER), json.dumps(options), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )
+        stdout, stderr = await process.communicate()
+        assert process.returncode == 0, stderr.decode()
+        report = json.loads(stdout)
+        chunk = max(c.chunk_length + c.message_index_length for c in await asyncio.to_thread(chunk_indexes, server.port))
+    print(json.dumps(report, indent=1)[:3000], size)
+    assert report["pageErrors"] == [] and report["externalRequests"] == []
+    # The frame at the middle is shown within a second of the click, reading at most a few chunks for it.
+    assert report["shownMs"] is not None and report["shownMs"] <= 1000, report
+    assert report["seekBytes"] <= 3 * chunk, (report["seekBytes"], chunk, size)
+
+
+def chunk_indexes(port: int) -> list[Any]:
+    """The chunk index of the KITTI log's file, read by the published ``mcap`` reader."""
+    status, _, data = http_get(port, "/api/logs/kitti/file.mcap")
+    assert status == 200
+    summary = make_reader(io.BytesIO(data)).get_summary()
+    assert summary is not None
+    return list(summary.chunk_indexes)
