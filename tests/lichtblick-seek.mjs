@@ -10,10 +10,9 @@
 // timeout, ms, default 60000). Prints one JSON object: "settledBytes" (sent before the click), "shownMs" (from
 // the click to the text shown, or null), "seekBytes" (sent from the click until then), "texts" (the panel's texts
 // after the click, in order), "time" (the app's playback time shown after the seek), "pageErrors", "externalRequests".
-import {launch} from './chromium.mjs';
+import {launch, loopbackOnly} from './chromium.mjs';
 
 const options = {timeout: 60000, fraction: 0.5, ...JSON.parse(process.argv[2])};
-const LOOPBACK = new Set(['127.0.0.1', 'localhost', '[::1]']);
 const sent = async () => {
   const text = await (await fetch(options.metrics)).text();
   const line = text.split('\n').find(row => row.startsWith('xviz_file_bytes_sent_total '));
@@ -27,14 +26,7 @@ const deadline = Date.now() + options.timeout;
 try {
   const page = await browser.newPage({viewport: {width: 1400, height: 900}});
   page.on('pageerror', error => report.pageErrors.push(String(error)));
-  await page.route('**/*', route => {
-    const url = new URL(route.request().url());
-    if (['http:', 'https:', 'ws:', 'wss:'].includes(url.protocol) && !LOOPBACK.has(url.hostname)) {
-      report.externalRequests.push(url.origin);
-      return route.abort();
-    }
-    return route.continue();
-  });
+  await loopbackOnly(page, report.externalRequests);
   await page.goto(options.url, {waitUntil: 'domcontentloaded', timeout: options.timeout});
   const bar = page.locator('[class*="scrubberWrapper"]').first();
   await bar.waitFor({timeout: options.timeout});

@@ -15,10 +15,9 @@
 // each Raw Messages panel's distinct texts in the order shown, each Plot panel's pixels of the series colour at the end,
 // whether the 3D panel's canvas shows a picture (varied pixels), the page errors and console errors and warnings,
 // the requests to other hosts (refused: the tests use no network).
-import {launch} from './chromium.mjs';
+import {launch, loopbackOnly} from './chromium.mjs';
 
 const options = {timeout: 60000, viewport: {width: 1400, height: 900}, panels: [], hosts: [], ...JSON.parse(process.argv[2])};
-const LOOPBACK = new Set(['127.0.0.1', 'localhost', '[::1]', ...options.hosts]);
 
 const browser = await launch();
 const report = {topics: [], problems: [], raw: {}, plots: {}, drawn3d: false, pageErrors: [], consoleErrors: [],
@@ -31,14 +30,7 @@ try {
     if (message.type() === 'error') report.consoleErrors.push(message.text());
     if (message.type() === 'warning') report.consoleWarnings.push(message.text());
   });
-  await page.route('**/*', route => {
-    const url = new URL(route.request().url());
-    if (['http:', 'https:', 'ws:', 'wss:'].includes(url.protocol) && !LOOPBACK.has(url.hostname)) {
-      report.externalRequests.push(url.origin);
-      return route.abort();
-    }
-    return route.continue();
-  });
+  await loopbackOnly(page, report.externalRequests, options.hosts);
   await page.addInitScript(() => {
     // The RGBA pixels of a PNG, decoded by the page's own image decoder.
     window.pixelsOf = async base64 => {
