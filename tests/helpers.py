@@ -14,6 +14,7 @@ import os
 import re
 import shutil
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -391,6 +392,20 @@ async def foxglove_client(url: str, subprotocol: str, *sends: str, options: tupl
     assert process.returncode == 0, stderr.decode()
     result: dict[str, Any] = json.loads(stdout)
     return result
+
+
+async def foxglove_opened(websocket: ClientConnection, timeout: float = 10) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """A Foxglove session's opening: ``serverInfo``, then (for a recorded log) the log's start time as a time message,
+    checked, then ``advertise``; the server's info and the channels."""
+    info = json.loads(await asyncio.wait_for(websocket.recv(), timeout))
+    following = await asyncio.wait_for(websocket.recv(), timeout)
+    if "dataStartTime" in info:
+        start = info["dataStartTime"]["sec"] * 10**9 + info["dataStartTime"]["nsec"]
+        assert following == struct.pack("<BQ", 0x02, start)
+        following = await asyncio.wait_for(websocket.recv(), timeout)
+    advertise = json.loads(following)
+    assert info["op"] == "serverInfo" and advertise["op"] == "advertise"
+    return info, advertise["channels"]
 
 
 async def close_received(websocket: ClientConnection, timeout: float = 15) -> Close:

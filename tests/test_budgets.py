@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
-from helpers import Client, Served, client, eventually, http_get, running_server, served, ten_hz, write_log
+from helpers import Client, Served, client, eventually, foxglove_opened, http_get, running_server, served, ten_hz, write_log
 from xviz_server.budget import LOG_LINES, MAX_ITEMS, NAMED
 
 pytestmark = pytest.mark.slow
@@ -40,10 +40,7 @@ def grown(server: Served, before: dict[int, int]) -> dict[int, int]:
 
 async def foxglove(server: Served, log: str = "kitti") -> ClientConnection:
     websocket = await connect(f"ws://127.0.0.1:{server.port}/?log={log}", subprotocols=["foxglove.websocket.v1"], max_size=None)  # type: ignore[list-item]
-    info = json.loads(await asyncio.wait_for(websocket.recv(), 30))
-    advertise = json.loads(await asyncio.wait_for(websocket.recv(), 30))
-    assert info["op"] == "serverInfo" and advertise["op"] == "advertise"
-    websocket.channels = advertise["channels"]  # type: ignore[attr-defined]
+    _, websocket.channels = await foxglove_opened(websocket, 30)  # type: ignore[attr-defined]
     return websocket
 
 

@@ -27,7 +27,7 @@ from xviz_server.datasets.ros import RosBag, dataset as ros_dataset
 from xviz_server.exceptions import DatasetError, FrameSizeError
 from xviz_server.records import unpack
 
-from helpers import client, close_received, eventually, foxglove_client, http_get, metric, running_server
+from helpers import client, close_received, eventually, foxglove_client, foxglove_opened, http_get, metric, running_server
 
 
 def kitti_frames(kitti_log: Path) -> list[dict[str, Any]]:
@@ -80,16 +80,7 @@ async def foxglove(server: Any, path: str = "/?log=kitti", subprotocols: list[st
 
 
 async def opened(websocket: ClientConnection) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """``serverInfo``, then (for a recorded log) the log's start time as a time message, then ``advertise``."""
-    info = json.loads(await asyncio.wait_for(websocket.recv(), 10))
-    following = await asyncio.wait_for(websocket.recv(), 10)
-    if "dataStartTime" in info:
-        start = info["dataStartTime"]["sec"] * 10**9 + info["dataStartTime"]["nsec"]
-        assert following == struct.pack("<BQ", 0x02, start)
-        following = await asyncio.wait_for(websocket.recv(), 10)
-    advertise = json.loads(following)
-    assert info["op"] == "serverInfo" and advertise["op"] == "advertise"
-    return info, advertise["channels"]
+    return await foxglove_opened(websocket)
 
 
 async def next_of(websocket: ClientConnection, want: str, timeout: float = 10) -> Any:

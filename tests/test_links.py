@@ -36,7 +36,7 @@ from xviz_server.settings import Settings
 from conftest import KITTI_LOG
 from devkit.tcpproxy import shaped_link
 from devkit.tclink import can_shape_links, tc_link
-from helpers import metric, running_server, xviz_decode
+from helpers import foxglove_opened, metric, running_server, xviz_decode
 
 LOG = KITTI_LOG.name
 NUMBERS = list(range(2, 27))  # the frames of the log, in order
@@ -351,9 +351,8 @@ async def test_a_foxglove_client_pins_a_level_by_url_and_by_parameter(kitti_root
     async with running_server(kitti_root) as server:
         url = f"ws://127.0.0.1:{server.port}/?log=kitti&profile=low"
         async with connect(url, subprotocols=[FOXGLOVE], max_size=None) as websocket:
-            info = json.loads(await websocket.recv())
+            info, channels = await foxglove_opened(websocket)
             assert {"parameters", "parametersSubscribe"} <= set(info["capabilities"])
-            channels = json.loads(await websocket.recv())["channels"]
             lidar = next(channel["id"] for channel in channels if channel["topic"] == "/lidar/points")
             await websocket.send(json.dumps({"op": "subscribeParameterUpdates", "parameterNames": ["/xviz_server/level"]}))
             await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": lidar}]}))
@@ -384,9 +383,11 @@ async def test_a_foxglove_client_shares_each_level_of_a_frame_with_xviz_sessions
             for face in faces:
                 url = f"ws://127.0.0.1:{server.port}/?log=kitti&profile=minimal"
                 async with connect(url, subprotocols=[FOXGLOVE] if face == FOXGLOVE else None, max_size=None) as websocket:
-                    await websocket.recv()
                     if face == FOXGLOVE:
-                        channels = json.loads(await websocket.recv())["channels"]
+                        _, channels = await foxglove_opened(websocket)
+                    else:
+                        await websocket.recv()
+                    if face == FOXGLOVE:
                         lidar = next(channel["id"] for channel in channels if channel["topic"] == "/lidar/points")
                         await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": lidar}]}))
                         speed = struct.pack("<BBfBQI", 0x03, 0, 100.0, 0, 0, 1) + b"r"  # play, at 100 times real time
