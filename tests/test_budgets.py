@@ -1,6 +1,7 @@
 """What one client, one message or one request may cost the server (issue 39), against the server run as a process.
 
-A message listing half a million bad items gets one answer and no memory; a burst of exports is admitted up to
+A message listing half a million bad items gets one answer and no memory; clients that send big messages and
+never read hold a bounded queue each and are closed; a burst of exports is admitted up to
 ``--max-sessions``; every HTTP answer carries the same headers and says what was asked. The server runs as its own
 process (``helpers.served``) where its memory is the point, its peak RSS and its workers' read from ``/proc``.
 """
@@ -307,3 +308,94 @@ async def test_every_http_answer_carries_the_same_headers_and_says_what_was_aske
         assert headers.get("referrer-policy") == "strict-origin", (name, headers)
         assert b"WebSocket connection" not in body, (name, body)
     assert answers["414"][2] == b"cannot read this request: read 10016 bytes, expected no more than 8192 bytes.\n"
+
+
+# -- clients that send and never read --------------------------------------------------------------------------------
+
+_FOXGLOVE = "foxglove.websocket.v1"
+_FLOOD = 512 * 1024
+
+
+def _frame(opcode: int, payload: bytes) -> bytes:
+    """One client frame of ``payload``, masked with a zero key (so the payload is sent as it is)."""
+    return struct.pack(">BBQ", 0x80 | opcode, 0x80 | 127, len(payload)) + b"\0\0\0\0" + payload
+
+
+def _padded(text: str) -> bytes:
+    """``text``, a JSON object, padded with spaces inside to 512 KB: valid, and as big as the attack's messages."""
+    return (text[:-1] + " " * (_FLOOD - len(text)) + "}").encode()
+
+
+#: Per face, what three clients send as fast as they can: binary junk, malformed JSON, valid ops that are answered.
+FLOODS = {
+    _FOXGLOVE: [
+        _frame(0x2, b"\xfe" * _FLOOD),
+        _frame(0x1, b"{" * _FLOOD),
+        _frame(0x1, _padded(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": 99_999}]}))),
+    ],
+    "": [
+        _frame(0x2, b"\xfe" * _FLOOD),
+        _frame(0x1, b"{" * _FLOOD),
+        _frame(0x1, _padded(json.dumps({"type": "xviz/transform_log", "data": {"id": "again"}}))),
+    ],
+}
+
+
+async def flood(port: int, subprotocol: str, frame: bytes, sent: list[int]) -> float:
+    """Send ``frame`` over and over on a WebSocket session and never read; when the server ended the connection.
+
+    Past the handshake nothing is read: the socket's receive buffer is small, so that
+    the server's answers stay in the server. ``sent[0]`` counts the bytes written.
+    """
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.setblocking(False)
+    await asyncio.get_running_loop().sock_connect(sock, ("127.0.0.1", port))
+    reader, writer = await asyncio.open_connection(sock=sock)
+    protocol = f"Sec-WebSocket-Protocol: {subprotocol}\r\n" if subprotocol else ""
+    writer.write(
+        f"GET /?log=kitti HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        f"Sec-WebSocket-Key: AAAAAAAAAAAAAAAAAAAAAA==\r\nSec-WebSocket-Version: 13\r\n{protocol}\r\n".encode()
+    )
+    assert (await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 30)).startswith(b"HTTP/1.1 101")
+    try:
+        while True:
+            writer.write(frame)
+            await writer.drain()
+            sent[0] += len(frame)
+    except OSError:
+        return time.monotonic()
+    finally:
+        writer.transport.abort()
+
+
+async def test_clients_that_send_512_kb_messages_and_never_read_cost_tens_of_mb(kitti_root: Path) -> None:
+    async with served(kitti_root, XVIZ_IDLE_TIMEOUT="10") as server:
+        async with await foxglove(server) as warm:  # the workers are up and the log's frames cached
+            await warm.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in warm.channels]}))  # type: ignore[attr-defined]
+            await arrivals(warm, 2.0)
+        before = server.rss()
+        watcher = await foxglove(server)
+        counts = [[0] for _ in range(6)]
+        started = time.monotonic()
+        floods = [
+            asyncio.ensure_future(flood(server.port, subprotocol, frame, count))
+            for (subprotocol, frame), count in zip(((p, f) for p, frames in FLOODS.items() for f in frames), counts)
+        ]
+
+        async def under_way() -> bool:
+            return all(count[0] >= 2 * _FLOOD or future.done() for count, future in zip(counts, floods))
+
+        await eventually(under_way, 30)
+        await watcher.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in watcher.channels]}))  # type: ignore[attr-defined]
+        watching = asyncio.ensure_future(arrivals(watcher))
+        await healthz(server)
+        ended = await asyncio.wait_for(asyncio.gather(*floods), 60)
+        times = await watching
+        await healthz(server)
+        await watcher.close()
+        growth = grown(server, before)
+    gaps = [later - earlier for earlier, later in zip(times, times[1:])]
+    assert len(times) > 100 and max(gaps) < QUIET, max(gaps)
+    assert max(growth.values()) < TENS_OF_MB, {pid: f"{g / _MiB:.0f} MiB" for pid, g in growth.items()}
+    assert max(ended) - started < 35  # the keepalive ping (10 s), its timeout (10 s) and closing (10 s)

@@ -89,6 +89,9 @@ MB = 1 << 20
 LOG_PATH = "/api/logs/"
 #: Seconds that closing the server may take before the connections still open are aborted.
 SHUTDOWN_TIMEOUT = 10.0
+#: Messages a connection holds received and not yet handled before it stops reading its socket: a client's
+#: messages are requests, handled one at a time, and each may be ``max_message_kb`` (websockets' default is 16).
+MAX_QUEUE = 2
 #: What sessions need and the listing does not (the codecs, numpy, the providers, Foxglove's schemas):
 #: imported once the server listens (see :meth:`XVIZServer.start`).
 SESSION_MODULES = (
@@ -226,6 +229,7 @@ class XVIZServer:
                 select_subprotocol=_select_subprotocol,
                 compression="deflate" if self.settings.compression else None,
                 max_size=self.settings.max_message_kb * 1024,
+                max_queue=MAX_QUEUE,
                 ping_interval=min(20.0, self.settings.idle_timeout),
                 ping_timeout=self.settings.idle_timeout,
                 close_timeout=min(10.0, self.settings.idle_timeout),
