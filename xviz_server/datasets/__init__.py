@@ -24,7 +24,8 @@ if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, 
 
 __all__ = [
     "Dataset", "KINDS", "FILE_KINDS", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "detect", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
+    "open_dataset", "detect", "detect_in_store", "file_problem", "dataset_problem",
+    "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
 ]
 
 
@@ -117,6 +118,71 @@ def detect(path: Path) -> str | None:
         return next((kind for kind in KINDS if _member(kind, 2)(path)), None)
     kind = FILE_KINDS.get(path.suffix)
     return kind if kind is not None and _member(kind, 2)(path) else None
+
+
+#: What a dataset of each kind is on disk, for messages.
+_WHAT = {
+    "kitti": "a KITTI raw drive folder (or its date folder)",
+    "waymo": "a Waymo segment (a .tfrecord file, or a folder of .npz frames)",
+    "vista": "a VISTA trace folder",
+    "demo": "the built-in demo",
+    "rosbag": "a ROS bag or MCAP file (or a ROS 2 bag folder)",
+}
+#: What a file of each suffix of :data:`FILE_KINDS` starts with, for messages.
+_FILE_WHAT = {".bag": "a ROS 1 bag", ".mcap": "an MCAP file", ".tfrecord": "a TFRecord file"}
+#: Bytes read from each end of a file to tell what is wrong with it.
+_PEEK = 16
+
+
+def file_problem(path: Path) -> str | None:
+    """Why the file ``path``, named as a dataset of :data:`FILE_KINDS` (``drive.bag``), cannot be served whole.
+
+    The cause is one phrase: a file that is not of its suffix's format (by
+    its first bytes), or an MCAP file without the magic that ends every
+    complete one (cut short, or still being written). ``None`` when nothing
+    is found wrong, or the file cannot be read.
+    """
+    kind = FILE_KINDS.get(path.suffix)
+    if kind is None:
+        return None
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as file:
+            head = file.read(_PEEK)
+            file.seek(max(0, size - _PEEK))
+            tail = file.read(_PEEK)
+    except OSError:
+        return None
+    if not _member(kind, 2)(path):
+        what = _FILE_WHAT[path.suffix]
+        return f"not {what}: the file is empty" if not head else f"not {what}: it starts with {head!r}"
+    if path.suffix == ".mcap":
+        from .ros.bag import MCAP_MAGIC
+
+        if not tail.endswith(MCAP_MAGIC):
+            return "a truncated MCAP file: it does not end with the MCAP magic (cut short, or still being written), " \
+                "and opens only once complete"
+    return None
+
+
+def dataset_problem(kind: str, path: Path) -> str | None:
+    """Why ``path`` is not a dataset of ``kind`` as ``--dataset KIND:PATH`` names it, with the kind it is if another.
+
+    Cheap (the first and last bytes of a file, the names in a folder): a
+    dataset is opened only when a client asks for it. ``None`` when nothing
+    is found wrong.
+    """
+    if kind in GENERATED or kind not in KINDS:
+        return None
+    other = detect(path)
+    if other is not None and other != kind:
+        return f"{path} is {_WHAT[other]}, not {_WHAT[kind]}: give --dataset {other}:{path}"
+    if path.is_file():
+        if FILE_KINDS.get(path.suffix) == kind:
+            return file_problem(path)
+        if kind not in FILE_KINDS.values():
+            return f"{path} is a file, and {_WHAT[kind]} is a folder"
+    return None
 
 
 #: The most datasets a worker process keeps open (with what each caches), the least recently used closed first.
