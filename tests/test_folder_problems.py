@@ -105,6 +105,6 @@ def test_a_data_dir_that_is_a_bag_points_at_the_dataset_option(tmp_path: Path):
 async def test_a_default_run_logs_no_warning():
     process, port, lines = await start_serving()
     output = await stop_serving(process, lines)
-    assert f"listening on ws://127.0.0.1:{port}/ (the viewer page: http://127.0.0.1:{port}/)" in output
+    assert f"listening on ws://127.0.0.1:{port}/\n" in output and f"the viewer page: http://127.0.0.1:{port}/\n" in output
     assert "live ingest (/ingest/NAME) is open to every local process" in output  # said, at INFO
     assert " WARNING " not in output and "Traceback" not in output

@@ -31,7 +31,7 @@ def start(*args: str) -> tuple[subprocess.Popen[str], str]:
     output = []
     for line in process.stdout:  # ends when the process does; the test's timeout bounds the installs
         output.append(line)
-        if re.search(r"listening on ws://127\.0\.0\.1:\d+/ \(the viewer page: http://127\.0\.0\.1:\d+/\)", line):
+        if re.search(r"the viewer page: http://127\.0\.0\.1:\d+/$", line):  # after "listening on ws://..."
             return process, "".join(output)
     raise AssertionError("serve.sh exited before listening:\n" + "".join(output))
 

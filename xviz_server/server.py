@@ -225,8 +225,8 @@ class XVIZServer:
         except OSError as exc:
             raise ConfigError(_cannot_listen(self.settings.host, self.settings.port, exc)) from None
         secure = "s" if self.settings.certfile else ""
-        logger.info("listening on ws%s://%s:%d/ (the viewer page: http%s://%s:%d/)",
-                    secure, self.settings.host, self.port, secure, self.settings.host, self.port)
+        logger.info("listening on ws%s://%s:%d/", secure, self.settings.host, self.port)
+        logger.info("the viewer page: http%s://%s:%d/", secure, self.settings.host, self.port)
         if self.settings.ingest_token is None:
             # At INFO on a loopback address (a default run: only this machine reaches the server); a WARNING
             # where other hosts reach it, since a reverse proxy on this host makes every client local.
