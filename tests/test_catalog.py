@@ -8,6 +8,7 @@ moto's S3 server through the counting proxy; the API asked over real HTTP.
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
 import json
 import logging
@@ -17,7 +18,6 @@ import sqlite3
 import subprocess
 import sys
 import textwrap
-import time
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -27,7 +27,7 @@ from typing import Any, Callable
 import pytest
 
 from devkit.fleet import FLEET_START, FleetLog, write_fleet
-from helpers import client, http_get, metadata, running_server, start_serving, stop_serving, ten_hz, write_log
+from helpers import client, eventually, http_get, metadata, running_server, start_serving, stop_serving, ten_hz, write_log
 from xviz_server.catalog import indexer
 from xviz_server.catalog.db import FILE_NAME, SCHEMA, SORT_INDEXES
 from xviz_server.codec import Format, encode
@@ -43,6 +43,11 @@ def fetch(server: XVIZServer, path: str) -> tuple[int, dict[str, Any]]:
             return response.status, json.loads(response.read())
     except urllib.error.HTTPError as error:
         return error.code, json.loads(error.read())
+
+
+def cursor_of(fields: list[Any]) -> str:
+    """A cursor as the server writes them (its JSON, base64url without padding), holding ``fields``."""
+    return base64.urlsafe_b64encode(json.dumps(fields).encode()).decode().rstrip("=")
 
 
 async def listing(server: XVIZServer, **query: Any) -> dict[str, Any]:
@@ -61,14 +66,6 @@ async def every_page(server: XVIZServer, **query: Any) -> list[dict[str, Any]]:
         cursor = page["next"]
         if cursor is None:
             return logs
-
-
-async def eventually(check: Callable[[], Any], timeout: float = 15.0) -> None:
-    """Wait until ``await check()`` is true."""
-    deadline = time.monotonic() + timeout
-    while not await check():
-        assert time.monotonic() < deadline, "not within the time allowed"
-        await asyncio.sleep(0.1)
 
 
 @pytest.fixture(scope="module")
@@ -157,6 +154,10 @@ async def test_one_log_gives_every_fact(fleet: tuple[Path, list[FleetLog]]):
         ("min_duration=-1", "min_duration"), ("sort=colour", "sort"), ("sort=--name", "sort"), ("kind=tape", "kind"),
         ("kind=xviz,", "kind"), ("cursor=garbage", "cursor"), ("cursor=WyJuYW1lIiwxLCJ4Il0", "cursor"),
         ("q=a&q=b", "q"), ("q=", "q"), ("stream=" + "x" * 501, "stream"),
+        ("from=1_000", "from"), ("to=%205", "to"), ("min_duration=%2B5", "min_duration"), ("from=0x10", "from"),
+        ("from=1&from=2", "from"),
+        ("sort=frames&cursor=" + cursor_of(["frames", 2**63, "a"]), "cursor"),
+        ("sort=-bytes&cursor=" + cursor_of(["-bytes", 2**64 - 1, "a"]), "cursor"),
     ],
 )
 async def test_a_malformed_parameter_is_a_400_naming_it(tmp_path: Path, query: str, parameter: str):

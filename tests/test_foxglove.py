@@ -703,9 +703,16 @@ async def test_a_bad_export_request_is_refused_naming_the_problem(kitti_root: Pa
     async with running_server(kitti_root) as server:
         for query, name, expected in [
             ("?format=zip", "kitti", (400, "format='zip'")),
-            ("?start=soon", "kitti", (400, "start='soon' is not a number")),
-            ("?start=nan", "kitti", (400, "not a finite number")),
+            ("?start=soon", "kitti", (400, "start: give a finite number of seconds")),
+            ("?start=nan", "kitti", (400, "not 'nan'")),
             ("?start=10&end=5", "kitti", (400, "start=10.0 is after end=5.0")),
+            # The catalog's reader (xviz_server.params): a parameter given twice, numbers in plain decimal.
+            ("?start=1&start=2", "kitti", (400, "start: give it at most once")),
+            ("?end=3&format=mcap&end=4", "kitti", (400, "end: give it at most once")),
+            ("?format=mcap&format=zip", "kitti", (400, "format: give it at most once")),
+            ("?start=1_000", "kitti", (400, "not '1_000'")),
+            ("?end=%205", "kitti", (400, "not ' 5'")),
+            ("?start=0x10", "kitti", (400, "not '0x10'")),
             ("", "nowhere", (404, "nowhere")),
             ("", "..%2Fetc", (404, "not allowed")),
         ]:

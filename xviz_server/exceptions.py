@@ -204,7 +204,7 @@ class BrokerError(XVIZError):
 
 
 class QueryError(XVIZError, ValueError):
-    """A parameter of a catalog query (``GET /api/logs``) cannot be used; ``parameter`` names it."""
+    """A parameter of an HTTP query (the catalog's ``GET /api/logs``, an export's) cannot be used; ``parameter`` names it."""
 
     def __init__(self, parameter: str, message: str) -> None:
         super().__init__(f"{parameter}: {message}")
@@ -215,5 +215,5 @@ class FoxgloveProtocolError(XVIZError):
     """A Foxglove client sent a message that the Foxglove WebSocket protocol does not allow."""
 
 
-class ExportError(XVIZError):
-    """A clip of a log cannot be exported as asked (a bad range or format)."""
+class ExportError(QueryError):
+    """A clip of a log cannot be exported as asked (a bad range or format); ``parameter`` names the one at fault."""

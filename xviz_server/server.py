@@ -53,7 +53,7 @@ from .cache import FrameCache
 from .layout import LOG, check_log_name
 from .datasets import GENERATED, KINDS, dataset_options, dataset_problem
 from .catalog import Indexer, parse_query
-from .exceptions import ConfigError, ExportError, LogError, LogNotFound, QueryError, XVIZError
+from .exceptions import ConfigError, LogError, LogNotFound, QueryError, XVIZError
 from .foxglove.wire import SUBPROTOCOLS
 from .framing import OPEN_TIMEOUT, FramingConnection, streamed
 from .gate import GatedConnection
@@ -344,7 +344,7 @@ class XVIZServer:
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
             await self._ready.wait()
-            return await self._export(connection, name, dict(urllib.parse.parse_qsl(urlsplit(request.path).query)))
+            return await self._export(connection, name, urllib.parse.parse_qs(urlsplit(request.path).query, keep_blank_values=True))
         if path in ("/", "/logs", "/api/logs") or path.startswith(LOG_PATH):
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
@@ -355,7 +355,7 @@ class XVIZServer:
             "not found: open a WebSocket for an XVIZ session, or GET /, /api/logs, /healthz or /metrics\n",
         )
 
-    async def _export(self, connection: ServerConnection, name: str, query: dict[str, str]) -> Response:
+    async def _export(self, connection: ServerConnection, name: str, query: dict[str, list[str]]) -> Response:
         """A clip of log ``name`` as an MCAP file, sent as it is written (see :mod:`xviz_server.foxglove.export`)."""
         from .foxglove.convert import plan
         from .foxglove.export import export, parse_range
@@ -365,7 +365,7 @@ class XVIZServer:
             log = await self.catalog.open(name, preload=False)
         except LogNotFound as exc:
             return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
-        except ExportError as exc:
+        except QueryError as exc:
             return connection.respond(HTTPStatus.BAD_REQUEST, f"{exc}\n")
         except XVIZError as exc:
             return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")

@@ -24,8 +24,7 @@ writer), in a thread.
 
 from __future__ import annotations
 
-import math
-from collections.abc import AsyncGenerator, Mapping
+from collections.abc import AsyncGenerator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import IO, cast
 from urllib.parse import unquote
@@ -34,6 +33,7 @@ from mcap.writer import CompressionType, Writer
 
 from ..exceptions import ExportError
 from ..logs import Log
+from ..params import SHOWN, seconds, single
 from ..work import Workers
 from .convert import Plan
 from .frame import Message, frame_messages
@@ -61,24 +61,16 @@ def export_path(path: str) -> str | None:
     return unquote(path[len(_PREFIX):-len(_SUFFIX)])
 
 
-def parse_range(query: Mapping[str, str]) -> ExportRange:
-    """``start``, ``end`` and ``format`` from a query; raises :class:`ExportError` naming a bad one."""
-    fmt = query.get("format", "mcap")
+def parse_range(parameters: Mapping[str, Sequence[str]]) -> ExportRange:
+    """``start``, ``end`` and ``format`` from a query's parameters (each name with its values), read by
+    :mod:`xviz_server.params`; raises :class:`~xviz_server.exceptions.QueryError` naming a bad one."""
+    values = single(parameters, ("start", "end", "format"))
+    fmt = values.get("format", "mcap")
     if fmt not in FORMATS:
-        raise ExportError(f"format={fmt!r}: this server exports {', '.join(FORMATS)}")
-    bounds: dict[str, float | None] = {}
-    for key in ("start", "end"):
-        text = query.get(key)
-        try:
-            bounds[key] = None if text in (None, "") else float(text)
-        except ValueError:
-            raise ExportError(f"{key}={text!r} is not a number of seconds") from None
-        value = bounds[key]
-        if value is not None and not math.isfinite(value):
-            raise ExportError(f"{key}={text!r} is not a finite number of seconds")
-    start, end = bounds["start"], bounds["end"]
+        raise ExportError("format", f"format={fmt[:SHOWN]!r}: this server exports {', '.join(FORMATS)}")
+    start, end = (seconds(key, values[key]) if values.get(key) else None for key in ("start", "end"))
     if start is not None and end is not None and start > end:
-        raise ExportError(f"start={start} is after end={end}")
+        raise ExportError("start", f"start={start} is after end={end}")
     return ExportRange(start, end)
 
 
