@@ -278,7 +278,7 @@ async def test_the_kitti_log_opens_directly(tmp_path: Path, kitti_log: Path):
 #: The window sizes every panel must fit: a laptop's and a desktop's.
 WINDOWS = [{"width": 1280, "height": 800}, {"width": 1920, "height": 1080}]
 #: A tick label of the timeline: seconds from the log's start, or minutes and seconds.
-TICK = re.compile(r"^(\d+(\.\d+)? s|\d+:\d\d(:\d\d)?)$")
+TICK = re.compile(r"^(\d+(\.\d+)?\u00a0s|\d+:\d\d(:\d\d)?)$")
 
 
 def assert_on_screen(report: dict[str, Any], panels: list[str]) -> None:
@@ -322,7 +322,7 @@ async def test_every_panel_is_on_screen_with_content(tmp_path: Path, window: dic
     assert_on_screen(report, ["Metrics", "Road users"])
     (table,) = [section for section in report["layout"]["sections"] if section["name"] == "Road users"]
     assert table["rows"] >= 3
-    assert assert_ticks_readable(report)[0] == "0 s"
+    assert assert_ticks_readable(report)[0] == "0\u00a0s"
     # The export: an MCAP file of the log from the time shown to its end.
     query = urllib.parse.parse_qs(urllib.parse.urlsplit(report["exportLink"]).query)
     assert urllib.parse.urlsplit(report["exportLink"]).path == "/api/logs/demo/export"
@@ -348,7 +348,7 @@ async def test_the_timeline_of_a_short_log_reads(tmp_path: Path):
         report = await open_page(server, "/?log=short", "short-timeline", settle=2000)
     assert_drawn_cleanly(report)
     ticks = assert_ticks_readable(report)
-    assert ticks[:3] == ["0.0 s", "0.2 s", "0.4 s"], ticks
+    assert ticks[:3] == ["0.0\u00a0s", "0.2\u00a0s", "0.4\u00a0s"], ticks
 
 
 @browser

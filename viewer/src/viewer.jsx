@@ -91,7 +91,7 @@ export function formatTick(seconds, duration) {
   // Ticks are at least 0.05 of the log apart (1/20), a round step (1, 2 or 5 times a power of ten).
   const decimals = duration > 0 ? Math.min(3, Math.max(0, Math.ceil(-Math.log10(duration / 20) - 0.05))) : 0;
   if (duration < 60) {
-    return `${seconds.toFixed(decimals)} s`;
+    return `${seconds.toFixed(decimals)}\u00a0s`; // no break: the last label keeps its unit at the window's edge
   }
   const whole = Math.round(seconds);
   const pad = n => String(n).padStart(2, '0');
