@@ -473,7 +473,7 @@ async def test_a_deep_link_opens_the_log_at_its_time_and_the_page_links_the_time
     write_demo(tmp_path / "demo", duration=20.0)
     async with running_server(tmp_path) as server:
         report = await open_page(server, "/?log=demo&t=12", "deep-link", settle=2000)
-        summary = await server.indexer.one("demo")
+        start = (await server.indexer.one("demo"))["start_time"]
     assert_drawn_cleanly(report)
     assert report["timeLink"] == "?log=demo&t=12.0"
     # The playback control shows the time of day: 12 s after the log's start (to the frame shown).
