@@ -31,6 +31,9 @@ from xviz_server.datasets.waymo.tfrecord import masked_crc
 from xviz_server.exceptions import DatasetError
 from xviz_server.unpack import MAX_CHUNK_BYTES
 
+#: Servers unpacking hundreds of MB of bombs, their memory measured: each test many seconds on 2 cores.
+pytestmark = pytest.mark.slow
+
 FRAMES = 4
 BOMB = 512 << 20  # bytes a bomb unpacks to
 LIES = 3 << 30  # bytes a header declares

@@ -18,6 +18,7 @@ import sqlite3
 import subprocess
 import sys
 import textwrap
+import time
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -301,6 +302,38 @@ async def _gone(listed: Callable[[], Any], *names: str) -> bool:
     return not set(names) & set(await listed())
 
 
+def written_long_ago(root: Path) -> None:
+    """Set every folder under ``root`` to an hour old, as a fleet store's logs are: none waits to settle."""
+    long_ago = time.time() - 3600
+    for folder in [root, *(path for path in root.rglob("*") if path.is_dir())]:
+        os.utime(folder, (long_ago, long_ago))
+
+
+async def test_logs_without_index_documents_are_listed_from_metadata_and_first_and_last_frames(tmp_path: Path):
+    logs = write_fleet(tmp_path, 12, index=False)
+    write_log(tmp_path / "untimed", ten_hz(5, start=100.0), fmt=Format.JSON, index=False)  # no log_info: times from frames
+    write_log(tmp_path / "untimed-glb", ten_hz(3, start=200.0), index=False)
+    corrupt = write_log(tmp_path / "corrupt-last", ten_hz(4, start=300.0), index=False)
+    (corrupt / "5-frame.glb").write_bytes(b"\x00not a frame")
+    written_long_ago(tmp_path)
+    async with running_server(tmp_path) as server:
+        listed = {log["name"]: log for log in await every_page(server)}
+    assert set(listed) == {log.name for log in logs} | {"untimed", "untimed-glb", "corrupt-last"}
+    for log in logs:
+        entry = listed[log.name]
+        assert entry["indexed"] is True and "error" not in entry and entry["frames"] == 2
+        assert (entry["start_time"], entry["end_time"], entry["vehicle"]) == (log.start, log.end, log.vehicle)
+        assert entry["streams"] == sorted(["/points", "/vehicle_pose", *(["/camera"] if int(log.name[-6:]) % 3 == 0 else [])])
+    untimed = listed["untimed"]
+    assert (untimed["format"], untimed["frames"], untimed["start_time"], untimed["end_time"]) == ("JSON", 5, 100.0, 100.4)
+    assert untimed["streams"] == ["/points", "/speed", "/vehicle_pose"]
+    glb = listed["untimed-glb"]
+    assert (glb["format"], glb["frames"], glb["start_time"], glb["end_time"]) == ("BINARY", 3, 200.0, 200.2)
+    # A corrupt frame is left out of the time range, as a session leaves it out of its index; the log is listed.
+    assert listed["corrupt-last"]["frames"] == 4 and listed["corrupt-last"]["start_time"] == 300.0
+    assert "error" not in listed["corrupt-last"]
+
+
 async def test_a_session_opens_a_log_the_catalog_has_not_indexed(tmp_path: Path):
     write_log(tmp_path / "fresh", ten_hz(5), index=False)  # waits for its index
     async with running_server(tmp_path, settled=False) as server:
@@ -375,6 +408,7 @@ FULL_DISK = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_a_full_disk_keeps_the_catalog_in_memory_and_the_server_serving(tmp_path: Path):
     write_fleet(tmp_path / "logs", 400)
     # Files of the process may not grow past 150 KB: the catalog's database soon cannot.
@@ -425,6 +459,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
 BUCKET = "xviz-catalog"
 
 
+@pytest.mark.slow
 async def test_a_store_of_ten_thousand_keys_is_listed_from_one_listing_and_two_gets_a_log(
     store: Any, monkeypatch: pytest.MonkeyPatch
 ):

@@ -53,7 +53,7 @@ from xviz_server.exceptions import DatasetError, DecodeError, EncodeError, Messa
 from xviz_server.index import TimeIndex
 from xviz_server.session import Send, Session
 
-pytestmark = needs_data
+pytestmark = [pytest.mark.slow, needs_data]
 
 PROFILES = {
     # The same examples on every run (no flaky CI), few enough for a few seconds per parser.

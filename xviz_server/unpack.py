@@ -7,7 +7,7 @@ is checked against :data:`MAX_CHUNK_BYTES` before anything is decompressed,
 and the decompressor is then asked for at most one byte more than it: a
 part that unpacks to more than it declares (a decompression bomb whose
 header lies) is refused after that many bytes, never unpacked whole. The
-four compressions recordings use (bz2, lz4 frames, zstd, zlib) are all read
+compressions recordings use (bz2, lz4 frames, zstd, zlib, gzip) are all read
 through their incremental decompressors, which take such a bound.
 
 What declares no size is bounded by a limit alone: a ROS 2 bag's message
@@ -29,6 +29,8 @@ import bz2
 import io
 import zlib
 from typing import Any, Callable
+
+from zlib_ng import zlib_ng
 
 from .exceptions import DatasetError, OversizeError
 
@@ -68,12 +70,13 @@ def _lz4() -> Any:
     return lz4.frame.LZ4FrameDecompressor()
 
 
-#: A new incremental decompressor for each compression, by the names ROS 1 and MCAP give them.
+#: A new incremental decompressor for each compression, by the names ROS 1 and MCAP give them (and gzip files').
 COMPRESSIONS: dict[str, Callable[[], Any]] = {
     "bz2": bz2.BZ2Decompressor,
     "lz4": _lz4,
     "zstd": _zstd,
     "zlib": zlib.decompressobj,
+    "gzip": lambda: zlib_ng.decompressobj(16 + zlib.MAX_WBITS),  # zlib-ng: the same stream, inflated faster
 }
 
 
@@ -102,7 +105,7 @@ def _inflate(data: bytes | memoryview, compression: str, room: int, where: str) 
             if not decompressor.eof:  # cut short, or stopped at the bound
                 break
             rest = decompressor.unused_data
-    except (OSError, ValueError, EOFError, RuntimeError, zlib.error) as exc:  # what each library raises on bad data
+    except (OSError, ValueError, EOFError, RuntimeError, zlib.error, zlib_ng.error) as exc:  # type: ignore[misc]  # what each library raises on bad data (zlib-ng's stub declares its error an instance)
         raise DatasetError(f"{where}: not {compression} data: {exc}") from None
     return b"".join(parts)
 

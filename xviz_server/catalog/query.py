@@ -32,7 +32,7 @@ from ..params import seconds, single
 __all__ = ["KINDS", "SORTS", "LIMIT", "MAX_LIMIT", "Query", "parse_query"]
 
 #: Source kinds a log is listed as (see :func:`~xviz_server.catalog.scan.source_kind`).
-KINDS = ("xviz", "kitti", "waymo", "vista", "demo", "bag", "mcap")
+KINDS = ("xviz", "kitti", "waymo", "vista", "demo", "bag", "mcap", "nuscenes", "argoverse2", "pandaset")
 #: Orders of a listing: by name, or by a fact then name.
 SORTS = ("name", "start_time", "end_time", "duration", "frames", "bytes", "modified")
 LIMIT = 100

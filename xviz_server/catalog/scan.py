@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..datasets import FILE_KINDS, file_problem
-from ..layout import FRAME_FILE, INDEX_FILE, LOG, stamp_from, stamp_of
+from ..layout import FRAME_FILE, INDEX_FILE, LOG, place_of, split_place, stamp_from, stamp_of
 from .db import Row
 
 __all__ = ["LocalScan", "source_kind", "version_of"]
@@ -46,8 +46,9 @@ def source_kind(kind: str, place: str) -> str:
 
 
 def version_of(path: str) -> str | None:
-    """A log's or dataset's version on disk (see :func:`~xviz_server.layout.stamp_of`), ``None`` when it is gone."""
-    stamp = stamp_of(path)
+    """A log's or dataset's version on disk (see :func:`~xviz_server.layout.stamp_of`), ``None`` when it is gone;
+    ``path`` is a place (see :func:`~xviz_server.layout.place_of`)."""
+    stamp = stamp_of(split_place(path)[0])
     return None if stamp is None else ",".join(map(str, stamp))
 
 
@@ -67,10 +68,13 @@ class _Folder:
 class LocalScan:
     """The logs and datasets under ``root``; ``detect`` names a dataset's kind (see :func:`~xviz_server.datasets.detect`)."""
 
-    def __init__(self, root: Path, detect: Callable[[Path], str | None]) -> None:
+    def __init__(
+        self, root: Path, detect: Callable[[Path], str | None], scenes: Callable[[str, Path], list[str]] | None = None,
+    ) -> None:
         self.root = str(root)
         self._name = Path(root).name
         self._detect = detect
+        self._scenes = scenes
         self._folders: dict[str, _Folder] = {}
         self._real: dict[str, str] = {}  # the folders of _folders by real path: a link loop ends
         self._looked: dict[str, str] = {}  # the version of each dataset file looked at for problems
@@ -180,7 +184,9 @@ class LocalScan:
                 if kind is not None:
                     version = version_of(path)
                     if version is not None:
-                        yield Row(name, self.root, path, version, source_kind(kind, path))
+                        several = self._scenes(kind, Path(path)) if self._scenes is not None else []
+                        yield from [Row(self._join(name, scene), self.root, place_of(path, (("scene", scene),)), version, kind)
+                                    for scene in several] or [Row(name, self.root, path, version, source_kind(kind, path))]
                     continue
             folder = _Folder(own.st_mtime_ns)
             self._folders[current] = folder

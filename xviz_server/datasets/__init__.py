@@ -23,8 +23,8 @@ if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, 
     from ..codec import Format
 
 __all__ = [
-    "Dataset", "KINDS", "FILE_KINDS", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "detect", "detect_in_store", "file_problem", "dataset_problem",
+    "Dataset", "KINDS", "FILE_KINDS", "SCENE_KINDS", "SCENE", "scenes", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
+    "open_dataset", "require", "detect", "detect_in_store", "file_problem", "dataset_problem",
     "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
 ]
 
@@ -58,7 +58,15 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "vista": ("vista", "VistaTrace", "is_vista_trace"),
     "demo": ("demo", "DemoDrive", "is_demo"),
     "rosbag": ("ros", "RosBag", "is_rosbag"),
+    "nuscenes": ("nuscenes", "NuScenesScene", "is_nuscenes"),
+    "argoverse2": ("argoverse2", "Argoverse2Log", "is_argoverse2_log"),
+    "pandaset": ("pandaset", "PandaSetSequence", "is_pandaset_sequence"),
 }
+#: Kinds whose folder may hold several logs (a nuScenes root holds scenes): the function of the kind's module that
+#: names them. Each is served as a log of its own, picked by the option :data:`SCENE`.
+SCENE_KINDS: dict[str, str] = {"nuscenes": "scenes"}
+#: The option that picks one log of a folder of :data:`SCENE_KINDS`.
+SCENE = "scene"
 #: Kinds made up rather than read: their path is only a name.
 GENERATED = frozenset({"demo"})
 #: Camera images of datasets are scaled down to this width by default.
@@ -66,11 +74,11 @@ DEFAULT_IMAGE_WIDTH = 400
 
 
 #: Kinds whose datasets are single files, by file suffix: other files are never datasets.
-FILE_KINDS: dict[str, str] = {".tfrecord": "waymo", ".bag": "rosbag", ".mcap": "rosbag"}
+FILE_KINDS: dict[str, str] = {".tfrecord": "waymo", ".parquet": "waymo", ".bag": "rosbag", ".mcap": "rosbag"}
 #: Kinds read from an object store: one-file datasets (their suffixes in :data:`FILE_KINDS`), and folders of files.
-STORE_KINDS = frozenset({"waymo", "rosbag", "kitti"})
+STORE_KINDS = frozenset({"waymo", "rosbag", "kitti", "argoverse2"})
 #: Kinds of :data:`STORE_KINDS` that are folders.
-STORE_FOLDER_KINDS = ("kitti",)
+STORE_FOLDER_KINDS = ("kitti", "argoverse2")
 #: Files of datasets that are not read from an object store, by suffix: why.
 STORE_REFUSED: dict[str, str] = {
     ".db3": "a ROS 2 bag's SQLite file is read from a local file only: serve the bag from a directory, or convert it to MCAP",
@@ -98,6 +106,30 @@ def open_dataset(kind: str, path: Path | StorePath | StoreTree, **options: Any) 
     return _member(kind, 1)(path, **options)
 
 
+def scenes(kind: str, path: Path) -> list[str]:
+    """The logs a dataset of ``kind`` at ``path`` holds, by name, when it holds several (see :data:`SCENE_KINDS`).
+
+    Empty for other kinds, a folder of one scene, and one whose list does not
+    read (opening it then says why).
+    """
+    if kind not in SCENE_KINDS:
+        return []
+    try:
+        names = getattr(importlib.import_module(f".{KINDS[kind][0]}", __name__), SCENE_KINDS[kind])(path)
+    except DatasetError:
+        return []
+    return list(names) if len(names) > 1 else []
+
+
+def require(module: str, what: str, extra: str) -> Any:
+    """The module ``module``, imported; a :class:`DatasetError` saying which extra installs it when it is missing."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise DatasetError(f"reading {what} needs the package {module.partition('.')[0]!r}: "
+                           f"pip install 'xviz-server[{extra}]'") from None
+
+
 def dataset_options(kind: str) -> frozenset[str]:
     """The options the dataset class of ``kind`` takes besides its path (``image_max_width``, ``config`` ...)."""
     return frozenset(inspect.signature(_member(kind, 1)).parameters) - {"path"}
@@ -123,13 +155,17 @@ def detect(path: Path) -> str | None:
 #: What a dataset of each kind is on disk, for messages.
 _WHAT = {
     "kitti": "a KITTI raw drive folder (or its date folder)",
-    "waymo": "a Waymo segment (a .tfrecord file, or a folder of .npz frames)",
+    "waymo": "a Waymo segment (a .tfrecord or .parquet file, or a folder of .npz frames)",
     "vista": "a VISTA trace folder",
     "demo": "the built-in demo",
     "rosbag": "a ROS bag or MCAP file (or a ROS 2 bag folder)",
+    "nuscenes": "a nuScenes folder",
+    "argoverse2": "an Argoverse 2 sensor log folder",
+    "pandaset": "a PandaSet sequence folder",
 }
 #: What a file of each suffix of :data:`FILE_KINDS` starts with, for messages.
-_FILE_WHAT = {".bag": "a ROS 1 bag", ".mcap": "an MCAP file", ".tfrecord": "a TFRecord file"}
+_FILE_WHAT = {".bag": "a ROS 1 bag", ".mcap": "an MCAP file", ".tfrecord": "a TFRecord file",
+              ".parquet": "a Waymo Open Dataset v2 segment"}
 #: Bytes read from each end of a file to tell what is wrong with it.
 _PEEK = 16
 
@@ -154,7 +190,7 @@ def file_problem(path: Path) -> str | None:
     except OSError:
         return None
     if not _member(kind, 2)(path):
-        what = _FILE_WHAT[path.suffix]
+        what = _FILE_WHAT.get(path.suffix, f"a {kind} dataset")
         return f"not {what}: the file is empty" if not head else f"not {what}: it starts with {head!r}"
     if path.suffix == ".mcap":
         from .ros.bag import MCAP_MAGIC
@@ -174,14 +210,17 @@ def dataset_problem(kind: str, path: Path) -> str | None:
     """
     if kind in GENERATED or kind not in KINDS:
         return None
+    def what(kind: str) -> str:
+        return _WHAT.get(kind, f"a {kind} dataset")
+
     other = detect(path)
     if other is not None and other != kind:
-        return f"{path} is {_WHAT[other]}, not {_WHAT[kind]}: give --dataset {other}:{path}"
+        return f"{path} is {what(other)}, not {what(kind)}: give --dataset {other}:{path}"
     if path.is_file():
         if FILE_KINDS.get(path.suffix) == kind:
             return file_problem(path)
         if kind not in FILE_KINDS.values():
-            return f"{path} is a file, and {_WHAT[kind]} is a folder"
+            return f"{path} is a file, and {what(kind)} is a folder"
     return None
 
 
