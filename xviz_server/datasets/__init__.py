@@ -210,18 +210,19 @@ def dataset_problem(kind: str, path: Path) -> str | None:
     """
     if kind in GENERATED or kind not in KINDS:
         return None
-    def what(kind: str) -> str:
-        return _WHAT.get(kind, f"a {kind} dataset")
-
     other = detect(path)
     if other is not None and other != kind:
-        return f"{path} is {what(other)}, not {what(kind)}: give --dataset {other}:{path}"
+        return f"{path} is {_what(other)}, not {_what(kind)}: give --dataset {other}:{path}"
     if path.is_file():
         if FILE_KINDS.get(path.suffix) == kind:
             return file_problem(path)
         if kind not in FILE_KINDS.values():
-            return f"{path} is a file, and {what(kind)} is a folder"
+            return f"{path} is a file, and {_what(kind)} is a folder"
     return None
+
+
+def _what(kind: str) -> str:
+    return _WHAT.get(kind, f"a {kind} dataset")
 
 
 #: The most datasets a worker process keeps open (with what each caches), the least recently used closed first.
