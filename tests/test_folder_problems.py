@@ -63,8 +63,8 @@ async def test_each_problem_in_the_data_folder_is_logged_once_with_its_cause(tmp
     assert sorted(warnings(caplog)) == sorted([
         f"{data / 'cut.mcap'}: a truncated MCAP file: it does not end with the MCAP magic (cut short, or still being "
         "written), and opens only once complete; listed all the same",
-        f"{data / 'empty.bag'}: not a ROS 1 bag: the file is empty; left out of the list",
-        f"{data / 'notes.bag'}: not a ROS 1 bag: it starts with b'these are not th'; left out of the list",
+        f"{data / 'empty.bag'}: left out of the catalog: not a ROS 1 bag: the file is empty",
+        f"{data / 'notes.bag'}: left out of the catalog: not a ROS 1 bag: it starts with b'these are not th'",
         f"{data / 'twin.bag'}: twin.mcap has its name, 'twin', and is served under it",
     ])
 

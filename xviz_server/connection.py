@@ -30,6 +30,7 @@ from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
 
+from .budget import LogThrottle
 from .codec import Format
 from .exceptions import XVIZError
 from .detail import SAMPLE_INTERVAL
@@ -40,6 +41,7 @@ from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription, watch_lag
 from .logfmt import ending, log_event, peer, redact_url
 from .logs import Catalog, Log
 from .metrics import Metrics
+from .params import repeated
 from .readahead import ReadAhead, Window
 from .session import Close, ConfigureLive, Event, LookUpLive, OpenLog, QueryInstant, Send, Session, SubscribeLive
 from .session import CancelStream, DetailChanged, SendLiveMetadata, SendLiveUpdate, SkipToState, StreamFrames
@@ -75,6 +77,7 @@ class Connection:
             lag_timeout=settings.live_lag_timeout,
             detail=settings.detail == "auto",
             local=_is_loopback(websocket),
+            repeated=repeated(urlsplit(self.path).query),
         )
         self._logs: dict[str, Log] = {}
         self._stream: tuple[StreamFrames, asyncio.Event] | None = None
@@ -86,6 +89,7 @@ class Connection:
         self.frames_sent = 0
         self.bytes_sent = 0
         self.messages_sent = 0
+        self._mistakes = LogThrottle()  # lines logged about the errors and notices it is sent
         self.bytes_written = 0  # every message's bytes, as handed to the connection
 
     async def run(self) -> None:
@@ -201,9 +205,9 @@ class Connection:
         await self._write(event.data, event.text)
         if event.error is not None:
             self.metrics.errors.labels(event.error).inc()
-            log_event(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
+            self._mistakes.log(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
         elif event.notice is not None:
-            log_event(logger, "notice sent", remote=peer(self.websocket), kind=event.notice, message=event.message)
+            self._mistakes.log(logger, "notice sent", remote=peer(self.websocket), kind=event.notice, message=event.message)
 
     async def _send_update(self, data: bytes, fmt: Format) -> None:
         """Send a state update and count it."""

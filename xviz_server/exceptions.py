@@ -24,6 +24,7 @@ __all__ = [
     "LogWriteError",
     "DatasetError",
     "OversizeError",
+    "FrameSizeError",
     "ConfigError",
     "DependencyError",
     "StoreError",
@@ -155,6 +156,22 @@ class OversizeError(DatasetError):
 
 def _rebuild_oversize_error(message: str, size: int, limit: int, path: object) -> OversizeError:
     return OversizeError(message, size=size, limit=limit, path=path)
+
+
+class FrameSizeError(OversizeError):
+    """One frame of a recording would unpack to more than :data:`~xviz_server.unpack.MAX_FRAME_BYTES` across all
+    its messages and images (summed from what its parts declare): it is refused unread. ``frame`` is its number."""
+
+    def __init__(self, message: str, *, size: int, limit: int, frame: int, path: object = None) -> None:
+        super().__init__(message, size=size, limit=limit, path=path)
+        self.frame = frame
+
+    def __reduce__(self) -> tuple[Any, ...]:  # from a worker process: the fields are keyword-only
+        return _rebuild_frame_size_error, (str(self), self.size, self.limit, self.frame, self.path)
+
+
+def _rebuild_frame_size_error(message: str, size: int, limit: int, frame: int, path: object) -> FrameSizeError:
+    return FrameSizeError(message, size=size, limit=limit, frame=frame, path=path)
 
 
 class LogWriteError(XVIZError):

@@ -68,12 +68,14 @@ import dataclasses
 import logging
 import struct
 from collections.abc import AsyncGenerator, Awaitable, Callable
+from http import HTTPStatus
 from typing import Any
 
 from websockets.asyncio.server import Server, ServerConnection
 from websockets.datastructures import Headers
 from websockets.frames import DATA_OPCODES, Frame
 from websockets.http11 import SERVER, Request, Response
+from websockets.typing import StatusLike
 from websockets.protocol import State
 from websockets.server import ServerProtocol
 from websockets.version import version as websockets_version
@@ -81,6 +83,7 @@ from websockets.version import version as websockets_version
 from .exceptions import XVIZError
 from .flow import watch_progress
 from .version import require_tested
+from .viewer import HEADERS
 
 __all__ = [
     "TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "OPEN_TIMEOUT", "frame_header", "StreamedResponse", "streamed",
@@ -102,6 +105,10 @@ OPEN_TIMEOUT = 10.0
 
 _LAST_CHUNK = b"0\r\n\r\n"
 
+
+#: How websockets' refusals begin, and the statuses of a request refused before it is read.
+_WEBSOCKET_REFUSAL = "Failed to open a WebSocket connection"
+_UNREAD = (HTTPStatus.REQUEST_URI_TOO_LONG, HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE)
 
 require_tested(__name__, "websockets", websockets_version, TESTED_WEBSOCKETS, "pip install -e .")
 
@@ -157,7 +164,22 @@ def streamed(
 
 
 class FramingProtocol(ServerProtocol):
-    """websockets' server protocol, queueing large data payloads by reference, holding back the end of a streamed answer."""
+    """websockets' server protocol, queueing large data payloads by reference, holding back the end of a streamed
+    answer; every HTTP answer it makes carries :data:`~xviz_server.viewer.HEADERS`."""
+
+    def reject(self, status: StatusLike, text: str) -> Response:
+        """An HTTP answer other than the handshake's 101, with :data:`~xviz_server.viewer.HEADERS`: the one place
+        that builds them (:meth:`ServerConnection.respond` calls it, and websockets for its own refusals).
+
+        A request refused unread (its line or headers too long) may be no
+        WebSocket handshake: its body says the request could not be read,
+        not that a WebSocket failed to open.
+        """
+        if status in _UNREAD and text.startswith(_WEBSOCKET_REFUSAL):
+            text = "cannot read this request" + text[len(_WEBSOCKET_REFUSAL):]
+        response = super().reject(status, text)
+        response.headers.update(HEADERS)
+        return response
 
     def send_response(self, response: Response) -> None:
         """Queue ``response``; a :class:`StreamedResponse`'s head only, the stream left open for its body."""

@@ -7,6 +7,8 @@ same things the same way, with a
 
 * :func:`single`: the value of each parameter the route knows, refusing one
   given twice (``start=1&start=2``: which one was meant is unknowable);
+* :func:`repeated`: the names a query string gives twice, for a reader of
+  one value per name (an XVIZ session's URL);
 * :func:`seconds`: a number of seconds, written ``[-]digits[.digits][e[±]digits]``
   and finite. Python's ``float`` also takes ``1_000``, `` 5 ``, ``inf`` and
   ``+5``: none of them is a number a client writes on purpose, and ``+``
@@ -17,11 +19,13 @@ from __future__ import annotations
 
 import math
 import re
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
+from urllib.parse import parse_qsl
 
 from .exceptions import QueryError
 
-__all__ = ["single", "seconds"]
+__all__ = ["single", "seconds", "repeated"]
 
 _NUMBER = re.compile(r"-?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
 #: Characters of a refused value shown in the error.
@@ -40,6 +44,12 @@ def single(parameters: Mapping[str, Sequence[str]], names: Iterable[str]) -> dic
             raise QueryError(name, "give it at most once")
         values[name] = given[0]
     return values
+
+
+def repeated(query: str) -> frozenset[str]:
+    """The names given more than once in the query string ``query`` (for a reader that takes one value of each)."""
+    counts = Counter(name for name, _ in parse_qsl(query, keep_blank_values=True))
+    return frozenset(name for name, count in counts.items() if count > 1)
 
 
 def seconds(name: str, text: str, *, at_least: float | None = None) -> float:

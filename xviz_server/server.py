@@ -44,7 +44,7 @@ import signal
 import tempfile
 from http import HTTPStatus
 from pathlib import Path
-from collections.abc import AsyncGenerator, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
@@ -67,7 +67,7 @@ from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
 from .store import data_roots
 from .tls import server_context
-from .viewer import HEADERS, STATIC_DIR, ViewerPage
+from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
 
 if TYPE_CHECKING:
@@ -140,7 +140,7 @@ class XVIZServer:
         self.broker: Broker | None = None
         #: The sessions running now.
         self.sessions: set[Connection | FoxgloveConnection] = set()
-        self._exports = 0  # clips being sent now
+        self._exporting: set[ServerConnection] = set()  # connections of the exports and files admitted, until they end
         #: The built-in viewer's page and assets.
         self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors)
 
@@ -227,7 +227,6 @@ class XVIZServer:
                 ssl=tls,
                 origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
                 process_request=self._process_request,
-                process_response=_process_response,
                 select_subprotocol=_select_subprotocol,
                 compression="deflate" if self.settings.compression else None,
                 max_size=self.settings.max_message_kb * 1024,
@@ -331,6 +330,18 @@ class XVIZServer:
             self.sessions.discard(connection)
 
     async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
+        """The answer to ``request``, or ``None`` to accept its WebSocket handshake; a failure is a 500 that
+        names what was asked (websockets' own would say a WebSocket failed to open)."""
+        try:
+            return await self._answer(connection, request)
+        except Exception:
+            path = urlsplit(request.path).path
+            logger.exception("answering GET %s failed", path)
+            upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
+            what = f"a WebSocket session on {path}" if upgrade else f"GET {path}"
+            return connection.respond(HTTPStatus.INTERNAL_SERVER_ERROR, f"the server failed to answer {what}: see its log\n")
+
+    async def _answer(self, connection: ServerConnection, request: Request) -> Response | None:
         if request.headers.get("Upgrade", "").lower() == "websocket":
             if feed_name(request.path) is not None:
                 reason = ingest_refusal(request, connection.remote_address, self.settings.ingest_token, self.settings.allowed_origins)
@@ -386,7 +397,7 @@ class XVIZServer:
     async def _export(self, connection: ServerConnection, name: str, query: dict[str, list[str]]) -> Response:
         """A clip of log ``name`` as an MCAP file, sent as it is written (see :mod:`xviz_server.foxglove.export`)."""
         from .foxglove.convert import plan
-        from .foxglove.export import export, parse_range
+        from .foxglove.export import export, first_error, parse_range
 
         try:
             span = parse_range(query)
@@ -400,12 +411,17 @@ class XVIZServer:
             return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
         if self._open() >= self.settings.max_sessions:
             return self._too_many(connection, "an export")
+        self._admit(connection)
+        the_plan = plan(log.metadata, log.originals)
+        if (error := await first_error(log, the_plan, positions)) is not None:
+            logger.warning("refused an export of log %r: its first frame cannot be read: %s", name, error)
+            return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"the clip's first frame cannot be read: {error}\n")
         head = connection.respond(HTTPStatus.OK, "")
         del head.headers["Content-Type"]
         head.headers["Content-Type"] = "application/octet-stream"
         filename = name.replace("/", "_") + ".mcap"
         head.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
-        return streamed(head, self._counted(export(log, plan(log.metadata, log.originals), positions, self.workers)), self.settings.idle_timeout)
+        return streamed(head, export(log, the_plan, positions, self.workers), self.settings.idle_timeout)
 
     async def _file(self, connection: ServerConnection, request: Request, name: str) -> Response:
         """Log ``name`` as a whole MCAP file, or the byte range of it the request asks for (see :mod:`.ranges`)."""
@@ -438,11 +454,12 @@ class XVIZServer:
             return response
         if self._open() >= self.settings.max_sessions:
             return self._too_many(connection, "a file")
+        self._admit(connection)
         head = connection.respond(answer.status, "")
         del head.headers["Content-Type"]
         head.headers["Content-Type"] = "application/octet-stream"
         head.headers.update(answer.headers)
-        body = self._counted(read_file(built.path, answer.offset, answer.length, self.workers, self.metrics.file_bytes.inc))
+        body = read_file(built.path, answer.offset, answer.length, self.workers, self.metrics.file_bytes.inc)
         return streamed(head, body, self.settings.idle_timeout, length=answer.length)
 
     def _cors(self, request: Request) -> dict[str, str]:
@@ -460,19 +477,15 @@ class XVIZServer:
         logger.warning("refused %s: %d sessions and exports open", what, self.settings.max_sessions)
         return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "too many sessions, try again later\n")
 
+    def _admit(self, connection: ServerConnection) -> None:
+        """Count an export or file answer on ``connection`` in :meth:`_open` from now (its admission: call it with no
+        await after the check) until its connection ends, whether or not its body is ever sent."""
+        self._exporting.add(connection)
+        connection.connection_lost_waiter.add_done_callback(lambda _: self._exporting.discard(connection))
+
     def _open(self) -> int:
         """Sessions and exports running now: what ``max_sessions`` bounds."""
-        return len(self.sessions) + self._exports
-
-    async def _counted(self, pieces: AsyncGenerator[bytes, None]) -> AsyncGenerator[bytes, None]:
-        """``pieces``, counted in :meth:`_open` from its first piece until it ends."""
-        self._exports += 1
-        try:
-            async for piece in pieces:
-                yield piece
-        finally:
-            self._exports -= 1
-            await pieces.aclose()
+        return len(self.sessions) + len(self._exporting)
 
     async def _listing(self, path: str, target: str) -> tuple[HTTPStatus, dict[str, Any]]:
         """The answer to ``GET /api/logs?...`` (a page of the catalog) or ``GET /api/logs/NAME`` (one log)."""
@@ -538,12 +551,6 @@ def _file_path(path: str) -> str | None:
     from .foxglove.seekable import file_path
 
     return file_path(path)
-
-
-def _process_response(connection: ServerConnection, request: Request, response: Response) -> None:
-    """Every HTTP answer carries the viewer's :data:`~xviz_server.viewer.HEADERS`."""
-    if response.status_code != HTTPStatus.SWITCHING_PROTOCOLS:
-        response.headers.update(HEADERS)
 
 
 def _broker(settings: Settings, live: LiveRegistry, metrics: Metrics, workers: Workers) -> Broker:

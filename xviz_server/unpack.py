@@ -18,6 +18,10 @@ compressed size).
 A part stored uncompressed (a TFRecord record) is read only if its declared
 length fits in the file and in :data:`MAX_RECORD_BYTES`.
 
+Whatever each part's size, one frame may read at most :data:`MAX_FRAME_BYTES`
+in all, summed from what its parts declare before any is read (see
+:meth:`~xviz_server.datasets.ros.RosBag.frame_parts`).
+
 A refusal is an :class:`~xviz_server.exceptions.OversizeError`; data that
 is not what its compression says, or unpacks to fewer bytes than declared,
 a :class:`~xviz_server.exceptions.DatasetError`. Both name the part.
@@ -35,7 +39,7 @@ from zlib_ng import zlib_ng
 from .exceptions import DatasetError, OversizeError
 
 __all__ = [
-    "MAX_CHUNK_BYTES", "MAX_RECORD_BYTES", "MAX_FILE_RATIO", "COMPRESSIONS", "unpack", "unpack_unsized", "BoundedReader",
+    "MAX_CHUNK_BYTES", "MAX_FRAME_BYTES", "MAX_RECORD_BYTES", "MAX_FILE_RATIO", "COMPRESSIONS", "unpack", "unpack_unsized", "BoundedReader",
     "check_declared", "size_text", "zstd_module",
 ]
 
@@ -43,6 +47,10 @@ __all__ = [
 #: Recorders write chunks of a few megabytes (rosbag 768 KiB, MCAP 4 MiB by default); a message larger than
 #: that gets a chunk of its own, and a chunk this large holds several uncompressed 8K images.
 MAX_CHUNK_BYTES = 256 << 20
+#: The most bytes one frame of a recording may unpack, across all its messages and images: the sizes that the
+#: parts it reads (chunks, rows) declare, summed before any is read. A frame of several lidars and cameras takes
+#: tens of megabytes; a frame over this is refused whole, whatever each part's size.
+MAX_FRAME_BYTES = 128 << 20
 #: The most bytes of data one record of a TFRecord file (a Waymo frame, some megabytes) may declare.
 MAX_RECORD_BYTES = 256 << 20
 #: How many times its own size a whole compressed file of a recording (a ROS 2 bag's storage file, which

@@ -135,7 +135,7 @@ class LocalScan:
             return
         self._looked[path] = version
         problem = file_problem(Path(path))
-        self._warn_once(path, problem and f"{problem}; {'listed all the same' if listed else 'left out of the list'}")
+        self._warn_once(path, problem and (f"{problem}; listed all the same" if listed else f"left out of the catalog: {problem}"))
 
     def _warn_once(self, path: str, problem: str | None) -> None:
         """Log ``path: problem`` at WARNING unless it was the last problem logged for ``path``."""

@@ -164,8 +164,7 @@ _WHAT = {
     "pandaset": "a PandaSet sequence folder",
 }
 #: What a file of each suffix of :data:`FILE_KINDS` starts with, for messages.
-_FILE_WHAT = {".bag": "a ROS 1 bag", ".mcap": "an MCAP file", ".tfrecord": "a TFRecord file",
-              ".parquet": "a Waymo Open Dataset v2 segment"}
+_FILE_WHAT = {".bag": "a ROS 1 bag", ".mcap": "an MCAP file", ".parquet": "a Waymo Open Dataset v2 segment"}
 #: Bytes read from each end of a file to tell what is wrong with it.
 _PEEK = 16
 
@@ -174,7 +173,8 @@ def file_problem(path: Path) -> str | None:
     """Why the file ``path``, named as a dataset of :data:`FILE_KINDS` (``drive.bag``), cannot be served whole.
 
     The cause is one phrase: a file that is not of its suffix's format (by
-    its first bytes), or an MCAP file without the magic that ends every
+    its first bytes; a ``.tfrecord`` by its first header's CRC, see
+    :func:`~xviz_server.datasets.waymo.tfrecord.header_problem`), or an MCAP file without the magic that ends every
     complete one (cut short, or still being written). ``None`` when nothing
     is found wrong, or the file cannot be read.
     """
@@ -190,6 +190,10 @@ def file_problem(path: Path) -> str | None:
     except OSError:
         return None
     if not _member(kind, 2)(path):
+        if path.suffix == ".tfrecord":
+            from .waymo.tfrecord import header_problem
+
+            return header_problem(path) or "not a Waymo segment"
         what = _FILE_WHAT.get(path.suffix, f"a {kind} dataset")
         return f"not {what}: the file is empty" if not head else f"not {what}: it starts with {head!r}"
     if path.suffix == ".mcap":

@@ -34,6 +34,7 @@ from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
 
+from ..budget import LogThrottle
 from ..connection import request_target
 from ..exceptions import XVIZError
 from ..flow import close, watch_progress
@@ -114,6 +115,7 @@ class FoxgloveConnection:
         self._watch: asyncio.Task[None] | None = None
         self.messages_sent = 0
         self.bytes_sent = 0
+        self._mistakes = LogThrottle()  # lines logged about the client's mistakes
 
     async def run(self) -> None:
         """Serve the session until the client goes away or the server shuts down."""
@@ -145,7 +147,7 @@ class FoxgloveConnection:
                 await self._write(event.data, event.text)
                 if event.error is not None:
                     self.metrics.errors.labels(event.error).inc()
-                    log_event(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
+                    self._mistakes.log(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
             elif isinstance(event, OpenLog):
                 await self._open(event.name)
             elif isinstance(event, Play):

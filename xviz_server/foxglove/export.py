@@ -28,6 +28,7 @@ writer), in a thread.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncGenerator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import IO, cast
@@ -36,7 +37,7 @@ from urllib.parse import unquote
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from ..exceptions import ExportError
+from ..exceptions import ExportError, XVIZError
 from ..logs import Log
 from ..params import SHOWN, seconds, single
 from ..probe.report import Instant
@@ -44,10 +45,14 @@ from ..work import Workers
 from .convert import Plan
 from .frame import Message, frame_messages
 
-__all__ = ["FORMATS", "CHUNK_BYTES", "ExportRange", "export_path", "log_path", "parse_range", "export"]
+__all__ = ["FORMATS", "CHUNK_BYTES", "CUT_SHORT", "ExportRange", "export_path", "log_path", "parse_range", "first_error", "export"]
+
+logger = logging.getLogger(__name__)
 
 _PREFIX, _SUFFIX = "/api/logs/", "/export"
 
+#: The name of the metadata record of a clip that ends early: ``{"frame": N, "error": TEXT}``.
+CUT_SHORT = "xviz-server.cut-short"
 #: The formats ``format=`` may name.
 FORMATS = ("mcap",)
 
@@ -133,12 +138,26 @@ def _instant(name: str, text: str) -> Instant:
 CHUNK_BYTES = 1 << 20
 
 
-async def export(log: Log, plan: Plan, positions: np.ndarray, workers: Workers) -> AsyncGenerator[bytes, None]:
+async def first_error(log: Log, plan: Plan, positions: np.ndarray) -> XVIZError | None:
+    """Why the first of the frames at ``positions`` cannot be read or converted, if it cannot: the export is then
+    refused before its head is sent. Its messages stay in the frame cache for :func:`export`."""
+    if not len(positions):
+        return None
+    _, errors = await frame_messages(log, plan, int(log.index.frames[positions[0]]))
+    return errors[0] if errors else None
+
+
+async def export(
+    log: Log, plan: Plan, positions: np.ndarray, workers: Workers, *, strict: bool = False
+) -> AsyncGenerator[bytes, None]:
     """The MCAP file of the frames at ``positions`` of ``log.index`` (see :meth:`ExportRange.frames`), in pieces as they
     are written.
 
-    A frame that cannot be read or converted raises its
-    :class:`~xviz_server.exceptions.XVIZError` (the file is then cut short).
+    A frame that cannot be read or converted ends the clip before it: the
+    file is finished there (summary and footer, readable), with a metadata
+    record named :data:`CUT_SHORT` that names the frame and the error, and a
+    warning is logged. With ``strict`` (a file kept for later requests) it
+    raises the frame's :class:`~xviz_server.exceptions.XVIZError` instead.
     """
     out = _Pieces()
     writer = Writer(cast(IO[bytes], out), chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
@@ -148,8 +167,12 @@ async def export(log: Log, plan: Plan, positions: np.ndarray, workers: Workers) 
     sequence = 0
     for number in log.index.frames[positions].tolist():
         messages, errors = await frame_messages(log, plan, number)
-        if errors:
+        if errors and strict:
             raise errors[0]
+        if errors:
+            logger.warning("the export of log %r ends before frame %d, which cannot be read: %s", log.name, number, errors[0])
+            writer.add_metadata(CUT_SHORT, {"frame": str(number), "error": str(errors[0])})
+            break
         sequence = await workers.io(_add, writer, channels, messages, sequence)
         yield out.take()
     writer.add_metadata("xviz", {"log": log.name})

@@ -126,7 +126,7 @@ class LogFiles:
         handle, partial = await self._workers.io(tempfile.mkstemp, _PARTIAL, f"{stem}-", str(path.parent))
         out: IO[bytes] = os.fdopen(handle, "wb")
         try:
-            pieces = export(log, plan, ExportRange(None, None).frames(log), self._workers)
+            pieces = export(log, plan, ExportRange(None, None).frames(log), self._workers, strict=True)
             try:
                 async for piece in pieces:
                     await self._workers.io(out.write, piece)
