@@ -73,8 +73,17 @@ class DatasetProvider:
         try:
             metadata, times, originals = await self._workers.cpu(describe_dataset, found.kind, where, options, isolated=True)
         except (DatasetError, StoreError, WorkerError) as exc:
-            raise LogError(f"log {found.name!r}: {exc}", log=found.name) from None
+            raise LogError(f"log {found.name!r}: {without_path(exc, where)}", log=found.name) from None
         return DatasetLog(found.name, found.kind, where, metadata, times, options, self._workers, originals)
+
+
+def without_path(exc: Exception, path: str | StorePath | StoreTree) -> str:
+    """The cause of ``exc`` without the local path of the data, which clients are not told (errors of a dataset start
+    with its path); an object in a store keeps its key."""
+    text = str(exc)
+    if not isinstance(path, str):
+        return text
+    return text.removeprefix(f"{path}: ").replace(path, "the recording")
 
 
 class DatasetLog:
@@ -109,11 +118,11 @@ class DatasetLog:
         try:
             return await self._workers.cpu(convert_frame, self._kind, self._path, self._options, frame, self._metadata, isolated=True)
         except (DatasetError, StoreError) as exc:
-            raise FrameError(f"frame {frame} of log {self.name!r}: {exc}", log=self.name, frame=frame) from None
+            raise FrameError(f"frame {frame} of log {self.name!r}: {without_path(exc, self._path)}", log=self.name, frame=frame) from None
 
     async def read_originals(self, frame: int) -> bytes:
         """The original messages of ``frame``, packed (see :func:`~xviz_server.datasets.original_messages`)."""
         try:
             return await self._workers.cpu(original_messages, self._kind, self._path, self._options, frame, isolated=True)
         except (DatasetError, StoreError) as exc:
-            raise FrameError(f"frame {frame} of log {self.name!r}: its original messages: {exc}", log=self.name, frame=frame) from None
+            raise FrameError(f"frame {frame} of log {self.name!r}: its original messages: {without_path(exc, self._path)}", log=self.name, frame=frame) from None

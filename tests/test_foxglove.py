@@ -346,7 +346,7 @@ async def test_a_frame_with_too_many_original_messages_gets_a_status_and_the_res
     flag = m.std_msgs__Bool(data=True)
 
     def messages() -> Iterator[tuple[str, str, int, Any]]:
-        point = np.zeros((1, 4), np.float32)
+        point = np.ones((1, 4), np.float32)  # a point with a return (no-return points at the origin are dropped)
         yield "/cloud", "sensor_msgs/msg/PointCloud2", t0, m.cloud(t0, point, "base_link")
         for i in range(flood):  # all in the first frame's span
             yield "/flag", "std_msgs/msg/Bool", t0 + 1 + i, flag

@@ -210,6 +210,25 @@ def _viz_bag(container: str, pose_type: str) -> Callable[[Path], Served]:
     return make
 
 
+_RECORDINGS = Path(__file__).parent / "recordings"
+
+
+def _recording(relative: str) -> Callable[[Path], Served]:
+    """A recording of another project, as it was published (tests/recordings/README.md)."""
+
+    def make(root: Path) -> Served:
+        return Served(dataset=f"rosbag:{_RECORDINGS / relative}")
+
+    return make
+
+
+def _foxglove_sdk_mcap(root: Path) -> Served:
+    """Foxglove's schemas in protobuf and JSON, no profile, as the Foxglove SDK writes them."""
+    from foxglove_sdk_recording import write_sdk_recording
+
+    return Served(dataset=f"rosbag:{write_sdk_recording(root / 'sdk.mcap')}")
+
+
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_WITH_COVARIANCE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 
@@ -236,6 +255,14 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "rosbag-ros1-viz": _viz_bag("ros1", POSE_WITH_COVARIANCE),
     "rosbag-sqlite3-viz": _viz_bag("sqlite3", POSE_STAMPED),
     "rosbag-mcap-viz": _viz_bag("mcap", POSE_STAMPED),
+    "mcap-conformance-ten-messages": _recording("mcap-conformance/TenMessages/TenMessages-ch-chx-pad-rch-rsh-st-sum.mcap"),
+    "rosbag2-service-events": _recording("rosbag2/mcap/bag_with_topics_and_service_events"),
+    "rosbag2-talker-strings": _recording("rosbag2/sqlite3/talker"),
+    "rosbag2-bare-db3": _recording("rosbag2/topics_and_services.db3"),
+    "mcap-foxglove-sdk": _foxglove_sdk_mcap,
+    "ros1-turtlesim-twist": _recording("ros1/turtlesim.bag"),
+    "ros1-embag-truck": _recording("ros1/embag/test.bag"),
+    "ros1-embag-strings": _recording("ros1/embag/test_2.bag"),
 }
 #: The sources that ``convert`` takes.
 DATASETS = [

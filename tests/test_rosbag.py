@@ -29,6 +29,7 @@ from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.shared import EARTH_RADIUS
 from xviz_server.datasets.ros import RosBag, is_rosbag
 from xviz_server.datasets.ros.bag import ROS1_MAGIC
+from xviz_server.datasets.ros.inspect import inspect_bag
 from xviz_server.datasets.ros.sensors import cloud_points, compressed_image_bytes, image_bytes
 from xviz_server.exceptions import DatasetError
 from xviz_server.server import parse_dataset
@@ -168,7 +169,9 @@ def test_pose_is_interpolated_between_messages(drive: KittiDrive, tmp_path: Path
     config = tmp_path / "map.toml"
     config.write_text("rate = 20.0\npose = '/odom'\n")
     bag = RosBag(path, config=str(config))
-    assert len(bag) == int((drive.times[FRAMES - 1] - drive.times[0]) * 20) + 1
+    last = bag.bag.topics["/odom"].times[-1]  # ticks from the first message to one at or after the last
+    assert bag.clock[0] == bag.bag.topics["/odom"].times[0] and bag.clock[-2] < last <= bag.clock[-1]
+    assert set(np.diff(bag.clock)) == {50_000_000}
     metadata = bag.metadata()
     between = bag.convert(1, metadata)["updates"][0]
     odometry = [bag.bag.message("/odom", i)[1].pose.pose.position for i in (0, 1)]
@@ -184,8 +187,8 @@ def test_no_pose_source_and_no_cloud(drive: KittiDrive, tmp_path: Path):
     path = write_bag(tmp_path / "images.mcap", "mcap", kitti_only(drive, "mcap", {GRAY_TOPIC}))
     bag = RosBag(path)
     assert bag.pose_source.kind == "none"
-    span = drive.times[FRAMES - 1] - drive.times[0]
-    assert len(bag) == int(span * 10) + 1 and np.allclose(np.diff(bag.times), 0.1)
+    last = bag.bag.topics[GRAY_TOPIC].times[-1]
+    assert bag.clock[-2] < last <= bag.clock[-1] and np.allclose(np.diff(bag.times), 0.1)
     update = bag.convert(len(bag) - 1)["updates"][0]
     assert update["poses"]["/vehicle_pose"]["position"] == [0.0, 0.0, 0.0]
     assert GRAY_TOPIC in update["primitives"]
@@ -224,6 +227,115 @@ def _cloud(m: Messages, fields: list[tuple[str, int, int]], step: int, data: byt
     )
 
 
+def test_messages_before_the_first_and_after_the_last_frame_are_shown(tmp_path: Path):
+    """Frames are the cloud's two messages; a marker 1 ms after the last, a string 5 s before the first (older than
+    the staleness) and an image between the frames only once: none is lost."""
+    from devkit.rosbag_kitti import marker
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS2_HUMBLE)
+    t0 = 1_700_000_000 * 10**9
+    xyz = np.array([[1.0, 2.0, 3.0]], np.float32)
+    cloud = _cloud(m, [("x", 0, 7), ("y", 4, 7), ("z", 8, 7)], 12, xyz.tobytes(), 1)
+    messages = [
+        ("/early", "std_msgs/msg/String", t0 - 5 * 10**9, m.std_msgs__String(data="before the first frame")),
+        ("/points", "sensor_msgs/msg/PointCloud2", t0, cloud),
+        ("/points", "sensor_msgs/msg/PointCloud2", t0 + 10**8, cloud),
+        ("/late", "visualization_msgs/msg/Marker", t0 + 10**8 + 10**6, marker(m, t0, action=0, kind=1, id=1, x=3.0, frame="lidar")),
+    ]
+    bag = RosBag(write_bag(tmp_path / "edges.mcap", "mcap", iter(messages)))
+    assert bag.clock.tolist() == [t0, t0 + 10**8]
+    first, last = (bag.convert(i)["updates"][0] for i in range(2))
+    assert [row["column_values"][3] for row in first["ui_primitives"]["/early"]["treetable"]["nodes"]] == ["before the first frame"]
+    assert "/late/polygons" not in first.get("primitives", {})
+    assert [p["base"]["object_id"] for p in last["primitives"]["/late/polygons"]["polygons"]] == ["boxes/1"]
+
+
+def test_a_ros1_tf_tree_of_two_turtles_gives_the_detected_or_chosen_pose(tmp_path: Path):
+    """Legacy tf/tfMessage on /tf: world -> turtle1 and world -> turtle2 moving; one turtle is the vehicle."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf/msg/tfMessage"))
+    types = store.types
+    t0 = 1_700_000_000 * 10**9
+
+    def edge(t: int, child: str, x: float) -> Any:
+        header = types["std_msgs/msg/Header"](seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9), frame_id="world")
+        transform = types["geometry_msgs/msg/Transform"](translation=types["geometry_msgs/msg/Vector3"](x=x, y=0.0, z=0.0),
+                                                         rotation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+        return types["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform)
+
+    path = tmp_path / "turtles.bag"
+    with Writer(path) as writer:
+        connection = writer.add_connection("/tf", "tf/msg/tfMessage", typestore=store)
+        for i in range(5):
+            t = t0 + i * 10**8
+            message = types["tf/msg/tfMessage"](transforms=[edge(t, "turtle1", float(i)), edge(t, "turtle2", 10.0 - i)])
+            writer.write(connection, t, store.serialize_ros1(message, "tf/msg/tfMessage"))
+    detected = RosBag(path)
+    assert detected.pose_source.describe() == "/tf: world -> turtle1"
+    assert [detected.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(5)] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    config = tmp_path / "turtle2.toml"
+    config.write_text('vehicle_frame = "turtle2"\nfixed_frame = "turtle1"\n')
+    chosen = RosBag(path, config=str(config))
+    assert chosen.pose_source.describe() == "/tf: turtle1 -> turtle2"
+    assert [chosen.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(5)] == [10.0, 8.0, 6.0, 4.0, 2.0]
+    config.write_text('fixed_frame = "sea"\n')
+    with pytest.raises(DatasetError, match="fixed_frame: the transform tree has no frame sea"):
+        _ = RosBag(path, config=str(config)).pose_source
+
+
+def test_several_pose_topics_the_earliest_is_the_pose_the_others_trajectories(tmp_path: Path):
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS2_HUMBLE)
+    t0 = 1_700_000_000 * 10**9
+    messages = []
+    for topic, start, y in (("/late", 9_500_000_000, 5.0), ("/first", 0, 0.0), ("/second", 1_000_000_000, -5.0)):
+        for i in range(3):
+            t = t0 + start + i * 10**9
+            pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=float(i), y=y, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
+            messages.append((topic, "geometry_msgs/msg/PoseStamped", t, m.geometry_msgs__PoseStamped(header=m.header(t, "map"), pose=pose)))
+    path = write_bag(tmp_path / "poses.mcap", "mcap", iter(sorted(messages, key=lambda e: e[2])))
+    bag = RosBag(path)
+    assert bag.pose_source.topic == "/first"
+    assert {m.topic: m.role for m in bag.mappings} == {"/first": "pose", "/second": "trajectory", "/late": "trajectory"}
+    last = bag.convert(len(bag) - 1)["updates"][0]
+    assert last["poses"]["/vehicle_pose"]["position"][:2] == [2.0, 0.0]
+    for topic, y in (("/second", -5.0), ("/late", 5.0)):  # each drawn so far, in the vehicle frame (at x=2, y=0)
+        (line,) = last["primitives"][topic]["polylines"]
+        np.testing.assert_allclose(np.asarray(line["vertices"]).reshape(-1, 3)[:, :2], [[-2.0, y], [-1.0, y], [0.0, y]], atol=1e-6)
+    config = tmp_path / "late.toml"
+    config.write_text('pose = "/late"\n')
+    assert RosBag(path, config=str(config)).pose_source.topic == "/late"
+
+
+def test_velodyne_driver_packets_are_named_as_such(tmp_path: Path):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register({**get_types_from_msg("time stamp\nuint8[1206] data", "velodyne_msgs/msg/VelodynePacket"),
+                    **get_types_from_msg("std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets", "velodyne_msgs/msg/VelodyneScan")})
+    types = store.types
+    t0 = 1_700_000_000 * 10**9
+    header = types["std_msgs/msg/Header"](seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=t0 // 10**9, nanosec=0), frame_id="velodyne")
+    packet = types["velodyne_msgs/msg/VelodynePacket"](stamp=header.stamp, data=np.zeros(1206, np.uint8))
+    path = tmp_path / "packets.bag"
+    with Writer(path) as writer:
+        connection = writer.add_connection("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", typestore=store)
+        for i in range(3):
+            scan = types["velodyne_msgs/msg/VelodyneScan"](header=header, packets=[packet] * 2)
+            writer.write(connection, t0 + i * 10**8, store.serialize_ros1(scan, "velodyne_msgs/msg/VelodyneScan"))
+    bag = RosBag(path)
+    assert bag.bag.problems == {"/velodyne_packets": "velodyne_msgs/msg/VelodyneScan holds the raw packets of a sensor's driver, "
+                                "not points: record the driver's point cloud topic, or replay the bag through the driver"}
+    assert [m.role for m in bag.mappings] == ["unknown"] and len(bag) == 3
+    assert [t["note"] for t in inspect_bag(path)["topics"]] == [bag.bag.problems["/velodyne_packets"]]
+
+
 def test_cloud_layouts_endianness_nan_and_colours():
     from rosbags.typesys import Stores
 
@@ -231,6 +343,8 @@ def test_cloud_layouts_endianness_nan_and_colours():
     rng = np.random.default_rng(7)
     xyz = rng.normal(size=(50, 3))
     xyz[[3, 9]] = np.nan
+    xyz[[5, 20]] = 0.0  # beams without a return, as drivers write them: left out
+    xyz[30, :2] = 0.0  # a real point on the z axis: kept
     # Big-endian float64 x, y, z after a ring field, rgb packed in a float32, and a trailing time field.
     dtype = np.dtype([("ring", ">u2"), ("pad", "V6"), ("x", ">f8"), ("y", ">f8"), ("z", ">f8"), ("rgb", ">f4"), ("t", ">f4")])
     records = np.zeros(50, dtype)
@@ -240,12 +354,13 @@ def test_cloud_layouts_endianness_nan_and_colours():
     message = _cloud(m, [("ring", 0, 4), ("x", 8, 8), ("y", 16, 8), ("z", 24, 8), ("rgb", 32, 7), ("t", 36, 7)],
                      dtype.itemsize, records.tobytes(), 50, bigendian=True)
     points, colors = cloud_points(message, "test")
-    keep = np.isfinite(xyz).all(axis=1)
-    assert np.array_equal(points, xyz[keep].astype(np.float32))
+    keep = np.isfinite(xyz).all(axis=1) & (xyz != 0).any(axis=1)
+    assert keep.sum() == 46 and np.array_equal(points, xyz[keep].astype(np.float32))
     assert colors is not None and np.array_equal(colors, np.stack([(packed >> s) & 255 for s in (16, 8, 0)], 1)[keep])
     # uint8 intensity is scaled to 0..1, then coloured like KITTI's reflectance; colour "none" gives none.
     small = np.zeros(4, [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")])
     small["intensity"] = [0, 85, 170, 255]
+    small["x"] = 1.0
     message = _cloud(m, [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 2)], small.itemsize, small.tobytes(), 4)
     _, colors = cloud_points(message, "test")
     assert colors is not None and colors[:, 0].tolist() == [80, 106, 133, 160]
@@ -343,17 +458,28 @@ def test_dataset_option_in_the_path(bags: dict[str, Path], tmp_path: Path):
 # -- bad input ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("container", ["sqlite3", "mcap"])
-def test_truncated_bag_is_an_error_naming_the_file(container: str, bags: dict[str, Path], tmp_path: Path):
-    cut = tmp_path / bags[container].name
-    if container == "sqlite3":  # a folder: cut its database file
-        shutil.copytree(bags[container], cut)
-        (database,) = cut.glob("*.db3")
-        database.write_bytes(database.read_bytes()[: database.stat().st_size // 2])
-    else:
-        cut.write_bytes(bags[container].read_bytes()[: bags[container].stat().st_size // 2])
+def test_truncated_bag_is_an_error_naming_the_file(bags: dict[str, Path], tmp_path: Path):
+    cut = tmp_path / bags["sqlite3"].name
+    shutil.copytree(bags["sqlite3"], cut)  # a folder: cut its database file
+    (database,) = cut.glob("*.db3")
+    database.write_bytes(database.read_bytes()[: database.stat().st_size // 2])
     with pytest.raises(DatasetError, match=f"{cut}: cannot open the bag: "):
         RosBag(cut)
+
+
+def test_an_mcap_file_cut_short_serves_its_whole_records(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    whole = RosBag(bags["mcap"])
+    cut = tmp_path / "drive.mcap"
+    cut.write_bytes(bags["mcap"].read_bytes()[: bags["mcap"].stat().st_size // 2])
+    with caplog.at_level(logging.WARNING):
+        bag = RosBag(cut)
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warning.startswith(f"{cut}: a record at byte ") and "is cut off by the end of the file" in warning
+    kept = {name: len(topic) for name, topic in bag.bag.topics.items()}
+    assert 0 < sum(kept.values()) < sum(len(topic) for topic in whole.bag.topics.values())
+    for name, count in kept.items():  # the messages before the cut, the same as the whole file's
+        assert [bag.bag.message(name, i)[0] for i in range(count)] == whole.bag.topics[name].times[:count].tolist()
+    assert frame_digests(bag, 1) == frame_digests(whole, 1)
 
 
 def cut_recording(bag: Path, to: Path, keep: int | None = None) -> Path:
@@ -370,6 +496,30 @@ def frame_digests(bag: RosBag, frames: int) -> list[str]:
     metadata = bag.metadata()
     return [sha(json.dumps(bag.convert(frame, metadata), sort_keys=True, default=lambda a: sha(np.asarray(a))).encode())
             for frame in range(frames)]
+
+
+def ros1_profile_mcap(bag: Path, to: Path) -> Path:
+    """``bag`` (ROS 1) as ``mcap convert`` makes it: profile ros1, ros1msg schemas, ros1 messages, with mcap's writer."""
+    from mcap.writer import Writer
+    from rosbags.rosbag1 import Reader
+
+    with Reader(bag) as reader, to.open("wb") as out:
+        writer = Writer(out)
+        writer.start(profile="ros1", library="tests")
+        channels = {}
+        for connection in reader.connections:
+            schema = writer.register_schema(connection.msgtype.replace("/msg/", "/"), "ros1msg", connection.msgdef.data.encode())
+            channels[connection.id] = writer.register_channel(connection.topic, "ros1", schema)
+        for connection, time, data in reader.messages():
+            writer.add_message(channels[connection.id], time, data, time)
+        writer.finish()
+    return to
+
+
+def test_an_mcap_file_of_the_ros1_profile_serves_the_same_frames_as_its_bag(bags: dict[str, Path], tmp_path: Path):
+    converted = RosBag(ros1_profile_mcap(bags["ros1"], tmp_path / "drive.mcap"))
+    assert converted.bag.container == "MCAP" and converted.bag.problems == {}
+    assert frame_digests(converted, FRAMES) == frame_digests(RosBag(bags["ros1"]), FRAMES)
 
 
 def test_unindexed_ros1_bag_is_indexed_in_memory(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
@@ -485,16 +635,20 @@ def test_converted_log_reads_in_the_published_client(bags: dict[str, Path], driv
         assert parsed["streams"]["/odom/speed"] == [{"time": drive.times[frame], "variable": pytest.approx(oxts.vf)}]
 
 
-async def test_served_over_a_socket_beside_a_broken_bag(bags: dict[str, Path], tmp_path: Path):
+async def test_served_over_a_socket_beside_a_broken_bag(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
     root = tmp_path / "data"
     root.mkdir()
     (root / "good.mcap").write_bytes(bags["mcap"].read_bytes())
     (root / "cut.bag").write_bytes(bags["ros1"].read_bytes()[:100_000])
     async with running_server(root, dataset=[f"rosbag:{bags['ros1']}"]) as server:
         assert {"good", "cut", "drive"} <= set(server.catalog.names())
-        async with client(server, "/?log=cut") as c:
-            error = await c.recv()
-            assert error["type"] == "xviz/error" and "cut.bag: the bag holds no message" in error["data"]["message"]
+        for _ in range(2):  # the client is told the log's name and the cause, never where the file is
+            async with client(server, "/?log=cut") as c:
+                error = await c.recv()
+                assert error["type"] == "xviz/error" and error["data"]["message"] == "log 'cut': the bag holds no message"
+        # The server's log has one warning for this version of the file, with its path.
+        warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING and "cannot be opened" in r.getMessage()]
+        assert warnings == [f"log 'cut' ({root / 'cut.bag'}) cannot be opened: log 'cut': the bag holds no message"]
         for name in ("good", "drive"):
             async with client(server, f"/?log={name}") as c:
                 metadata = await c.recv()
@@ -567,13 +721,13 @@ def test_inspect_points_out_topics_on_another_clock(tmp_path: Path, capsys: pyte
             twist=m.geometry_msgs__TwistWithCovariance(twist=m.geometry_msgs__Twist(
                 linear=m.vector(1.0, 0.0, 0.0), angular=m.vector(0.0, 0.0, 0.0)), covariance=np.zeros(36)))))
         messages.append(("/wall/speed", "std_msgs/msg/Float32", t, m.std_msgs__Float32(data=float(i))))
-        messages.append(("/diagnostics_blob", "std_msgs/msg/String", t, m.std_msgs__String(data="x")))
+        messages.append(("/diagnostics_blob", "std_msgs/msg/ColorRGBA", t, m.std_msgs__ColorRGBA(r=0.0, g=0.0, b=0.0, a=1.0)))
     path = write_bag(tmp_path / "clocks.mcap", "mcap", iter(messages))
     bag = RosBag(path)
     with caplog.at_level(logging.INFO, logger="xviz_server.datasets.ros.dataset"):
         bag.metadata()
     assert [r.getMessage() for r in caplog.records] == [
-        f"{path}: topics of types the mapping does not know, not served: /diagnostics_blob (std_msgs/msg/String)"
+        f"{path}: topics of types the mapping does not know, not served: /diagnostics_blob (std_msgs/msg/ColorRGBA)"
     ]
     assert main(["inspect", str(path), "--json"]) == 0
     topics = {t["topic"]: t for t in json.loads(capsys.readouterr().out)["topics"]}

@@ -331,6 +331,7 @@ class Catalog:
         self._found: dict[str, Found | StoredLog | StoredDataset] = {}
         self._open: dict[str, asyncio.Task[Log]] = {}
         self._stamps: dict[str, tuple[int, ...]] = {}  # what stamp_of() said when each was opened
+        self._failed: dict[str, tuple[int, ...]] = {}  # the version of each log whose failure to open was logged
         self._preload_bytes = preload_bytes
         self._preloads: dict[str, asyncio.Task[None]] = {}
         self._preloading = asyncio.Lock()  # one log read in at a time, however many sessions open
@@ -439,7 +440,13 @@ class Catalog:
             task = asyncio.ensure_future(self.load(found))
             self._open[name] = task
             self._stamps[name] = stamp
-        log = await asyncio.shield(task)
+        try:
+            log = await asyncio.shield(task)
+        except XVIZError as exc:
+            if self._failed.get(name) != stamp:  # once per version of the log
+                self._failed[name] = stamp
+                logger.warning("log %r (%s) cannot be opened: %s", name, getattr(found, "path", found.name), exc)
+            raise
         if preload and name not in self._preloads and isinstance(found, Found) and found.kind == LOG and self._preload_bytes > 0:
             self._preloads[name] = asyncio.ensure_future(self._preload(log, found.path))
         return log

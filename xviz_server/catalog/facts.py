@@ -49,6 +49,12 @@ MAX_TAG = 100
 MAX_SPAN_READ = 16 * 2**20
 
 
+def _recording_format(info: dict[str, Any]) -> str:
+    """The container of a ROS bag or MCAP file, as its ``log_info.source`` names it (``MCAP bag drive``: ``MCAP``)."""
+    source = info.get("source")
+    return source.rpartition(" bag ")[0] or "ROS bag" if isinstance(source, str) else "ROS bag"
+
+
 def facts(
     kind: str,
     fmt: Format,
@@ -76,7 +82,7 @@ def facts(
     description = info.get("description")
     return {
         "kind": kind,
-        "format": fmt.value,
+        "format": _recording_format(info) if kind == "rosbag" else fmt.value,
         "frames": len(index) if frames is None else frames,
         "start_time": start,
         "end_time": end,

@@ -56,30 +56,38 @@ from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, MAX_FRAME_BYTES, BoundedR
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
 
-__all__ = ["Bag", "Topic", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY", "CHUNK_CACHE_BYTES"]
+    from .mcapbag import McapBag
+
+__all__ = ["Bag", "Topic", "open_bag", "reason", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY", "CHUNK_CACHE_BYTES"]
 
 logger = logging.getLogger(__name__)
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ROS2_KEY = b"rosbag2_bagfile_information"  # the top key of a ROS 2 bag's metadata.yaml
+SQLITE_MAGIC = b"SQLite format 3\x00"  # a ROS 2 storage file without its metadata.yaml
 _MESSAGE = 0x05  # MCAP opcodes
 _MESSAGE_INDEX = 0x07
 _ROS1_MESSAGE = 0x02  # ROS 1 record ops
 _ROS1_CONNECTION = 0x07
+#: Message types of raw sensor packets, which only their driver turns into points.
+DRIVER_PACKETS = frozenset({
+    "velodyne_msgs/msg/VelodyneScan", "velodyne_msgs/msg/VelodynePacket", "ouster_msgs/msg/PacketMsg",
+    "ouster_ros/msg/PacketMsg", "hesai_msgs/msg/PandarScan", "pandar_msgs/msg/PandarScan", "livox_ros_driver/msg/CustomMsg",
+})
 #: The most bytes of unpacked chunks a bag keeps: a frame reads a few neighbouring chunks (the last one read is
 #: always kept, even if larger).
 CHUNK_CACHE_BYTES = 32 << 20
 
 
 def is_rosbag(path: Path | StorePath) -> bool:
-    """Whether ``path`` is a ROS 1 bag or an MCAP file (by their first bytes), or a ROS 2 bag folder (by the top
-    key of its ``metadata.yaml``).
+    """Whether ``path`` is a ROS 1 bag, an MCAP file or a ROS 2 sqlite3 file (``.db3``, by their first bytes), or a
+    ROS 2 bag folder (by the top key of its ``metadata.yaml``).
 
     Raises :class:`~xviz_server.exceptions.StoreError` when an object in a
     store cannot be read.
     """
-    magic = {".bag": ROS1_MAGIC, ".mcap": MCAP_MAGIC}.get(path.suffix)
+    magic = {".bag": ROS1_MAGIC, ".mcap": MCAP_MAGIC, ".db3": SQLITE_MAGIC}.get(path.suffix)
     target: Path | StorePath
     if magic is not None:
         start, target = len(magic), path
@@ -141,9 +149,12 @@ class Bag:
         from .reindex import MemoryIndexedReader
 
         try:
-            reader = rosbags.highlevel.AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+            self._standard = get_typestore(Stores.ROS2_HUMBLE)
+            reader = rosbags.highlevel.AnyReader([self.path], default_typestore=self._standard)
             if not reader.is2:
                 reader.readers = [MemoryIndexedReader(self.path)]
+            for ros2 in reader.readers if reader.is2 else ():  # storage_identifier "": the storage of its files
+                ros2.storage.STORAGE_PLUGINS = {**getattr(ros2.storage, "STORAGE_PLUGINS", {}), "": _storage_by_suffix}
             reader.open()
         except DatasetError as exc:  # a chunk refused; one that rosbags' reader unpacks does not say whose
             if not str(exc).startswith(str(self.path)):
@@ -152,8 +163,10 @@ class Bag:
         except StoreError:
             raise
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
-            raise DatasetError(f"{self.path}: cannot open the bag: {_reason(exc)}", path=self.path) from None
+            raise DatasetError(f"{self.path}: cannot open the bag: {reason(exc)}", path=self.path) from None
         self._reader = reader
+        #: Topics that cannot be decoded: the reason, by topic (rosbags refuses a bag whose types do not parse).
+        self.problems: dict[str, str] = {}
         for ros1 in reader.readers:
             if getattr(ros1, "reindexed", False):
                 cut = f"; the last {ros1.lost} bytes, a record cut short, are left out" if ros1.lost else ""
@@ -173,12 +186,17 @@ class Bag:
             except DatasetError:
                 raise
             except Exception as exc:  # noqa: BLE001
-                raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {_reason(exc)}", path=self.path) from None
+                raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {reason(exc)}", path=self.path) from None
             times = np.concatenate([i[0] for i in indexes])
             order = np.argsort(times, kind="stable")
             places = [i[1] for i in indexes if i[1] is not None]
             located = np.concatenate(places)[order] if len(places) == len(indexes) else None
             self.topics[name] = Topic(name, connections[0].msgtype, times[order], tuple(connections), located)
+            if connections[0].msgtype in DRIVER_PACKETS:
+                self.problems[name] = (f"{connections[0].msgtype} holds the raw packets of a sensor's driver, not points: "
+                                       "record the driver's point cloud topic, or replay the bag through the driver")
+            elif connections[0].msgtype not in reader.typestore.fielddefs:
+                self.problems[name] = f"its type {connections[0].msgtype} has no definition in the bag or rosbags' type store"
 
     @property
     def container(self) -> str:
@@ -187,7 +205,7 @@ class Bag:
             return "ROS 1"
         if self.path.suffix == ".mcap":
             return "MCAP"
-        storages = {type(s).__name__ for r in self._reader.readers for s in r.storage.storages}
+        storages = {type(s).__name__ for r in self._reader.readers for s in getattr(r.storage, "storages", [r.storage])}
         return "ROS 2 mcap" if storages == {"McapReader"} else "ROS 2 sqlite3"
 
     def close(self) -> None:
@@ -333,9 +351,10 @@ class Bag:
                 yield int(info.times[index]), info.msgtype, data
             return
         with self._lock:
-            raw = self._guard(topic, lambda: list(self._reader.messages(info.connections, start=start, stop=stop)))
-        for connection, time, data in raw:
-            yield time, connection.msgtype, data
+            raw = self._guard(topic, lambda: [m for c in info.connections for m in _storage_messages(c, start, stop)])
+        raw.sort(key=lambda message: message[0])
+        for time, data in raw:
+            yield time, info.msgtype, data
 
     def original(self, topic: str) -> OriginalTopic | None:
         """How the file holds ``topic``'s messages: their encoding and schema, the definition as recorded (or,
@@ -363,16 +382,73 @@ class Bag:
         except (DatasetError, StoreError):  # a store that fails is not a damaged bag: the frame fails, not the topic
             raise
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
-            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {_reason(exc)}", path=self.path) from None
+            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {reason(exc)}", path=self.path) from None
 
     def _decode(self, topic: str, msgtype: str, time: int, data: bytes | memoryview) -> Any:
         try:
             return self._reader.deserialize(data, msgtype)
         except Exception as exc:  # noqa: BLE001 - a message that does not match its type
+            if self._reader.is2 and msgtype in self._standard.fielddefs:  # a definition the bag holds wrongly
+                try:  # (rosbags makes "uint8 level" of an old sqlite3 bag's rcl_interfaces/Log): the standard one
+                    return self._standard.deserialize_cdr(bytes(data), msgtype)
+                except Exception:  # noqa: BLE001, S110 - the first reason is the one to give
+                    pass
             raise DatasetError(
-                f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {_reason(exc)}",
+                f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {reason(exc)}",
                 path=self.path,
             ) from None
+
+
+def _storage_messages(connection: Any, start: int | None, stop: int | None) -> Iterator[tuple[int, bytes]]:
+    """The messages of a connection, read from the storage files of a ROS 2 bag folder by topic and type (rosbags'
+    folder reader also matches their QoS profiles, which older bags write differently in metadata.yaml and the
+    database, and then finds no message)."""
+    owner = connection.owner
+    if type(owner).__name__ != "DirectoryReader":
+        yield from ((time, data) for _, time, data in owner.messages([connection], start, stop))
+        return
+    compressed = owner.metadata.compression_mode == "message"
+    for storage in owner.storages:
+        mine = [c for c in storage.connections if c.topic == connection.topic and c.msgtype == connection.msgtype]
+        for _, time, data in storage.messages(mine, start, stop) if mine else ():
+            yield time, _BoundedZstd.decompress(data) if compressed else data
+
+
+def open_bag(path: Path | StorePath) -> AnyBag:
+    """The bag at ``path``: an MCAP file, or a ROS 2 bag folder of MCAP files not compressed by rosbag2, with the
+    format's own reader (:class:`~.mcapbag.McapBag`); the rest with rosbags (:class:`Bag`)."""
+    path = data_path(path)
+    from .mcapbag import McapBag
+
+    if path.suffix == ".mcap":
+        return McapBag(path)
+    files = _mcap_files(path) if isinstance(path, Path) and path.is_dir() else None
+    return Bag(path) if files is None else McapBag(path, files)
+
+
+def _mcap_files(folder: Path) -> list[Path] | None:
+    """The storage files of a ROS 2 bag folder if they are MCAP files not compressed by rosbag2, else ``None``."""
+    from ruamel.yaml import YAML, YAMLError  # rosbags reads metadata.yaml with it
+
+    try:
+        metadata = YAML(typ="safe").load((folder / "metadata.yaml").read_text("utf-8"))[ROS2_KEY.decode()]
+        files = [folder / Path(name).name for name in metadata["relative_file_paths"]]
+        compressed = str(metadata.get("compression_mode") or "").lower() not in ("", "none")
+    except (OSError, UnicodeDecodeError, YAMLError, KeyError, TypeError, AttributeError):
+        return None  # rosbags names what is wrong
+    if compressed or not files or any(f.suffix != ".mcap" or not f.is_file() for f in files):
+        return None
+    if metadata.get("storage_identifier") not in ("mcap", "", None):
+        return None
+    return files
+
+
+def _storage_by_suffix(path: Path) -> Any:
+    """rosbags' storage reader of a file of a ROS 2 bag whose ``storage_identifier`` is empty, by its suffix."""
+    from rosbags.rosbag2.storage_mcap import McapReader
+    from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+
+    return (McapReader if path.suffix == ".mcap" else Sqlite3Reader)(path)
 
 
 def _read_chunk(owner: Any, key: int) -> bytes:
@@ -483,5 +559,11 @@ def _ros1_op(header: bytes) -> int | None:
     return None
 
 
-def _reason(exc: BaseException) -> str:
+def reason(exc: BaseException) -> str:
     return " ".join(str(arg) for arg in exc.args) or type(exc).__name__
+
+
+if TYPE_CHECKING:
+    from typing import TypeAlias
+
+    AnyBag: TypeAlias = "Bag | McapBag"

@@ -6,6 +6,7 @@ default mapping applies::
     topics = ["/velodyne_points", "/camera/image_raw", "/tf", "/fix"]  # only these (default: all)
     exclude = ["/diagnostics"]     # never these
     vehicle_frame = "base_link"    # the frame points are drawn in (default: base_link, else the pose's)
+    fixed_frame = "map"            # with a transform tree: the pose is vehicle_frame in this frame (default: its root)
     pose = "/tf"                   # "/tf", a topic (Odometry, PoseStamped, NavSatFix), or "none"
     clock = "/velodyne_points"     # one frame per message of this topic (default: the densest cloud)
     rate = 10.0                    # or frames at this rate, Hz, over the bag's span
@@ -55,6 +56,7 @@ class RosConfig(_Strict):
     topics: list[str] | None = None
     exclude: list[str] = []
     vehicle_frame: str | None = None
+    fixed_frame: str | None = None
     pose: str | None = None
     clock: str | None = None
     rate: float | None = pydantic.Field(default=None, gt=0, le=1000)

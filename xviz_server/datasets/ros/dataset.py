@@ -1,14 +1,18 @@
 """A bag as a dataset: its clock, its pose, and each frame converted to XVIZ on demand.
 
 Frames are the ticks of a clock: by default each message of the densest
-``PointCloud2`` topic, else 10 Hz over the bag's span. A frame holds, for
-every stream, the latest message recorded at or before its tick and not
-more than the staleness limit (1 s by default) before it, and the vehicle
-pose interpolated at the tick.
+``PointCloud2`` topic (else ``LaserScan``), else 10 Hz over the bag's span
+(the last tick at or after the last message). A frame holds, for every
+stream, the latest message recorded at or before its tick and not more than
+the staleness limit (1 s by default) before it, and the vehicle pose
+interpolated at the tick. The first frame also shows what was recorded
+before it, however old, and the last what was recorded after it.
 
-The pose comes from, in this order: ``/tf`` (the vehicle frame in the root
-of its tree: map, odom, world), a ``nav_msgs/Odometry`` topic, a
-``geometry_msgs/PoseStamped`` or ``PoseWithCovarianceStamped`` topic, and
+The pose comes from, in this order: ``/tf`` or another transform topic (the
+vehicle frame in the root of its tree: map, odom, world), a
+``nav_msgs/Odometry`` topic, a ``geometry_msgs/PoseStamped`` or
+``PoseWithCovarianceStamped`` topic (the earliest of a type; the others are
+drawn as trajectories), and
 last a ``sensor_msgs/NavSatFix`` topic (east-north-up metres from the first
 fix, heading from a ``sensor_msgs/Imu`` topic if there is one). The first
 fix of a NavSatFix topic is the ``map_origin``: the origin of the pose's
@@ -40,14 +44,14 @@ from ...records import RECORD_BYTES, OriginalTopic, pack
 from ...storepath import StorePath, data_path
 from ...unpack import MAX_FRAME_BYTES, size_text
 from .. import DEFAULT_IMAGE_WIDTH
-from .bag import Bag, is_rosbag
+from .bag import is_rosbag, open_bag
 from .config import RosConfig, load_config
 from .geometry import IDENTITY, apply, enu, from_pose, from_quaternion, interpolate, rpy
 from .mapping import (
-    CLOUD, COMPRESSED_IMAGE, IMU, MARKER_STREAMS, NAV_SAT_FIX, ODOMETRY, POSE_TYPES, SERIES, Mapping, plan,
+    CLOUD, COMPRESSED_IMAGE, IMU, LASER_SCAN, MARKER_STREAMS, NAV_SAT_FIX, ODOMETRY, POSE_TYPES, SERIES, Mapping, plan,
 )
 from .markers import draw_marker, live_markers, path_vertices
-from .sensors import cloud_points, compressed_image_bytes, image_bytes
+from .sensors import cloud_points, compressed_image_bytes, image_bytes, scan_points
 from .tf import TF, Snapshot, TransformTree, frame_name
 
 __all__ = ["RosBag", "PoseSource", "POSE_STREAM", "MAX_FRAME_MESSAGES"]
@@ -59,6 +63,10 @@ DEFAULT_RATE = 10.0  # Hz, when the bag has no point cloud
 #: The most original messages a frame may have (each is a message to every client that subscribes to its topic).
 MAX_FRAME_MESSAGES = 100_000
 _FIXED_FRAMES = ("map", "odom", "world")
+#: The most messages a text table or a trajectory shows in a frame (the latest).
+MAX_SHOWN = 200
+_TEXT_COLUMNS: list[tuple[str, str] | tuple[str, str, str]] = [("time", "DOUBLE", "s"), ("level", "STRING"), ("node", "STRING"), ("text", "STRING")]
+_LEVELS = {1: "DEBUG", 2: "INFO", 4: "WARN", 8: "ERROR", 16: "FATAL", 10: "DEBUG", 20: "INFO", 30: "WARN", 40: "ERROR", 50: "FATAL"}
 _FIRST_FIXES = 100  # fixes looked at for the map origin: the first with a position (status >= 0) wins
 _MARKER_STYLES: dict[str, dict[str, Any]] = {
     "polygons": {"extruded": True, "fill_color": "#50B3FF80", "stroke_color": "#50B3FF"},
@@ -81,7 +89,7 @@ class PoseSource:
 
     def describe(self) -> str:
         if self.kind == "tf":
-            return f"/tf: {self.fixed_frame} -> {self.vehicle_frame}"
+            return f"{self.topic}: {self.fixed_frame} -> {self.vehicle_frame}"
         if self.kind == "fix":
             heading = f", heading from {self.imu_topic}" if self.imu_topic else ", no heading"
             return f"{self.topic}: east-north-up from the first fix{heading}"
@@ -114,7 +122,7 @@ class RosBag:
             )
         self.name = self.path.stem if self.path.is_file() else self.path.name
         self.settings: RosConfig = load_config(self.config)
-        self.bag = Bag(self.path)
+        self.bag = open_bag(self.path)
         self._staleness = int(self.settings.staleness * 1e9)
         self.tree = TransformTree(self.bag, self._staleness)
         self._warned: set[str] = set()
@@ -153,8 +161,8 @@ class RosBag:
                 raise DatasetError(f"{self.config}: pose: {choice} is not a topic of {', '.join(POSE_TYPES)}", path=self.config)
             candidates = [choice]
         else:
-            candidates = [t for kind in POSE_TYPES for t, info in topics.items()
-                          if info.msgtype == kind and len(info) and self.settings.wants(t)]
+            candidates = sorted((t for t, info in topics.items() if info.msgtype in POSE_TYPES and len(info) and self.settings.wants(t)),
+                                key=lambda t: (POSE_TYPES.index(topics[t].msgtype), int(topics[t].times[0])))  # the earliest
         if not candidates:
             return PoseSource("none", vehicle or self._first_cloud_frame())
         topic = candidates[0]
@@ -175,13 +183,18 @@ class RosBag:
             return None
         parents = {**{c: (p, IDENTITY) for c, p in moving.items()}, **self.tree.static}
         root, _ = Snapshot(parents).to_root(vehicle)
+        if self.settings.fixed_frame:  # the pair chosen
+            fixed = frame_name(self.settings.fixed_frame)
+            if fixed not in self.tree.frames or fixed == vehicle:
+                raise DatasetError(f"{self.config}: fixed_frame: the transform tree has no frame {fixed} apart from the vehicle's", path=self.config)
+            return PoseSource("tf", vehicle, self.tree.dynamic, fixed_frame=fixed)
         chain, frame = set(), vehicle
         while frame in parents and frame != root:
             chain.add(frame)
             frame = parents[frame][0]
         if root == vehicle or not chain & moving.keys():
             return None
-        return PoseSource("tf", vehicle, TF, fixed_frame=root)
+        return PoseSource("tf", vehicle, self.tree.dynamic, fixed_frame=root)
 
     def _first_cloud_frame(self) -> str:
         clouds = [t for t, info in self.bag.topics.items() if info.msgtype == CLOUD and len(info) and self.settings.wants(t)]
@@ -218,7 +231,7 @@ class RosBag:
         vehicle = self.pose_source.vehicle_frame
         result: dict[str, np.ndarray | None] = {}
         for mapping in self.mappings:
-            if mapping.role == "points" and len(self.bag.topics[mapping.topic]):
+            if mapping.role == "points" and len(self.bag.topics[mapping.topic]) and mapping.topic not in self.bag.problems:
                 frame = frame_name(self._first(mapping.topic).header.frame_id)
                 result[mapping.topic] = IDENTITY if frame == vehicle else static.lookup(frame, vehicle)
         return result
@@ -230,11 +243,11 @@ class RosBag:
             return self.bag.topics[self.settings.clock].times
         clouds = [self.bag.topics[m.topic] for m in self.mappings if m.role == "points"]
         if self.settings.rate is None and clouds and max(len(c) for c in clouds):
-            return max(clouds, key=len).times
+            return max(clouds, key=lambda c: (c.msgtype == CLOUD, len(c))).times  # PointCloud2 before LaserScan
         mapped = [self.bag.topics[m.topic].times for m in self.mappings if m.role != "excluded"]
         every = np.concatenate([t for t in mapped if len(t)] or [t.times for t in self.bag.topics.values() if len(t)])
         step = int(1e9 / (self.settings.rate or DEFAULT_RATE))
-        return np.arange(int(every.min()), int(every.max()) + 1, step, dtype=np.int64)
+        return np.arange(int(every.min()), int(every.max()) + step, step, dtype=np.int64)  # the last tick at or after the last message
 
     @cached_property
     def times(self) -> np.ndarray:
@@ -311,7 +324,7 @@ class RosBag:
             if mapping.stream is None:
                 continue
             info = self.bag.topics[mapping.topic]
-            if mapping.role == "markers":
+            if mapping.role in ("markers", "text"):
                 first, last = np.searchsorted(info.times, [t - self._staleness, t + 1], side="left").tolist()
             else:
                 index = info.at_or_before(t)
@@ -341,14 +354,16 @@ class RosBag:
 
     def metadata(self) -> dict[str, Any]:
         """The log's metadata, from the bag's index and the first message of each cloud topic."""
-        unknown = sorted(f"{m.topic} ({m.msgtype})" for m in self.mappings if m.role == "unknown")
+        problems = self.bag.problems
+        unknown = sorted(f"{m.topic} ({m.msgtype}{': ' + problems[m.topic] if m.topic in problems else ''})"
+                         for m in self.mappings if m.role == "unknown")
         if unknown:
             logger.info("%s: topics of types the mapping does not know, not served: %s", self.path, ", ".join(unknown))
         meta = MetadataBuilder()
         meta.log_info(start_time=float(self.times[0]), end_time=float(self.times[-1]),
                       source=f"{self.bag.container} bag {self.name}")
         meta.pose(POSE_STREAM)
-        images, series = [], []
+        images, series, texts = [], [], []
         for mapping in self.mappings:
             style = self.settings.stream(mapping.topic).style
             if mapping.role == "points" and mapping.stream:
@@ -359,14 +374,17 @@ class RosBag:
             elif mapping.role == "image" and mapping.stream:
                 meta.primitive(mapping.stream, "IMAGE")
                 images.append(mapping.stream)
-            elif mapping.role == "path" and mapping.stream:
+            elif mapping.role == "text" and mapping.stream:
+                meta.ui_primitive(mapping.stream, "TREETABLE")
+                texts.append(mapping.stream)
+            elif mapping.role in ("path", "trajectory") and mapping.stream:
                 meta.primitive(mapping.stream, "POLYLINE", coordinate="VEHICLE_RELATIVE",
                                style=style or {"stroke_color": "#47B27588", "stroke_width": 0.3, "stroke_width_min_pixels": 1})
             elif mapping.role == "markers" and mapping.stream:
                 for suffix, primitive_type in MARKER_STREAMS.items():
                     meta.primitive(f"{mapping.stream}/{suffix}", primitive_type, coordinate="VEHICLE_RELATIVE",
                                    style=_MARKER_STYLES[suffix])
-            elif mapping.msgtype in SERIES and mapping.stream:
+            if mapping.msgtype in SERIES and mapping.stream and mapping.role in ("series", "pose", "trajectory"):
                 for suffix, scalar_type, units, _ in SERIES[mapping.msgtype]:
                     meta.time_series(mapping.stream + suffix, scalar_type, units=units)
                     series.append(mapping.stream + suffix)
@@ -374,6 +392,8 @@ class RosBag:
             meta.ui_panel(ui.panel("Metrics", *(ui.metric([s], title=s) for s in series)))
         if images:
             meta.ui_panel(ui.panel("Camera", ui.video(images)))
+        if texts:
+            meta.ui_panel(ui.panel("Messages", *(ui.table(s, title=s) for s in texts)))
         return meta.build()
 
     def convert(self, frame: int, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -390,38 +410,52 @@ class RosBag:
             if mapping.stream is None:
                 continue
             try:
-                self._add(builder, mapping, t, snapshot, pose)
+                self._add(builder, mapping, t, snapshot, pose, frame)
             except DatasetError as exc:
                 self._warn(mapping.topic, str(exc))
         return builder.build(t / 1e9)
 
-    def _add(self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray) -> None:
+    def _add(self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray, frame: int) -> None:
         stream, topic = mapping.stream, mapping.topic
         assert stream is not None
         where = f"{self.path}: topic {topic}"
+        # The first frame also shows what was recorded before it, the last what was recorded after it.
+        info = self.bag.topics[topic]
+        reach = int(info.times[-1]) if frame == len(self.clock) - 1 and len(info) and info.times[-1] > t else t
+        since = min(t - self._staleness, int(info.times[0])) if frame == 0 and len(info) else t - self._staleness
         if mapping.role == "markers":
-            messages = self.bag.messages(topic, t - self._staleness, t + 1)
-            for marker in live_markers(messages, t):
+            messages = self.bag.messages(topic, since, reach + 1)
+            for marker in live_markers(messages, reach):
                 to_vehicle = self._resolve(marker.header.frame_id, snapshot, pose)
                 if to_vehicle is None:
                     self._warn(topic, f"{where}: frame {marker.header.frame_id!r} is not connected to the vehicle frame")
                     continue
                 draw_marker(builder, stream, marker, to_vehicle)
             return
-        latest = self._latest(topic, t)
+        if mapping.role == "text":
+            rows = list(self.bag.messages(topic, max(since, self._after(topic, reach, MAX_SHOWN)), reach + 1))
+            builder.treetable(stream, _TEXT_COLUMNS, [(i, None, _text_row(time, m)) for i, (time, m) in enumerate(reversed(rows))])
+            return
+        if mapping.role == "trajectory":
+            self._trajectory(builder, mapping, t, snapshot, pose)
+        latest = self._latest(topic, reach, first=frame == 0)
         if latest is None:
             return
         time, message = latest
         if mapping.role == "points":
             config = self.settings.stream(topic)
-            points, colors = cloud_points(message, where, color=config.color, intensity_scale=self.settings.intensity_scale)
+            if mapping.msgtype == LASER_SCAN:
+                points, colors = scan_points(message), None
+            else:
+                points, colors = cloud_points(message, where, color=config.color, intensity_scale=self.settings.intensity_scale)
             if self.cloud_transforms.get(topic) is None:
                 to_vehicle = self._resolve(message.header.frame_id, snapshot, pose)
                 if to_vehicle is None:
                     self._warn(topic, f"{where}: frame {message.header.frame_id!r} is not connected to the vehicle frame")
                     return
                 points = apply(to_vehicle, points)
-            builder.points(stream, points, colors)
+            if len(points):  # a cloud of no-return or NaN points alone draws nothing
+                builder.points(stream, points, colors)
         elif mapping.role == "image":
             width = self.settings.image_max_width or self.image_max_width
             data = (compressed_image_bytes if mapping.msgtype == COMPRESSED_IMAGE else image_bytes)(message, width, where)
@@ -434,15 +468,39 @@ class RosBag:
             for suffix, _, _, value in SERIES[mapping.msgtype]:
                 builder.time_series(stream + suffix, time / 1e9, value(message))
 
+    def _after(self, topic: str, t: int, count: int) -> int:
+        """The record time of the ``count``-th message of ``topic`` before ``t`` (the first one's if fewer)."""
+        info = self.bag.topics[topic]
+        return int(info.times[max(info.at_or_before(t) - count + 1, 0)]) if len(info) else t + 1
+
+    def _trajectory(self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray) -> None:
+        """A pose topic other than the pose source: a polyline of its positions up to ``t`` (at most
+        :data:`MAX_SHOWN`, evenly spaced), in the vehicle frame."""
+        info = self.bag.topics[mapping.topic]
+        last = info.at_or_before(t)
+        if last < 1:
+            return
+        indices = np.unique(np.linspace(0, last, min(last + 1, MAX_SHOWN)).astype(int))
+        messages = [self.bag.message(mapping.topic, int(i))[1] for i in indices]
+        to_vehicle = self._resolve(messages[-1].header.frame_id, snapshot, pose)
+        if to_vehicle is None:
+            self._warn(mapping.topic, f"{self.path}: topic {mapping.topic}: frame {messages[-1].header.frame_id!r} is not connected to the vehicle frame")
+            return
+        builder.polyline(mapping.stream, apply(to_vehicle, np.array([_message_pose(m)[:3, 3] for m in messages])))  # type: ignore[arg-type]
+
     def _warn(self, topic: str, message: str) -> None:
         if topic not in self._warned:
             self._warned.add(topic)
             logger.warning("%s (left out of the frames)", message)
 
-    def _latest(self, topic: str, t: int) -> tuple[int, Any] | None:
+    def _latest(self, topic: str, t: int, first: bool = False) -> tuple[int, Any] | None:
+        """The message of ``topic`` shown at ``t``: the latest at or before it within the staleness; at the first
+        frame, the latest before it however old, else the first one if it comes before the second frame."""
         info = self.bag.topics[topic]
         index = info.at_or_before(t)
-        if index < 0 or t - int(info.times[index]) > self._staleness:
+        if first and index < 0 and len(info) and (len(self.clock) == 1 or info.times[0] < self.clock[1]):
+            index = 0
+        if index < 0 or (not first and t - int(info.times[index]) > self._staleness):
             return None
         return self.bag.message(topic, index)
 
@@ -487,6 +545,13 @@ class RosBag:
             return pose_of(before)
         after_time, after = self.bag.message(topic, index + 1)
         return interpolate(pose_of(before), pose_of(after), (t - before_time) / (after_time - before_time))
+
+
+def _text_row(time: int, message: Any) -> list[Any]:
+    """A text message as a table row: time (s), level, node and text (``std_msgs/String``: its data alone)."""
+    if hasattr(message, "msg"):
+        return [time / 1e9, _LEVELS.get(int(message.level), str(message.level)), str(message.name), str(message.msg)]
+    return [time / 1e9, "", "", str(message.data)]
 
 
 def _message_pose(message: Any) -> np.ndarray:

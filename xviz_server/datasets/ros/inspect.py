@@ -14,6 +14,7 @@ from typing import Any
 
 from ...exceptions import DatasetError
 from .dataset import RosBag
+from .wellknown import nanoseconds
 
 __all__ = ["inspect_bag", "render"]
 
@@ -29,7 +30,7 @@ def _stamp_note(bag: RosBag, topic: str, first: int) -> str:
     header = getattr(message, "header", None)
     if header is None:
         return ""
-    stamp = header.stamp.sec + header.stamp.nanosec / 1e9
+    stamp = nanoseconds(header.stamp) / 1e9
     offset = stamp - first / 1e9
     return f"header stamps on another clock ({offset:+.1f} s from record time)" if abs(offset) > OTHER_CLOCK else ""
 
@@ -51,7 +52,7 @@ def inspect_bag(path: Path, config: str | None = None) -> dict[str, Any]:
             "first": first,
             "last": last,
             "maps_to": mappings[name].describe(),
-            "note": _stamp_note(dataset, name, int(info.times[0])) if count else "no message",
+            "note": dataset.bag.problems.get(name) or (_stamp_note(dataset, name, int(info.times[0])) if count else "no message"),
         })
     clock = dataset.settings.clock or next((m.topic for m in dataset.mappings if m.role == "points"
                                             and len(dataset.bag.topics[m.topic]) and dataset.settings.rate is None), None)

@@ -10,11 +10,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .bag import Bag
 from .config import RosConfig
-from .tf import TF, TF_STATIC, TF_TYPE
+from .tf import TF_TYPES
+
+if TYPE_CHECKING:
+    from .bag import AnyBag
 
 __all__ = ["Mapping", "plan", "SERIES", "MARKER_STREAMS", "POSE_TYPES"]
 
@@ -29,6 +31,11 @@ IMU = "sensor_msgs/msg/Imu"
 MARKER = "visualization_msgs/msg/Marker"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 PATH = "nav_msgs/msg/Path"
+LASER_SCAN = "sensor_msgs/msg/LaserScan"
+TWIST = "geometry_msgs/msg/Twist"
+TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
+#: Messages shown as text in a table: (time, level, node, text) rows of the staleness window.
+TEXT_TYPES = ("std_msgs/msg/String", "rosgraph_msgs/msg/Log", "rcl_interfaces/msg/Log")
 
 #: Pose sources in the order of preference after /tf.
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, POSE_WITH_COVARIANCE, NAV_SAT_FIX)
@@ -58,6 +65,14 @@ SERIES: dict[str, list[tuple[str, str, str | None, Getter]]] = {
         ("/speed", "FLOAT", "m/s", lambda m: _norm(m.twist.twist.linear)),
         ("/yaw_rate", "FLOAT", "rad/s", lambda m: float(m.twist.twist.angular.z)),
     ],
+    TWIST: [
+        ("/linear_x", "FLOAT", "m/s", lambda m: float(m.linear.x)),
+        ("/angular_z", "FLOAT", "rad/s", lambda m: float(m.angular.z)),
+    ],
+    TWIST_STAMPED: [
+        ("/linear_x", "FLOAT", "m/s", lambda m: float(m.twist.linear.x)),
+        ("/angular_z", "FLOAT", "rad/s", lambda m: float(m.twist.angular.z)),
+    ],
     IMU: [
         ("/acceleration", "FLOAT", "m/s^2", lambda m: float(m.linear_acceleration.x)),
         ("/yaw_rate", "FLOAT", "rad/s", lambda m: float(m.angular_velocity.z)),
@@ -70,7 +85,8 @@ SERIES: dict[str, list[tuple[str, str, str | None, Getter]]] = {
 class Mapping:
     """What one topic becomes: ``role`` and the XVIZ streams it makes.
 
-    Roles: ``points``, ``image``, ``markers``, ``path``, ``series``,
+    Roles: ``points`` (``PointCloud2``, ``LaserScan``), ``image``, ``markers``, ``path``, ``series``, ``text``,
+    ``trajectory`` (a pose topic other than the pose source),
     ``pose`` (the pose source), ``origin`` (NavSatFix: the map origin),
     ``transforms`` (/tf, /tf_static), ``unused`` (a known type not needed),
     ``unknown`` (a type the mapping does not know) and ``excluded`` (by the
@@ -90,7 +106,9 @@ class Mapping:
             return [f"{self.stream}/{suffix}" for suffix in MARKER_STREAMS]
         if self.role == "series" or (self.role == "pose" and self.msgtype in SERIES):
             return [self.stream + suffix for suffix, *_ in SERIES[self.msgtype]]
-        if self.role in ("points", "image", "path"):
+        if self.role == "trajectory":
+            return [self.stream] + [self.stream + suffix for suffix, *_ in SERIES.get(self.msgtype, [])]
+        if self.role in ("points", "image", "path", "text"):
             return [self.stream]
         return []
 
@@ -98,7 +116,7 @@ class Mapping:
         """The mapping in a few words, for ``inspect``: ``POINT /velodyne_points``."""
         words = {
             "points": "POINT", "image": "IMAGE", "markers": "POLYGON/POLYLINE/POINT/CIRCLE/TEXT", "path": "POLYLINE",
-            "series": "TIME_SERIES", "pose": "pose source of /vehicle_pose", "origin": "map_origin",
+            "series": "TIME_SERIES", "text": "UI_PRIMITIVE (a table of the recent messages)", "pose": "pose source of /vehicle_pose", "trajectory": "POLYLINE (the trajectory so far)", "origin": "map_origin",
             "transforms": "transform tree", "unused": "not used", "unknown": "unknown type, not served",
             "excluded": "excluded by the configuration",
         }[self.role]
@@ -113,7 +131,7 @@ def _stream_name(topic: str, config: RosConfig) -> str:
     return name if name is not None else topic if topic.startswith("/") else "/" + topic
 
 
-def plan(bag: Bag, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
+def plan(bag: AnyBag, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
     """The mapping of every topic of ``bag``; ``pose_topic`` is the topic the pose comes from, if one does."""
     mappings = []
     for topic, info in bag.topics.items():
@@ -124,7 +142,9 @@ def plan(bag: Bag, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
         stream = _stream_name(topic, config)
         if topic == pose_topic:
             role = "pose"
-        elif msgtype == CLOUD:
+        elif topic in bag.problems:
+            role = "unknown"
+        elif msgtype in (CLOUD, LASER_SCAN):
             role = "points"
         elif msgtype in (IMAGE, COMPRESSED_IMAGE):
             role = "image"
@@ -134,13 +154,15 @@ def plan(bag: Bag, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
             role = "path"
         elif msgtype in SERIES:
             role = "series"
+        elif msgtype in TEXT_TYPES:
+            role = "text"
         elif msgtype == NAV_SAT_FIX:
             role = "origin"
-        elif msgtype == TF_TYPE and topic in (TF, TF_STATIC):
+        elif msgtype in TF_TYPES:
             role = "transforms"
-        elif msgtype in POSE_TYPES:
-            role = "unused"
+        elif msgtype in POSE_TYPES and msgtype != NAV_SAT_FIX:
+            role = "trajectory"
         else:
             role = "unknown"
-        mappings.append(Mapping(topic, msgtype, role, stream if role in ("points", "image", "markers", "path", "series", "pose") else None))
+        mappings.append(Mapping(topic, msgtype, role, stream if role in ("points", "image", "markers", "path", "series", "pose", "text", "trajectory") else None))
     return mappings

@@ -16,6 +16,7 @@ import numpy as np
 from ...builder import FrameBuilder
 from ..shared import footprints
 from .geometry import apply, from_pose
+from .wellknown import nanoseconds
 
 __all__ = ["live_markers", "draw_marker", "path_vertices"]
 
@@ -39,7 +40,7 @@ def live_markers(messages: Iterable[tuple[int, Any]], t: int) -> list[Any]:
                 live[(marker.ns, marker.id)] = (time, marker)
     standing = []
     for time, marker in live.values():
-        lifetime = marker.lifetime.sec * 1_000_000_000 + marker.lifetime.nanosec
+        lifetime = nanoseconds(marker.lifetime)
         if not lifetime or time + lifetime >= t:
             standing.append(marker)
     return standing

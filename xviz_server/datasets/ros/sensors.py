@@ -11,7 +11,7 @@ from ...exceptions import DatasetError
 from ..images import encode_like, fit_width
 from ..shared import reflectance_colors
 
-__all__ = ["cloud_points", "image_bytes", "compressed_image_bytes", "IMAGE_ENCODINGS"]
+__all__ = ["byte_array", "cloud_points", "scan_points", "image_bytes", "compressed_image_bytes", "IMAGE_ENCODINGS"]
 
 # sensor_msgs/PointField datatypes.
 _FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -24,8 +24,17 @@ IMAGE_ENCODINGS = (
 )
 
 
+def byte_array(data: Any) -> np.ndarray:
+    """A ``uint8[]`` field as a numpy array, whichever decoder made it: an array (rosbags) or ``bytes`` (the MCAP
+    decoders, the Foxglove schemas)."""
+    if isinstance(data, (bytes, bytearray, memoryview)):
+        return np.frombuffer(data, dtype=np.uint8)
+    return np.asarray(data, dtype=np.uint8)
+
+
 def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_scale: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """The finite points of a ``PointCloud2``, float32 (N, 3), and their uint8 colours or ``None``.
+    """The finite points of a ``PointCloud2``, float32 (N, 3), and their uint8 colours or ``None``; points at
+    exactly (0, 0, 0), which drivers write for a beam with no return (an Ouster cloud keeps every beam), are left out.
 
     x, y and z may be of any type, offset and byte order; other fields are
     ignored except ``rgb``/``rgba`` (packed 0x00RRGGBB in a float32 or
@@ -52,7 +61,7 @@ def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_sca
     except (KeyError, ValueError) as exc:
         raise DatasetError(f"{where}: PointCloud2 field layout does not fit point_step {message.point_step}: {exc}") from None
     count = message.width * message.height
-    data = np.asarray(message.data, dtype=np.uint8)
+    data = byte_array(message.data)
     row = message.width * message.point_step
     if len(data) < (message.height - 1) * message.row_step + row or (message.height > 1 and message.row_step < row):
         raise DatasetError(f"{where}: PointCloud2 data holds {len(data)} bytes, too few for {message.width}x{message.height} points")
@@ -61,9 +70,12 @@ def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_sca
     records = np.frombuffer(np.ascontiguousarray(data[: count * message.point_step]).data, dtype=dtype, count=count)
     points = np.empty((count, 3), dtype=np.float32)
     finite = np.ones(count, dtype=bool)
+    returned = np.zeros(count, dtype=bool)
     for column, axis in enumerate("xyz"):
         points[:, column] = records[axis]
         finite &= np.isfinite(points[:, column])
+        returned |= points[:, column] != 0
+    finite &= returned
     keep = None if finite.all() else finite
     if keep is not None:
         points = points[keep]
@@ -84,11 +96,23 @@ def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_sca
     return points, None
 
 
+def scan_points(message: Any) -> np.ndarray:
+    """The returns of a ``sensor_msgs/LaserScan`` as points in its frame, float32 (N, 3): ranges outside
+    ``[range_min, range_max]`` and not finite are no returns, left out."""
+    ranges = np.asarray(message.ranges, dtype=np.float64)
+    angles = float(message.angle_min) + float(message.angle_increment) * np.arange(len(ranges))
+    keep = np.isfinite(ranges) & (ranges >= float(message.range_min)) & (ranges <= float(message.range_max)) & (ranges > 0)
+    points = np.zeros((int(keep.sum()), 3), dtype=np.float32)
+    points[:, 0] = ranges[keep] * np.cos(angles[keep])
+    points[:, 1] = ranges[keep] * np.sin(angles[keep])
+    return points
+
+
 def _pixels(message: Any, where: str) -> np.ndarray:
     encoding = message.encoding.lower()
     height, width, step = message.height, message.width, message.step
     channels = {"rgb8": 3, "bgr8": 3, "8uc3": 3, "rgba8": 4, "bgra8": 4, "mono16": 2, "16uc1": 2}.get(encoding, 1)
-    data = np.asarray(message.data, dtype=np.uint8)
+    data = byte_array(message.data)
     if encoding not in IMAGE_ENCODINGS:
         raise DatasetError(f"{where}: image encoding {message.encoding!r} is not one of {', '.join(IMAGE_ENCODINGS)}")
     if step < width * channels or len(data) < height * step:

@@ -9,17 +9,20 @@ around it; all times are record times, like every other topic's.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bag import Bag
 from .geometry import from_transform, interpolate
 
-__all__ = ["frame_name", "TransformTree", "Snapshot", "TF", "TF_STATIC", "TF_TYPE"]
+if TYPE_CHECKING:
+    from .bag import AnyBag
+
+__all__ = ["frame_name", "TransformTree", "Snapshot", "TF", "TF_TYPES"]
 
 TF = "/tf"
-TF_STATIC = "/tf_static"
-TF_TYPE = "tf2_msgs/msg/TFMessage"
+#: The transform messages: ROS 2 and ROS 1 ``tf2_msgs``, ROS 1 ``tf`` (and Foxglove's FrameTransform(s)).
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 #: /tf messages read on each side of a time to find the samples around it.
 _WINDOW = 16
 #: /tf messages read at open to learn which frames /tf moves.
@@ -66,31 +69,40 @@ class Snapshot:
 
 @dataclass
 class TransformTree:
-    """The static tree, which frames ``/tf`` moves, and snapshots at any time."""
+    """The static tree, which frames the dynamic topic moves, and snapshots at any time.
 
-    bag: Bag
+    Every topic of a transform type whose name ends in ``tf_static`` is
+    static; the dynamic topic is ``/tf`` if the bag has it with transforms,
+    else the first other topic of a transform type (``tf``, ``/tf2``).
+    """
+
+    bag: AnyBag
     staleness: int  # ns
     static: dict[str, tuple[str, np.ndarray]] = field(init=False)
     moving: dict[str, str] = field(init=False)
+    #: The topic of the moving transforms, if the bag has one with messages.
+    dynamic: str | None = field(init=False)
 
     def __post_init__(self) -> None:
         self.static = {}
         topics = self.bag.topics
-        if TF_STATIC in topics and topics[TF_STATIC].msgtype == TF_TYPE:
-            for _, message in self.bag.messages(TF_STATIC, 0, 2**63 - 1):
+        usable = [t for t, info in topics.items() if info.msgtype in TF_TYPES and len(info) and t not in self.bag.problems]
+        for topic in (t for t in usable if t.endswith("tf_static")):
+            for _, message in self.bag.messages(topic, None, None):
                 for parent, child, edge in _edges(message):
                     self.static[child] = (parent, edge)
+        moving = [t for t in usable if not t.endswith("tf_static")]
+        self.dynamic = TF if TF in moving else (moving[0] if moving else None)
         self.moving = {}
-        if self.has_tf:
-            times = topics[TF].times
-            for _, message in self.bag.messages(TF, int(times[0]), int(times[min(len(times), _SAMPLE) - 1]) + 1):
+        if self.dynamic is not None:
+            times = topics[self.dynamic].times
+            for _, message in self.bag.messages(self.dynamic, int(times[0]), int(times[min(len(times), _SAMPLE) - 1]) + 1):
                 for parent, child, _ in _edges(message):
                     self.moving[child] = parent
 
     @property
     def has_tf(self) -> bool:
-        topic = self.bag.topics.get(TF)
-        return topic is not None and topic.msgtype == TF_TYPE and len(topic) > 0
+        return self.dynamic is not None
 
     @property
     def frames(self) -> set[str]:
@@ -105,14 +117,14 @@ class TransformTree:
     def at(self, t: int) -> Snapshot:
         """The tree at ``t`` ns: static transforms and ``/tf`` interpolated (or the nearest sample within staleness)."""
         parents = dict(self.static)
-        if not self.has_tf:
+        if self.dynamic is None:
             return Snapshot(parents)
-        topic = self.bag.topics[TF]
+        topic = self.bag.topics[self.dynamic]
         i = topic.at_or_before(t)
         first, last = max(i - _WINDOW, 0), min(i + _WINDOW, len(topic) - 1)
         before: dict[str, tuple[int, str, np.ndarray]] = {}
         after: dict[str, tuple[int, str, np.ndarray]] = {}
-        for time, message in self.bag.messages(TF, int(topic.times[first]), int(topic.times[last]) + 1):
+        for time, message in self.bag.messages(self.dynamic, int(topic.times[first]), int(topic.times[last]) + 1):
             for parent, child, edge in _edges(message):
                 if time <= t:
                     before[child] = (time, parent, edge)

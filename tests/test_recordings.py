@@ -1,0 +1,233 @@
+"""Recordings the project did not write: the MCAP conformance suite and sample bags of public robotics repositories,
+each opened, converted and served (sources, licences and commits in tests/recordings/README.md)."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from xviz_server.datasets.ros import RosBag
+from xviz_server.datasets.ros.bag import open_bag
+from xviz_server.records import unpack
+
+RECORDINGS = Path(__file__).parent / "recordings"
+CONFORMANCE = RECORDINGS / "mcap-conformance"
+#: Every message of every file of the suite, as its own JSON descriptions list them: (topic, log time, data in hex).
+EXPECTED: dict[str, list[list[object]]] = json.loads((CONFORMANCE / "messages.json").read_text())
+
+
+def test_the_whole_conformance_suite_is_here():
+    assert sorted(path.stem for path in CONFORMANCE.glob("*/*.mcap")) == sorted(EXPECTED)
+    assert len(EXPECTED) == 416
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_every_conformance_file_opens_with_its_messages(name: str):
+    (path,) = CONFORMANCE.glob(f"*/{name}.mcap")
+    bag = open_bag(path)
+    found = sorted((topic, int(time)) for topic, info in bag.topics.items() for time in info.times)
+    assert found == sorted((str(topic), int(time)) for topic, time, _ in EXPECTED[name])  # type: ignore[call-overload]
+    for topic, info in bag.topics.items():
+        assert list(info.times) == sorted(info.times)  # in time order whatever the file's order
+        # The suite's channels have made-up encodings: named per channel, not a refusal of the file.
+        assert bag.problems[topic].startswith("no decoder for message encoding ")
+    if not found:
+        return
+    log = RosBag(path)
+    assert log.metadata()["streams"].keys() == {"/vehicle_pose"}
+    assert log.convert(0)["updates"][0]["poses"]["/vehicle_pose"]["position"] == [0.0, 0.0, 0.0]
+    # Every message reaches Foxglove clients as the file holds it, once; but a channel without a schema, which the
+    # Foxglove protocol cannot advertise.
+    served = [(time, bytes(payload).hex()) for frame in range(len(log)) for _, time, payload in unpack(log.original_messages(frame))]
+    schemaless = name.startswith("OneSchemalessMessage")
+    assert sorted(served) == [] if schemaless else sorted((int(t), str(data)) for _, t, data in EXPECTED[name])  # type: ignore[call-overload]
+
+
+# -- ROS 2 bags of ros2/rosbag2's own tests -------------------------------------------
+
+ROSBAG2 = RECORDINGS / "rosbag2"
+
+
+def test_service_event_topics_do_not_make_a_ros2_mcap_bag_unreadable():
+    log = RosBag(ROSBAG2 / "mcap" / "bag_with_topics_and_service_events")
+    assert log.name == "bag_with_topics_and_service_events" and log.bag.container == "ROS 2 mcap"
+    events = {"/test_service1/_service_event", "/test_service2/_service_event"}
+    # Each service event channel is named with its cause; the topics beside them are read.
+    assert events <= log.bag.problems.keys() and all("BasicTypes_Event" in log.bag.problems[t] for t in events)
+    assert {m.topic: m.role for m in log.mappings if m.topic in events} == dict.fromkeys(events, "unknown")
+    assert [len(log.bag.topics[t]) for t in ("/test_topic1", "/test_topic2")] == [1, 1]
+    strings = log.bag.message("/test_topic1", 0)[1]
+    assert isinstance(strings.string_value, str)
+    log.convert(0)
+    # Foxglove clients get every topic, the service events too, as recorded.
+    assert events | {"/test_topic1", "/test_topic2"} <= {o.topic for o in log.originals}
+
+
+def _text_rows(log: RosBag, stream: str) -> list[list[str]]:
+    rows = []
+    for frame in range(len(log)):
+        table = log.convert(frame)["updates"][0].get("ui_primitives", {}).get(stream)
+        rows += [node["column_values"] for node in table["treetable"]["nodes"]] if table else []
+    return rows
+
+
+def test_a_metadata_yaml_without_storage_identifier_and_strings_as_text(tmp_path: Path):
+    folder = tmp_path / "talker"
+    folder.mkdir()
+    (folder / "talker.db3").symlink_to((ROSBAG2 / "sqlite3" / "talker" / "talker.db3").resolve())
+    metadata = (ROSBAG2 / "sqlite3" / "talker" / "metadata.yaml").read_text()
+    assert "storage_identifier: sqlite3" in metadata
+    (folder / "metadata.yaml").write_text(metadata.replace("storage_identifier: sqlite3", 'storage_identifier: ""'))
+    log = RosBag(folder)
+    assert log.bag.container == "ROS 2 sqlite3" and len(log.bag.topics["/topic"]) == 10
+    assert log.metadata()["streams"]["/topic"] == {"category": "UI_PRIMITIVE", "ui_primitive_type": "TREETABLE"}
+    shown = {row[3] for row in _text_rows(log, "/topic")}
+    assert shown == {log.bag.message("/topic", i)[1].data for i in range(10)}
+    assert all(text.startswith("Hello, world! ") for text in shown)
+    # rcl_interfaces/Log of 2020 (Eloquent), whose definition rosbags reads wrongly from the bag: the standard one.
+    logged = {tuple(row[1:]) for row in _text_rows(log, "/rosout")}
+    assert logged == {("INFO", "minimal_publisher", f"Publishing: '{text}'") for text in shown}
+
+
+def test_a_bare_db3_file_opens():
+    log = RosBag(ROSBAG2 / "topics_and_services.db3")
+    assert log.name == "topics_and_services" and log.bag.container == "ROS 2 sqlite3"
+    assert len(log.bag.topics["/add_two_ints/_service_event"]) == 6
+    # rosbags has no definition of the service event type: the topic is named, the rest served.
+    assert "AddTwoInts_Event has no definition" in log.bag.problems["/add_two_ints/_service_event"]
+    assert [m.role for m in log.mappings if m.topic == "/add_two_ints/_service_event"] == ["unknown"]
+    assert [m.role for m in log.mappings if m.topic == "/rosout"] == ["text"]
+    log.convert(0)
+
+
+# -- MCAP as the Foxglove SDK writes it ----------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sdk_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from foxglove_sdk_recording import write_sdk_recording
+
+    return write_sdk_recording(tmp_path_factory.mktemp("sdk") / "sdk.mcap")
+
+
+def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(sdk_recording: Path):
+    from foxglove_sdk_recording import FRAMES, POINTS, T0
+
+    log = RosBag(sdk_recording)
+    assert log.bag.problems == {} and log.bag.container == "MCAP"
+    roles = {m.topic: m.role for m in log.mappings}
+    assert roles == {"/camera": "image", "/raw": "image", "/lidar": "points", "/scan": "points", "/tf": "transforms",
+                     "/goal": "trajectory", "/gps": "origin", "/scene": "markers", "/log": "text", "/json_log": "text"}
+    assert log.pose_source.describe() == "/tf: world -> base_link" and len(log) == FRAMES
+    assert log.map_origin == (8.4, 49.0, 110.0)
+    update = log.convert(1)["updates"][0]
+    assert update["timestamp"] == (T0 + 100_000_000) / 1e9
+    assert update["poses"]["/vehicle_pose"]["position"] == [1.0, 0.0, 0.0]
+    primitives = update["primitives"]
+    (cloud,) = primitives["/lidar"]["points"]
+    assert np.array_equal(cloud["points"], POINTS[:2])  # the beam without a return left out
+    (scan,) = primitives["/scan"]["points"]  # the return at infinity left out
+    np.testing.assert_allclose(scan["points"], [[2.0, 0.0, 0.0], [0.0, 3.0, 0.0]], atol=1e-6)
+    assert [p["base"]["object_id"] for p in primitives["/scene/polygons"]["polygons"]] == ["car/0"]
+    assert [t["text"] for t in primitives["/scene/texts"]["texts"]] == ["car"]
+    assert [image["width_px"] for image in primitives["/camera"]["images"]] == [32]
+    # /goal is drawn as a trajectory in the vehicle frame: 10 m ahead of a vehicle at x=1, then 11 m.
+    (goal,) = primitives["/goal"]["polylines"]
+    np.testing.assert_allclose(goal["vertices"], [[9.0, 1.0, 0.0], [10.0, 1.0, 0.0]], atol=1e-6)
+    rows = [n["column_values"] for n in update["ui_primitives"]["/log"]["treetable"]["nodes"]]
+    assert [r[1:] for r in rows] == [["WARN", "planner", "frame 1"], ["WARN", "planner", "frame 0"]]
+    rows = [n["column_values"] for n in update["ui_primitives"]["/json_log"]["treetable"]["nodes"]]
+    assert [r[1:] for r in rows] == [["ERROR", "json", "json 1"], ["ERROR", "json", "json 0"]]
+    # Foxglove clients get the channels as written: protobuf schemas in base64, JSON as it is.
+    originals = {o.topic: o for o in log.originals}
+    assert (originals["/lidar"].encoding, originals["/lidar"].schema_name, originals["/lidar"].schema_encoding) == (
+        "protobuf", "foxglove.PointCloud", "protobuf")
+    assert (originals["/json_log"].encoding, originals["/json_log"].schema_encoding) == ("json", "jsonschema")
+
+
+# -- ROS 1 ------------------------------------------------------------------------------
+
+
+def test_a_turtlesim_recording_shows_its_twist_as_time_series():
+    from rosbags.rosbag1 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = RECORDINGS / "ros1" / "turtlesim.bag"
+    store = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(path) as reader:  # the messages as rosbags reads them, to compare with
+        recorded = [(t, store.deserialize_ros1(data, c.msgtype)) for c, t, data in reader.messages()]
+    log = RosBag(path)
+    assert [m.describe() for m in log.mappings] == ["TIME_SERIES /turtle1/cmd_vel/linear_x, /turtle1/cmd_vel/angular_z"]
+    shown = 0
+    for frame, tick in enumerate(log.clock):
+        series = log.convert(frame)["updates"][0].get("time_series", [])
+        before = [(t, m) for t, m in recorded if t <= tick and tick - t <= 10**9]
+        if not before:
+            assert series == []
+            continue
+        t, message = before[-1]
+        values = {stream: value for s in series for stream, value in zip(s["streams"], s["values"]["doubles"])}
+        assert values == {"/turtle1/cmd_vel/linear_x": message.linear.x, "/turtle1/cmd_vel/angular_z": message.angular.z}
+        assert {s["timestamp"] for s in series} == {t / 1e9}
+        shown += 1
+    assert shown > len(log) // 2
+
+
+EMBAG = RECORDINGS / "ros1" / "embag"
+
+
+def test_a_truck_recording_cloud_odometry_and_a_scan_without_its_frame(caplog: pytest.LogCaptureFixture):
+    from rosbags.rosbag1 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = EMBAG / "test.bag"
+    store = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(path) as reader:  # the clouds as rosbags reads them, to compare with
+        clouds = [store.deserialize_ros1(data, c.msgtype) for c, _, data in reader.messages() if c.topic == "/luminar_pointcloud"]
+    log = RosBag(path)
+    assert {m.topic: m.role for m in log.mappings} == {"/base_pose_ground_truth": "pose", "/base_scan": "points",
+                                                       "/luminar_pointcloud": "points"}
+    # The PointCloud2 topic is the clock (not the LaserScan beside it, recorded 7 s later).
+    assert log.clock.tolist() == log.bag.topics["/luminar_pointcloud"].times.tolist()
+    for frame, cloud in enumerate(clouds):
+        update = log.convert(frame)["updates"][0]
+        records = np.frombuffer(bytes(cloud.data), np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3,
+                                                            "offsets": [0, 4, 8], "itemsize": cloud.point_step}))
+        xyz = np.stack([records[a] for a in "xyz"], axis=1)
+        returned = xyz[np.isfinite(xyz).all(axis=1) & (xyz != 0).any(axis=1)]
+        (points,) = update["primitives"]["/luminar_pointcloud"]["points"]
+        assert np.array_equal(points["points"], returned) and len(returned) > 30_000
+        assert "/base_scan" not in update["primitives"]  # its frame has no transform to the vehicle's: named once
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warnings == [f"{path}: topic /base_scan: frame 'base_laser_link' is not connected to the vehicle frame (left out of the frames)"]
+
+
+def test_strings_recorded_two_minutes_apart_each_shown():
+    log = RosBag(EMBAG / "test_2.bag")
+    shown = {(row[0], row[3]) for frame in (0, len(log) - 1)
+             for row in _text_rows_of(log.convert(frame)["updates"][0], "/chatter")}
+    assert shown == {(str(t / 1e9), log.bag.message("chatter", i)[1].data) for i, t in enumerate(log.bag.topics["chatter"].times)}
+
+
+def _text_rows_of(update: dict[str, object], stream: str) -> list[list[str]]:
+    table = update.get("ui_primitives", {}).get(stream)  # type: ignore[attr-defined]
+    return [node["column_values"] for node in table["treetable"]["nodes"]] if table else []
+
+
+@pytest.mark.parametrize(("relative", "container"), [
+    ("rosbag2/sqlite3/talker", "ROS 2 sqlite3"), ("rosbag2/topics_and_services.db3", "ROS 2 sqlite3"),
+    ("rosbag2/mcap/bag_with_topics_and_service_events", "ROS 2 mcap"), ("ros1/turtlesim.bag", "ROS 1"),
+    ("mcap-conformance/OneMessage/OneMessage-ch-chx-mx.mcap", "MCAP"),
+])
+def test_the_catalog_gives_a_recording_its_container_as_format(relative: str, container: str):
+    from xviz_server.catalog.facts import facts
+    from xviz_server.codec import Format
+    from xviz_server.index import TimeIndex
+
+    log = RosBag(RECORDINGS / relative)
+    index = TimeIndex.from_spans((float(t), float(t), i) for i, t in enumerate(log.times))
+    assert facts("rosbag", Format.BINARY, log.metadata(), index, None, None)["format"] == container
