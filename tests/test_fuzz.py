@@ -46,8 +46,8 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from devkit.data import FIXTURES, KITTI_LOG, SCHEMA_EXAMPLES, SHARED_DIR
-from helpers import INTEROP, PNG_2X1, metadata, update, write_log, xviz_write
+from devkit.data import FIXTURES, KITTI_LOG, SCHEMA_EXAMPLES
+from helpers import INTEROP, PNG_2X1, metadata, needs_data, update, write_log, xviz_write
 from xviz_server.admission import admit
 from xviz_server.codec import Format, decode, decode_glb, decode_json, decode_pbe, encode
 from xviz_server.exceptions import DatasetError, DecodeError, EncodeError, MessageError
@@ -55,7 +55,7 @@ from xviz_server.index import TimeIndex
 from xviz_server.layout import METADATA_NUMBER
 from xviz_server.session import Send, Session
 
-pytestmark = [pytest.mark.slow, pytest.mark.skipif(not KITTI_LOG.is_dir(), reason=f"needs the shared data in {SHARED_DIR}")]
+pytestmark = [pytest.mark.slow, needs_data]
 
 PROFILES = {
     # The same examples on every run (no flaky CI), few enough for a few seconds per parser.
