@@ -10,7 +10,17 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["SHARED_DIR", "DATA", "KITTI_LOG", "KITTI_RAW", "KITTI_FRAME", "FIXTURES", "SCHEMA_EXAMPLES"]
+__all__ = [
+    "SHARED_DIR",
+    "DATA",
+    "KITTI_LOG",
+    "KITTI_RAW",
+    "KITTI_FRAME",
+    "FIXTURES",
+    "SCHEMA_EXAMPLES",
+    "MISSING",
+    "present",
+]
 
 #: The shared folder: ``$XVIZ_SHARED_DIR``, else ``shared/`` beside the repository.
 SHARED_DIR = Path(os.environ.get("XVIZ_SHARED_DIR") or Path(__file__).resolve().parents[2] / "shared")
@@ -23,3 +33,11 @@ KITTI_RAW = DATA / "kitti-raw-2011_09_26_drive_0001-head"
 KITTI_FRAME = KITTI_LOG / "2-frame.glb"
 FIXTURES = SHARED_DIR / "conformance" / "fixtures"
 SCHEMA_EXAMPLES = SHARED_DIR / "conformance" / "schema-examples"
+
+#: The one line a test that needs the real data skips with, when it is missing.
+MISSING = f"no real data at {SHARED_DIR}: get it with scripts/get-data.sh (docs/testing.md)"
+
+
+def present() -> bool:
+    """Whether the KITTI excerpt (both layouts) and the conformance corpus are there."""
+    return all(path.is_dir() for path in (KITTI_LOG, KITTI_RAW, FIXTURES, SCHEMA_EXAMPLES))

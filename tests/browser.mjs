@@ -24,9 +24,9 @@
 // the tests use no network), after a seek what the playback control shows, the
 // page's address at the end, the URLs of its WebSockets, what its
 // Content-Security-Policy refused, the catalog's rows and count after a search,
-// and the link the page offers to the time shown; with foxglove, the row's Foxglove URL,
-// what its Copy button put on the clipboard, its link to Foxglove's web app, its file's URL
-// and the app's link opening that file.
+// the link the page offers to the time shown and its export link, the layout on screen (see
+// layout()); with foxglove, the row's Foxglove URL, what its Copy button put on the clipboard,
+// its link to Foxglove's web app, its file's URL and the app's link opening that file.
 // Each run launches a browser with a fresh profile of its own (playwright's).
 //
 // The canvas is screenshotted (which makes the browser composite a frame, and on a
@@ -198,6 +198,9 @@ try {
   report.playbackText = (await playback.count()) > 0 ? await playback.innerText() : '';
   const timeLink = page.locator('a.time-link');
   report.timeLink = (await timeLink.count()) > 0 ? await timeLink.getAttribute('href') : null;
+  const exportLink = page.locator('a.export');
+  report.exportLink = (await exportLink.count()) > 0 ? await exportLink.getAttribute('href') : null;
+  report.layout = await page.evaluate(layout);
   if (options.screenshot) {
     await page.screenshot({path: options.screenshot});
   }
@@ -205,6 +208,40 @@ try {
   await browser.close();
 }
 console.log(JSON.stringify(report));
+
+/**
+ * In the page: the window's size and where the viewer's parts are on screen (their boxes, as
+ * getBoundingClientRect gives them): the header, the 3D view, the playback control and each
+ * section of the side column (a log's panel, the stream list) with its name, the box of its
+ * content and how many of its table rows have a height; and the texts with digits in the
+ * playback control (the timeline's tick labels among them).
+ */
+function layout() {
+  const box = element => {
+    if (!element) {
+      return null;
+    }
+    const {x, y, width, height} = element.getBoundingClientRect();
+    return {x, y, width, height};
+  };
+  return {
+    window: {width: window.innerWidth, height: window.innerHeight},
+    header: box(document.querySelector('header')),
+    canvas: box(document.querySelector('#deckgl-overlay')),
+    playback: box(document.querySelector('.playback')),
+    sections: [...document.querySelectorAll('aside section')].map(section => ({
+      name: section.querySelector('h3').innerText,
+      box: box(section),
+      content: box(section.querySelector('.panel-body > *')),
+      rows: [...section.querySelectorAll('.ReactVirtualized__Grid__innerScrollContainer > *')].filter(
+        row => row.getBoundingClientRect().height > 0
+      ).length
+    })),
+    ticks: [...document.querySelectorAll('.playback *')]
+      .filter(element => element.children.length === 0 && /\d/.test(element.textContent))
+      .map(element => element.textContent)
+  };
+}
 
 /** Type `options.search` in the catalog's search box, then click "More logs" `options.more` times; report the rows. */
 async function searchCatalog(page) {

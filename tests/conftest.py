@@ -8,12 +8,17 @@ from pathlib import Path
 import pytest
 
 from devkit.data import KITTI_LOG, SHARED_DIR
+from helpers import require_data
 
 
 @pytest.fixture(scope="session")
 def shared_dir() -> Path:
-    """The project's shared folder: conformance corpus and real KITTI data."""
-    assert SHARED_DIR.is_dir(), f"shared data not found at {SHARED_DIR}; set XVIZ_SHARED_DIR"
+    """The project's shared folder: conformance corpus and real KITTI data.
+
+    Without it a test skips with one line saying how to get it (in CI, which
+    has the data, it fails instead).
+    """
+    require_data()
     return SHARED_DIR
 
 

@@ -32,12 +32,30 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import Close
 
+from devkit.data import MISSING, present
 from xviz_server.codec import Format, decode, encode
 from xviz_server.layout import INDEX_FILE, METADATA_NUMBER, file_number, index_document, update_span
 from xviz_server.server import XVIZServer
 from xviz_server.settings import Settings
 
 INTEROP = Path(__file__).parent / "interop"
+
+
+def require_data() -> None:
+    """Skip the test, with one line saying how to get it, unless the real data is there.
+
+    In CI (``CI`` set), which has the data, its absence is a failure: the tests
+    that need it must run there.
+    """
+    if present():
+        return
+    if os.environ.get("CI"):
+        pytest.fail(MISSING, pytrace=False)
+    pytest.skip(MISSING)
+
+
+#: For a module whose tests read the real data outside the ``shared_dir`` fixture.
+needs_data = pytest.mark.usefixtures("shared_dir")
 #: A 2 x 1 PNG image.
 PNG_2X1 = bytes.fromhex(
     "89504e470d0a1a0a0000000d494844520000000200000001080200000"

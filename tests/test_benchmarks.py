@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from devkit.data import KITTI_LOG
+from helpers import needs_data
 
 BENCH = Path(__file__).resolve().parents[1] / "scripts" / "bench"
 BENCHMARKS = sorted(path.stem for path in BENCH.glob("*.py"))
@@ -33,7 +33,7 @@ NEEDS = {
 
 pytestmark = [
     pytest.mark.slow,
-    pytest.mark.skipif(not KITTI_LOG.is_dir(), reason=f"needs the KITTI frames in {KITTI_LOG}"),
+    needs_data,
 ]
 
 

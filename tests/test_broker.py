@@ -28,7 +28,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
 from devkit.data import KITTI_LOG
-from helpers import client, metadata, metric, run_xviz_session_async, running_server, update
+from helpers import client, metadata, metric, needs_data, run_xviz_session_async, running_server, update
 from xviz_server.codec import decode
 from xviz_server.viewer import STATIC_DIR
 
@@ -40,7 +40,7 @@ TTL = 2.0  # --broker-ttl of the replicas here
 pytestmark = [
     pytest.mark.slow,
     pytest.mark.skipif(shutil.which("redis-server") is None, reason="needs redis-server: run scripts/test.sh"),
-    pytest.mark.skipif(not KITTI.is_dir(), reason=f"needs the KITTI frames in {KITTI}"),
+    needs_data,
 ]
 redis = pytest.importorskip("redis.asyncio", reason="needs the broker extra: pip install -e '.[broker]'")
 

@@ -58,6 +58,9 @@ def test_install_keeps_only_what_serving_uses(image_prefix: Path):
     assert not list(site.glob("**/tests")) and not list(site.glob("**/*.pyi"))  # numpy's, jsonschema's, ...
     assert not list(site.glob("numpy/**/*.h")) and not (site / "numpy" / "f2py").exists()
     assert not (image_prefix / "bin" / "pip").exists()
+    # Bags and MCAP files are read (the ros extra); Pillow's formats serving never uses are gone.
+    assert (site / "rosbags").is_dir() and (site / "apsw").is_dir() and not (site / "apsw" / "sqlite_extra_binaries").exists()
+    assert not list(site.glob("PIL/_avif.*")) and not list(site.glob("pillow.libs/libavif-*"))
     if shutil.which("readelf"):  # extension modules without debug info or static symbols (install.sh strips them)
         (uvloop,) = site.glob("uvloop/loop.*.so")
         sections = subprocess.run(["readelf", "-S", "-W", str(uvloop)], capture_output=True, text=True, check=True).stdout

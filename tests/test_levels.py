@@ -18,7 +18,7 @@ from xviz_server.exceptions import DecodeError
 from xviz_server.levels import FULL, LEVELS, MAX_IMAGE_PIXELS, profile_level, thin_indices
 
 from conftest import KITTI_LOG as KITTI
-from helpers import assert_same_message
+from helpers import assert_same_message, require_data
 
 FRAMES = [2, 14, 26]  # first, middle and last state update of the drive
 LIDAR = "/lidar/points"
@@ -30,6 +30,7 @@ P99_METRES = {"high": 0.15, "medium": 0.28, "low": 0.55, "minimal": 1.35, "spars
 
 
 def frame(number: int) -> bytes:
+    require_data()
     return (KITTI / f"{number}-frame.glb").read_bytes()
 
 

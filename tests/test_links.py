@@ -36,7 +36,7 @@ from xviz_server.settings import Settings
 from conftest import KITTI_LOG
 from devkit.tcpproxy import shaped_link
 from devkit.tclink import can_shape_links, tc_link
-from helpers import foxglove_opened, metric, running_server, xviz_decode
+from helpers import foxglove_opened, metric, require_data, running_server, xviz_decode
 
 LOG = KITTI_LOG.name
 NUMBERS = list(range(2, 27))  # the frames of the log, in order
@@ -311,6 +311,7 @@ async def test_detail_off_sends_every_byte_over_a_slow_link(kitti_root):
 
 
 def test_the_published_client_reads_every_level(tmp_path):
+    require_data()
     paths = [KITTI_LOG / "1-frame.glb"]
     for level in LEVELS[1:]:
         path = tmp_path / f"{level.name}.glb"

@@ -31,7 +31,7 @@ from typing import Any
 import pytest
 
 from devkit.data import KITTI_LOG, KITTI_RAW
-from helpers import running_server, run_xviz_session_async, write_log, xviz_validate, xviz_write
+from helpers import require_data, running_server, run_xviz_session_async, write_log, xviz_validate, xviz_write
 from xviz_server.codec import Format
 from xviz_server.convert import convert
 from xviz_server.datasets import open_dataset
@@ -64,6 +64,7 @@ class Served:
 
 
 def _kitti_glb(root: Path) -> Served:
+    require_data()
     return Served(data_dir=KITTI_LOG)
 
 
@@ -80,6 +81,7 @@ def _written_by_xviz_io(fmt: str, source: Callable[[Path], Path]) -> Callable[[P
 
 def _kitti_log(root: Path) -> Path:
     """The metadata and first three frames of the real KITTI log (links to them)."""
+    require_data()
     head = root / "kitti-head"
     head.mkdir()
     for number in range(1, 5):
@@ -117,6 +119,7 @@ def _demo(root: Path) -> Served:
 
 
 def _kitti_raw(root: Path) -> Served:
+    require_data()
     return Served(dataset=f"kitti:{KITTI_RAW}")
 
 
@@ -124,6 +127,7 @@ def _kitti_raw_tracklets(root: Path) -> Served:
     """The KITTI excerpt with tracklets (boxes of every class, with their heights), as links to the shared files."""
     from test_kitti import TRACKLETS
 
+    require_data()
     copy = root / "raw"
     shutil.copytree(KITTI_RAW, copy, copy_function=os.symlink)
     drive = copy / "2011_09_26" / "2011_09_26_drive_0001_sync"
@@ -185,6 +189,7 @@ def _kitti_bag(container: str) -> Callable[[Path], Served]:
         from devkit.rosbag_kitti import write_bag
         from xviz_server.datasets.kitti import KittiDrive
 
+        require_data()
         bag = write_bag(root / _BAGS[container], container, drive=KittiDrive(KITTI_RAW), frames=3)
         return Served(dataset=f"rosbag:{bag}")
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from jsonschema import Draft202012Validator
 
-from devkit.data import SCHEMA_EXAMPLES
-from helpers import assert_same_message, xviz_validate_instances
+from devkit.data import MISSING, SCHEMA_EXAMPLES
+from helpers import assert_same_message, needs_data, xviz_validate_instances
 from xviz_server.codec import decode_glb
 from xviz_server.exceptions import SchemaValidationError, UnknownSchemaError, XVIZError
 from xviz_server.validation import ARRAY_ROWS, XVIZValidator, get_validator
@@ -30,7 +30,10 @@ def corpus_cases(kind: str) -> list[Any]:
 
     The schema is named by the folder of the example or, for a file lying
     among schema folders (``core/annotation_visual.json``), by the file.
+    Without the corpus, one case that skips saying how to get it (test_corpus_is_present fails in CI).
     """
+    if not CORPUS.is_dir():
+        return [pytest.param("", CORPUS, id=f"{kind}/no-corpus", marks=pytest.mark.skip(reason=MISSING))]
     names = set(get_validator().names())
     cases = []
     for path in sorted((CORPUS / kind).rglob("*")):
@@ -141,6 +144,7 @@ AGREEMENT = [
 ]
 
 
+@needs_data
 def test_our_validator_agrees_with_the_published_one(validator: XVIZValidator, tmp_path: Path) -> None:
     """On the conformance corpus and on the cases where the two schemas used to part (see AGREEMENT)."""
     corpus = [(param.values[0], load(param.values[1])) for kind in ("valid", "invalid") for param in corpus_cases(kind)]
@@ -165,6 +169,7 @@ def test_our_validator_agrees_with_the_published_one(validator: XVIZValidator, t
         ("bad_type_children", "$.children[0].children[0].type: 'DOESNOTEXIST' is not one of"),
     ],
 )
+@needs_data
 def test_invalid_panel_is_rejected_for_its_own_defect(
     validator: XVIZValidator, case: str, expected: str
 ) -> None:

@@ -275,6 +275,94 @@ async def test_the_kitti_log_opens_directly(tmp_path: Path, kitti_log: Path):
     assert marks["first-frame"] <= marks["first-draw"]
 
 
+#: The window sizes every panel must fit: a laptop's and a desktop's.
+WINDOWS = [{"width": 1280, "height": 800}, {"width": 1920, "height": 1080}]
+#: A tick label of the timeline: seconds from the log's start, or minutes and seconds.
+TICK = re.compile(r"^(\d+(\.\d+)?\u00a0s|\d+:\d\d(:\d\d)?)$")
+
+
+def assert_on_screen(report: dict[str, Any], panels: list[str]) -> None:
+    """The header, the 3D view, the playback control and every panel and the stream list have a
+    box of their own inside the window, with content in it; a table shows rows."""
+    layout = report["layout"]
+    window = layout["window"]
+
+    def inside(box: dict[str, float] | None, what: str) -> None:
+        assert box is not None and box["width"] > 0 and box["height"] > 0, (what, box)
+        assert box["x"] >= 0 and box["y"] >= 0, (what, box)
+        assert box["x"] + box["width"] <= window["width"] + 0.5 and box["y"] + box["height"] <= window["height"] + 0.5, (what, box, window)
+
+    for part in ("header", "canvas", "playback"):
+        inside(layout[part], part)
+    assert [section["name"] for section in layout["sections"]] == [*panels, "Streams"]
+    for section in layout["sections"]:
+        inside(section["box"], section["name"])
+        content = section["content"]
+        assert content is not None and content["width"] > 0 and content["height"] > 0, section
+
+
+def assert_ticks_readable(report: dict[str, Any]) -> list[str]:
+    """The timeline's labels: several, each a time, no two alike; returned in order."""
+    ticks = [text for text in report["layout"]["ticks"] if TICK.match(text)]
+    assert len(ticks) >= 4 and len(set(ticks)) == len(ticks), ticks
+    return ticks
+
+
+@browser
+@pytest.mark.parametrize("window", WINDOWS, ids=lambda window: f"{window['width']}x{window['height']}")
+async def test_every_panel_is_on_screen_with_content(tmp_path: Path, window: dict[str, int]):
+    # The demo declares plots and a table ("Road users"): each has a box inside the window, the table shows rows.
+    write_demo(tmp_path / "demo", duration=20.0)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=demo", f"panels-{window['width']}", viewport=window, settle=3000)
+        summary = await server.indexer.one("demo")
+        assert report["exportLink"] is not None
+        status, headers, body = await asyncio.to_thread(get, server, report["exportLink"])
+    assert_drawn_cleanly(report)
+    assert_on_screen(report, ["Metrics", "Road users"])
+    (table,) = [section for section in report["layout"]["sections"] if section["name"] == "Road users"]
+    assert table["rows"] >= 3
+    assert assert_ticks_readable(report)[0] == "0\u00a0s"
+    # The export: an MCAP file of the log from the time shown to its end.
+    query = urllib.parse.parse_qs(urllib.parse.urlsplit(report["exportLink"]).query)
+    assert urllib.parse.urlsplit(report["exportLink"]).path == "/api/logs/demo/export"
+    assert summary["start_time"] <= float(query["start"][0]) < float(query["end"][0]) == pytest.approx(summary["end_time"], abs=1e-3)
+    assert status == 200 and body[:8] == b"\x89MCAP0\r\n"
+
+
+@browser
+@pytest.mark.parametrize("window", WINDOWS, ids=lambda window: f"{window['width']}x{window['height']}")
+async def test_every_panel_of_the_kitti_log_is_on_screen(tmp_path: Path, kitti_log: Path, window: dict[str, int]):
+    (tmp_path / kitti_log.name).symlink_to(kitti_log)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, f"/?log={kitti_log.name}", f"kitti-{window['width']}", viewport=window, frames=27, settle=3000)
+    assert_drawn_cleanly(report)
+    assert_on_screen(report, ["Metrics", "Camera"])
+    assert_ticks_readable(report)
+
+
+@browser
+async def test_the_timeline_of_a_short_log_reads(tmp_path: Path):
+    write_demo(tmp_path / "short", duration=2.5)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=short", "short-timeline", settle=2000)
+    assert_drawn_cleanly(report)
+    ticks = assert_ticks_readable(report)
+    assert ticks[:3] == ["0.0\u00a0s", "0.2\u00a0s", "0.4\u00a0s"], ticks
+
+
+@browser
+async def test_a_broken_log_shows_the_servers_own_words(tmp_path: Path):
+    log = write_log(tmp_path / "broken", ten_hz(10))
+    (log / "1-frame.glb").write_bytes(b"glTF" + bytes(40))  # the metadata: a GLB header and nothing else
+    write_demo(tmp_path / "demo", duration=1.0)
+    async with running_server(tmp_path) as server:
+        report = await open_page(server, "/?log=broken", "broken", settle=0)
+        _, _, body = await asyncio.to_thread(get, server, "/api/logs/broken")
+    cause = json.loads(body)["error"]
+    assert cause and report["alerts"] == [cause]  # the catalog's words, not "Stream server error"
+
+
 @browser
 async def test_a_seek_beyond_the_buffer_asks_for_that_point_in_time(tmp_path: Path):
     write_demo(tmp_path / "demo", duration=20.0)  # the page asks for 5 s at a time
@@ -384,6 +472,7 @@ async def test_the_catalog_searches_and_pages(tmp_path: Path):
     assert paged["catalogRows"] == sorted([*fleet, "demo"]) and not paged["moreOffered"]
     assert paged["catalogCount"] == "231 logs" and paged["pageErrors"] == [] and paged["failedRequests"] == []
     assert searched["catalogRows"] == [name for name in fleet if "seg-00012" in name] and len(searched["catalogRows"]) == 10
+    assert searched["catalogCount"] == "10 of 231 logs match"  # the count follows the search
 
 
 @browser

@@ -158,7 +158,8 @@ def _serve(args: argparse.Namespace) -> int:
         logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo log as 'demo'")
     for directory in settings.data_dir:
         if not is_store_url(directory) and not Path(directory).is_dir():
-            print(f"xviz-server serve: --data-dir {directory} is not a directory", file=sys.stderr)
+            print(f"xviz-server serve: --data-dir {directory} is not a directory{_serve_file_hint(directory)}",
+                  file=sys.stderr)
             return 2
     try:
         _run_async(run(settings))
@@ -166,6 +167,17 @@ def _serve(args: argparse.Namespace) -> int:
         print(f"xviz-server serve: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def _serve_file_hint(path: str) -> str:
+    """For a ``--data-dir`` that is a dataset's file (``drive.bag``): how to serve it, after a colon; else nothing."""
+    from .datasets import FILE_KINDS, detect
+
+    file = Path(path)
+    kind = (detect(file) or FILE_KINDS.get(file.suffix)) if file.is_file() else None
+    if kind is None:
+        return ""
+    return f": to serve this file alone, give --dataset {kind}:{path} (--data-dir takes the folder that holds it)"
 
 
 def _validate(args: argparse.Namespace) -> int:

@@ -36,6 +36,7 @@ import dataclasses
 import errno
 import gc
 import importlib
+import ipaddress
 import urllib.parse
 import logging
 import os
@@ -56,7 +57,7 @@ from .version import __version__
 from .auth import feed_name, ingest_refusal, token_matches
 from .cache import FrameCache
 from .layout import LOG, check_log_name
-from .datasets import GENERATED, KINDS, dataset_options
+from .datasets import GENERATED, KINDS, dataset_options, dataset_problem
 from .catalog import Indexer, parse_query
 from .exceptions import ConfigError, LogError, LogNotFound, QueryError, XVIZError
 from .foxglove.wire import SUBPROTOCOLS
@@ -123,6 +124,9 @@ class XVIZServer:
         self.cache = FrameCache(int(settings.cache_mb * MB), self.metrics)
         self._roots = data_roots(settings)
         self._datasets = [parse_dataset(text) for text in settings.dataset]
+        for kind, path, _ in self._datasets:
+            if (problem := dataset_problem(kind, path)) is not None:
+                logger.warning("--dataset %s:%s: %s", kind, path, problem)
         #: The persistent catalog: what ``GET /api/logs`` lists, kept current in the background.
         self.indexer = Indexer(
             self._roots, self.workers, state_dir=settings.state_dir, poll=settings.catalog_poll,
@@ -240,12 +244,16 @@ class XVIZServer:
             )
         except OSError as exc:
             raise ConfigError(_cannot_listen(self.settings.host, self.settings.port, exc)) from None
-        scheme = "wss" if self.settings.certfile else "ws"
-        logger.info("listening on %s://%s:%d/", scheme, self.settings.host, self.port)
+        secure = "s" if self.settings.certfile else ""
+        logger.info("listening on ws%s://%s:%d/", secure, self.settings.host, self.port)
+        logger.info("the viewer page: http%s://%s:%d/", secure, self.settings.host, self.port)
         if self.settings.ingest_token is None:
-            logger.warning(
+            # At INFO on a loopback address (a default run: only this machine reaches the server); a WARNING
+            # where other hosts reach it, since a reverse proxy on this host makes every client local.
+            logger.log(
+                logging.INFO if _is_loopback_host(self.settings.host) else logging.WARNING,
                 "live ingest (/ingest/NAME) is open to every local process without --ingest-token; "
-                "behind a reverse proxy on this host every client is local: set --ingest-token"
+                "behind a reverse proxy on this host every client is local: set --ingest-token",
             )
 
     async def _start_replay(self, directory: Path) -> None:
@@ -630,6 +638,16 @@ _LISTEN_HINTS = {
     "and map the port you want to it",
     errno.EADDRNOTAVAIL: "no interface of this machine has that address: set --host (XVIZ_HOST), 0.0.0.0 for all",
 }
+
+
+def _is_loopback_host(host: str) -> bool:
+    """Whether ``host`` (``--host``) is a loopback address or ``localhost``."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.split("%")[0]).is_loopback
+    except ValueError:
+        return False
 
 
 def _cannot_listen(host: str, port: int, exc: OSError) -> str:

@@ -48,9 +48,10 @@ class Settings(BaseSettings):
 
     data_dir: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
-        description="directory of logs to serve (each log a folder in the reference layout), or an object store "
-        "prefix s3://BUCKET/PREFIX (configured by the AWS variables and files); repeat for more (env: one, or a "
-        "JSON list); default: a built-in demo log",
+        description="directory to serve: every log and dataset found under it (XVIZ logs in the reference layout, "
+        "KITTI raw drives, Waymo segments, VISTA traces, ROS bags and MCAP files; one file alone is --dataset), or "
+        "an object store prefix s3://BUCKET/PREFIX (configured by the AWS variables and files); repeat for more "
+        "(env: one, or a JSON list); default: a built-in demo log",
     )
     dataset: list[str] = Field(
         default_factory=list,

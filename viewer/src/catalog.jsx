@@ -117,6 +117,21 @@ function cells(log) {
 }
 
 /**
+ * What the count beside the search box says: the logs of the catalog (and how many are indexed),
+ * or with a search, those that match (the server counts no more than the pages asked for: "N+"
+ * while "More logs" has more).
+ */
+function count(q, shown, next, counts, indexing) {
+  if (!Number.isFinite(counts.found)) {
+    return '';
+  }
+  if (q) {
+    return `${shown}${next ? '+' : ''} of ${counts.found} logs match`;
+  }
+  return indexing ? `${counts.indexed} of ${counts.found} logs indexed` : `${counts.found} logs`;
+}
+
+/**
  * The list of logs and live feeds, a page at a time; a click on a name opens it. Each row
  * shows the address that opens it in Foxglove or Lichtblick. `catalog` is
  * the first page, fetched by the page; a search (of names and descriptions) asks the server
@@ -178,10 +193,7 @@ export default class Catalog extends React.Component {
             onChange={this._onSearch}
             style={{flex: 1, padding: '6px 10px', fontSize: 15}}
           />
-          <span className="catalog-count">
-            {Number.isFinite(counts.found) &&
-              (indexing ? `${counts.indexed} of ${counts.found} logs indexed` : `${counts.found} logs`)}
-          </span>
+          <span className="catalog-count">{count(q.trim(), logs.length, next, counts, indexing)}</span>
         </div>
         {error && <p role="alert">{error}</p>}
         <table className="catalog" style={{borderCollapse: 'collapse', width: '100%', background: '#fff'}}>

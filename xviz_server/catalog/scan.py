@@ -22,7 +22,7 @@ from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..datasets import FILE_KINDS, file_refusal
+from ..datasets import FILE_KINDS, file_problem
 from ..layout import FRAME_FILE, INDEX_FILE, LOG, place_of, split_place, stamp_from, stamp_of
 from .db import Row
 
@@ -77,6 +77,8 @@ class LocalScan:
         self._scenes = scenes
         self._folders: dict[str, _Folder] = {}
         self._real: dict[str, str] = {}  # the folders of _folders by real path: a link loop ends
+        self._looked: dict[str, str] = {}  # the version of each dataset file looked at for problems
+        self._reported: dict[str, str | None] = {}  # the problem of each, as last logged
 
     def walk(self) -> Iterator[list[Row]]:
         """Everything under the root, in batches of rows."""
@@ -124,6 +126,22 @@ class LocalScan:
     @staticmethod
     def _join(relative: str, child: str) -> str:
         return f"{relative}/{child}" if relative else child
+
+    def _report(self, path: str, version: str | None, *, listed: bool) -> None:
+        """Log at WARNING what is wrong with the dataset file ``path`` (see :func:`~xviz_server.datasets.file_problem`),
+        and whether it is listed all the same: once for each problem (a file still being written stays truncated
+        through many versions)."""
+        if version is None or self._looked.get(path) == version:
+            return
+        self._looked[path] = version
+        problem = file_problem(Path(path))
+        self._warn_once(path, problem and (f"{problem}; listed all the same" if listed else f"left out of the catalog: {problem}"))
+
+    def _warn_once(self, path: str, problem: str | None) -> None:
+        """Log ``path: problem`` at WARNING unless it was the last problem logged for ``path``."""
+        if problem is not None and self._reported.get(path) != problem:
+            logger.warning("%s: %s", path, problem)
+        self._reported[path] = problem
 
     def _forget(self, relative: str) -> None:
         """Forget the folder ``relative`` and every folder below it."""
@@ -178,15 +196,18 @@ class LocalScan:
                 child = self._join(current, entry.name)
                 if child not in known:
                     stack.append((child, None if entry.is_symlink() else os.path.join(real, entry.name)))
+            named: dict[str, str] = {}  # the path of the file each name was given to, in this folder
             for entry in files:
                 stem, suffix = os.path.splitext(entry.name)
                 if suffix not in FILE_KINDS:
                     continue
                 kind = self._detect(Path(entry.path))
-                if kind is None:
-                    logger.warning("%s: left out of the catalog: %s", entry.path, file_refusal(Path(entry.path)))
-                version = version_of(entry.path) if kind is not None else None
+                version = version_of(entry.path)
+                self._report(entry.path, version, listed=kind is not None)
                 if kind is not None and version is not None:
+                    if stem in named:  # the later file is served under the name, as in discovery
+                        self._warn_once(named[stem], f"{entry.name} has its name, {stem!r}, and is served under it")
+                    named[stem] = entry.path
                     folder.children.add(stem)
                     yield Row(self._join(current, stem), self.root, entry.path, version, source_kind(kind, entry.path))
 

@@ -24,7 +24,8 @@ if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, 
 
 __all__ = [
     "Dataset", "KINDS", "FILE_KINDS", "SCENE_KINDS", "SCENE", "scenes", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "require", "detect", "file_refusal", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
+    "open_dataset", "require", "detect", "detect_in_store", "file_problem", "dataset_problem",
+    "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
 ]
 
 
@@ -151,14 +152,81 @@ def detect(path: Path) -> str | None:
     return kind if kind is not None and _member(kind, 2)(path) else None
 
 
-def file_refusal(path: Path) -> str:
-    """Why a file named as a dataset of :data:`FILE_KINDS` is not one (:func:`detect` said so), for the log line
-    that leaves it out; it reads the file's first bytes."""
-    if path.suffix == ".tfrecord":
-        from .waymo.tfrecord import header_problem
+#: What a dataset of each kind is on disk, for messages.
+_WHAT = {
+    "kitti": "a KITTI raw drive folder (or its date folder)",
+    "waymo": "a Waymo segment (a .tfrecord or .parquet file, or a folder of .npz frames)",
+    "vista": "a VISTA trace folder",
+    "demo": "the built-in demo",
+    "rosbag": "a ROS bag or MCAP file (or a ROS 2 bag folder)",
+    "nuscenes": "a nuScenes folder",
+    "argoverse2": "an Argoverse 2 sensor log folder",
+    "pandaset": "a PandaSet sequence folder",
+}
+#: What a file of each suffix of :data:`FILE_KINDS` starts with, for messages.
+_FILE_WHAT = {".bag": "a ROS 1 bag", ".mcap": "an MCAP file", ".parquet": "a Waymo Open Dataset v2 segment"}
+#: Bytes read from each end of a file to tell what is wrong with it.
+_PEEK = 16
 
-        return header_problem(path) or "not a Waymo segment"
-    return f"not a {FILE_KINDS.get(path.suffix, 'dataset')} file: its first bytes are not its format's"
+
+def file_problem(path: Path) -> str | None:
+    """Why the file ``path``, named as a dataset of :data:`FILE_KINDS` (``drive.bag``), cannot be served whole.
+
+    The cause is one phrase: a file that is not of its suffix's format (by
+    its first bytes; a ``.tfrecord`` by its first header's CRC, see
+    :func:`~xviz_server.datasets.waymo.tfrecord.header_problem`), or an MCAP file without the magic that ends every
+    complete one (cut short, or still being written). ``None`` when nothing
+    is found wrong, or the file cannot be read.
+    """
+    kind = FILE_KINDS.get(path.suffix)
+    if kind is None:
+        return None
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as file:
+            head = file.read(_PEEK)
+            file.seek(max(0, size - _PEEK))
+            tail = file.read(_PEEK)
+    except OSError:
+        return None
+    if not _member(kind, 2)(path):
+        if path.suffix == ".tfrecord":
+            from .waymo.tfrecord import header_problem
+
+            return header_problem(path) or "not a Waymo segment"
+        what = _FILE_WHAT.get(path.suffix, f"a {kind} dataset")
+        return f"not {what}: the file is empty" if not head else f"not {what}: it starts with {head!r}"
+    if path.suffix == ".mcap":
+        from .ros.bag import MCAP_MAGIC
+
+        if not tail.endswith(MCAP_MAGIC):
+            return "a truncated MCAP file: it does not end with the MCAP magic (cut short, or still being written), " \
+                "and opens only once complete"
+    return None
+
+
+def dataset_problem(kind: str, path: Path) -> str | None:
+    """Why ``path`` is not a dataset of ``kind`` as ``--dataset KIND:PATH`` names it, with the kind it is if another.
+
+    Cheap (the first and last bytes of a file, the names in a folder): a
+    dataset is opened only when a client asks for it. ``None`` when nothing
+    is found wrong.
+    """
+    if kind in GENERATED or kind not in KINDS:
+        return None
+    other = detect(path)
+    if other is not None and other != kind:
+        return f"{path} is {_what(other)}, not {_what(kind)}: give --dataset {other}:{path}"
+    if path.is_file():
+        if FILE_KINDS.get(path.suffix) == kind:
+            return file_problem(path)
+        if kind not in FILE_KINDS.values():
+            return f"{path} is a file, and {_what(kind)} is a folder"
+    return None
+
+
+def _what(kind: str) -> str:
+    return _WHAT.get(kind, f"a {kind} dataset")
 
 
 #: The most datasets a worker process keeps open (with what each caches), the least recently used closed first.
