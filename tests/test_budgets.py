@@ -188,7 +188,7 @@ async def test_a_frame_of_huge_valid_clouds_is_refused_unread_on_both_faces(clou
     refused = "would unpack 250.0 MiB, more than the limit of 128 MiB for one frame: refused unread"
     errors = [m["data"]["message"] for m in xviz if m["type"] == "xviz/error"]
     assert [m["data"]["updates"][0]["timestamp"] for m in xviz if m["type"] == "xviz/state_update"] == [1_700_000_000.1], errors
-    assert len(errors) == 3 and all(f"clouds.mcap: frame {n}: its messages and images {refused}" in e for n, e in zip((1, 2, 3), errors)), errors
+    assert len(errors) == 3 and all(f"frame {n} of log 'clouds': frame {n}: its messages and images {refused}" in e for n, e in zip((1, 2, 3), errors)), errors
     assert len(statuses) == 3 and all(refused in said for said in statuses), statuses
     assert [m for m in good if m["type"] == "xviz/state_update"] and not [m for m in good if m["type"] == "xviz/error"]
     assert max(growth.values()) < TENS_OF_MB, {pid: f"{g / _MiB:.0f} MiB" for pid, g in growth.items()}
