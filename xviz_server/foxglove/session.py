@@ -37,7 +37,7 @@ from typing import Any, Protocol, TypeGuard
 from websockets.frames import CloseCode
 
 from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
-from ..session import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
+from ..events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
 from .convert import Channel
 from .wire import (
     CLIENT_MESSAGE_DATA, ENDED, PAUSED, PLAYBACK_CONTROL_REQUEST, PLAYING, SERVICE_CALL_REQUEST, PlaybackControl,
@@ -214,6 +214,10 @@ class FoxgloveSession:
         self.playing = False
         # A client that never asked for playback control may not know the playback state message.
         return [self._state(ENDED, False, None)] if self._controlled else []
+
+    def internal_error(self, what: str, error: BaseException) -> list[Event]:
+        """Something unexpected failed while handling ``what``; the session goes on."""
+        return [self._status(ERROR, f"internal server error while handling {what}: {error!r}", kind="internal")]
 
     def frame_failed(self, error: XVIZError) -> list[Event]:
         """A frame (or live update) could not be read or converted; playback goes on with the next."""
