@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_foxglove import control, foxglove, next_of, opened
 from websockets.asyncio.client import connect
 
 from helpers import Client, client, http_get, running_server, served
-from test_foxglove import control, foxglove, next_of, opened
 from xviz_server.foxglove import connection as foxglove_connection
 from xviz_server.foxglove.session import FoxgloveSession
 from xviz_server.logs import Log
@@ -67,7 +67,9 @@ async def test_an_error_handling_a_message_is_reported_and_the_session_goes_on(
                 await websocket.send("fail")
                 status = await next_of(websocket, "status")
                 assert status["level"] == 2 and "internal server error while handling a message" in status["message"]
-                await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 4, "channelId": channels[0]["id"]}]}))
+                await websocket.send(
+                    json.dumps({"op": "subscribe", "subscriptions": [{"id": 4, "channelId": channels[0]["id"]}]})
+                )
                 assert (await next_of(websocket, "message"))[0] == 4
 
 
@@ -110,9 +112,13 @@ async def test_an_error_while_sending_a_log_is_reported_and_the_next_request_is_
             async with await foxglove(server, subprotocols=["foxglove.sdk.v1"]) as websocket:
                 info, channels = await opened(websocket)
                 start = info["dataStartTime"]["sec"] * 1_000_000_000 + info["dataStartTime"]["nsec"]
-                await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 5, "channelId": channels[0]["id"]}]}))
+                await websocket.send(
+                    json.dumps({"op": "subscribe", "subscriptions": [{"id": 5, "channelId": channels[0]["id"]}]})
+                )
                 status = await next_of(websocket, "status")
-                assert status["level"] == 2 and "internal server error while handling playing the log" in status["message"]
+                assert (
+                    status["level"] == 2 and "internal server error while handling playing the log" in status["message"]
+                )
                 assert not failures
                 await websocket.send(control(True, seek=start, request_id="again"))
                 assert (await next_of(websocket, "state"))[4] == "again"

@@ -19,7 +19,14 @@ from xviz_server.exceptions import FrameError, LogError, LogNotFound
 from xviz_server.foxglove.convert import Channel
 from xviz_server.foxglove.schemas import json_schema
 from xviz_server.foxglove.session import (
-    CAPABILITIES, LIVE_CAPABILITIES, MAX_SPEED, FoxgloveSession, Play, SendLatest, SendLive, Stop,
+    CAPABILITIES,
+    LIVE_CAPABILITIES,
+    MAX_SPEED,
+    FoxgloveSession,
+    Play,
+    SendLatest,
+    SendLive,
+    Stop,
 )
 from xviz_server.foxglove.wire import ENDED, PAUSED, PLAYING
 
@@ -80,7 +87,9 @@ def opened(query: dict[str, str] | None = None) -> FoxgloveSession:
 # -- connecting and opening a log --------------------------------------------------
 
 
-@pytest.mark.parametrize(("path", "query"), [("/", {"log": "drive"}), ("/", {"logGuid": "drive"}), ("/drive", {}), ("/", {})])
+@pytest.mark.parametrize(
+    ("path", "query"), [("/", {"log": "drive"}), ("/", {"logGuid": "drive"}), ("/drive", {}), ("/", {})]
+)
 def test_connect_opens_the_named_or_only_log(path: str, query: dict[str, str]) -> None:
     assert FoxgloveSession(path=path, query=query, available=["drive"]).connect() == [OpenLog("drive")]
 
@@ -97,8 +106,12 @@ def test_an_open_log_is_described_and_its_channels_advertised() -> None:
     session.connect()
     info, advertise = session.log_opened(Log())
     assert op(info) == {
-        "op": "serverInfo", "name": "test server", "capabilities": list(CAPABILITIES), "metadata": {"log": "drive"},
-        "dataStartTime": {"sec": 1000, "nsec": 0}, "dataEndTime": {"sec": 1002, "nsec": 400_000_000},
+        "op": "serverInfo",
+        "name": "test server",
+        "capabilities": list(CAPABILITIES),
+        "metadata": {"log": "drive"},
+        "dataStartTime": {"sec": 1000, "nsec": 0},
+        "dataEndTime": {"sec": 1002, "nsec": 400_000_000},
     }
     assert [c["id"] for c in op(advertise)["channels"]] == [1, 2]
     assert op(advertise)["channels"][0] == Log().channels[0].advertisement()
@@ -234,14 +247,19 @@ def test_a_seek_while_paused_shows_one_frame_and_stays() -> None:
     assert session.receive(subscribe((10, 1))) == []  # the client controls playback: subscribing starts nothing
 
 
-@pytest.mark.parametrize(("seek", "speed", "expected"), [
-    (START - 1, 1.0, "outside the log 'drive'"),
-    (END + 1, 1.0, "outside the log 'drive'"),
-    (None, 0.0, "speed 0.0 is not in (0, 100.0]"),
-    (None, MAX_SPEED * 2, "is not in (0, 100.0]"),
-    (None, float("inf"), "speed inf"),
-])
-def test_a_bad_playback_request_is_refused_and_playback_unchanged(seek: int | None, speed: float, expected: str) -> None:
+@pytest.mark.parametrize(
+    ("seek", "speed", "expected"),
+    [
+        (START - 1, 1.0, "outside the log 'drive'"),
+        (END + 1, 1.0, "outside the log 'drive'"),
+        (None, 0.0, "speed 0.0 is not in (0, 100.0]"),
+        (None, MAX_SPEED * 2, "is not in (0, 100.0]"),
+        (None, float("inf"), "speed inf"),
+    ],
+)
+def test_a_bad_playback_request_is_refused_and_playback_unchanged(
+    seek: int | None, speed: float, expected: str
+) -> None:
     session = opened()
     session.receive(subscribe((10, 1)))
     error, unchanged = session.receive(control(True, speed=speed, seek=seek, request_id="bad"))
@@ -283,7 +301,9 @@ def test_a_named_feed_is_followed_or_waited_for() -> None:
     info, follow = live().live_found(RUNNING)
     assert op(info)["metadata"] == {"live": "car"} and follow == SubscribeLive("car")
     info, waiting, follow = live().live_found(LiveFacts(allowed=True, exists=False, started=False, running=()))
-    assert status(waiting) == (0, "live feed 'car' has not started yet; waiting for it") and follow == SubscribeLive("car")
+    assert status(waiting) == (0, "live feed 'car' has not started yet; waiting for it") and follow == SubscribeLive(
+        "car"
+    )
 
 
 def test_without_a_name_the_only_running_feed_is_followed_and_several_are_refused() -> None:
@@ -325,7 +345,9 @@ def test_a_client_behind_is_told_once_per_run_of_drops_and_closed_when_it_stays_
     assert session.live_update(START + 2, 0, False) == [SendLive({}, START + 2)]
     assert len(session.live_update(START + 3, 1, True)) == 2  # behind again: told again
     assert session.live_lagging(29.0) == []
-    assert session.live_lagging(31.0) == [Close(CloseCode.TRY_AGAIN_LATER, "too slow: dropped live updates for over 30 s")]
+    assert session.live_lagging(31.0) == [
+        Close(CloseCode.TRY_AGAIN_LATER, "too slow: dropped live updates for over 30 s")
+    ]
 
 
 def test_a_feed_gone_is_a_warning_and_playback_control_is_refused_on_a_feed() -> None:

@@ -122,8 +122,9 @@ class FaceConnection(Generic[S]):
             self.metrics.sessions_open.dec()
             self._closed()
             duration = round(time.monotonic() - started, 3)
-            log_event(logger, "session end", remote=remote, **self._end_fields(), duration=duration,
-                      **ending(self.websocket))
+            log_event(
+                logger, "session end", remote=remote, **self._end_fields(), duration=duration, **ending(self.websocket)
+            )
 
     # -- what each face adds ---------------------------------------------------
 
@@ -252,4 +253,3 @@ def request_target(websocket: ServerConnection) -> tuple[str, str, dict[str, str
     target = websocket.request.path if websocket.request else "/"
     url = urlsplit(target)
     return target, unquote(url.path), dict(parse_qsl(url.query, keep_blank_values=True))
-
