@@ -33,7 +33,9 @@ class FleetLog:
 FLEET_START = 1_600_000_000.0
 
 
-def write_fleet(root: Path, count: int, *, cars: int = 10, first: int = 0, frames_from: Path | None = None) -> list[FleetLog]:
+def write_fleet(
+    root: Path, count: int, *, cars: int = 10, first: int = 0, frames_from: Path | None = None, index: bool = True
+) -> list[FleetLog]:
     """``count`` small logs in the reference layout under ``root``, as a fleet cuts its drives: ``car-NN/seg-NNNNNN``.
 
     Log ``i`` starts a minute after log ``i - 1`` and lasts 10 to 59 s; its metadata's ``log_info`` gives its
@@ -41,6 +43,7 @@ def write_fleet(root: Path, count: int, *, cars: int = 10, first: int = 0, frame
     of the four of :func:`metadata`'s kind (``/camera`` only on every third log). Each has an index document,
     JSON metadata and two JSON frames, written; with ``frames_from`` (a log made by an earlier call), its
     frames are hard links of that log's (the catalog reads no frame: a fleet of 100 000 costs less to make).
+    Without ``index``, no log has an index document, as fleets are often written.
     """
     logs = []
     for i in range(first, first + count):
@@ -66,6 +69,7 @@ def write_fleet(root: Path, count: int, *, cars: int = 10, first: int = 0, frame
                 pose = {"timestamp": t, "position": [t, 0.0, 0.0], "orientation": [0.0, 0.0, 0.0]}
                 data = {"update_type": "SNAPSHOT", "updates": [{"timestamp": t, "poses": {"/vehicle_pose": pose}}]}
                 target.write_bytes(encode({"type": "xviz/state_update", "data": data}, Format.JSON))
-        (directory / INDEX_FILE).write_text(json.dumps(index_document([(start, start), (end, end)])))
+        if index:
+            (directory / INDEX_FILE).write_text(json.dumps(index_document([(start, start), (end, end)])))
         logs.append(FleetLog(name, start, end, car, description))
     return logs

@@ -99,7 +99,11 @@ def moto_process() -> Iterator[MotoS3]:
         yield MotoS3(port)
     finally:
         process.terminate()
-        process.wait(10)
+        try:
+            process.wait(10)
+        except subprocess.TimeoutExpired:  # a loaded machine: moto holding many keys may take longer to stop
+            process.kill()
+            process.wait()
 
 
 @contextlib.asynccontextmanager

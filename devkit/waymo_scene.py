@@ -139,3 +139,71 @@ def write_scene(directory: Path, frames: int = 3, rows_move: bool = False) -> tu
         np.savez(npz / f"{T0 + i * 100_000}.npz", **arrays)
     tfrecord = write_segment(directory / "segment-15.tfrecord", records)
     return tfrecord, npz, expectations
+
+
+def write_v2_scene(directory: Path, frames: int = 3, rows_move: bool = False, segment: str = "15_000_020_000") -> Path:
+    """The frames of :func:`write_scene` as a Waymo v2 segment: a Parquet file per component, in Waymo's columns.
+
+    Returns the segment's ``vehicle_pose`` file. The columns and their types
+    are those of Waymo's v2 files (``key.*`` and ``[Component].field``,
+    flat); rows are written in Waymo's order, a frame's lasers and cameras
+    together.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    rng = np.random.default_rng(15)  # the draws of write_scene, in its order: the same frames
+    camera = jpeg_image(64, 48, (200, 30, 30))
+    names = {"TOP": 1, "FRONT": 2}
+    extrinsics = {"TOP": (TOP_EXTRINSIC, TOP_BEAMS, 0.0, 0.0), "FRONT": (FRONT_EXTRINSIC, [], -1.2, 0.4)}
+    tables: dict[str, dict[str, list]] = {part: {} for part in ("vehicle_pose", "lidar", "lidar_pose", "lidar_calibration", "camera_image", "lidar_box")}
+
+    def row(part: str, **values: object) -> None:
+        for column, value in {"key.segment_context_name": segment, **values}.items():
+            tables[part].setdefault(column, []).append(value)
+
+    for i in range(frames):
+        micros = T0 + i * 100_000
+        pose, lasers, _ = scene_frame(i, rng, rows_move)
+        row("vehicle_pose", **{"key.frame_timestamp_micros": micros, "[VehiclePoseComponent].world_from_vehicle.transform": pose.reshape(16).tolist()})
+        for name, (first, second, pixel_pose) in lasers.items():
+            row("lidar", **{"key.frame_timestamp_micros": micros, "key.laser_name": names[name],
+                            "[LiDARComponent].range_image_return1.values": first.reshape(-1).tolist(),
+                            "[LiDARComponent].range_image_return1.shape": list(first.shape),
+                            "[LiDARComponent].range_image_return2.values": second.reshape(-1).tolist(),
+                            "[LiDARComponent].range_image_return2.shape": list(second.shape)})
+            if pixel_pose is not None:
+                row("lidar_pose", **{"key.frame_timestamp_micros": micros, "key.laser_name": names[name],
+                                     "[LiDARPoseComponent].range_image_return1.values": pixel_pose.reshape(-1).tolist(),
+                                     "[LiDARPoseComponent].range_image_return1.shape": list(pixel_pose.shape)})
+        row("camera_image", **{"key.frame_timestamp_micros": micros, "key.camera_name": 1, "[CameraImageComponent].image": camera})
+        for (x, y, z, length, width, height, heading), kind, object_id in LABELS:
+            row("lidar_box", **{"key.frame_timestamp_micros": micros, "key.laser_object_id": object_id,
+                                "[LiDARBoxComponent].box.center.x": x, "[LiDARBoxComponent].box.center.y": y,
+                                "[LiDARBoxComponent].box.center.z": z, "[LiDARBoxComponent].box.size.x": length,
+                                "[LiDARBoxComponent].box.size.y": width, "[LiDARBoxComponent].box.size.z": height,
+                                "[LiDARBoxComponent].box.heading": heading, "[LiDARBoxComponent].type": kind})
+    for name, (extrinsic, beams, low, high) in extrinsics.items():
+        row("lidar_calibration", **{"key.laser_name": names[name], "[LiDARCalibrationComponent].extrinsic.transform": extrinsic.reshape(16).tolist(),
+                                    "[LiDARCalibrationComponent].beam_inclination.values": list(beams) or None,
+                                    "[LiDARCalibrationComponent].beam_inclination.min": low,
+                                    "[LiDARCalibrationComponent].beam_inclination.max": high})
+    types = {"key.laser_name": pa.int8(), "key.camera_name": pa.int8(), "[LiDARBoxComponent].type": pa.int8(),
+             "key.frame_timestamp_micros": pa.int64()}
+    for part, columns in tables.items():
+        fields = []
+        for column, values in columns.items():
+            arrow_type: pa.DataType | None
+            if column in types:
+                arrow_type = types[column]
+            elif column.endswith(".shape"):
+                arrow_type = pa.list_(pa.int32())
+            elif column.endswith(".values") and not column.startswith("[LiDARCalibration"):
+                arrow_type = pa.list_(pa.float32())
+            else:
+                arrow_type = None
+            fields.append(pa.array(values, type=arrow_type))
+        folder = directory / part
+        folder.mkdir(parents=True, exist_ok=True)
+        pq.write_table(pa.table(dict(zip(columns, fields))), folder / f"{segment}.parquet")
+    return directory / "vehicle_pose" / f"{segment}.parquet"

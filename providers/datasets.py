@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..codec import Format
-from ..datasets import convert_frame, describe_dataset, detect, original_messages
+from ..datasets import SCENE, convert_frame, describe_dataset, detect, original_messages, scenes
 from ..exceptions import DatasetError, FrameError, LogError, StoreError, WorkerError
 from ..index import TimeIndex
 from ..layout import Found, discover
@@ -40,15 +40,20 @@ def explicit_datasets(kind: str, path: Path, options: Mapping[str, str] | None =
     """The datasets a ``--dataset KIND:PATH?OPTIONS`` names.
 
     ``path`` itself, named after it (a file without its suffix), when it is
-    a dataset; the one dataset of ``kind`` under it, named after ``path``;
-    each of several, named by its path below it. A folder that holds none is
+    a dataset (each of its scenes, named by the scene, when it holds several:
+    see :data:`~xviz_server.datasets.SCENE_KINDS`); the one dataset of
+    ``kind`` under it, named after ``path``; each of several, named by its
+    path below it. A folder that holds none is
     named after itself, and opening it says what is wrong.
     """
     path, given = Path(path), tuple(sorted((options or {}).items()))
     name = path.stem if path.is_file() else path.name
     if detect(path) == kind or not path.is_dir():
-        return [Found(name, path, kind, given)]
-    found = [Found(entry.name, entry.path, kind, given) for entry in discover(path, detect) if entry.kind == kind]
+        several = scenes(kind, path) if SCENE not in dict(given) else []
+        return [Found(scene, path, kind, tuple(sorted({**dict(given), SCENE: scene}.items()))) for scene in several] or [
+            Found(name, path, kind, given)]
+    found = [Found(entry.name, entry.path, kind, tuple(sorted({**dict(given), **dict(entry.options)}.items())))
+             for entry in discover(path, detect, scenes) if entry.kind == kind]
     if len(found) == 1:
         return [Found(name, found[0].path, kind, given)]
     return found or [Found(name, path, kind, given)]

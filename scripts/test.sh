@@ -2,10 +2,15 @@
 # Set up everything the test suite needs on a fresh machine, then run it.
 # Needs only python3 (>= 3.10) and node/npm; extra arguments go to pytest.
 # The package is type-checked with mypy first (scripts/typecheck.sh).
+# --quick (first) runs the fast tier only: the tests not marked slow (docs/testing.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+if [ "${1:-}" = "--quick" ]; then
+    shift
+    set -- -m "not slow" "$@"
+fi
 source scripts/venv.sh
-python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros,broker]" -e ./devkit
+python -m pip install --quiet --disable-pip-version-check -e ".[test,vista,ros,broker,parquet,pandaset]" -e ./devkit
 npm ci --prefix tests/interop --no-audit --no-fund --loglevel=error
 # The viewer's browser tests: the bundle, playwright-core (in viewer/) and Debian's chromium.
 scripts/build-viewer.sh

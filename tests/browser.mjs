@@ -13,7 +13,7 @@
 // pick this level of detail in the header's list and wait for the page to show it in use);
 // hosts (more host names, besides this machine's loopback ones, that the page may reach);
 // foxglove (a log name: read the Foxglove URL its catalog row shows, click its Copy button and
-// read the clipboard, and the row's link to Foxglove's web app).
+// read the clipboard, the row's link to Foxglove's web app, and its links to the log's file and to the app opening it).
 // Prints one JSON object: frames received over the page's WebSockets, whether and
 // when (ms after navigation, as the screenshot was taken) the 3D canvas first showed a
 // picture, the page's own timings (ms after navigation: the script bundle received, and the User Timing
@@ -25,7 +25,8 @@
 // page's address at the end, the URLs of its WebSockets, what its
 // Content-Security-Policy refused, the catalog's rows and count after a search,
 // and the link the page offers to the time shown; with foxglove, the row's Foxglove URL,
-// what its Copy button put on the clipboard, and its link to Foxglove's web app.
+// what its Copy button put on the clipboard, its link to Foxglove's web app, its file's URL
+// and the app's link opening that file.
 // Each run launches a browser with a fresh profile of its own (playwright's).
 //
 // The canvas is screenshotted (which makes the browser composite a frame, and on a
@@ -140,6 +141,8 @@ try {
     await row.locator('button.foxglove-copy', {hasText: 'Copied'}).waitFor({timeout: options.timeout});
     report.foxgloveCopied = await page.evaluate(() => navigator.clipboard.readText());
     report.foxgloveAppLink = await row.locator('a.foxglove-open').getAttribute('href');
+    report.foxgloveFileLink = await row.locator('a.foxglove-file').getAttribute('href');
+    report.foxgloveFileAppLink = await row.locator('a.foxglove-open-file').getAttribute('href');
     report.catalogText = await page.locator('table.catalog').innerText();
   }
   if (options.click) {

@@ -16,11 +16,12 @@ import shutil
 import socket
 import subprocess
 import sys
+import time
 import urllib.error
 import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, AsyncIterator
 
 import numpy as np
@@ -211,6 +212,14 @@ async def running_server(data_dir: Path | Sequence[Path | str] | None, **setting
         if settled:
             await asyncio.wait_for(server.indexer.settled(), 60)
         yield server
+
+
+async def eventually(check: Callable[[], Any], timeout: float = 15.0) -> None:
+    """Wait until ``await check()`` is true."""
+    deadline = time.monotonic() + timeout
+    while not await check():
+        assert time.monotonic() < deadline, "not within the time allowed"
+        await asyncio.sleep(0.1)
 
 
 def http_get(port: int, path: str, method: str = "GET", **headers: str) -> tuple[int, dict[str, str], bytes]:

@@ -8,6 +8,7 @@ moto's S3 server through the counting proxy; the API asked over real HTTP.
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
 import json
 import logging
@@ -27,7 +28,7 @@ from typing import Any, Callable
 import pytest
 
 from devkit.fleet import FLEET_START, FleetLog, write_fleet
-from helpers import client, http_get, metadata, running_server, start_serving, stop_serving, ten_hz, write_log
+from helpers import client, eventually, http_get, metadata, running_server, start_serving, stop_serving, ten_hz, write_log
 from xviz_server.catalog import indexer
 from xviz_server.catalog.db import FILE_NAME, SCHEMA, SORT_INDEXES
 from xviz_server.codec import Format, encode
@@ -43,6 +44,11 @@ def fetch(server: XVIZServer, path: str) -> tuple[int, dict[str, Any]]:
             return response.status, json.loads(response.read())
     except urllib.error.HTTPError as error:
         return error.code, json.loads(error.read())
+
+
+def cursor_of(fields: list[Any]) -> str:
+    """A cursor as the server writes them (its JSON, base64url without padding), holding ``fields``."""
+    return base64.urlsafe_b64encode(json.dumps(fields).encode()).decode().rstrip("=")
 
 
 async def listing(server: XVIZServer, **query: Any) -> dict[str, Any]:
@@ -61,14 +67,6 @@ async def every_page(server: XVIZServer, **query: Any) -> list[dict[str, Any]]:
         cursor = page["next"]
         if cursor is None:
             return logs
-
-
-async def eventually(check: Callable[[], Any], timeout: float = 15.0) -> None:
-    """Wait until ``await check()`` is true."""
-    deadline = time.monotonic() + timeout
-    while not await check():
-        assert time.monotonic() < deadline, "not within the time allowed"
-        await asyncio.sleep(0.1)
 
 
 @pytest.fixture(scope="module")
@@ -157,6 +155,10 @@ async def test_one_log_gives_every_fact(fleet: tuple[Path, list[FleetLog]]):
         ("min_duration=-1", "min_duration"), ("sort=colour", "sort"), ("sort=--name", "sort"), ("kind=tape", "kind"),
         ("kind=xviz,", "kind"), ("cursor=garbage", "cursor"), ("cursor=WyJuYW1lIiwxLCJ4Il0", "cursor"),
         ("q=a&q=b", "q"), ("q=", "q"), ("stream=" + "x" * 501, "stream"),
+        ("from=1_000", "from"), ("to=%205", "to"), ("min_duration=%2B5", "min_duration"), ("from=0x10", "from"),
+        ("from=1&from=2", "from"),
+        ("sort=frames&cursor=" + cursor_of(["frames", 2**63, "a"]), "cursor"),
+        ("sort=-bytes&cursor=" + cursor_of(["-bytes", 2**64 - 1, "a"]), "cursor"),
     ],
 )
 async def test_a_malformed_parameter_is_a_400_naming_it(tmp_path: Path, query: str, parameter: str):
@@ -300,6 +302,38 @@ async def _gone(listed: Callable[[], Any], *names: str) -> bool:
     return not set(names) & set(await listed())
 
 
+def written_long_ago(root: Path) -> None:
+    """Set every folder under ``root`` to an hour old, as a fleet store's logs are: none waits to settle."""
+    long_ago = time.time() - 3600
+    for folder in [root, *(path for path in root.rglob("*") if path.is_dir())]:
+        os.utime(folder, (long_ago, long_ago))
+
+
+async def test_logs_without_index_documents_are_listed_from_metadata_and_first_and_last_frames(tmp_path: Path):
+    logs = write_fleet(tmp_path, 12, index=False)
+    write_log(tmp_path / "untimed", ten_hz(5, start=100.0), fmt=Format.JSON, index=False)  # no log_info: times from frames
+    write_log(tmp_path / "untimed-glb", ten_hz(3, start=200.0), index=False)
+    corrupt = write_log(tmp_path / "corrupt-last", ten_hz(4, start=300.0), index=False)
+    (corrupt / "5-frame.glb").write_bytes(b"\x00not a frame")
+    written_long_ago(tmp_path)
+    async with running_server(tmp_path) as server:
+        listed = {log["name"]: log for log in await every_page(server)}
+    assert set(listed) == {log.name for log in logs} | {"untimed", "untimed-glb", "corrupt-last"}
+    for log in logs:
+        entry = listed[log.name]
+        assert entry["indexed"] is True and "error" not in entry and entry["frames"] == 2
+        assert (entry["start_time"], entry["end_time"], entry["vehicle"]) == (log.start, log.end, log.vehicle)
+        assert entry["streams"] == sorted(["/points", "/vehicle_pose", *(["/camera"] if int(log.name[-6:]) % 3 == 0 else [])])
+    untimed = listed["untimed"]
+    assert (untimed["format"], untimed["frames"], untimed["start_time"], untimed["end_time"]) == ("JSON", 5, 100.0, 100.4)
+    assert untimed["streams"] == ["/points", "/speed", "/vehicle_pose"]
+    glb = listed["untimed-glb"]
+    assert (glb["format"], glb["frames"], glb["start_time"], glb["end_time"]) == ("BINARY", 3, 200.0, 200.2)
+    # A corrupt frame is left out of the time range, as a session leaves it out of its index; the log is listed.
+    assert listed["corrupt-last"]["frames"] == 4 and listed["corrupt-last"]["start_time"] == 300.0
+    assert "error" not in listed["corrupt-last"]
+
+
 async def test_a_session_opens_a_log_the_catalog_has_not_indexed(tmp_path: Path):
     write_log(tmp_path / "fresh", ten_hz(5), index=False)  # waits for its index
     async with running_server(tmp_path, settled=False) as server:
@@ -374,6 +408,7 @@ FULL_DISK = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_a_full_disk_keeps_the_catalog_in_memory_and_the_server_serving(tmp_path: Path):
     write_fleet(tmp_path / "logs", 400)
     # Files of the process may not grow past 150 KB: the catalog's database soon cannot.
@@ -424,6 +459,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
 BUCKET = "xviz-catalog"
 
 
+@pytest.mark.slow
 async def test_a_store_of_ten_thousand_keys_is_listed_from_one_listing_and_two_gets_a_log(
     store: Any, monkeypatch: pytest.MonkeyPatch
 ):

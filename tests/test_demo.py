@@ -257,6 +257,7 @@ def test_glb_and_json_logs_hold_the_same_data(glb_log: Path, json_log: Path):
 # The published client
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", [Format.BINARY, Format.JSON])
 def test_published_client_reads_the_demo(glb_log: Path, json_log: Path, fmt: Format):
     log_dir = glb_log if fmt is Format.BINARY else json_log

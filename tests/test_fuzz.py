@@ -28,6 +28,7 @@ is kept below as explicit regression cases (``@example``).
 from __future__ import annotations
 
 import copy
+import functools
 import itertools
 import json
 import os
@@ -52,9 +53,10 @@ from xviz_server.codec import Format, decode, decode_glb, decode_json, decode_pb
 from xviz_server.exceptions import DatasetError, DecodeError, EncodeError, MessageError
 from xviz_server.index import TimeIndex
 from xviz_server.events import Send
+from xviz_server.layout import METADATA_NUMBER
 from xviz_server.session import Session
 
-pytestmark = pytest.mark.skipif(not KITTI_LOG.is_dir(), reason=f"needs the shared data in {SHARED_DIR}")
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(not KITTI_LOG.is_dir(), reason=f"needs the shared data in {SHARED_DIR}")]
 
 PROFILES = {
     # The same examples on every run (no flaky CI), few enough for a few seconds per parser.
@@ -387,6 +389,77 @@ def test_session_answers_every_connection_url(query: dict[str, str], path: str):
     for event in refuses_by_name(session.connect, 0, ()) or []:
         if isinstance(event, Send):
             decode(event.data)
+
+
+# --------------------------------------------------------------------------
+# Foxglove client messages through the Foxglove session, and an export's parameters
+
+
+class _FoxgloveLog:
+    """An open log, as far as a Foxglove session sees it: the KITTI log's channels, 2 s long."""
+
+    name = "drive"
+    start_time = 100 * 10**9
+    end_time = 102 * 10**9
+
+    @functools.cached_property
+    def channels(self) -> Any:
+        from xviz_server.foxglove.convert import plan
+
+        return plan(decode((KITTI_LOG / f"{METADATA_NUMBER}-frame.glb").read_bytes())["data"]).channels
+
+
+FOXGLOVE_TEXT_SEEDS = [
+    b'{"op":"subscribe","subscriptions":[{"id":1,"channelId":1},{"id":2,"channelId":2},{"id":3,"channelId":999}]}',
+    b'{"op":"unsubscribe","subscriptionIds":[1,2,77]}',
+    b'{"op":"advertise","channels":[{"id":1,"topic":"/a","encoding":"json","schemaName":"x","schema":"{}"}]}',
+    b'{"op":"unadvertise","channelIds":[1]}',
+    b'{"op":"getParameters","parameterNames":["a"],"id":"r"}',
+    b'{"op":"setParameters","parameters":[{"name":"a","value":1}]}',
+    b'{"op":"subscribeConnectionGraph"}',
+    b'{"op":"fetchAsset","uri":"package://x","requestId":1}',
+]
+FOXGLOVE_BINARY_SEEDS = [
+    struct.pack("<BBfBQI", 0x03, 0, 2.0, 1, 101 * 10**9, 2) + b"r1",  # playback control: play at 2x, seek
+    struct.pack("<BBfBQI", 0x03, 1, 1.0, 0, 0, 0),  # pause
+    b"\x01" + struct.pack("<I", 1) + b"{}",  # client message data
+    b"\x02" + struct.pack("<III", 1, 1, 4) + b"json{}",  # service call request
+]
+
+
+@FUZZ
+@given(st.one_of(json_messages(FOXGLOVE_TEXT_SEEDS).map(lambda data: data.decode("utf-8", errors="replace")),
+                 mutated(FOXGLOVE_BINARY_SEEDS)))
+@example('{"op":"subscribe","subscriptions":[' + ",".join(["0"] * 20_000) + "]}")  # one status, not 20 000 (issue 39)
+@example('{"op":"unsubscribe","subscriptionIds":[' + ",".join(["[[[]]]"] * 5000) + "]}")
+def test_foxglove_session_answers_every_client_message(data: str | bytes):
+    from xviz_server.foxglove.session import FoxgloveSession
+
+    session = FoxgloveSession(path="/", query={"log": "drive"}, available=["drive"])
+    session.connect()
+    session.log_opened(_FoxgloveLog())
+    events = refuses_by_name(lambda: session.receive(data), len(data), ()) or []
+    statuses = [json.loads(event.data) for event in events if isinstance(event, Send) and event.text]
+    assert len(statuses) <= 1 and all(len(status["message"]) < 1000 for status in statuses), statuses
+
+
+@FUZZ
+@given(st.lists(st.tuples(st.sampled_from(["start", "end", "format", "token", "x"]),
+                          st.one_of(st.text(max_size=12), st.sampled_from(["1_000", " 5", "+5", "1e309", "-0", ".5", "5.", "1e-3", "mcap"]))),
+                max_size=6))
+def test_export_parameters_are_read_or_refused_by_name(pairs: list[tuple[str, str]]):
+    from urllib.parse import parse_qs, urlencode
+
+    from xviz_server.exceptions import QueryError
+    from xviz_server.foxglove.export import parse_range
+
+    parameters = parse_qs(urlencode(pairs), keep_blank_values=True)
+    span = refuses_by_name(lambda: parse_range(parameters), 0, (QueryError,))
+    if span is not None:
+        for key in ("start", "end"):
+            assert len(parameters.get(key, [])) <= 1
+            value = getattr(span, key)
+            assert value is None or re.fullmatch(r"\+?-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?", parameters[key][0])
 
 
 # --------------------------------------------------------------------------

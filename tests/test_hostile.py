@@ -148,6 +148,7 @@ async def test_poisoned_updates_are_refused_at_the_door_and_the_source_stays(tmp
     assert check_paths([recording]).ok  # only the good update was recorded, as a valid log
 
 
+@pytest.mark.slow
 async def test_a_large_json_update_is_parsed_off_the_event_loop(tmp_path: Path):
     points = np.random.default_rng(1).uniform(-50, 50, (600_000, 3)).round(3).tolist()
     big = poisoned({"update_type": "SNAPSHOT", "updates": [

@@ -104,6 +104,7 @@ def test_parser_reads_our_messages(tmp_path: Path, fmt: Format):
     assert (pose["x"], pose["y"], pose["yaw"], pose["latitude"]) == (1.0, 2.0, 1.25, 49.01)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", [Format.JSON, Format.BINARY])
 def test_parser_reads_reencoded_kitti_frames_as_it_reads_the_originals(kitti_log: Path, tmp_path: Path, fmt: Format):
     originals = [kitti_log / "1-frame.glb", kitti_log / "2-frame.glb", kitti_log / "26-frame.glb"]

@@ -345,6 +345,7 @@ def test_trajectory_is_the_path_ahead_in_the_vehicle_frame(drive: KittiDrive, ki
     assert np.allclose(ours[:10, :2], theirs[:10, :2], atol=0.05)  # same path within 5 cm
 
 
+@pytest.mark.slow
 def test_convert_command_writes_a_valid_log_and_resumes(raw: Path, tmp_path: Path):
     out = tmp_path / "log"
     command = [sys.executable, "-m", "xviz_server", "convert", "kitti", str(raw), str(out)]

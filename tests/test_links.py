@@ -113,6 +113,7 @@ async def test_each_level_of_a_frame_is_made_once_whatever_the_viewers_at_it(kit
     assert await loads(5) == one
 
 
+@pytest.mark.slow
 @shaped
 @pytest.mark.parametrize("mbps, expected", [(100, {"high"}), (20, {"low"}), (5, {"minimal"})])
 async def test_a_log_over_a_slow_link_starts_within_2_s_and_plays_in_real_time_at_the_level_the_link_carries(
@@ -153,6 +154,7 @@ async def test_a_slow_reader_is_no_slow_link(kitti_root):
     assert received == [made(number, "full") for number in NUMBERS[:7]]
 
 
+@pytest.mark.slow
 @shaped
 async def test_a_live_link_dropping_from_100_to_5_mbps_then_recovering(kitti_log, caplog):
     caplog.set_level(logging.INFO, "xviz_server.session")
@@ -222,6 +224,7 @@ async def test_the_user_picks_a_level_or_a_cap_and_bad_ones_are_named(kitti_root
             assert {level_of(n, d) for n, d in zip(NUMBERS, received)} == {"low"}
 
 
+@pytest.mark.slow
 @shaped
 async def test_detail_off_sends_every_byte_over_a_slow_link(kitti_root):
     with tc_link(50) as link:

@@ -300,6 +300,7 @@ async def run_cli(*args: str) -> tuple[int, str, str]:
     return process.returncode, out.decode(), err.decode()
 
 
+@pytest.mark.slow
 async def test_command_line(root: Path):
     async with running_server(root) as server:
         url = f"ws://127.0.0.1:{server.port}"

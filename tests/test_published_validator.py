@@ -150,6 +150,31 @@ def _vista(root: Path) -> Served:
     return Served(dataset=f"vista:{write_trace(root / 'trace-1')}")
 
 
+def _waymo_v2(root: Path) -> Served:
+    from devkit.waymo_scene import write_v2_scene
+
+    return Served(dataset=f"waymo:{write_v2_scene(root / 'training')}")
+
+
+def _nuscenes(root: Path) -> Served:
+    from devkit.nuscenes_scene import write_nuscenes
+
+    return Served(dataset=f"nuscenes:{write_nuscenes(root / 'nuscenes', keys=2).root}")
+
+
+def _argoverse2(root: Path) -> Served:
+    """The real Argoverse 2 log of the av2 devkit's tests (tests/data/argoverse2/README.md)."""
+    return Served(dataset=f"argoverse2:{AV2_LOG}")
+
+
+def _pandaset(root: Path) -> Served:
+    from devkit.pandaset_sequence import write_sequence
+
+    return Served(dataset=f"pandaset:{write_sequence(root / '001')}")
+
+
+AV2_LOG = Path(__file__).parent / "data" / "argoverse2" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
+
 _BAGS = {"ros1": "drive.bag", "sqlite3": "drive", "mcap": "drive.mcap"}
 
 
@@ -198,6 +223,10 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "waymo-npz": _waymo_npz,
     "waymo-tfrecord": _waymo_tfrecord,
     "vista": _vista,
+    "waymo-v2": _waymo_v2,
+    "nuscenes": _nuscenes,
+    "argoverse2-real": _argoverse2,
+    "pandaset": _pandaset,
     **{f"rosbag-{container}-kitti": _kitti_bag(container) for container in _BAGS},
     "rosbag-ros1-viz": _viz_bag("ros1", POSE_WITH_COVARIANCE),
     "rosbag-sqlite3-viz": _viz_bag("sqlite3", POSE_STAMPED),
@@ -205,7 +234,8 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
 }
 #: The sources that ``convert`` takes.
 DATASETS = [
-    "demo", "kitti-raw", "kitti-raw-tracklets", "waymo-npz", "waymo-tfrecord", "vista",
+    "demo", "kitti-raw", "kitti-raw-tracklets", "waymo-npz", "waymo-tfrecord", "vista", "waymo-v2", "nuscenes",
+    "argoverse2-real",
     *(source for source in SOURCES if source.startswith("rosbag-")),
 ]
 
@@ -254,6 +284,7 @@ async def validate_served(settings: dict[str, Any], fmt: Format, query: str = ""
 FORMATS = [Format.JSON, Format.BINARY]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
 @pytest.mark.parametrize("source", list(SOURCES))
 async def test_served_messages_are_valid(source: str, fmt: Format, made: Callable[[str], Served]):
@@ -261,6 +292,7 @@ async def test_served_messages_are_valid(source: str, fmt: Format, made: Callabl
     assert await validate_served(served.settings(), fmt) >= 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
 @pytest.mark.parametrize("source", DATASETS)
 async def test_converted_logs_are_valid(source: str, fmt: Format, made: Callable[[str], Served], tmp_path: Path):

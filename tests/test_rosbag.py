@@ -94,6 +94,7 @@ def test_detects_the_three_containers_by_their_first_bytes(bags: dict[str, Path]
 # -- the default mapping against the KITTI converter ------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("container", CONTAINERS)
 def test_frames_match_the_kitti_converter(container: str, bags: dict[str, Path], drive: KittiDrive):
     bag = open_dataset("rosbag", bags[container])
@@ -420,6 +421,7 @@ def test_ros1_bag_cut_inside_a_chunk_serves_the_whole_chunks(bags: dict[str, Pat
         assert frame_digests(bag, clouds - 1) == frame_digests(indexed, clouds - 1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("container", "compression"), [("ros1", "bz2"), ("ros1", "lz4"), ("mcap", "zstd")])
 def test_compressed_chunks_read_the_same(container: str, compression: str, bags: dict[str, Path], drive: KittiDrive, tmp_path: Path):
     path = write_bag(tmp_path / CONTAINERS[container], container, kitti_only(drive, container, {CLOUD_TOPIC, "/tf", "/tf_static"}),

@@ -251,6 +251,7 @@ async def test_secrets_never_show_in_logs_errors_or_config(proxy: Proxy):
     assert ACCESS_KEY not in output
 
 
+@pytest.mark.slow
 def test_a_bucket_url_with_a_credential_in_it_is_refused_without_showing_it():
     result = run_cli("serve", "--data-dir", f"s3://AKIA:{SECRET_KEY}@bucket/logs", "--port", "0")
     assert result.returncode == 2 and "not an S3 bucket name" in result.stderr
@@ -302,6 +303,7 @@ async def test_a_store_that_went_away_ends_the_stream_with_errors_and_the_server
     assert len(updates(local)) == 3
 
 
+@pytest.mark.slow
 async def test_an_answer_that_claims_a_terabyte_and_never_ends_fails_that_frame_alone(proxy: Proxy):
     """A store that answers a frame's GET with Content-Length 1 TiB and zeros without end: obstore set aside that
     much for a whole-object GET and the server aborted; the listed range is read, and no more."""

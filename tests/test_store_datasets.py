@@ -33,6 +33,9 @@ from xviz_server.exceptions import StoreError
 from xviz_server.storeclient import store_config
 from xviz_server.storepath import CACHE_BYTES, MIN_FETCH, StorePath
 
+#: Datasets converted from moto's S3 server: each test several seconds on 2 cores.
+pytestmark = pytest.mark.slow
+
 BUCKET = "xviz-data"
 ROOT = f"s3://{BUCKET}/fleet"
 BAG_FRAMES = 8

@@ -361,7 +361,14 @@ async def test_the_catalog_gives_each_log_the_url_that_opens_it_in_foxglove(tmp_
             out = await foxglove_client(url, "foxglove.websocket.v1")
             token = "&token=s3cret" if settings else ""
             assert url == report["foxgloveUrl"] == f"ws://127.0.0.1:{server.port}/?log=drives/kitti{token}"
+            # The same log as a file to seek in: its URL (which serves it), and the app opening it as a remote file.
+            file = report["foxgloveFileLink"]
+            assert file == f"http://127.0.0.1:{server.port}/api/logs/drives%2Fkitti/file.mcap" + ("?token=s3cret" if settings else "")
+            target = urllib.parse.urlsplit(file)
+            status, headers, _ = await asyncio.to_thread(http_get, server.port, f"{target.path}?{target.query}", "HEAD")
+            assert (status, headers["Accept-Ranges"]) == (200, "bytes")
         assert report["foxgloveAppLink"] == "https://app.foxglove.dev/?ds=foxglove-websocket&ds.url=" + urllib.parse.quote(url, safe="")
+        assert report["foxgloveFileAppLink"] == "https://app.foxglove.dev/?ds=remote-file&ds.url=" + urllib.parse.quote(file, safe="")
         assert report["pageErrors"] == [] and report["failedRequests"] == [] and report["externalRequests"] == []
         assert out["errors"] == [] and out["statuses"] == [] and out["serverInfo"]["metadata"]["log"] == "drives/kitti"
         assert out["topics"]["/lidar/points"]["count"] == 25

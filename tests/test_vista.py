@@ -14,8 +14,8 @@ import pytest
 from helpers import client, running_server, timestamps
 from xviz_server.validate import check_paths
 from xviz_server.convert import convert
-from xviz_server.datasets import detect
-from xviz_server.datasets.vista import VistaTrace, _require_extra, integrate_pose, linear_function
+from xviz_server.datasets import detect, require
+from xviz_server.datasets.vista import VistaTrace, integrate_pose, linear_function
 from xviz_server.exceptions import DatasetError
 
 SPEED, YAW_RATE = 5.0, 0.5  # a circle of radius 10 m
@@ -109,7 +109,7 @@ def test_missing_pieces_are_named(trace: Path):
     with pytest.raises(DatasetError, match="not a VISTA trace"):
         VistaTrace(trace)
     with pytest.raises(DatasetError, match=r"pip install 'xviz-server\[vista\]'"):
-        _require_extra("no_such_video_library")
+        require("no_such_video_library", "VISTA traces", "vista")
 
 
 async def test_convert_and_serve(trace: Path, tmp_path: Path):

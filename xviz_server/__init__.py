@@ -37,7 +37,7 @@ __all__ = [
     "XVIZError", "DecodeError", "EncodeError", "MessageError", "SchemaValidationError", "UnknownSchemaError",
     "LogNotFound", "LogError", "FrameError", "WorkerError", "BuilderError", "LogWriteError", "DatasetError",
     "OversizeError", "ConfigError", "DependencyError", "StoreError", "BrokerError", "QueryError", "FoxgloveProtocolError",
-    "ExportError",
+    "ExportError", "FrameSizeError",
     "__version__",
 ]
 
@@ -54,6 +54,7 @@ if TYPE_CHECKING:
         ExportError,
         FoxgloveProtocolError,
         FrameError,
+        FrameSizeError,
         LogError,
         LogNotFound,
         LogWriteError,

@@ -24,6 +24,7 @@ import random
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
+from urllib.parse import urlsplit
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
@@ -39,6 +40,7 @@ from .levels import LEVELS, Level
 from .live import FeedEvent, LiveUpdate, Subscription
 from .logfmt import log_event, peer
 from .logs import Log
+from .params import repeated
 from .readahead import ReadAhead, Window
 from .session import CancelStream, ConfigureLive, DetailChanged, QueryInstant, SendLiveMetadata, SendLiveUpdate, Session
 from .session import SkipToState, StreamFrames
@@ -68,6 +70,7 @@ class Connection(FaceConnection[Session]):
             lag_timeout=self.settings.live_lag_timeout,
             detail=self.settings.detail == "auto",
             local=_is_loopback(self.websocket),
+            repeated=repeated(urlsplit(self.path).query),
         )
 
     def _opened(self) -> None:

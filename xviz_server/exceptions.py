@@ -24,6 +24,7 @@ __all__ = [
     "LogWriteError",
     "DatasetError",
     "OversizeError",
+    "FrameSizeError",
     "ConfigError",
     "DependencyError",
     "StoreError",
@@ -157,6 +158,22 @@ def _rebuild_oversize_error(message: str, size: int, limit: int, path: object) -
     return OversizeError(message, size=size, limit=limit, path=path)
 
 
+class FrameSizeError(OversizeError):
+    """One frame of a recording would unpack to more than :data:`~xviz_server.unpack.MAX_FRAME_BYTES` across all
+    its messages and images (summed from what its parts declare): it is refused unread. ``frame`` is its number."""
+
+    def __init__(self, message: str, *, size: int, limit: int, frame: int, path: object = None) -> None:
+        super().__init__(message, size=size, limit=limit, path=path)
+        self.frame = frame
+
+    def __reduce__(self) -> tuple[Any, ...]:  # from a worker process: the fields are keyword-only
+        return _rebuild_frame_size_error, (str(self), self.size, self.limit, self.frame, self.path)
+
+
+def _rebuild_frame_size_error(message: str, size: int, limit: int, frame: int, path: object) -> FrameSizeError:
+    return FrameSizeError(message, size=size, limit=limit, frame=frame, path=path)
+
+
 class LogWriteError(XVIZError):
     """A log directory cannot be written as asked; ``directory`` names it.
 
@@ -204,7 +221,7 @@ class BrokerError(XVIZError):
 
 
 class QueryError(XVIZError, ValueError):
-    """A parameter of a catalog query (``GET /api/logs``) cannot be used; ``parameter`` names it."""
+    """A parameter of an HTTP query (the catalog's ``GET /api/logs``, an export's) cannot be used; ``parameter`` names it."""
 
     def __init__(self, parameter: str, message: str) -> None:
         super().__init__(f"{parameter}: {message}")
@@ -215,5 +232,5 @@ class FoxgloveProtocolError(XVIZError):
     """A Foxglove client sent a message that the Foxglove WebSocket protocol does not allow."""
 
 
-class ExportError(XVIZError):
-    """A clip of a log cannot be exported as asked (a bad range or format)."""
+class ExportError(QueryError):
+    """A clip of a log cannot be exported as asked (a bad range or format); ``parameter`` names the one at fault."""

@@ -41,6 +41,7 @@ from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import CloseCode
 
+from .budget import LogThrottle
 from .events import Close, LiveFacts, LookUpLive, OpenLog, Send
 from .exceptions import XVIZError
 from .flow import close, watch_progress
@@ -93,6 +94,7 @@ class FaceConnection(Generic[S]):
         self._tasks: set[asyncio.Task[None]] = set()
         self.messages_sent = 0
         self.bytes_written = 0  # every message's bytes, as handed to the connection
+        self._mistakes = LogThrottle()  # lines logged about the errors and notices the client is sent
 
     def _make_session(self, path: str, query: dict[str, str]) -> S:
         """The session of this connection, for the request target's percent-decoded ``path`` and ``query``."""
@@ -209,9 +211,9 @@ class FaceConnection(Generic[S]):
         await self._write(event.data, event.text)
         if event.error is not None:
             self.metrics.errors.labels(event.error).inc()
-            log_event(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
+            self._mistakes.log(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
         elif event.notice is not None:
-            log_event(logger, "notice sent", remote=peer(self.websocket), kind=event.notice, message=event.message)
+            self._mistakes.log(logger, "notice sent", remote=peer(self.websocket), kind=event.notice, message=event.message)
 
     async def _quietly(self, awaitable: Awaitable[None]) -> None:
         """Run ``awaitable`` unless the connection is gone."""

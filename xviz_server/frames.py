@@ -15,11 +15,11 @@ from .exceptions import DecodeError
 from .layout import update_span
 from .levels import FULL, Level, reduce_message
 from .state import complete_state, downsample_points, filter_streams
-from .unpack import size_text
+from .unpack import MAX_FRAME_BYTES, size_text
 from .validation import get_validator
 from .work import Place
 
-__all__ = ["INLINE_BYTES", "HEAVY_JSON_BYTES", "MAX_EXPANDED_BYTES", "placement", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
+__all__ = ["INLINE_BYTES", "HEAVY_JSON_BYTES", "placement", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
 
 
 #: Size up to which a job runs in the event loop (see :func:`placement`).
@@ -28,9 +28,6 @@ INLINE_BYTES = 8 * 1024
 #: Size above which a job on JSON runs in a worker process (see :func:`placement`).
 HEAVY_JSON_BYTES = 64 * 1024
 
-#: The most bytes of arrays a stored frame may expand to when re-encoded, each counted as often as it is
-#: referenced (a GLB accessor referenced a thousand times costs a few bytes to store and a thousand copies to send).
-MAX_EXPANDED_BYTES = 256 << 20
 
 
 def placement(size: int, *formats: Format) -> Place:
@@ -79,14 +76,16 @@ def check(data: bytes, schema: bool = False) -> tuple[str, int]:
     readable state update, and with ``schema``
     :class:`~xviz_server.exceptions.SchemaValidationError` unless it matches
     the XVIZ schema, or a GLB frame that expands to more than
-    :data:`MAX_EXPANDED_BYTES` when re-encoded.
+    :data:`~xviz_server.unpack.MAX_FRAME_BYTES` when re-encoded, its arrays each
+    counted as often as they are referenced (a GLB accessor referenced a
+    thousand times costs a few bytes to store and a thousand copies to send).
     """
     message = _decode_update(data)
     size = expanded_size(message["data"]) if is_glb(data) else 0  # JSON references nothing: see admission
-    if size > MAX_EXPANDED_BYTES:
+    if size > MAX_FRAME_BYTES:
         raise DecodeError(
             f"state update expands to {size_text(size)} when re-encoded (arrays referenced more than once), "
-            f"more than the limit of {size_text(MAX_EXPANDED_BYTES)}"
+            f"more than the limit of {size_text(MAX_FRAME_BYTES)} for one frame"
         )
     if schema:
         validate(message)

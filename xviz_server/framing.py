@@ -31,14 +31,18 @@ Use it with ``serve(..., create_connection=FramingConnection, open_timeout=None)
 
 HTTP answers of any length go out as they are made: ``process_request`` may
 return a :func:`streamed` response, whose head is sent as any answer's and
-whose body then follows in chunked transfer encoding, piece by piece from an
+whose body then follows (in chunked transfer encoding when its length is not
+known beforehand), piece by piece from an
 asynchronous iterator, each piece written once the transport's buffer is
 below its high-water mark (so what waits for a slow client is that buffer
 and one piece). websockets ends every answer other than a switch to
 WebSocket right after writing it, so the protocol here holds back that end
 for a streamed one and the connection sends the body after the handshake:
 the handshake proper (request, ``process_request``, head) keeps a time limit
-of :data:`OPEN_TIMEOUT`, the body has none but its stall timeout.
+of :data:`OPEN_TIMEOUT`, the body has none but its stall timeout. A
+``process_request`` that has read a request it answers after a long wait
+(a file made on first request) grants it more time with
+:meth:`FramingConnection.allow`.
 
 :func:`ready_to_write` and :func:`write_message` write one message to a
 connection at once, from a live feed's publish, the way
@@ -64,12 +68,14 @@ import dataclasses
 import logging
 import struct
 from collections.abc import AsyncGenerator, Awaitable, Callable
+from http import HTTPStatus
 from typing import Any
 
 from websockets.asyncio.server import Server, ServerConnection
 from websockets.datastructures import Headers
 from websockets.frames import DATA_OPCODES, Frame
 from websockets.http11 import SERVER, Request, Response
+from websockets.typing import StatusLike
 from websockets.protocol import State
 from websockets.server import ServerProtocol
 from websockets.version import version as websockets_version
@@ -77,6 +83,7 @@ from websockets.version import version as websockets_version
 from .exceptions import XVIZError
 from .flow import watch_progress
 from .version import require_tested
+from .viewer import HEADERS
 
 __all__ = [
     "TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "OPEN_TIMEOUT", "frame_header", "StreamedResponse", "streamed",
@@ -99,6 +106,10 @@ OPEN_TIMEOUT = 10.0
 _LAST_CHUNK = b"0\r\n\r\n"
 
 
+#: How websockets' refusals begin, and the statuses of a request refused before it is read.
+_WEBSOCKET_REFUSAL = "Failed to open a WebSocket connection"
+_UNREAD = (HTTPStatus.REQUEST_URI_TOO_LONG, HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE)
+
 require_tested(__name__, "websockets", websockets_version, TESTED_WEBSOCKETS, "pip install -e .")
 
 
@@ -120,13 +131,19 @@ class StreamedResponse(Response):
     chunks: AsyncGenerator[bytes, None] | None = None
     #: Seconds the client may read nothing of the body before it is dropped.
     stall_timeout: float = 60.0
+    #: The body's length, when known beforehand: then it is sent as it is, not in chunks.
+    length: int | None = None
 
 
-def streamed(response: Response, chunks: AsyncGenerator[bytes, None], stall_timeout: float) -> StreamedResponse:
-    """``response``'s status and headers, with a body of unknown length sent as ``chunks`` yields it.
+def streamed(
+    response: Response, chunks: AsyncGenerator[bytes, None], stall_timeout: float, length: int | None = None
+) -> StreamedResponse:
+    """``response``'s status and headers, with a body sent as ``chunks`` yields it.
 
-    Its ``Content-Length`` is replaced by ``Transfer-Encoding: chunked``.
-    Once the head is sent, the pieces go out in order, each when the
+    Its ``Content-Length`` is replaced by ``Transfer-Encoding: chunked``, or,
+    when the body's ``length`` is known, set to it: then ``chunks`` must
+    yield exactly that many bytes (fewer or more: the body is cut short as
+    when ``chunks`` raises). Once the head is sent, the pieces go out in order, each when the
     transport's buffer is below its high-water mark; an empty piece is
     skipped. The body ends early, the connection aborted so that the client
     sees a body cut short (no last chunk), when ``chunks`` raises (logged),
@@ -137,12 +154,32 @@ def streamed(response: Response, chunks: AsyncGenerator[bytes, None], stall_time
     ``chunks``.
     """
     headers = Headers((key, value) for key, value in response.headers.raw_items() if key.lower() != "content-length")
-    headers["Transfer-Encoding"] = "chunked"
-    return StreamedResponse(response.status_code, response.reason_phrase, headers, chunks=chunks, stall_timeout=stall_timeout)
+    if length is None:
+        headers["Transfer-Encoding"] = "chunked"
+    else:
+        headers["Content-Length"] = str(length)
+    return StreamedResponse(
+        response.status_code, response.reason_phrase, headers, chunks=chunks, stall_timeout=stall_timeout, length=length
+    )
 
 
 class FramingProtocol(ServerProtocol):
-    """websockets' server protocol, queueing large data payloads by reference, holding back the end of a streamed answer."""
+    """websockets' server protocol, queueing large data payloads by reference, holding back the end of a streamed
+    answer; every HTTP answer it makes carries :data:`~xviz_server.viewer.HEADERS`."""
+
+    def reject(self, status: StatusLike, text: str) -> Response:
+        """An HTTP answer other than the handshake's 101, with :data:`~xviz_server.viewer.HEADERS`: the one place
+        that builds them (:meth:`ServerConnection.respond` calls it, and websockets for its own refusals).
+
+        A request refused unread (its line or headers too long) may be no
+        WebSocket handshake: its body says the request could not be read,
+        not that a WebSocket failed to open.
+        """
+        if status in _UNREAD and text.startswith(_WEBSOCKET_REFUSAL):
+            text = "cannot read this request" + text[len(_WEBSOCKET_REFUSAL):]
+        response = super().reject(status, text)
+        response.headers.update(HEADERS)
+        return response
 
     def send_response(self, response: Response) -> None:
         """Queue ``response``; a :class:`StreamedResponse`'s head only, the stream left open for its body."""
@@ -178,10 +215,15 @@ class FramingConnection(ServerConnection):
     """
 
     protocol: FramingProtocol
+    _patience: float = 0.0  # seconds beyond OPEN_TIMEOUT that this handshake may take
 
     def __init__(self, protocol: ServerProtocol, server: Server, **kwargs: Any) -> None:
         protocol.__class__ = FramingProtocol
         super().__init__(protocol, server, **kwargs)
+
+    def allow(self, seconds: float) -> None:
+        """Let the handshake (``process_request`` answering) take up to ``seconds`` in all, rather than :data:`OPEN_TIMEOUT`."""
+        self._patience = max(self._patience, seconds - OPEN_TIMEOUT)
 
     async def handshake(
         self,
@@ -189,8 +231,19 @@ class FramingConnection(ServerConnection):
         process_response: Callable[[ServerConnection, Request, Response], Awaitable[Response | None] | Response | None] | None = None,
         server_header: str | None = SERVER,
     ) -> None:
-        """websockets' opening handshake within :data:`OPEN_TIMEOUT` seconds, then a streamed answer's body."""
-        await asyncio.wait_for(super().handshake(process_request, process_response, server_header), OPEN_TIMEOUT)
+        """websockets' opening handshake within :data:`OPEN_TIMEOUT` seconds (or what :meth:`allow` allowed), then a
+        streamed answer's body."""
+        handshake = asyncio.ensure_future(super().handshake(process_request, process_response, server_header))
+        try:
+            await asyncio.wait_for(asyncio.shield(handshake), OPEN_TIMEOUT)
+        except asyncio.TimeoutError:
+            if not self._patience:
+                handshake.cancel()
+                raise
+            await asyncio.wait_for(handshake, self._patience)
+        except BaseException:
+            handshake.cancel()
+            raise
         response = self.response
         if isinstance(response, StreamedResponse) and response.chunks is not None and self.protocol.state is State.CONNECTING:
             await self._send_body(response, response.chunks)
@@ -200,6 +253,7 @@ class FramingConnection(ServerConnection):
         transport.pause_reading()  # the request is read: nothing after it is (a pipelined request is not answered)
         self.server.all_connections.add(self)  # aborted with the open ones when the server's shutdown runs late
         sent = 0
+        left = response.length  # bytes still to send, when the length was given
         watchdog = asyncio.ensure_future(watch_progress(self, response.stall_timeout, lambda: sent))
         complete = False
         try:
@@ -210,10 +264,18 @@ class FramingConnection(ServerConnection):
                     logger.info("%s: the answer to %s is cut short: the server is stopping", self.remote_address, self._path())
                     break
                 if piece:
-                    transport.writelines((b"%x\r\n" % len(piece), piece, b"\r\n"))
+                    if left is None:
+                        transport.writelines((b"%x\r\n" % len(piece), piece, b"\r\n"))
+                    elif len(piece) > left:
+                        raise XVIZError(f"the body is longer than its Content-Length, {response.length} bytes")
+                    else:
+                        transport.write(piece)
+                        left -= len(piece)
                     sent += 1
                     await self.drain()
             else:
+                if left:
+                    raise XVIZError(f"the body ended {left} bytes short of its Content-Length, {response.length} bytes")
                 complete = not transport.is_closing()
         except Exception as exc:
             if not transport.is_closing():
@@ -227,7 +289,8 @@ class FramingConnection(ServerConnection):
             await chunks.aclose()
         if not complete:
             return
-        transport.write(_LAST_CHUNK)
+        if left is None:
+            transport.write(_LAST_CHUNK)
         transport.resume_reading()
         if self.protocol.state is State.CONNECTING:  # else the client left: nothing to end
             async with self.send_context(expected_state=State.CONNECTING):

@@ -28,6 +28,7 @@ from typing import Any
 from .exceptions import LogNotFound
 
 __all__ = [
+    "place_of", "split_place", "found_at",
     "INDEX_FILE",
     "INDEX_NUMBER",
     "METADATA_NUMBER",
@@ -210,12 +211,42 @@ class Found:
     options: tuple[tuple[str, str], ...] = ()
 
 
-def discover(root: Path, detect: Callable[[Path], str | None] | None = None) -> Iterator[Found]:
+def place_of(path: str | os.PathLike[str], options: tuple[tuple[str, str], ...] = ()) -> str:
+    """Where a log is, as one string: its path, and the options that pick it in a folder of several
+    (``ROOT?scene=scene-0061``; see :func:`split_place`)."""
+    return str(path) + ("?" + "&".join(f"{key}={value}" for key, value in options) if options else "")
+
+
+def split_place(place: str) -> tuple[str, tuple[tuple[str, str], ...]]:
+    """The path and options of a :func:`place_of` string."""
+    path, mark, query = place.rpartition("?")
+    pairs = [pair.partition("=") for pair in query.split("&")] if mark else []
+    if not mark or not all(separator and key in PLACE_OPTIONS for key, separator, _ in pairs):
+        return place, ()
+    return path, tuple((key, value) for key, _, value in pairs)
+
+
+#: The options a place may carry (see :func:`place_of`).
+PLACE_OPTIONS = frozenset({"scene"})
+
+
+def found_at(name: str, place: str, kind: str) -> Found:
+    """The log ``name`` of ``kind`` at a place (see :func:`place_of`)."""
+    path, options = split_place(place)
+    return Found(name, Path(path), kind, options)
+
+
+def discover(
+    root: Path, detect: Callable[[Path], str | None] | None = None,
+    scenes: Callable[[str, Path], list[str]] | None = None,
+) -> Iterator[Found]:
     """Every log and dataset under ``root``, in name order of the walk.
 
     A directory holding message files is a log (:data:`LOG`); ``detect``
     names the dataset kind of any other directory or file, if any, and must
-    be cheap (it sees every file). A dataset's own folders are not searched
+    be cheap (it sees every file); ``scenes`` names the logs of a dataset
+    folder that holds several (each is found as ``FOLDER/SCENE`` with the
+    option ``scene``). A dataset's own folders are not searched
     further. Names are paths relative to ``root``
     with ``/`` separators (the root's own name when the root itself is one);
     a dataset found as a file is named without its suffix (``drive.bag`` is
@@ -240,7 +271,9 @@ def discover(root: Path, detect: Callable[[Path], str | None] | None = None) -> 
         kind = detect(here) if detect is not None else None
         if kind is not None:
             subdirectories.clear()
-            yield Found(name, here, kind)
+            several = scenes(kind, here) if scenes is not None else []
+            yield from ([Found(f"{name}/{scene}", here, kind, (("scene", scene),)) for scene in several]
+                        or [Found(name, here, kind)])
             continue
         subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
         if detect is not None:

@@ -30,7 +30,7 @@ from .layout import INDEX_FILE, LOG, Found, check_log_name, discover, frame_byte
 from .providers import LogSource
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
-from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store
+from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store, scenes
 from .readahead import ReadAhead
 from .records import OriginalTopic
 from .store import ObjectStore, StoredDataset, StoredLog
@@ -372,7 +372,7 @@ class Catalog:
     def _discover(self) -> dict[str, Found]:
         found: dict[str, Found] = {}
         for root in self._roots:
-            for entry in discover(root, detect):
+            for entry in discover(root, detect, scenes):
                 found.setdefault(entry.name, entry)
         for entry in self._named_datasets():
             found.setdefault(entry.name, entry)
@@ -443,6 +443,11 @@ class Catalog:
         if preload and name not in self._preloads and isinstance(found, Found) and found.kind == LOG and self._preload_bytes > 0:
             self._preloads[name] = asyncio.ensure_future(self._preload(log, found.path))
         return log
+
+    def stamp(self, name: str) -> tuple[int, ...] | None:
+        """What :func:`~xviz_server.layout.stamp_of` said of log ``name`` when :meth:`open` last read it: empty for a
+        log in a store or a generated one, ``None`` for one not open."""
+        return self._stamps.get(name)
 
     def _notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
         if self.known is not None:

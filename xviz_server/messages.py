@@ -21,6 +21,7 @@ from typing import Any, ClassVar, Literal, Union
 import pydantic
 from pydantic import AliasChoices, ConfigDict, Field, field_validator, model_validator
 
+from .budget import MAX_ITEMS, SHOWN, Problems, shown, too_many
 from .codec import Format
 from .codec.json import MAX_DEPTH, nested_deeper
 from .exceptions import MessageError
@@ -266,13 +267,31 @@ def parse_client_message(message: Any) -> ClientMessage:
         known = ", ".join(XVIZ_NAMESPACE + n for n in CLIENT_MESSAGES)
         raise MessageError(f"unknown message type {kind!r}; a client may send {known}", message_type=kind)
     request_id = data.get("id") if isinstance(data, Mapping) else None
-    request_id = None if request_id is None else str(request_id)
+    request_id = None if request_id is None else shown(request_id) if not isinstance(request_id, str) else request_id[:SHOWN]
+    subject = kind if request_id is None else f"{kind} (id {request_id!r})"
+    if isinstance(data, Mapping) and (crowded := _crowded(data)) is not None:
+        raise MessageError(
+            f"{subject}: '{crowded}' holds more than the {MAX_ITEMS} items a message may hold: refused whole",
+            message_type=name, request_id=request_id,
+        )
     try:
         return model.model_validate(data)  # type: ignore[return-value]
     except pydantic.ValidationError as exc:
-        subject = kind if request_id is None else f"{kind} (id {request_id!r})"
-        problems = "; ".join(describe_validation_error(error) for error in exc.errors())
-        raise MessageError(f"{subject}: {problems}", message_type=name, request_id=request_id) from None
+        found = Problems()
+        for error in exc.errors(include_url=False):
+            found.add(describe_validation_error(error))
+        raise MessageError(str(found.summary(subject)), message_type=name, request_id=request_id) from None
+
+
+def _crowded(data: Mapping[str, Any]) -> str | None:
+    """The field of a client message's data that lists more than :data:`~xviz_server.budget.MAX_ITEMS` items."""
+    for key in ("desired_streams", "requested_streams"):
+        if too_many(data.get(key)):
+            return key
+    update = data.get("config_update")
+    if isinstance(update, Mapping) and too_many(update.get("desired_streams")):
+        return "config_update.desired_streams"
+    return None
 
 
 def is_number(value: Any) -> bool:
@@ -294,7 +313,7 @@ def describe_validation_error(error: Mapping[str, Any]) -> str:
     if kind == "missing":
         return f"'{field}' is required"
     if kind == "model_type" or (kind == "dict_type" and not field):
-        return f"the data must be a JSON object, not {_shown(error['input'])}"
+        return f"the data must be a JSON object, not {shown(error['input'])}"
     if kind == "value_error":
         message = str(error["ctx"]["error"]) if "ctx" in error else error["msg"]
         return message if not field else f"'{field}': {message}"
@@ -309,10 +328,7 @@ def describe_validation_error(error: Mapping[str, Any]) -> str:
         "literal_error": "one of " + str(error.get("ctx", {}).get("expected", "")),
     }.get(kind)
     if expected is None:
-        return f"'{field}': {error['msg']} (got {_shown(error['input'])})"
-    return f"'{field}' must be {expected}, not {_shown(error['input'])}"
+        return f"'{field}': {error['msg']} (got {shown(error['input'])})"
+    return f"'{field}' must be {expected}, not {shown(error['input'])}"
 
 
-def _shown(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."

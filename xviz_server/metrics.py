@@ -50,6 +50,9 @@ class Metrics:
         self.record_errors = Counter(
             "xviz_record_errors", "Recordings ended by a write error (or a recorder fault).", registry=registry
         )
+        self.file_bytes = Counter(
+            "xviz_file_bytes_sent", "Bytes of the logs' MCAP files (/api/logs/NAME/file.mcap) handed to clients.", registry=registry
+        )
         self.ingest_refused = Counter(
             "xviz_ingest_refused", "Messages from live sources refused at the door.", registry=registry
         )

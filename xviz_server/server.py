@@ -9,6 +9,12 @@ not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer
   format, frame count, time range and stream names, searched and paged by
   the query's parameters, and on the first page the live feeds;
   ``GET /api/logs/NAME``: every fact the catalog has of one log;
+* ``GET /api/logs/NAME/export?start=&end=``: a clip of a log as an MCAP
+  file (see :mod:`xviz_server.foxglove.export`);
+* ``GET /api/logs/NAME/file.mcap``: the whole log as an MCAP file served
+  with byte ranges, for the Foxglove and Lichtblick apps to seek in (see
+  :mod:`xviz_server.foxglove.seekable` and :mod:`xviz_server.ranges`);
+  other origins may read it (CORS, within ``--allowed-origin`` when set);
 * ``GET /healthz``: ``ok`` (then, with ``--broker``, a line on the broker's
   state, and one for each reader of a feed that keeps failing), or HTTP 503
   saying what is broken (a worker process pool that lost a process and is
@@ -37,7 +43,7 @@ import signal
 import tempfile
 from http import HTTPStatus
 from pathlib import Path
-from collections.abc import AsyncGenerator, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
@@ -52,7 +58,7 @@ from .cache import FrameCache
 from .layout import LOG, check_log_name
 from .datasets import GENERATED, KINDS, dataset_options
 from .catalog import Indexer, parse_query
-from .exceptions import ConfigError, ExportError, LogError, LogNotFound, QueryError, XVIZError
+from .exceptions import ConfigError, LogError, LogNotFound, QueryError, XVIZError
 from .foxglove.wire import SUBPROTOCOLS
 from .framing import OPEN_TIMEOUT, FramingConnection, streamed
 from .gate import GatedConnection
@@ -60,7 +66,7 @@ from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
 from .store import data_roots
 from .tls import server_context
-from .viewer import HEADERS, STATIC_DIR, ViewerPage
+from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
 
 if TYPE_CHECKING:
@@ -70,6 +76,7 @@ if TYPE_CHECKING:
     from .foxglove.connection import FoxgloveConnection
     from .live import LiveRegistry
     from .live.broker import Broker
+    from .foxglove.seekable import LogFiles
     from .live.record import Recorder
     from .logs import Catalog
 
@@ -84,7 +91,13 @@ LOG_PATH = "/api/logs/"
 SHUTDOWN_TIMEOUT = 10.0
 #: What sessions need and the listing does not (the codecs, numpy, the providers, Foxglove's schemas):
 #: imported once the server listens (see :meth:`XVIZServer.start`).
-SESSION_MODULES = ("logs", "live", "connection", "foxglove.connection", "foxglove.convert", "foxglove.export", "live.ingest")
+SESSION_MODULES = (
+    "logs", "live", "connection", "foxglove.connection", "foxglove.convert", "foxglove.export", "foxglove.seekable", "live.ingest",
+)
+#: Seconds a request for a log's file may wait for the file to be made (on first request); the making goes on after.
+FILE_WAIT = 600.0
+#: What the answers about a log's file (``/api/logs/NAME/file.mcap``) let a page of another origin read.
+FILE_EXPOSED = "Accept-Ranges, Content-Length, Content-Range, ETag, Last-Modified"
 
 
 class _Connection(GatedConnection, FramingConnection):
@@ -113,6 +126,7 @@ class XVIZServer:
             store_poll=settings.catalog_store_poll,
         )
         self._catalog: Catalog | None = None
+        self._files: LogFiles | None = None
         self._live: LiveRegistry | None = None
         self._ready = asyncio.Event()  # set once sessions can be served
         self._server: Server | None = None
@@ -122,7 +136,7 @@ class XVIZServer:
         self.broker: Broker | None = None
         #: The sessions running now.
         self.sessions: set[Connection | FoxgloveConnection] = set()
-        self._exports = 0  # clips being sent now
+        self._exporting: set[ServerConnection] = set()  # connections of the exports and files admitted, until they end
         #: The built-in viewer's page and assets.
         self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors)
 
@@ -190,6 +204,9 @@ class XVIZServer:
             preload_bytes=int(min(self.settings.preload_mb, self.settings.cache_mb / 2) * MB),
         )
         await self._catalog.find_datasets()
+        from .foxglove.seekable import LogFiles
+
+        self._files = LogFiles(None if self.settings.state_dir is None else self.settings.state_dir / "files", self.workers)
         await self.indexer.start(self._catalog)
         if self._catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
@@ -206,7 +223,6 @@ class XVIZServer:
                 ssl=tls,
                 origins=[*map(Origin, self.settings.allowed_origins), None] if self.settings.allowed_origins else None,
                 process_request=self._process_request,
-                process_response=_process_response,
                 select_subprotocol=_select_subprotocol,
                 compression="deflate" if self.settings.compression else None,
                 max_size=self.settings.max_message_kb * 1024,
@@ -264,6 +280,8 @@ class XVIZServer:
             self._server = None
         if self._catalog is not None:
             self._catalog.close()
+        if self._files is not None:
+            await self._files.close()
         await self.indexer.close()
         if self.broker is not None:
             await self.broker.close()
@@ -304,6 +322,18 @@ class XVIZServer:
             self.sessions.discard(connection)
 
     async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
+        """The answer to ``request``, or ``None`` to accept its WebSocket handshake; a failure is a 500 that
+        names what was asked (websockets' own would say a WebSocket failed to open)."""
+        try:
+            return await self._answer(connection, request)
+        except Exception:
+            path = urlsplit(request.path).path
+            logger.exception("answering GET %s failed", path)
+            upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
+            what = f"a WebSocket session on {path}" if upgrade else f"GET {path}"
+            return connection.respond(HTTPStatus.INTERNAL_SERVER_ERROR, f"the server failed to answer {what}: see its log\n")
+
+    async def _answer(self, connection: ServerConnection, request: Request) -> Response | None:
         if request.headers.get("Upgrade", "").lower() == "websocket":
             if feed_name(request.path) is not None:
                 reason = ingest_refusal(request, connection.remote_address, self.settings.ingest_token, self.settings.allowed_origins)
@@ -332,11 +362,20 @@ class XVIZServer:
             return _response(connection, HTTPStatus.OK, self.metrics.exposition(), CONTENT_TYPE)
         if (page := await self.viewer.respond(connection, request)) is not None:
             return page
+        if path.startswith(LOG_PATH) and (name := _file_path(path)) is not None:
+            if (refused := self._viewer_refusal(connection, request)) is not None:
+                return refused
+            await self._ready.wait()
+            answer = await self._file(connection, request, name)
+            answer.headers.update(self._cors(request))
+            return answer
         if path.startswith(LOG_PATH) and (name := _export_path(path)) is not None:
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
             await self._ready.wait()
-            return await self._export(connection, name, dict(urllib.parse.parse_qsl(urlsplit(request.path).query)))
+            # A "+" is kept as such: "+2" is a time after the log's start, not " 2".
+            query = urlsplit(request.path).query.replace("+", "%2B")
+            return await self._export(connection, name, urllib.parse.parse_qs(query, keep_blank_values=True))
         if path in ("/", "/logs", "/api/logs") or path.startswith(LOG_PATH):
             if (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
@@ -347,46 +386,98 @@ class XVIZServer:
             "not found: open a WebSocket for an XVIZ session, or GET /, /api/logs, /healthz or /metrics\n",
         )
 
-    async def _export(self, connection: ServerConnection, name: str, query: dict[str, str]) -> Response:
+    async def _export(self, connection: ServerConnection, name: str, query: dict[str, list[str]]) -> Response:
         """A clip of log ``name`` as an MCAP file, sent as it is written (see :mod:`xviz_server.foxglove.export`)."""
         from .foxglove.convert import plan
-        from .foxglove.export import export, parse_range
+        from .foxglove.export import export, first_error, parse_range
 
         try:
             span = parse_range(query)
             log = await self.catalog.open(name, preload=False)
+            positions = span.frames(log)
         except LogNotFound as exc:
             return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
-        except ExportError as exc:
+        except QueryError as exc:
             return connection.respond(HTTPStatus.BAD_REQUEST, f"{exc}\n")
         except XVIZError as exc:
             return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
         if self._open() >= self.settings.max_sessions:
             return self._too_many(connection, "an export")
+        self._admit(connection)
+        the_plan = plan(log.metadata, log.originals)
+        if (error := await first_error(log, the_plan, positions)) is not None:
+            logger.warning("refused an export of log %r: its first frame cannot be read: %s", name, error)
+            return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"the clip's first frame cannot be read: {error}\n")
         head = connection.respond(HTTPStatus.OK, "")
         del head.headers["Content-Type"]
         head.headers["Content-Type"] = "application/octet-stream"
         filename = name.replace("/", "_") + ".mcap"
         head.headers["Content-Disposition"] = f'attachment; filename="{filename}"'
-        return streamed(head, self._counted(export(log, plan(log.metadata, log.originals), span, self.workers)), self.settings.idle_timeout)
+        return streamed(head, export(log, the_plan, positions, self.workers), self.settings.idle_timeout)
+
+    async def _file(self, connection: ServerConnection, request: Request, name: str) -> Response:
+        """Log ``name`` as a whole MCAP file, or the byte range of it the request asks for (see :mod:`.ranges`)."""
+        from .foxglove.convert import plan
+        from .foxglove.seekable import read_file
+        from .ranges import decide
+
+        assert self._files is not None
+        if isinstance(connection, FramingConnection):
+            connection.allow(FILE_WAIT)
+        try:
+            log = await self.catalog.open(name, preload=False)
+            stamp = self.catalog.stamp(name)
+            version = ",".join(map(str, stamp)) if stamp else await self.indexer.version(name) or ""
+            built = await self._files.get(log, plan(log.metadata, log.originals), version)
+        except LogNotFound as exc:
+            return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
+        except XVIZError as exc:
+            return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
+        except OSError as exc:
+            logger.warning("cannot make the file of log %r: %s", name, exc)
+            return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, f"cannot make the file of log {name!r}: {exc.strerror or exc}\n")
+        answer = decide(request.headers, built.representation)
+        if answer.status not in (HTTPStatus.OK, HTTPStatus.PARTIAL_CONTENT):
+            text = "" if answer.status == HTTPStatus.NOT_MODIFIED else f"{answer.status.phrase}: the file is {built.representation.size} bytes\n"
+            response = connection.respond(answer.status, text)
+            if not text:
+                del response.headers["Content-Type"], response.headers["Content-Length"]
+            response.headers.update(answer.headers)
+            return response
+        if self._open() >= self.settings.max_sessions:
+            return self._too_many(connection, "a file")
+        self._admit(connection)
+        head = connection.respond(answer.status, "")
+        del head.headers["Content-Type"]
+        head.headers["Content-Type"] = "application/octet-stream"
+        head.headers.update(answer.headers)
+        body = read_file(built.path, answer.offset, answer.length, self.workers, self.metrics.file_bytes.inc)
+        return streamed(head, body, self.settings.idle_timeout, length=answer.length)
+
+    def _cors(self, request: Request) -> dict[str, str]:
+        """The CORS headers that let a page of another origin (the apps) read an answer: any origin, or those
+        of ``--allowed-origin`` when set."""
+        allowed = self.settings.allowed_origins
+        origin = request.headers.get("Origin")
+        if not allowed:
+            return {"Access-Control-Allow-Origin": "*", "Access-Control-Expose-Headers": FILE_EXPOSED}
+        if origin in allowed:
+            return {"Access-Control-Allow-Origin": origin, "Access-Control-Expose-Headers": FILE_EXPOSED, "Vary": "Origin"}
+        return {"Vary": "Origin"}
 
     def _too_many(self, connection: ServerConnection, what: str) -> Response:
         logger.warning("refused %s: %d sessions and exports open", what, self.settings.max_sessions)
         return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "too many sessions, try again later\n")
 
+    def _admit(self, connection: ServerConnection) -> None:
+        """Count an export or file answer on ``connection`` in :meth:`_open` from now (its admission: call it with no
+        await after the check) until its connection ends, whether or not its body is ever sent."""
+        self._exporting.add(connection)
+        connection.connection_lost_waiter.add_done_callback(lambda _: self._exporting.discard(connection))
+
     def _open(self) -> int:
         """Sessions and exports running now: what ``max_sessions`` bounds."""
-        return len(self.sessions) + self._exports
-
-    async def _counted(self, pieces: AsyncGenerator[bytes, None]) -> AsyncGenerator[bytes, None]:
-        """``pieces``, counted in :meth:`_open` from its first piece until it ends."""
-        self._exports += 1
-        try:
-            async for piece in pieces:
-                yield piece
-        finally:
-            self._exports -= 1
-            await pieces.aclose()
+        return len(self.sessions) + len(self._exporting)
 
     async def _listing(self, path: str, target: str) -> tuple[HTTPStatus, dict[str, Any]]:
         """The answer to ``GET /api/logs?...`` (a page of the catalog) or ``GET /api/logs/NAME`` (one log)."""
@@ -447,10 +538,11 @@ def _export_path(path: str) -> str | None:
     return export_path(path)
 
 
-def _process_response(connection: ServerConnection, request: Request, response: Response) -> None:
-    """Every HTTP answer carries the viewer's :data:`~xviz_server.viewer.HEADERS`."""
-    if response.status_code != HTTPStatus.SWITCHING_PROTOCOLS:
-        response.headers.update(HEADERS)
+def _file_path(path: str) -> str | None:
+    """The log a file URL names (see :func:`~xviz_server.foxglove.seekable.file_path`), or ``None``."""
+    from .foxglove.seekable import file_path
+
+    return file_path(path)
 
 
 def _broker(settings: Settings, live: LiveRegistry, metrics: Metrics, workers: Workers) -> Broker:

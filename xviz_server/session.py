@@ -50,6 +50,7 @@ import numpy as np
 import pydantic
 from websockets.frames import CloseCode
 
+from .budget import shown
 from .codec import Format, decode, encode
 from .detail import DetailChooser, Sample
 from .events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
@@ -168,6 +169,8 @@ Event = Union[
 # ----------------------------------------------------------------- session
 
 URL_START_KEYS = ("version", "profile", "session_type", "message_format", "log")
+#: Every parameter a session reads from its URL.
+_URL_KEYS = frozenset(URL_START_KEYS + ("logGuid", "speed", "max_mbps", "detail_notices"))
 #: The type of the message that tells a client that asked for it (``?detail_notices=1``) its level of detail.
 DETAIL_NOTICE = "xviz-server/detail"
 #: Updates queued for a live viewer after its level went down that are skipped for the latest complete state.
@@ -198,6 +201,8 @@ class Session:
     lag_timeout: float = 30.0
     detail: bool = True
     local: bool = False
+    #: Names the URL's query gives more than once: refused, and taken as not given.
+    repeated: frozenset[str] = frozenset()
     start: Start = field(init=False, default_factory=Start)
     config: SessionConfig = field(init=False, default_factory=SessionConfig)
     log: LogView | None = field(init=False, default=None)
@@ -220,14 +225,18 @@ class Session:
     # -- inputs: the connection and its messages -----------------------
 
     def connect(self) -> list[Event]:
-        """The connection opened: read the start parameters from the URL."""
+        """The connection opened: read the start parameters from the URL (each at most once)."""
+        events: list[Event] = [
+            self._error("start", f"bad connection URL parameter {shown(name)}: give it at most once; it is ignored")
+            for name in sorted(self.repeated & _URL_KEYS)
+        ]
+        self.query = {key: value for key, value in self.query.items() if key not in self.repeated}
         params = {key: self.query[key] for key in URL_START_KEYS if key in self.query}
         if "log" not in params:
             name = self.query.get("logGuid") or self.path.strip("/")
             if name:
                 params["log"] = name
         speed = self.query.get("speed")
-        events: list[Event] = []
         try:
             self.start = Start.model_validate(params)
             if speed is not None:

@@ -60,7 +60,8 @@ class Settings(BaseSettings):
     state_dir: Path | None = Field(
         default=None,
         description="directory where the server keeps its state: the catalog of logs (catalog.sqlite3), so that a "
-        "restart lists every log at once; default: none, the catalog is kept in memory and built again at each start",
+        "restart lists every log at once, and the logs' MCAP files to seek in (files/); default: none, the catalog is "
+        "kept in memory and built again at each start, the files in a temporary folder",
     )
     catalog_poll: float = Field(
         default=2, gt=0, description="seconds between looks for logs added, changed or removed under a --data-dir directory "

@@ -7,7 +7,7 @@ is checked against :data:`MAX_CHUNK_BYTES` before anything is decompressed,
 and the decompressor is then asked for at most one byte more than it: a
 part that unpacks to more than it declares (a decompression bomb whose
 header lies) is refused after that many bytes, never unpacked whole. The
-four compressions recordings use (bz2, lz4 frames, zstd, zlib) are all read
+compressions recordings use (bz2, lz4 frames, zstd, zlib, gzip) are all read
 through their incremental decompressors, which take such a bound.
 
 What declares no size is bounded by a limit alone: a ROS 2 bag's message
@@ -17,6 +17,10 @@ compressed size).
 
 A part stored uncompressed (a TFRecord record) is read only if its declared
 length fits in the file and in :data:`MAX_RECORD_BYTES`.
+
+Whatever each part's size, one frame may read at most :data:`MAX_FRAME_BYTES`
+in all, summed from what its parts declare before any is read (see
+:meth:`~xviz_server.datasets.ros.RosBag.frame_parts`).
 
 A refusal is an :class:`~xviz_server.exceptions.OversizeError`; data that
 is not what its compression says, or unpacks to fewer bytes than declared,
@@ -30,10 +34,12 @@ import io
 import zlib
 from typing import Any, Callable
 
+from zlib_ng import zlib_ng
+
 from .exceptions import DatasetError, OversizeError
 
 __all__ = [
-    "MAX_CHUNK_BYTES", "MAX_RECORD_BYTES", "MAX_FILE_RATIO", "COMPRESSIONS", "unpack", "unpack_unsized", "BoundedReader",
+    "MAX_CHUNK_BYTES", "MAX_FRAME_BYTES", "MAX_RECORD_BYTES", "MAX_FILE_RATIO", "COMPRESSIONS", "unpack", "unpack_unsized", "BoundedReader",
     "check_declared", "size_text", "zstd_module",
 ]
 
@@ -41,6 +47,10 @@ __all__ = [
 #: Recorders write chunks of a few megabytes (rosbag 768 KiB, MCAP 4 MiB by default); a message larger than
 #: that gets a chunk of its own, and a chunk this large holds several uncompressed 8K images.
 MAX_CHUNK_BYTES = 256 << 20
+#: The most bytes one frame of a recording may unpack, across all its messages and images: the sizes that the
+#: parts it reads (chunks, rows) declare, summed before any is read. A frame of several lidars and cameras takes
+#: tens of megabytes; a frame over this is refused whole, whatever each part's size.
+MAX_FRAME_BYTES = 128 << 20
 #: The most bytes of data one record of a TFRecord file (a Waymo frame, some megabytes) may declare.
 MAX_RECORD_BYTES = 256 << 20
 #: How many times its own size a whole compressed file of a recording (a ROS 2 bag's storage file, which
@@ -68,12 +78,13 @@ def _lz4() -> Any:
     return lz4.frame.LZ4FrameDecompressor()
 
 
-#: A new incremental decompressor for each compression, by the names ROS 1 and MCAP give them.
+#: A new incremental decompressor for each compression, by the names ROS 1 and MCAP give them (and gzip files').
 COMPRESSIONS: dict[str, Callable[[], Any]] = {
     "bz2": bz2.BZ2Decompressor,
     "lz4": _lz4,
     "zstd": _zstd,
     "zlib": zlib.decompressobj,
+    "gzip": lambda: zlib_ng.decompressobj(16 + zlib.MAX_WBITS),  # zlib-ng: the same stream, inflated faster
 }
 
 
@@ -102,7 +113,7 @@ def _inflate(data: bytes | memoryview, compression: str, room: int, where: str) 
             if not decompressor.eof:  # cut short, or stopped at the bound
                 break
             rest = decompressor.unused_data
-    except (OSError, ValueError, EOFError, RuntimeError, zlib.error) as exc:  # what each library raises on bad data
+    except (OSError, ValueError, EOFError, RuntimeError, zlib.error, zlib_ng.error) as exc:  # type: ignore[misc]  # what each library raises on bad data (zlib-ng's stub declares its error an instance)
         raise DatasetError(f"{where}: not {compression} data: {exc}") from None
     return b"".join(parts)
 

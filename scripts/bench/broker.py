@@ -126,7 +126,6 @@ def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace
     the CPU seconds each replica used while the source pushed)."""
     replicas = replicas_of(pair, broker, empty, len(viewers_on), name)
     try:
-        time.sleep(1.5)  # the replicas find each other's feeds when the source starts
         watch = args.seconds + 4
         with tempfile.TemporaryDirectory() as scratch:
             counts = [(replica, count) for replica, count in zip(replicas, viewers_on) if count]
@@ -137,8 +136,9 @@ def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace
                 for (replica, count), output in zip(counts, outputs)
             ]
             used = [cpu_seconds(replica.pid) for replica in replicas]
-            subprocess.run([*ROLE, "source", replicas[0].url(f"ingest/{name}"), str(args.rate), str(args.seconds)],
-                           cwd=BENCH, check=True)
+            # The source pushes once every viewer follows its feed (on B: through the broker).
+            subprocess.run([*ROLE, "source", replicas[0].url(f"ingest/{name}"), str(args.rate), str(args.seconds),
+                            *map(str, outputs)], cwd=BENCH, check=True)
             if cpu is not None:
                 cpu[:] = [cpu_seconds(replica.pid) - before for replica, before in zip(replicas, used)]
             if any(group.wait() for group in groups):
@@ -181,6 +181,8 @@ def main() -> None:
                     cpu: list[float] = []
                     on_a, on_b = run(url, empty, [args.viewers, args.viewers], args, f"latency{number}{pair}", cpu, pair)
                     for name, latencies, used in (("A", on_a, cpu[0]), ("B", on_b, cpu[1])):
+                        if not latencies:
+                            raise SystemExit(f"the viewers on {name} ({pair}) received no update: see the replicas' log lines")
                         print(f"{number:>4} {pair:>7} {name:>2} {len(latencies):>8} {statistics.median(latencies):8.1f} "
                               f"{percentile(latencies, 99):8.1f} {used:8.2f}")
                     differences[pair].append(statistics.median(on_b) - statistics.median(on_a))

@@ -36,7 +36,6 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 from pathlib import Path
 
 from kit import KITTI_FRAME as FRAME
@@ -60,9 +59,8 @@ def run(command: list[str], args: argparse.Namespace) -> dict:
                                   str(n), str(watch), str(output)], cwd=BENCH)
                 for n, output in zip(share, outputs)
             ]
-            time.sleep(0.5)
-            subprocess.run([*ROLE, "source", f"ws://127.0.0.1:{port}/ingest/bench",
-                            str(args.rate), str(args.seconds)], cwd=BENCH, check=True)
+            subprocess.run([*ROLE, "source", f"ws://127.0.0.1:{port}/ingest/bench", str(args.rate), str(args.seconds),
+                            *map(str, outputs)], cwd=BENCH, check=True)
             for process in viewer_processes:
                 if process.wait() != 0:
                     raise RuntimeError(f"a viewer process failed (exit {process.returncode})")

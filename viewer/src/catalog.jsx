@@ -1,5 +1,5 @@
 import React from 'react';
-import {fetchCatalog, foxgloveAppUrl, foxgloveUrl} from './page';
+import {fetchCatalog, foxgloveAppUrl, foxgloveUrl, logFileUrl} from './page';
 
 /** Logs asked for a page. */
 const PAGE = 100;
@@ -25,7 +25,10 @@ async function copy(text, input) {
   }
 }
 
-/** The address a Foxglove or Lichtblick user pastes for one log, with a button that copies it. */
+/**
+ * The address a Foxglove or Lichtblick user pastes for one log, with a button that copies it; for a
+ * log (not a live feed), also its `file`: the URL of the log as a file to seek in, and Foxglove's app opening it.
+ */
 class FoxgloveUrl extends React.Component {
   state = {copied: null};
   input = React.createRef();
@@ -44,7 +47,7 @@ class FoxgloveUrl extends React.Component {
   };
 
   render() {
-    const {url} = this.props;
+    const {url, file} = this.props;
     return (
       <span style={{display: 'flex', gap: 6, alignItems: 'center'}}>
         <input
@@ -61,12 +64,22 @@ class FoxgloveUrl extends React.Component {
         <a className="foxglove-open" href={foxgloveAppUrl(url)} target="_blank" rel="noopener noreferrer" title="Open in Foxglove's web app">
           app
         </a>
+        {file && (
+          <a className="foxglove-file" href={file} title="The log as a file to seek in: in Foxglove or Lichtblick, open this URL as a remote file">
+            file
+          </a>
+        )}
+        {file && (
+          <a className="foxglove-open-file" href={foxgloveAppUrl(file, 'remote-file')} target="_blank" rel="noopener noreferrer" title="Open the file in Foxglove's web app, to seek in">
+            app (file)
+          </a>
+        )}
       </span>
     );
   }
 }
 
-function Row({name, cells, onOpen, foxglove}) {
+function Row({name, cells, onOpen, foxglove, file}) {
   const open = event => {
     event.preventDefault();
     onOpen(name);
@@ -82,7 +95,7 @@ function Row({name, cells, onOpen, foxglove}) {
         <td key={i}>{cell}</td>
       ))}
       <td>
-        <FoxgloveUrl url={foxglove} />
+        <FoxgloveUrl url={foxglove} file={file} />
       </td>
     </tr>
   );
@@ -192,7 +205,7 @@ export default class Catalog extends React.Component {
               />
             ))}
             {logs.map(log => (
-              <Row key={log.name} name={log.name} cells={cells(log)} onOpen={onOpen} foxglove={foxgloveUrl(log.name, false, token)} />
+              <Row key={log.name} name={log.name} cells={cells(log)} onOpen={onOpen} foxglove={foxgloveUrl(log.name, false, token)} file={logFileUrl(log.name, token)} />
             ))}
           </tbody>
         </table>

@@ -92,9 +92,21 @@ export function foxgloveUrl(name, live, token) {
   return `${serverUrl()}?${query.filter(Boolean).join('&')}`;
 }
 
-/** Foxglove's web app opening `url` as a Foxglove WebSocket connection, as the Foxglove SDK links it. */
-export function foxgloveAppUrl(url) {
-  return `https://app.foxglove.dev/?ds=foxglove-websocket&ds.url=${encodeURIComponent(url)}`;
+/**
+ * The log `name` as an MCAP file served with byte ranges, which Foxglove and Lichtblick seek in
+ * (they read only the chunks a seek needs): "Open file from URL", or their `ds=remote-file`.
+ */
+export function logFileUrl(name, token) {
+  const url = `${window.location.protocol}//${window.location.host}/api/logs/${encodeURIComponent(name)}/file.mcap`;
+  return token ? `${url}?token=${encodeURIComponent(token)}` : url;
+}
+
+/**
+ * Foxglove's web app opening `url` as a Foxglove WebSocket connection, as the Foxglove SDK links it,
+ * or as another of its data sources (`remote-file`: a file's URL).
+ */
+export function foxgloveAppUrl(url, source = 'foxglove-websocket') {
+  return `https://app.foxglove.dev/?ds=${source}&ds.url=${encodeURIComponent(url)}`;
 }
 
 async function getJSON(path, token, params = {}) {

@@ -14,14 +14,15 @@
   whose ETags (or times and sizes) are the versions of its logs. A log
   whose version is new or changed is marked found; one gone is removed.
 * the **indexer** reads the facts of the logs marked found, a batch at a
-  time: log folders on disk in the I/O threads from their index document
-  and metadata (:func:`~xviz_server.catalog.facts.read_local_log`); logs in
-  a store (their index and metadata: two GETs) and datasets as sessions
-  open them, at most :data:`CONCURRENCY` at a time. A log that fails is
-  kept with its error. A log folder with frames and no index yet is
-  waiting: it is indexed once its index is written, or once its folder
-  has not changed for :data:`SETTLE` seconds (its index then built from
-  its frames, as a session would).
+  time: log folders on disk in the worker processes, :data:`CHUNK` a job,
+  from their index document and metadata
+  (:func:`~xviz_server.catalog.facts.read_local_log`); logs in a store
+  (their index and metadata: two GETs) and datasets as sessions open them,
+  at most :data:`CONCURRENCY` at a time. A log that fails is kept with its
+  error. A log folder with frames and no index yet is waiting: it is
+  indexed once its index is written, or once its folder has not changed
+  for :data:`SETTLE` seconds (then without its index: its metadata, its
+  listing and at most its first and last frames).
 
 What is listed is answered from the database at once, whatever the
 indexer has done so far; ``indexed`` of ``found`` says how far it is.
@@ -38,9 +39,9 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store
+from ..datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store, scenes
 from ..exceptions import XVIZError
-from ..layout import LOG, Found
+from ..layout import LOG, Found, found_at
 from ..store import ObjectStore, StoredDataset, StoredLog
 from ..storepath import StoreTree
 from ..work import Workers
@@ -118,7 +119,7 @@ class Indexer:
         poll: float,
         store_poll: float,
     ) -> None:
-        self._scans = [LocalScan(Path(root), detect) for root in roots if not isinstance(root, ObjectStore)]
+        self._scans = [LocalScan(Path(root), detect, scenes) for root in roots if not isinstance(root, ObjectStore)]
         self._stores = [root for root in roots if isinstance(root, ObjectStore)]
         self._local_roots = {scan.root for scan in self._scans}
         # Where a name is in several roots, the first of these serves it.
@@ -172,12 +173,17 @@ class Indexer:
         return self.db
 
     async def settled(self) -> None:
-        """Wait until the first look is done, every log found is indexed and the sorts' indexes are made (for tests and tools)."""
+        """Wait until the first look is done, every log found is indexed and the sorts' indexes are made (for tests and tools).
+
+        A log folder waiting for its index (see the module) is left waiting:
+        it is indexed once its writer is done, which nothing here can hasten.
+        """
         await self.looked.wait()
         while True:
             self._idle.clear()
             indexed, found = await self._counted()
-            if indexed == found and not self._looking and not self._noticed and self._db.sorted:
+            waiting = len(await self._workers.io(self._db.waiting)) if indexed < found else 0
+            if indexed + waiting == found and not self._looking and not self._noticed and self._db.sorted:
                 return
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._idle.wait(), self._poll)
@@ -203,7 +209,12 @@ class Indexer:
             return self._store_datasets.get(name)
         rows = self._db.select("name = ?", [name], "name", 1)
         kind = rows[0]["kind"] if rows else LOG
-        return Found(name, Path(where[1]), _DISCOVERY_KINDS.get(kind, kind))
+        return found_at(name, where[1], _DISCOVERY_KINDS.get(kind, kind))
+
+    async def version(self, name: str) -> str | None:
+        """The version of log ``name`` the catalog last found (on disk, or in its store's listing), if it holds it."""
+        where = await self._workers.io(self._db.place, name)
+        return None if where is None else where[2]
 
     def notice(self, name: str, found: Found | StoredLog | StoredDataset | None = None) -> None:
         """A session found ``name`` new (``found``: where), changed or gone: look at it soon."""
@@ -456,12 +467,11 @@ class Indexer:
         local_roots = self._local_roots
         on_disk = [(name, place, version) for name, root, place, version, kind in batch if root in local_roots and kind == LOG]
         others = [row for row in batch if not (row[1] in local_roots and row[4] == LOG)]
-        now, reading, slow = time.time(), asyncio.Semaphore(READING), []
+        now, reading = time.time(), asyncio.Semaphore(READING)
 
         async def read_folders(chunk: list[tuple[str, str, str]]) -> None:
             async with reading:
-                results, later, waiting = await self._workers.cpu(_read_local, chunk, now)
-            slow.extend(later)
+                results, waiting = await self._workers.cpu(_read_local, chunk, now)
             if waiting:
                 await self._workers.io(self._db.mark, waiting, WAITING)
             await self._workers.io(self._db.indexed, results)
@@ -480,12 +490,12 @@ class Indexer:
                 except OSError as exc:
                     return name, version, {"kind": kind, "error": f"cannot read {place}: {exc.strerror or exc}"}
 
-        jobs = [read(name, version) for name, _, version in slow] + [read(name, version) for name, _, _, version, _ in others]
+        jobs = [read(name, version) for name, _, _, version, _ in others]
         if jobs:
             await self._workers.io(self._db.indexed, await asyncio.gather(*jobs))
 
     async def _read(self, name: str, root: str, place: str, kind: str) -> dict[str, Any]:
-        """The facts of a log that is not a log folder on disk with its index, opened as a session opens it."""
+        """The facts of a log in a store or of a dataset, opened as a session opens it."""
         from ..providers.static_log import StaticLog
         from .facts import facts, tree_bytes
 
@@ -495,7 +505,7 @@ class Indexer:
         elif root in {store.url for store in self._stores}:
             entry = self._stored.pop(name, None)
         else:
-            entry = Found(name, Path(place), _DISCOVERY_KINDS.get(kind, kind))
+            entry = found_at(name, place, _DISCOVERY_KINDS.get(kind, kind))
         if entry is None:
             raise XVIZError(f"log {name!r} is no longer where it was found: {place}")
         if isinstance(entry, StoredLog):  # its files and their sizes are those of the listing
@@ -511,18 +521,15 @@ class Indexer:
         return facts(kind, opened.format, opened.metadata, opened.index, size, modified)
 
 
-def _read_local(
-    logs: list[tuple[str, str, str]], now: float
-) -> tuple[list[tuple[str, str, dict[str, Any]]], list[tuple[str, str, str]], list[str]]:
-    """Facts of log folders on disk, at ``now``, for a worker process: those read, those to open as sessions do, and those waiting for their index."""
+def _read_local(logs: list[tuple[str, str, str]], now: float) -> tuple[list[tuple[str, str, dict[str, Any]]], list[str]]:
+    """Facts of log folders on disk, at ``now``, for a worker process: those read, and those waiting for their index."""
     from .facts import read_local_log
 
     results: list[tuple[str, str, dict[str, Any]]] = []
-    slow: list[tuple[str, str, str]] = []
     waiting: list[str] = []
     for name, place, version in logs:
         try:
-            found = read_local_log(name, place)
+            found = read_local_log(name, place, unindexed=now - int(version.split(",")[0]) / 1e9 >= SETTLE)
         except XVIZError as exc:
             results.append((name, version, {"kind": LOG, "error": str(exc)}))
             continue
@@ -531,11 +538,9 @@ def _read_local(
             continue
         if found is not None:
             results.append((name, version, found))
-        elif now - int(version.split(",")[0]) / 1e9 < SETTLE:
-            waiting.append(name)
         else:
-            slow.append((name, place, version))
-    return results, slow, waiting
+            waiting.append(name)
+    return results, waiting
 
 
 def _versions_now(page: list[tuple[str, str, str, str]]) -> tuple[list[tuple[str, str, str]], list[str]]:

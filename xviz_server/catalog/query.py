@@ -21,13 +21,13 @@ from __future__ import annotations
 
 import base64
 import binascii
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import orjson
 
 from ..exceptions import QueryError
+from ..params import seconds, single
 from .scan import listed_kinds
 
 __all__ = ["SORTS", "LIMIT", "MAX_LIMIT", "Query", "parse_query"]
@@ -38,6 +38,7 @@ LIMIT = 100
 MAX_LIMIT = 1000
 #: Longest ``q`` and ``stream``, in characters.
 MAX_TEXT = 500
+_INT64 = (-(2**63), 2**63 - 1)
 _NUMBERS = ("from", "to", "min_duration")
 _KNOWN = ("q", "stream", "kind", "from", "to", "min_duration", "sort", "limit", "cursor")
 
@@ -123,26 +124,14 @@ class Query:
 
 def parse_query(parameters: dict[str, list[str]]) -> Query:
     """The query given by URL parameters (each name with its values); raises :class:`~xviz_server.exceptions.QueryError`."""
-    values: dict[str, str] = {}
-    for name in _KNOWN:
-        given = parameters.get(name)
-        if not given:
-            continue
-        if len(given) > 1:
-            raise QueryError(name, "give it at most once")
-        values[name] = given[0]
+    values = single(parameters, _KNOWN)
     for name in ("q", "stream"):
         if name in values and (len(values[name]) > MAX_TEXT or not values[name]):
             raise QueryError(name, f"give from 1 to {MAX_TEXT} characters")
-    numbers: dict[str, float] = {}
-    for name in _NUMBERS:
-        if name in values:
-            try:
-                numbers[name] = float(values[name])
-            except ValueError:
-                numbers[name] = math.nan
-            if not math.isfinite(numbers[name]) or (name == "min_duration" and numbers[name] < 0):
-                raise QueryError(name, f"give a finite number of seconds{', at least 0' if name == 'min_duration' else ''}, not {values[name][:50]!r}")
+    numbers = {
+        name: seconds(name, values[name], at_least=0.0 if name == "min_duration" else None)
+        for name in _NUMBERS if name in values
+    }
     if "from" in numbers and "to" in numbers and numbers["from"] > numbers["to"]:
         raise QueryError("from", f"from ({numbers['from']:g}) is after to ({numbers['to']:g})")
     kinds = tuple(values["kind"].split(",")) if "kind" in values else ()
@@ -178,6 +167,8 @@ def _read_cursor(text: str, sort: str) -> tuple[Any, str]:
         raise QueryError("cursor", "not a cursor this server gave: pass the 'next' of the page before, as it was")
     if decoded[0] == "name" and decoded[1] is not None:
         raise QueryError("cursor", "not a cursor this server gave: pass the 'next' of the page before, as it was")
+    if isinstance(decoded[1], int) and not _INT64[0] <= decoded[1] <= _INT64[1]:  # SQLite's integers are 64-bit
+        raise QueryError("cursor", f"its sort key {str(decoded[1])[:50]} is out of SQLite's 64-bit range: not a cursor this server gave")
     if decoded[0] != sort:
         raise QueryError("cursor", f"this cursor pages a listing sorted by {str(decoded[0])[:50]!r}, not {sort[:50]!r}: give the same sort")
     return decoded[1], decoded[2]

@@ -16,16 +16,19 @@ Every method blocks (for a thread).
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..datasets import FILE_KINDS, KINDS
-from ..layout import FRAME_FILE, INDEX_FILE, LOG, stamp_from, stamp_of
+from ..datasets import FILE_KINDS, KINDS, file_refusal
+from ..layout import FRAME_FILE, INDEX_FILE, LOG, place_of, split_place, stamp_from, stamp_of
 from .db import Row
 
 __all__ = ["LocalScan", "source_kind", "listed_kinds", "version_of"]
+
+logger = logging.getLogger(__name__)
 
 #: Rows handed over at a time by :meth:`LocalScan.walk`.
 BATCH = 1000
@@ -55,8 +58,9 @@ def listed_kinds() -> tuple[str, ...]:
 
 
 def version_of(path: str) -> str | None:
-    """A log's or dataset's version on disk (see :func:`~xviz_server.layout.stamp_of`), ``None`` when it is gone."""
-    stamp = stamp_of(path)
+    """A log's or dataset's version on disk (see :func:`~xviz_server.layout.stamp_of`), ``None`` when it is gone;
+    ``path`` is a place (see :func:`~xviz_server.layout.place_of`)."""
+    stamp = stamp_of(split_place(path)[0])
     return None if stamp is None else ",".join(map(str, stamp))
 
 
@@ -76,10 +80,13 @@ class _Folder:
 class LocalScan:
     """The logs and datasets under ``root``; ``detect`` names a dataset's kind (see :func:`~xviz_server.datasets.detect`)."""
 
-    def __init__(self, root: Path, detect: Callable[[Path], str | None]) -> None:
+    def __init__(
+        self, root: Path, detect: Callable[[Path], str | None], scenes: Callable[[str, Path], list[str]] | None = None,
+    ) -> None:
         self.root = str(root)
         self._name = Path(root).name
         self._detect = detect
+        self._scenes = scenes
         self._folders: dict[str, _Folder] = {}
         self._real: dict[str, str] = {}  # the folders of _folders by real path: a link loop ends
 
@@ -171,7 +178,9 @@ class LocalScan:
                 if kind is not None:
                     version = version_of(path)
                     if version is not None:
-                        yield Row(name, self.root, path, version, source_kind(kind, path))
+                        several = self._scenes(kind, Path(path)) if self._scenes is not None else []
+                        yield from [Row(self._join(name, scene), self.root, place_of(path, (("scene", scene),)), version, kind)
+                                    for scene in several] or [Row(name, self.root, path, version, source_kind(kind, path))]
                     continue
             folder = _Folder(own.st_mtime_ns)
             self._folders[current] = folder
@@ -186,6 +195,8 @@ class LocalScan:
                 if suffix not in FILE_KINDS:
                     continue
                 kind = self._detect(Path(entry.path))
+                if kind is None:
+                    logger.warning("%s: left out of the catalog: %s", entry.path, file_refusal(Path(entry.path)))
                 version = version_of(entry.path) if kind is not None else None
                 if kind is not None and version is not None:
                     folder.children.add(stem)

@@ -23,8 +23,8 @@ if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, 
     from ..codec import Format
 
 __all__ = [
-    "Dataset", "KINDS", "FILE_KINDS", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "detect", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
+    "Dataset", "KINDS", "FILE_KINDS", "SCENE_KINDS", "SCENE", "scenes", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
+    "open_dataset", "require", "detect", "file_refusal", "detect_in_store", "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
 ]
 
 
@@ -57,7 +57,15 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "vista": ("vista", "VistaTrace", "is_vista_trace"),
     "demo": ("demo", "DemoDrive", "is_demo"),
     "rosbag": ("ros", "RosBag", "is_rosbag"),
+    "nuscenes": ("nuscenes", "NuScenesScene", "is_nuscenes"),
+    "argoverse2": ("argoverse2", "Argoverse2Log", "is_argoverse2_log"),
+    "pandaset": ("pandaset", "PandaSetSequence", "is_pandaset_sequence"),
 }
+#: Kinds whose folder may hold several logs (a nuScenes root holds scenes): the function of the kind's module that
+#: names them. Each is served as a log of its own, picked by the option :data:`SCENE`.
+SCENE_KINDS: dict[str, str] = {"nuscenes": "scenes"}
+#: The option that picks one log of a folder of :data:`SCENE_KINDS`.
+SCENE = "scene"
 #: Kinds made up rather than read: their path is only a name.
 GENERATED = frozenset({"demo"})
 #: Camera images of datasets are scaled down to this width by default.
@@ -65,11 +73,11 @@ DEFAULT_IMAGE_WIDTH = 400
 
 
 #: Kinds whose datasets are single files, by file suffix: other files are never datasets.
-FILE_KINDS: dict[str, str] = {".tfrecord": "waymo", ".bag": "rosbag", ".mcap": "rosbag"}
+FILE_KINDS: dict[str, str] = {".tfrecord": "waymo", ".parquet": "waymo", ".bag": "rosbag", ".mcap": "rosbag"}
 #: Kinds read from an object store: one-file datasets (their suffixes in :data:`FILE_KINDS`), and folders of files.
-STORE_KINDS = frozenset({"waymo", "rosbag", "kitti"})
+STORE_KINDS = frozenset({"waymo", "rosbag", "kitti", "argoverse2"})
 #: Kinds of :data:`STORE_KINDS` that are folders.
-STORE_FOLDER_KINDS = ("kitti",)
+STORE_FOLDER_KINDS = ("kitti", "argoverse2")
 #: Files of datasets that are not read from an object store, by suffix: why.
 STORE_REFUSED: dict[str, str] = {
     ".db3": "a ROS 2 bag's SQLite file is read from a local file only: serve the bag from a directory, or convert it to MCAP",
@@ -97,6 +105,30 @@ def open_dataset(kind: str, path: Path | StorePath | StoreTree, **options: Any) 
     return _member(kind, 1)(path, **options)
 
 
+def scenes(kind: str, path: Path) -> list[str]:
+    """The logs a dataset of ``kind`` at ``path`` holds, by name, when it holds several (see :data:`SCENE_KINDS`).
+
+    Empty for other kinds, a folder of one scene, and one whose list does not
+    read (opening it then says why).
+    """
+    if kind not in SCENE_KINDS:
+        return []
+    try:
+        names = getattr(importlib.import_module(f".{KINDS[kind][0]}", __name__), SCENE_KINDS[kind])(path)
+    except DatasetError:
+        return []
+    return list(names) if len(names) > 1 else []
+
+
+def require(module: str, what: str, extra: str) -> Any:
+    """The module ``module``, imported; a :class:`DatasetError` saying which extra installs it when it is missing."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise DatasetError(f"reading {what} needs the package {module.partition('.')[0]!r}: "
+                           f"pip install 'xviz-server[{extra}]'") from None
+
+
 def dataset_options(kind: str) -> frozenset[str]:
     """The options the dataset class of ``kind`` takes besides its path (``image_max_width``, ``config`` ...)."""
     return frozenset(inspect.signature(_member(kind, 1)).parameters) - {"path"}
@@ -117,6 +149,16 @@ def detect(path: Path) -> str | None:
         return next((kind for kind in KINDS if _member(kind, 2)(path)), None)
     kind = FILE_KINDS.get(path.suffix)
     return kind if kind is not None and _member(kind, 2)(path) else None
+
+
+def file_refusal(path: Path) -> str:
+    """Why a file named as a dataset of :data:`FILE_KINDS` is not one (:func:`detect` said so), for the log line
+    that leaves it out; it reads the file's first bytes."""
+    if path.suffix == ".tfrecord":
+        from .waymo.tfrecord import header_problem
+
+        return header_problem(path) or "not a Waymo segment"
+    return f"not a {FILE_KINDS.get(path.suffix, 'dataset')} file: its first bytes are not its format's"
 
 
 #: The most datasets a worker process keeps open (with what each caches), the least recently used closed first.

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..exceptions import DatasetError
-from . import DEFAULT_IMAGE_WIDTH
+from . import DEFAULT_IMAGE_WIDTH, require
 from .images import jpeg
 from .shared import intensity_colors
 
@@ -50,15 +50,6 @@ SPEED_FILES = ("speed.csv", "lexus/pacmod/parsed_tx/vehicle_speed_rpt.csv")
 IMU_FILES = ("imu.csv", "lexus/oxts/imu/data.csv")
 STEP = 0.01  # seconds, at most, between two steps of the bicycle model
 TRAJECTORY_SECONDS = 5.0
-
-
-def _require_extra(module: str) -> Any:
-    try:
-        return __import__(module)
-    except ImportError:
-        raise DatasetError(
-            f"reading VISTA traces needs the package {module!r}: pip install 'xviz-server[vista]'"
-        ) from None
 
 
 def _numbers(path: Path) -> np.ndarray:
@@ -119,7 +110,7 @@ class _VideoReader:
     """Decodes one video file forward, frame by frame."""
 
     def __init__(self, path: Path) -> None:
-        av = _require_extra("av")
+        av = require("av", "VISTA traces", "vista")
         self.path = path
         self._errors = (OSError, av.error.FFmpegError)
         try:
@@ -244,7 +235,7 @@ class VistaTrace:
 
     def sweep(self, lidar: str, number: int) -> tuple[np.ndarray, np.ndarray]:
         """Sweep ``number`` of a lidar: xyz float32 (N, 3) and intensity (N,), padding removed."""
-        h5py = _require_extra("h5py")
+        h5py = require("h5py", "VISTA traces", "vista")
         path = self.path / f"{lidar}.h5"
         try:
             with h5py.File(path, "r") as file:

@@ -3,8 +3,12 @@
 ``GET /api/logs/NAME/export?start=S&end=E&format=mcap`` answers with an
 indexed, chunked MCAP file (zstd) holding the same channels that a Foxglove
 client of the log is offered, and the messages of every frame that starts in
-``[S, E]`` (seconds, the log's own times; either may be left out), each with
-its XVIZ time as log and publish time. Foxglove and Lichtblick open it
+``[S, E]``, each with its XVIZ time as log and publish time. ``S`` and ``E``
+are read as ``xviz-server probe`` reads its times (see
+:class:`~xviz_server.probe.Instant`): seconds in the log's own times, or
+``+seconds`` after the log's start (its metadata's ``start_time``); either
+may be left out. A range in which no frame starts (a time outside the log)
+is refused with the log's span, never answered with an empty clip. Foxglove and Lichtblick open it
 offline. The frames' messages come from the frame cache, converted once as
 for a Foxglove session; a log read from a ROS bag or MCAP file has its
 original topics too, each message of a frame's span unchanged.
@@ -24,77 +28,137 @@ writer), in a thread.
 
 from __future__ import annotations
 
-import math
-from collections.abc import AsyncGenerator, Mapping
+import logging
+from collections.abc import AsyncGenerator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import IO, cast
 from urllib.parse import unquote
 
+import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from ..exceptions import ExportError
+from ..exceptions import ExportError, XVIZError
 from ..logs import Log
+from ..params import SHOWN, seconds, single
+from ..probe.report import Instant
 from ..work import Workers
 from .convert import Plan
 from .frame import Message, frame_messages
 
-__all__ = ["FORMATS", "CHUNK_BYTES", "ExportRange", "export_path", "parse_range", "export"]
+__all__ = ["FORMATS", "CHUNK_BYTES", "CUT_SHORT", "ExportRange", "export_path", "log_path", "parse_range", "first_error", "export"]
+
+logger = logging.getLogger(__name__)
 
 _PREFIX, _SUFFIX = "/api/logs/", "/export"
 
+#: The name of the metadata record of a clip that ends early: ``{"frame": N, "error": TEXT}``.
+CUT_SHORT = "xviz-server.cut-short"
 #: The formats ``format=`` may name.
 FORMATS = ("mcap",)
 
 
 @dataclass(frozen=True)
 class ExportRange:
-    """The part of a log to export: frames starting in ``[start, end]`` seconds (``None``: the log's bound)."""
+    """The part of a log to export: frames starting in ``[start, end]`` (``None``: the log's bound)."""
 
-    start: float | None
-    end: float | None
+    start: Instant | None
+    end: Instant | None
+
+    def frames(self, log: Log) -> np.ndarray:
+        """The positions in ``log.index`` of the frames of the range, in order.
+
+        Raises :class:`ExportError` saying the log's span when a bound is
+        given and no frame starts in the range.
+        """
+        index = log.index
+        begins = (log.metadata.get("log_info") or {}).get("start_time")
+        try:
+            start, end = (None if bound is None else bound.resolve(begins) for bound in (self.start, self.end))
+        except ValueError as exc:
+            raise ExportError("start" if self.start is not None and self.start.relative else "end", str(exc)) from None
+        if start is not None and end is not None and start > end:
+            raise ExportError("start", f"start={self.start} is after end={self.end}")
+        positions = index.range(start, end)
+        if start is not None:  # frames that start in the range, not those that only overlap it
+            positions = positions[index.start[positions] >= start]
+        if not len(positions) and (start is not None or end is not None):
+            asked = f"[{_shown(self.start, 'its start')}, {_shown(self.end, 'its end')}]"
+            where = "start" if start is not None else "end"
+            raise ExportError(where, f"no frame of log {log.name!r} starts in {asked}: {_span(log, begins)}")
+        return positions
+
+
+def _shown(bound: Instant | None, otherwise: str) -> str:
+    return otherwise if bound is None else str(bound)
+
+
+def _span(log: Log, begins: float | None) -> str:
+    """The frame times of ``log``, absolute and after its start, as an error tells them."""
+    if not len(log.index):
+        return "it has no frames"
+    first, last = float(log.index.start.min()), float(log.index.start.max())
+    after = "" if begins is None else f" ({first - begins:+.6g} to {last - begins:+.6g} s after its start)"
+    return f"its frames start from {first!r} to {last!r} s{after}; give seconds in that span, or +seconds after the start"
+
+
+def log_path(path: str, suffix: str) -> str | None:
+    """The log a URL path ``/api/logs/NAME`` + ``suffix`` (percent-decoded) names, or ``None``."""
+    if not (path.startswith(_PREFIX) and path.endswith(suffix)) or len(path) <= len(_PREFIX) + len(suffix):
+        return None
+    return unquote(path[len(_PREFIX):-len(suffix)])
 
 
 def export_path(path: str) -> str | None:
     """The log an export URL path (``/api/logs/NAME/export``, percent-decoded) names, or ``None``."""
-    if not (path.startswith(_PREFIX) and path.endswith(_SUFFIX)) or len(path) <= len(_PREFIX) + len(_SUFFIX):
-        return None
-    return unquote(path[len(_PREFIX):-len(_SUFFIX)])
+    return log_path(path, _SUFFIX)
 
 
-def parse_range(query: Mapping[str, str]) -> ExportRange:
-    """``start``, ``end`` and ``format`` from a query; raises :class:`ExportError` naming a bad one."""
-    fmt = query.get("format", "mcap")
+def parse_range(parameters: Mapping[str, Sequence[str]]) -> ExportRange:
+    """``start``, ``end`` and ``format`` from a query's parameters (each name with its values), read by
+    :mod:`xviz_server.params`; raises :class:`~xviz_server.exceptions.QueryError` naming a bad one.
+
+    ``start`` and ``end`` are seconds, or ``+seconds`` after the log's start (a
+    ``+`` in the query must reach here as such, not as a space).
+    """
+    values = single(parameters, ("start", "end", "format"))
+    fmt = values.get("format", "mcap")
     if fmt not in FORMATS:
-        raise ExportError(f"format={fmt!r}: this server exports {', '.join(FORMATS)}")
-    bounds: dict[str, float | None] = {}
-    for key in ("start", "end"):
-        text = query.get(key)
-        try:
-            bounds[key] = None if text in (None, "") else float(text)
-        except ValueError:
-            raise ExportError(f"{key}={text!r} is not a number of seconds") from None
-        value = bounds[key]
-        if value is not None and not math.isfinite(value):
-            raise ExportError(f"{key}={text!r} is not a finite number of seconds")
-    start, end = bounds["start"], bounds["end"]
-    if start is not None and end is not None and start > end:
-        raise ExportError(f"start={start} is after end={end}")
+        raise ExportError("format", f"format={fmt[:SHOWN]!r}: this server exports {', '.join(FORMATS)}")
+    start, end = (_instant(key, values[key]) if values.get(key) else None for key in ("start", "end"))
     return ExportRange(start, end)
+
+
+def _instant(name: str, text: str) -> Instant:
+    """The time ``text`` of parameter ``name``: seconds, or ``+seconds`` after the log's start."""
+    relative = text.startswith("+")
+    return Instant(seconds(name, text[1:] if relative else text), relative=relative)
 
 
 #: Bytes of messages an MCAP chunk holds before it is compressed and sent (the writer's default).
 CHUNK_BYTES = 1 << 20
 
 
-async def export(log: Log, plan: Plan, span: ExportRange, workers: Workers) -> AsyncGenerator[bytes, None]:
-    """The MCAP file of ``span`` of ``log``, in pieces as they are written.
+async def first_error(log: Log, plan: Plan, positions: np.ndarray) -> XVIZError | None:
+    """Why the first of the frames at ``positions`` cannot be read or converted, if it cannot: the export is then
+    refused before its head is sent. Its messages stay in the frame cache for :func:`export`."""
+    if not len(positions):
+        return None
+    _, errors = await frame_messages(log, plan, int(log.index.frames[positions[0]]))
+    return errors[0] if errors else None
 
-    A frame that cannot be read or converted raises its
-    :class:`~xviz_server.exceptions.XVIZError` (the file is then cut short).
+
+async def export(
+    log: Log, plan: Plan, positions: np.ndarray, workers: Workers, *, strict: bool = False
+) -> AsyncGenerator[bytes, None]:
+    """The MCAP file of the frames at ``positions`` of ``log.index`` (see :meth:`ExportRange.frames`), in pieces as they
+    are written.
+
+    A frame that cannot be read or converted ends the clip before it: the
+    file is finished there (summary and footer, readable), with a metadata
+    record named :data:`CUT_SHORT` that names the frame and the error, and a
+    warning is logged. With ``strict`` (a file kept for later requests) it
+    raises the frame's :class:`~xviz_server.exceptions.XVIZError` instead.
     """
-    positions = log.index.range(span.start, span.end)
-    if span.start is not None:  # frames that start in the range, not those that only overlap it
-        positions = positions[log.index.start[positions] >= span.start]
     out = _Pieces()
     writer = Writer(cast(IO[bytes], out), chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
     writer.start(profile="", library="xviz-server")
@@ -103,8 +167,12 @@ async def export(log: Log, plan: Plan, span: ExportRange, workers: Workers) -> A
     sequence = 0
     for number in log.index.frames[positions].tolist():
         messages, errors = await frame_messages(log, plan, number)
-        if errors:
+        if errors and strict:
             raise errors[0]
+        if errors:
+            logger.warning("the export of log %r ends before frame %d, which cannot be read: %s", log.name, number, errors[0])
+            writer.add_metadata(CUT_SHORT, {"frame": str(number), "error": str(errors[0])})
+            break
         sequence = await workers.io(_add, writer, channels, messages, sequence)
         yield out.take()
     writer.add_metadata("xviz", {"log": log.name})

@@ -36,6 +36,7 @@ from typing import Any, Protocol, TypeGuard
 
 from websockets.frames import CloseCode
 
+from ..budget import MAX_ITEMS, Problems, shown, too_many
 from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
 from ..events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
 from .convert import Channel
@@ -318,7 +319,7 @@ class FoxgloveSession:
             return self._on_unsubscribe(message.get("subscriptionIds"))
         if op in _UNOFFERED:
             raise FoxgloveProtocolError(f"{op!r} is not offered by this server (its capability is not in serverInfo)")
-        raise FoxgloveProtocolError(f"unknown op {op!r}")
+        raise FoxgloveProtocolError(f"unknown op {shown(op)}")
 
     def _on_binary(self, data: bytes) -> list[Event]:
         if not data:
@@ -334,23 +335,27 @@ class FoxgloveSession:
     def _on_subscribe(self, subscriptions: Any) -> list[Event]:
         if not isinstance(subscriptions, list):
             raise FoxgloveProtocolError("subscribe: 'subscriptions' must be a list of {id, channelId}")
+        _check_count("subscribe", subscriptions)
         events: list[Event] = []
+        problems = Problems()
         added: set[int] = set()
         for item in subscriptions:
             sid = item.get("id") if isinstance(item, dict) else None
             cid = item.get("channelId") if isinstance(item, dict) else None
             if not _uint32(sid) or not _uint32(cid):
-                events.append(self._status(ERROR, f"subscribe: {item!r} is not {{id, channelId}} with unsigned 32-bit integers", kind="invalid"))
+                problems.add(f"{shown(item)} is not {{id, channelId}} with unsigned 32-bit integers")
             elif cid not in self._channels:
-                events.append(self._status(ERROR, f"subscribe: no channel {cid}{self._where()}", kind="invalid"))
+                problems.add(f"no channel {cid}{self._where()}")
             elif sid in self._subscriptions:
-                events.append(self._status(ERROR, f"subscribe: subscription id {sid} is in use (channel {self._subscriptions[sid]})", kind="invalid"))
+                problems.add(f"subscription id {sid} is in use (channel {self._subscriptions[sid]})")
             elif cid in self._by_channel:
-                events.append(self._status(ERROR, f"subscribe: channel {cid} is subscribed already (subscription {self._by_channel[cid]})", kind="invalid"))
+                problems.add(f"channel {cid} is subscribed already (subscription {self._by_channel[cid]})")
             else:
                 self._subscriptions[sid] = cid
                 self._by_channel[cid] = sid
                 added.add(cid)
+        if (summary := problems.summary("subscribe", len(subscriptions))) is not None:
+            events.append(self._status(ERROR, summary, kind="invalid"))
         if self._subscriptions and not self._started and self.log is not None:
             self._started = self.playing = True
             events.append(self._play(self.position))
@@ -362,14 +367,16 @@ class FoxgloveSession:
     def _on_unsubscribe(self, ids: Any) -> list[Event]:
         if not isinstance(ids, list):
             raise FoxgloveProtocolError("unsubscribe: 'subscriptionIds' must be a list")
-        events: list[Event] = []
+        _check_count("unsubscribe", ids)
+        problems = Problems()
         for sid in ids:
             cid = self._subscriptions.pop(sid, None) if _uint32(sid) else None
             if cid is None:
-                events.append(self._status(WARNING, f"unsubscribe: no subscription {sid!r}", kind="invalid"))
+                problems.add(f"no subscription {shown(sid)}")
             else:
                 del self._by_channel[cid]
-        return events
+        summary = problems.summary("unsubscribe", len(ids))
+        return [] if summary is None else [self._status(WARNING, summary, kind="invalid")]
 
     def _on_playback_control(self, request: PlaybackControl) -> list[Event]:
         self._controlled = True
@@ -442,6 +449,12 @@ class FoxgloveSession:
         if self.feed is not None:
             return f" in live feed {self.feed!r}"
         return f" in log {self.log.name!r}" if self.log is not None else ""
+
+
+def _check_count(op: str, items: list[Any]) -> None:
+    """Refuse a list of more items than a message may hold (see :mod:`xviz_server.budget`), before any is looked at."""
+    if too_many(items):
+        raise FoxgloveProtocolError(f"{op}: {len(items)} items, more than the {MAX_ITEMS} one message may hold: refused whole")
 
 
 def _uint32(value: Any) -> TypeGuard[int]:

@@ -51,7 +51,7 @@ import numpy as np
 from ...exceptions import DatasetError, StoreError
 from ...records import OriginalTopic
 from ...storepath import RangedFile, StorePath, data_path
-from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, BoundedReader, check_declared, unpack, unpack_unsized, zstd_module
+from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, MAX_FRAME_BYTES, BoundedReader, check_declared, unpack, unpack_unsized, zstd_module
 
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
@@ -272,6 +272,34 @@ class Bag:
             raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path)
         return found
 
+    def declared(self, topic: str, first: int, last: int) -> dict[tuple[Any, ...], int]:
+        """What reading messages ``[first, last)`` of ``topic`` unpacks, read from the index alone: each part that
+        holds them (a chunk, a ROS 2 sqlite3 row) with the bytes it declares. A part read through rosbags that
+        declares nothing (an MCAP file without a summary, a ROS 2 message compressed on its own) counts its
+        stored bytes where they are known, else nothing."""
+        info = self.topics[topic]
+        if last <= first:
+            return {}
+        if info.places is not None:
+            from .reindex import MemoryIndexedReader
+
+            parts: dict[tuple[Any, ...], int] = {}
+            for storage, chunk in {(int(s), int(c)) for s, c in info.places[first:last, :2].tolist()}:
+                owner = self._storages[storage]
+                size = owner.declared.get(chunk, 0) if isinstance(owner, MemoryIndexedReader) else owner.chunks[chunk].uncompressed_size
+                parts[(storage, chunk)] = int(size)
+            return parts
+        owners = [c.owner for c in info.connections]
+        if len(owners) != 1 or type(owners[0]).__name__ != "Sqlite3Reader":
+            return {}
+        start, stop = int(info.times[first]), int(info.times[last - 1]) + 1
+        with self._lock:
+            rows = owners[0].dbconn.execute(
+                "SELECT id, length(data) FROM messages WHERE topic_id = ? AND timestamp >= ? AND timestamp < ?",
+                (info.connections[0].id, start, stop),
+            ).fetchall()
+        return {(topic, row): int(size) for row, size in rows}
+
     def message(self, topic: str, index: int) -> tuple[int, Any]:
         """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
         info = self.topics[topic]
@@ -396,8 +424,9 @@ class _BoundedZstd:
 
     @staticmethod
     def decompress(data: bytes) -> bytes:
-        """A message compressed on its own: at most :data:`~xviz_server.unpack.MAX_CHUNK_BYTES` unpacked."""
-        return unpack_unsized(data, "zstd", "a ROS 2 bag's message compressed with zstd")
+        """A message compressed on its own: at most :data:`~xviz_server.unpack.MAX_FRAME_BYTES` unpacked (more
+        than one frame may take; its stored size declares nothing)."""
+        return unpack_unsized(data, "zstd", "a ROS 2 bag's message compressed with zstd", MAX_FRAME_BYTES)
 
     @staticmethod
     def open(file: Any, mode: str = "rb") -> BoundedReader:

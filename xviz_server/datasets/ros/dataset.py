@@ -35,10 +35,10 @@ from typing import Any
 import numpy as np
 
 from ...builder import FrameBuilder, MetadataBuilder, ui
-from ...exceptions import DatasetError, OversizeError
+from ...exceptions import DatasetError, FrameSizeError, OversizeError
 from ...records import RECORD_BYTES, OriginalTopic, pack
 from ...storepath import StorePath, data_path
-from ...unpack import MAX_CHUNK_BYTES
+from ...unpack import MAX_FRAME_BYTES, size_text
 from .. import DEFAULT_IMAGE_WIDTH
 from .bag import Bag, is_rosbag
 from .config import RosConfig, load_config
@@ -190,6 +190,14 @@ class RosBag:
         return frame_name(self._first(clouds[0]).header.frame_id)
 
     def _first(self, topic: str) -> Any:
+        """The first message of ``topic`` (its frame id is the topic's), refused unread if it alone is over the frame budget."""
+        total = sum(self.bag.declared(topic, 0, 1).values())
+        if total > MAX_FRAME_BYTES:
+            raise FrameSizeError(
+                f"{self.path}: topic {topic}: its first message would unpack {size_text(total)}, more than the limit of "
+                f"{size_text(MAX_FRAME_BYTES)} for one frame: refused unread",
+                size=total, limit=MAX_FRAME_BYTES, frame=0, path=self.path,
+            )
         return self.bag.message(topic, 0)[1]
 
     @cached_property
@@ -262,28 +270,72 @@ class RosBag:
         them, in time order, packed (:func:`~xviz_server.records.pack`; a record's channel is its topic's place
         in :attr:`originals`). The first frame also has every message before its tick, the last every one after.
 
-        Raises :class:`~xviz_server.exceptions.OversizeError` when they pass
-        :data:`~xviz_server.unpack.MAX_CHUNK_BYTES`, and
+        Raises :class:`~xviz_server.exceptions.FrameSizeError` when the frame
+        would unpack more than :data:`~xviz_server.unpack.MAX_FRAME_BYTES`
+        (see :meth:`frame_parts`), :class:`~xviz_server.exceptions.OversizeError`
+        when its messages pass it as they are read, and
         :class:`~xviz_server.exceptions.DatasetError` when they are more than
         :data:`MAX_FRAME_MESSAGES` or a message cannot be read.
         """
-        start = int(self.clock[frame]) if frame > 0 else None
-        stop = int(self.clock[frame + 1]) if frame + 1 < len(self.clock) else None
+        self._check_frame(frame)
+        start, stop = self._span(frame)
         found: list[tuple[int, int, bytes | memoryview]] = []
         size = 0
         for number, original in enumerate(self.originals):
             for time, _, data in self.bag.serialized(original.topic, start, stop):
                 size += RECORD_BYTES + len(data)
-                if size > MAX_CHUNK_BYTES:
+                if size > MAX_FRAME_BYTES:
                     raise OversizeError(
-                        f"{self.path}: frame {frame}: its original messages pass {MAX_CHUNK_BYTES} bytes (at {original.topic})",
-                        size=size, limit=MAX_CHUNK_BYTES, path=self.path,
+                        f"{self.path}: frame {frame}: its original messages pass {MAX_FRAME_BYTES} bytes (at {original.topic})",
+                        size=size, limit=MAX_FRAME_BYTES, path=self.path,
                     )
                 found.append((number, time, data))
                 if len(found) > MAX_FRAME_MESSAGES:
                     raise DatasetError(f"{self.path}: frame {frame}: more than {MAX_FRAME_MESSAGES} original messages", path=self.path)
         found.sort(key=lambda record: (record[1], record[0]))
         return pack(found)
+
+    def _span(self, frame: int) -> tuple[int | None, int | None]:
+        """The record times of ``frame``'s original messages, ``[start, stop)`` ns (``None``: unbounded)."""
+        start = int(self.clock[frame]) if frame > 0 else None
+        stop = int(self.clock[frame + 1]) if frame + 1 < len(self.clock) else None
+        return start, stop
+
+    def frame_parts(self, frame: int) -> dict[tuple[Any, ...], int]:
+        """The parts of the file (chunks, rows) that serving ``frame`` reads, each with the bytes it declares
+        unpacked, from the bag's index alone: those of the latest message of each mapped topic (every marker
+        message of the staleness window) and those of its original messages (:meth:`original_messages`)."""
+        t = int(self.clock[frame])
+        parts: dict[tuple[Any, ...], int] = {}
+        for mapping in self.mappings:
+            if mapping.stream is None:
+                continue
+            info = self.bag.topics[mapping.topic]
+            if mapping.role == "markers":
+                first, last = np.searchsorted(info.times, [t - self._staleness, t + 1], side="left").tolist()
+            else:
+                index = info.at_or_before(t)
+                if index < 0 or t - int(info.times[index]) > self._staleness:
+                    continue
+                first, last = index, index + 1
+            parts.update(self.bag.declared(mapping.topic, first, last))
+        start, stop = self._span(frame)
+        for original in self.originals:
+            times = self.bag.topics[original.topic].times
+            first = 0 if start is None else int(np.searchsorted(times, start, side="left"))
+            last = len(times) if stop is None else int(np.searchsorted(times, stop, side="left"))
+            parts.update(self.bag.declared(original.topic, first, last))
+        return parts
+
+    def _check_frame(self, frame: int) -> None:
+        """Refuse ``frame`` unread if its parts declare more than :data:`~xviz_server.unpack.MAX_FRAME_BYTES` in all."""
+        total = sum(self.frame_parts(frame).values())
+        if total > MAX_FRAME_BYTES:
+            raise FrameSizeError(
+                f"{self.path}: frame {frame}: its messages and images would unpack {size_text(total)}, more than the "
+                f"limit of {size_text(MAX_FRAME_BYTES)} for one frame: refused unread",
+                size=total, limit=MAX_FRAME_BYTES, frame=frame, path=self.path,
+            )
 
     # -- XVIZ ---------------------------------------------------------------
 
@@ -325,7 +377,9 @@ class RosBag:
         return meta.build()
 
     def convert(self, frame: int, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
-        """The state update of ``frame`` (the data of an ``xviz/state_update``)."""
+        """The state update of ``frame`` (the data of an ``xviz/state_update``); raises
+        :class:`~xviz_server.exceptions.FrameSizeError` for a frame over the budget (see :meth:`frame_parts`)."""
+        self._check_frame(frame)
         metadata = metadata or self.metadata()
         builder = FrameBuilder(metadata)
         t = int(self.clock[frame])

@@ -88,6 +88,8 @@ class MemoryIndexedReader(Reader):
 
     def __init__(self, path: Any) -> None:
         super().__init__(path)
+        #: What each chunk (by its byte position) declares it unpacks to.
+        self.declared: dict[int, int] = {}
         if isinstance(self.path, Path):  # an object in a store reads only what it has (RangedFile)
             self.path = _CappedPath(self.path)
 
@@ -136,6 +138,7 @@ class MemoryIndexedReader(Reader):
         where = f"{self.path}: chunk at byte {position}"
         declared = header.get_uint32("size")
         check_declared(declared, where)
+        self.declared[position] = declared
         return partial(unpack, compression=compression, declared=declared, where=where)
 
     def _prefetch_index(self, bio: RangedFile) -> None:

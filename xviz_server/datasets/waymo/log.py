@@ -8,8 +8,8 @@ frames: :class:`~xviz_server.datasets.waymo.npz.WaymoSegment` and
 
 from __future__ import annotations
 
-import abc
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -17,12 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from ...builder import FrameBuilder, MetadataBuilder, ui
+from ...builder import FrameBuilder, MetadataBuilder
 from ...exceptions import DatasetError
 from ...storepath import StorePath
-from ..shared import footprints, intensity_colors, pose_angles
+from ..sensors import DriveLog, declare_boxes, declare_cameras, draw_boxes, posed
+from ..shared import intensity_colors
 
-__all__ = ["LIDARS", "CAMERAS", "TYPES", "TYPE_COLORS", "SUFFIX", "WaymoFrame", "WaymoLog"]
+__all__ = ["LIDARS", "CAMERAS", "TYPES", "TYPE_COLORS", "SUFFIX", "WaymoFrame", "WaymoLog", "ScaledImages"]
 
 LIDARS = ("TOP", "FRONT", "SIDE_LEFT", "SIDE_RIGHT", "REAR")
 CAMERAS = ("FRONT", "FRONT_LEFT", "FRONT_RIGHT", "SIDE_LEFT", "SIDE_RIGHT")
@@ -53,24 +54,10 @@ class WaymoFrame:
     ids: Sequence[str]
 
 
-class WaymoLog(abc.ABC):
-    """A segment of either layout: metadata and state updates from its :class:`WaymoFrame` s."""
+class WaymoLog(DriveLog[WaymoFrame]):
+    """A segment of any layout: metadata and state updates from its :class:`WaymoFrame` s."""
 
-    path: Path | StorePath
-    name: str
     image_max_width: int
-
-    @property
-    @abc.abstractmethod
-    def times(self) -> np.ndarray:
-        """Frame times in seconds, without converting a frame."""
-
-    def __len__(self) -> int:
-        return len(self.times)
-
-    @abc.abstractmethod
-    def read(self, index: int) -> WaymoFrame:
-        """Frame ``index``; raises :class:`DatasetError` naming the file (and record) at fault."""
 
     @cached_property
     def _first(self) -> WaymoFrame:
@@ -91,23 +78,15 @@ class WaymoLog(abc.ABC):
         meta.primitive("/lidar/points", "POINT", coordinate="VEHICLE_RELATIVE", style={"radius_pixels": 1})
         meta.primitive("/lidar/no_label_zone", "POINT", coordinate="VEHICLE_RELATIVE",
                        style={"radius_pixels": 1, "fill_color": "#80808080"})
-        classes = {name: {"fill_color": color + "80", "stroke_color": color} for name, color in TYPE_COLORS.items()}
-        meta.primitive("/objects/boxes", "POLYGON", coordinate="VEHICLE_RELATIVE",
-                       style={"extruded": True, "fill_color": "#00000080"}, style_classes=classes)
-        meta.primitive("/objects/label", "TEXT", coordinate="VEHICLE_RELATIVE", style={"text_size": 14, "fill_color": "#DCDCCD"})
-        cameras = [c for c in CAMERAS if c in self._first.images]
-        for camera in cameras:
-            meta.primitive(f"/camera/{camera.lower()}", "IMAGE")
-        if cameras:
-            meta.ui_panel(ui.panel("Cameras", ui.video([f"/camera/{c.lower()}" for c in cameras])))
+        declare_boxes(meta, TYPE_COLORS)
+        declare_cameras(meta, [c for c in CAMERAS if c in self._first.images])
         return meta.build()
 
     def convert(self, index: int, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
         """The state update of frame ``index``."""
         metadata = metadata or self.metadata()
         frame = self.read(index)
-        builder = FrameBuilder(metadata)
-        builder.pose("/vehicle_pose", frame.time, position=frame.pose[:3, 3].tolist(), orientation=pose_angles(frame.pose[:3, :3]))
+        builder = posed(metadata, frame.time, frame.pose)
         points, intensity = frame.points, frame.intensity
         if frame.in_zone.any():
             builder.points("/lidar/no_label_zone", points[frame.in_zone])
@@ -123,14 +102,30 @@ class WaymoLog(abc.ABC):
 
     @staticmethod
     def _labels(builder: FrameBuilder, frame: WaymoFrame) -> None:
-        boxes = frame.boxes
-        if not len(boxes):
-            return
-        bottoms = boxes[:, :3] - np.stack([np.zeros(len(boxes)), np.zeros(len(boxes)), boxes[:, 5] / 2], axis=1)
-        corners = footprints(bottoms, boxes[:, 6], boxes[:, 3], boxes[:, 4])
-        for box, kind, object_id, polygon in zip(boxes, frame.types, frame.ids, corners):
-            name = TYPES.get(int(kind), "Unknown")
-            # The height is the box's own; the schema wants a colour beside it: the class's outline.
-            style = {"stroke_color": TYPE_COLORS[name], "height": float(box[5])}
-            builder.polygon("/objects/boxes", polygon, id=str(object_id), classes=[name], style=style)
-            builder.text("/objects/label", box[:3] + [0, 0, box[5] / 2 + 0.5], f"{name} {object_id}", id=str(object_id))
+        names = [TYPES.get(int(kind), "Unknown") for kind in frame.types]
+        draw_boxes(builder, frame.boxes, names, [TYPE_COLORS[name] for name in names], frame.ids,
+                   [f"{name} {object_id}" for name, object_id in zip(names, frame.ids)])
+
+
+class ScaledImages(Mapping[str, bytes]):
+    """A frame's camera images while they are scaled: the cameras at once, an image when it is done.
+
+    Getting an image whose scaling failed raises
+    :class:`~xviz_server.exceptions.DatasetError` naming the record and the
+    camera.
+    """
+
+    def __init__(self, scaling: dict[str, Future[bytes]], where: str, path: object) -> None:
+        self._scaling, self._where, self._path = scaling, where, path
+
+    def __getitem__(self, camera: str) -> bytes:
+        try:
+            return self._scaling[camera].result()
+        except DatasetError as exc:
+            raise DatasetError(f"{self._where}: camera {camera}: {exc}", path=self._path) from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._scaling)
+
+    def __len__(self) -> int:
+        return len(self._scaling)

@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["row_inclinations", "column_azimuths", "ray_directions", "frame_rays"]
+__all__ = ["row_inclinations", "column_azimuths", "ray_directions", "frame_rays", "calibration_rays", "range_points", "join_points"]
 
 
 def row_inclinations(beams: Sequence[float], low: float, high: float, height: int) -> np.ndarray:
@@ -92,3 +92,48 @@ def frame_rays(
     else:
         turned = np.einsum("nij,nj->ni", rotations, directions, optimize=True)
     return turned, origins, len(origins)
+
+
+def calibration_rays(
+    extrinsic: np.ndarray, beams: Sequence[float], low: float, high: float, height: int, width: int, where: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(H * W, 3) pixel directions in the vehicle frame and the lidar's position, from a lidar's calibration.
+
+    ``extrinsic`` is the (4, 4) lidar-to-vehicle transform; ``beams`` the
+    listed beam inclinations (lowest first, or empty for uniform beams
+    between ``low`` and ``high``). Raises :class:`ValueError` naming
+    ``where`` when the beams do not fit the range image's rows.
+    """
+    if len(beams) not in (0, height):
+        raise ValueError(f"{where}: {len(beams)} beam inclinations for {height} rows")
+    inclinations = row_inclinations(beams, low, high, height)
+    directions = ray_directions(inclinations, column_azimuths(extrinsic, width), extrinsic[:3, :3])
+    return directions.reshape(-1, 3), extrinsic[:3, 3].astype(np.float32)
+
+
+def range_points(
+    directions: np.ndarray, origins: np.ndarray, period: int, returns: Sequence[np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points of a lidar's returns: (N, 3) float32 in the vehicle frame, (N,) intensities, (N,) no-label-zone flags.
+
+    ``returns`` are range images (H, W, >= 4: range, intensity, elongation,
+    in no-label zone) sharing the pixels' ``directions`` (H * W, 3) and
+    ``origins`` (K, 3), pixel ``n`` starting at ``origins[n % period]`` (see
+    :func:`frame_rays`). Returns with range <= 0 are left out.
+    """
+    parts = []
+    for image in returns:
+        channels = image.reshape(-1, image.shape[2])
+        valid = np.flatnonzero(channels[:, 0] > 0)
+        xyz = directions.take(valid, axis=0)  # take: a few times faster than fancy indexing
+        xyz *= channels[:, 0].take(valid)[:, None]
+        xyz += origins[0] if period == 1 else origins.take(valid % period, axis=0)
+        parts.append((xyz, channels[:, 1].take(valid), channels[:, 3].take(valid) > 0))
+    return join_points(parts)
+
+
+def join_points(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points, intensities and flags of several :func:`range_points` as one of each (empty if none)."""
+    if not parts:
+        return np.zeros((0, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, dtype=bool)
+    return tuple(np.concatenate(arrays) for arrays in zip(*parts))  # type: ignore[return-value]

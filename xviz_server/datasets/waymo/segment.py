@@ -32,7 +32,6 @@ Decompressing a matrix is bounded: a range image larger than
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator, Mapping
 from concurrent.futures import Future
 from functools import cached_property
 from pathlib import Path
@@ -46,8 +45,8 @@ from ...storepath import StorePath, data_path
 from .. import DEFAULT_IMAGE_WIDTH, threads
 from ..images import scale_jpegs
 from . import frame_pb2 as pb
-from .log import LIDARS, SUFFIX, WaymoFrame, WaymoLog
-from .range_images import column_azimuths, frame_rays, ray_directions, row_inclinations
+from .log import LIDARS, SUFFIX, ScaledImages, WaymoFrame, WaymoLog
+from .range_images import calibration_rays, frame_rays, join_points, range_points
 from .tfrecord import RecordFile, is_tfrecord
 
 __all__ = ["WaymoRecordSegment", "MAX_MATRIX_BYTES"]
@@ -181,14 +180,14 @@ class WaymoRecordSegment(WaymoLog):
         ).reshape(-1, 7)
         types = np.array([label.type for label in frame.laser_labels], dtype=int)
         ids = [label.id for label in frame.laser_labels]
-        images = _ScaledImages(scaling, where, self.path)
+        images = ScaledImages(scaling, where, self.path)
         return WaymoFrame(frame.timestamp_micros / 1e6, pose, points, intensity, in_zone, images, boxes, types, ids)
 
     def _lidar(
         self, frame: pb.Frame, pose: np.ndarray, matrices: dict[tuple[int, str], Future[np.ndarray]], where: str
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         calibrations = {c.name: c for c in frame.context.laser_calibrations}
-        points, intensity, zones = [], [], []
+        lidar_points = []
         for laser in sorted(frame.lasers, key=lambda laser: laser.name):
             if not laser.ri_return1.range_image_compressed:
                 continue
@@ -210,18 +209,8 @@ class WaymoRecordSegment(WaymoLog):
                 if pixel_pose.shape[:2] != (height, width):
                     raise DatasetError(f"{where}: laser {lidar}: pixel pose is {pixel_pose.shape[:2]}, range image {height, width}", path=self.path)
                 directions, origins, period = frame_rays(directions, translation, pixel_pose[..., :6], pose)
-            for image in returns:
-                channels = image.reshape(-1, image.shape[2])
-                valid = np.flatnonzero(channels[:, 0] > 0)
-                xyz = directions.take(valid, axis=0)  # take: a few times faster than fancy indexing
-                xyz *= channels[:, 0].take(valid)[:, None]
-                xyz += origins[0] if period == 1 else origins.take(valid % period, axis=0)
-                points.append(xyz)
-                intensity.append(channels[:, 1].take(valid))
-                zones.append(channels[:, 3].take(valid) > 0)
-        if not points:
-            return np.zeros((0, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, dtype=bool)
-        return np.concatenate(points), np.concatenate(intensity), np.concatenate(zones)
+            lidar_points.append(range_points(directions, origins, period, returns))
+        return join_points(lidar_points)
 
     def _inflate_all(self, frame: pb.Frame, where: str) -> dict[tuple[int, str], Future[np.ndarray]]:
         """Start decoding every range image and pixel pose of ``frame``, side by side (see :mod:`xviz_server.datasets.threads`)."""
@@ -243,15 +232,15 @@ class WaymoRecordSegment(WaymoLog):
         if key not in self._geometry:
             if len(calibration.extrinsic.transform) != 16:
                 raise DatasetError(f"{where}: {what}: the extrinsic has {len(calibration.extrinsic.transform)} values, not 16", path=self.path)
-            beams = calibration.beam_inclinations
-            if len(beams) not in (0, height):
-                raise DatasetError(f"{where}: {what}: {len(beams)} beam inclinations for {height} rows", path=self.path)
             extrinsic = np.array(calibration.extrinsic.transform, dtype=np.float64).reshape(4, 4)
-            inclinations = row_inclinations(beams, calibration.beam_inclination_min, calibration.beam_inclination_max, height)
-            directions = ray_directions(inclinations, column_azimuths(extrinsic, width), extrinsic[:3, :3])
+            try:
+                rays = calibration_rays(extrinsic, calibration.beam_inclinations, calibration.beam_inclination_min,
+                                        calibration.beam_inclination_max, height, width, f"{where}: {what}")
+            except ValueError as exc:
+                raise DatasetError(str(exc), path=self.path) from None
             if len(self._geometry) >= 2 * len(LIDARS):  # calibrations that change within a segment: keep a few
                 self._geometry.clear()
-            self._geometry[key] = (directions.reshape(-1, 3), extrinsic[:3, 3].astype(np.float32))
+            self._geometry[key] = rays
         return self._geometry[key]
 
     def _matrix(self, compressed: bytes, channels: int, what: str, where: str) -> np.ndarray:
@@ -277,27 +266,3 @@ class WaymoRecordSegment(WaymoLog):
         if data.size != dims[0] * dims[1] * dims[2]:
             raise DatasetError(f"{where}: {what}: {data.size} values for shape {list(dims)}", path=self.path)
         return data.reshape(dims)
-
-
-class _ScaledImages(Mapping[str, bytes]):
-    """A frame's camera images while they are scaled: the cameras at once, an image when it is done.
-
-    Getting an image whose scaling failed raises
-    :class:`~xviz_server.exceptions.DatasetError` naming the record and the
-    camera.
-    """
-
-    def __init__(self, scaling: dict[str, Future[bytes]], where: str, path: Path | StorePath) -> None:
-        self._scaling, self._where, self._path = scaling, where, path
-
-    def __getitem__(self, camera: str) -> bytes:
-        try:
-            return self._scaling[camera].result()
-        except DatasetError as exc:
-            raise DatasetError(f"{self._where}: camera {camera}: {exc}", path=self._path) from None
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._scaling)
-
-    def __len__(self) -> int:
-        return len(self._scaling)

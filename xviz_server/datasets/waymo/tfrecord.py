@@ -42,7 +42,7 @@ from ...exceptions import DatasetError, StoreError
 from ...storepath import StorePath, data_path
 from ...unpack import MAX_RECORD_BYTES, size_text
 
-__all__ = ["Record", "RecordFile", "is_tfrecord", "masked_crc", "write_records"]
+__all__ = ["Record", "RecordFile", "is_tfrecord", "header_problem", "masked_crc", "write_records"]
 
 _HEADER = struct.Struct("<QI")
 _FOOTER = struct.Struct("<I")
@@ -74,7 +74,16 @@ class Record:
 
 
 def is_tfrecord(path: Path | StorePath) -> bool:
-    """Whether ``path`` is a file that starts with a TFRecord header whose CRC matches.
+    """Whether ``path`` is a file that starts with a TFRecord header whose CRC matches (see :func:`header_problem`).
+
+    Raises :class:`~xviz_server.exceptions.StoreError` when an object in a
+    store cannot be read.
+    """
+    return header_problem(path) is None
+
+
+def header_problem(path: Path | StorePath) -> str | None:
+    """Why ``path`` does not start as a TFRecord file does (a length and its matching masked CRC), or ``None``.
 
     Raises :class:`~xviz_server.exceptions.StoreError` when an object in a
     store cannot be read.
@@ -84,9 +93,14 @@ def is_tfrecord(path: Path | StorePath) -> bool:
             header = file.read(_HEADER.size)
     except StoreError:
         raise
-    except OSError:
-        return False
-    return len(header) == _HEADER.size and masked_crc(header[:8]) == _HEADER.unpack(header)[1]
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    if len(header) < _HEADER.size:
+        return f"{len(header)} bytes, shorter than a TFRecord header ({_HEADER.size})"
+    length, crc = _HEADER.unpack(header)
+    if masked_crc(header[:8]) != crc:
+        return f"the CRC of its first record's length ({length}) does not match: a damaged file, or not TFRecord"
+    return None
 
 
 class RecordFile:

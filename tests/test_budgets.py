@@ -1,0 +1,312 @@
+"""What one client, one message or one request may cost the server (issue 39), against the server run as a process.
+
+A message listing half a million bad items gets one answer and no memory; a burst of exports is admitted up to
+``--max-sessions``; every HTTP answer carries the same headers and says what was asked. The server runs as its own
+process (``helpers.served``) where its memory is the point, its peak RSS and its workers' read from ``/proc``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import socket
+import struct
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from websockets.asyncio.client import ClientConnection, connect
+
+from helpers import Client, Served, client, eventually, http_get, running_server, served, ten_hz, write_log
+from xviz_server.budget import LOG_LINES, MAX_ITEMS, NAMED
+
+pytestmark = pytest.mark.slow
+
+_MiB = 1 << 20
+#: What serving one hostile message may cost a process of the server: tens of MB, not the gigabytes it did.
+TENS_OF_MB = 48 * _MiB
+#: The longest silence a watching client may see while another client attacks (it was 10 s and more).
+QUIET = 2.0
+
+
+def grown(server: Served, before: dict[int, int]) -> dict[int, int]:
+    """How far each process's peak RSS rose over its RSS in ``before``."""
+    peaks = server.peaks()
+    return {pid: peaks[pid] - rss for pid, rss in before.items() if pid in peaks}
+
+
+async def foxglove(server: Served, log: str = "kitti") -> ClientConnection:
+    websocket = await connect(f"ws://127.0.0.1:{server.port}/?log={log}", subprotocols=["foxglove.websocket.v1"], max_size=None)  # type: ignore[list-item]
+    info = json.loads(await asyncio.wait_for(websocket.recv(), 30))
+    advertise = json.loads(await asyncio.wait_for(websocket.recv(), 30))
+    assert info["op"] == "serverInfo" and advertise["op"] == "advertise"
+    websocket.channels = advertise["channels"]  # type: ignore[attr-defined]
+    return websocket
+
+
+async def status(websocket: ClientConnection) -> str:
+    """The message of the next ``status``, other messages skipped."""
+    while True:
+        data = await asyncio.wait_for(websocket.recv(), 30)
+        if isinstance(data, str) and json.loads(data)["op"] == "status":
+            return str(json.loads(data)["message"])
+
+
+async def arrivals(websocket: ClientConnection, quiet: float = 5.0) -> list[float]:
+    """When each message came, until none came for ``quiet`` seconds (the log has played to its end)."""
+    times = []
+    try:
+        while True:
+            await asyncio.wait_for(websocket.recv(), quiet)
+            times.append(time.monotonic())
+    except asyncio.TimeoutError:
+        return times
+
+
+async def healthz(server: Served) -> None:
+    assert await asyncio.wait_for(server.get("/healthz"), 10) == (200, "ok\n")
+
+
+# -- one message, many items ---------------------------------------------------------------------------------------
+
+
+async def test_a_foxglove_message_of_half_a_million_bad_items_gets_one_status_and_costs_nothing(kitti_root: Path) -> None:
+    async with served(kitti_root) as server:
+        async with await foxglove(server) as warm:  # the workers are up and the log's frames cached
+            await warm.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in warm.channels]}))  # type: ignore[attr-defined]
+            await arrivals(warm, 2.0)
+        before = server.rss()
+        watcher, attacker = await foxglove(server), await foxglove(server)
+        await watcher.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in watcher.channels]}))  # type: ignore[attr-defined]
+        await watcher.recv()
+        watching = asyncio.ensure_future(arrivals(watcher))
+        # 524 000 items in 1 MB: refused whole, unread, in one status.
+        for op, key in (("subscribe", "subscriptions"), ("unsubscribe", "subscriptionIds")):
+            await attacker.send('{"op":"%s","%s":[%s]}' % (op, key, ",".join(["0"] * 524_000)))
+            said = await status(attacker)
+            assert said == f"{op}: 524000 items, more than the {MAX_ITEMS} one message may hold: refused whole"
+        # Under the limit: every item looked at, one status naming the first few and counting the rest.
+        items = [{"id": 1000 + i, "channelId": 99_999} for i in range(MAX_ITEMS)]
+        await attacker.send(json.dumps({"op": "subscribe", "subscriptions": items}))
+        said = await status(attacker)
+        assert said.startswith(f"subscribe: {MAX_ITEMS} of {MAX_ITEMS} items refused: no channel 99999 in log 'kitti'; ")
+        assert said.endswith(f"; and {MAX_ITEMS - NAMED} more") and len(said) < 500
+        # Many bad messages: a status each, but a bounded number of log lines.
+        for _ in range(100):
+            await attacker.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": 99_999}]}))
+        assert [await status(attacker) for _ in range(100)] == ["subscribe: no channel 99999 in log 'kitti'"] * 100
+        await healthz(server)
+        times = await watching
+        await watcher.close()
+        await attacker.close()
+        growth = grown(server, before)
+    gaps = [later - earlier for earlier, later in zip(times, times[1:])]
+    assert len(times) > 100 and max(gaps) < QUIET, max(gaps)
+    assert max(growth.values()) < TENS_OF_MB, {pid: f"{g / _MiB:.0f} MiB" for pid, g in growth.items()}
+    logged = [line for line in server.lines if "error sent" in line]
+    assert 0 < len(logged) <= 2 * LOG_LINES, len(logged)  # at most two windows of the test's length
+    assert sum(map(len, server.lines)) < 200_000
+
+
+async def test_a_transform_log_of_209000_bad_streams_gets_one_short_error(kitti_root: Path) -> None:
+    async with served(kitti_root) as server:
+        await server.session("kitti")
+        before = server.rss()
+        async with connect(f"ws://127.0.0.1:{server.port}/?log=kitti", max_size=None) as websocket:
+            viewer = Client(websocket)
+            assert (await viewer.recv(30))["type"] == "xviz/metadata"
+            for kind, data in (
+                ("transform_log", {"id": "many", "desired_streams": [[]] * 209_000}),
+                ("reconfigure", {"update_type": "DELTA", "config_update": {"desired_streams": [[]] * 209_000}}),
+            ):
+                await viewer.send(kind, data)
+                error = await viewer.recv(30)
+                assert error["type"] == "xviz/error" and error["_bytes"] < 1000, error["_bytes"]
+                assert f"holds more than the {MAX_ITEMS} items a message may hold: refused whole" in error["data"]["message"]
+            # Under the limit: the first few named, the rest counted.
+            await viewer.send("transform_log", {"id": "some", "desired_streams": [[]] * MAX_ITEMS})
+            error = await viewer.recv(30)
+            message = error["data"]["message"]
+            assert error["type"] == "xviz/error" and error["_bytes"] < 1000, error["_bytes"]
+            assert message.startswith(f"xviz/transform_log (id 'some'): {MAX_ITEMS} problems: 'desired_streams.0' must be a string, not []; ")
+            assert message.endswith(f"; and {MAX_ITEMS - NAMED} more (log 'kitti')")
+            # The session goes on.
+            await viewer.send("transform_log", {"id": "good"})
+            assert [m for m in await viewer.until("transform_log_done", "good") if m["type"] == "xviz/state_update"]
+        growth = grown(server, before)
+        await healthz(server)
+    assert max(growth.values()) < TENS_OF_MB, {pid: f"{g / _MiB:.0f} MiB" for pid, g in growth.items()}
+    assert max(map(len, server.lines)) < 2000
+
+
+# -- one frame, many bytes ----------------------------------------------------------------------------------------
+
+#: Each large cloud: a valid message under the 256 MiB a chunk may declare, three of them far over what a frame may.
+CLOUD_BYTES = 250 * _MiB
+
+
+def _clouds(m: Any) -> Any:
+    """A small cloud at 0.1 s (the topic's first message, which the metadata reads: just over the 1 MiB after
+    which rosbags' writer closes a chunk, so that it has a chunk of its own), then three clouds of
+    :data:`CLOUD_BYTES` of zeros at 0.2, 0.3 and 0.4 s, made one at a time."""
+    base = 1_700_000_000 * 10**9
+    for number, size in enumerate([16 * 70_000] + [CLOUD_BYTES] * 3):
+        t = base + (number + 1) * 10**8
+        fields = [m.sensor_msgs__PointField(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
+        cloud = m.sensor_msgs__PointCloud2(
+            header=m.header(t, "base_link"), height=1, width=size // 16, fields=fields, is_bigendian=False,
+            point_step=16, row_step=size, data=np.zeros(size, np.uint8), is_dense=True,
+        )
+        yield "/points", "sensor_msgs/msg/PointCloud2", t, cloud
+
+
+@pytest.fixture(scope="module")
+def clouds(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A bare MCAP file (ROS 2 messages, zstd chunks) of a few megabytes holding the clouds of :func:`_clouds`."""
+    from rosbags.typesys import Stores
+
+    from devkit.rosbag_kitti import Messages, write_bag
+
+    path = write_bag(tmp_path_factory.mktemp("clouds") / "clouds.mcap", "mcap", _clouds(Messages(Stores.ROS2_HUMBLE)), compression="zstd")
+    assert path.stat().st_size < 16 * _MiB
+    return path
+
+
+async def test_a_frame_of_huge_valid_clouds_is_refused_unread_on_both_faces(clouds: Path, kitti_root: Path) -> None:
+    (kitti_root / "clouds.mcap").symlink_to(clouds)
+    async with served(kitti_root) as server:
+        # The workers are up, with rosbags imported; a peak RSS is the highest since the process started.
+        await asyncio.gather(server.session("kitti"), server.session("clouds"))
+        before = server.rss()
+        xviz, good = await asyncio.gather(server.session("clouds"), server.session("kitti"))
+        async with await foxglove(server, "clouds") as websocket:
+            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in websocket.channels]}))  # type: ignore[attr-defined]
+            statuses = [await status(websocket) for _ in range(3)]
+        await healthz(server)
+        growth = grown(server, before)
+    refused = "would unpack 250.0 MiB, more than the limit of 128 MiB for one frame: refused unread"
+    errors = [m["data"]["message"] for m in xviz if m["type"] == "xviz/error"]
+    assert [m["data"]["updates"][0]["timestamp"] for m in xviz if m["type"] == "xviz/state_update"] == [1_700_000_000.1], errors
+    assert len(errors) == 3 and all(f"clouds.mcap: frame {n}: its messages and images {refused}" in e for n, e in zip((1, 2, 3), errors)), errors
+    assert len(statuses) == 3 and all(refused in said for said in statuses), statuses
+    assert [m for m in good if m["type"] == "xviz/state_update"] and not [m for m in good if m["type"] == "xviz/error"]
+    assert max(growth.values()) < TENS_OF_MB, {pid: f"{g / _MiB:.0f} MiB" for pid, g in growth.items()}
+
+
+# -- exports ------------------------------------------------------------------------------------------------------
+
+
+async def test_a_burst_of_exports_is_admitted_up_to_max_sessions(kitti_root: Path) -> None:
+    async with served(kitti_root, "--max-sessions", "5") as server:
+        await healthz(server)
+
+        def head(_: int) -> bytes:  # the answer's head; the body, if any, is left unread, so that the export stays open
+            sock = socket.create_connection(("127.0.0.1", server.port), timeout=30)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            sock.sendall(b"GET /api/logs/kitti/export HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+            data = b""
+            while b"\r\n\r\n" not in data:
+                data += sock.recv(4096)
+            sockets.append(sock)
+            return data.split(b"\r\n", 1)[0]
+
+        sockets: list[socket.socket] = []
+        heads = await asyncio.gather(*(asyncio.to_thread(head, n) for n in range(60)))
+        for sock in sockets:
+            sock.close()
+    assert heads.count(b"HTTP/1.1 200 OK") == 5, heads
+    assert heads.count(b"HTTP/1.1 503 Service Unavailable") == 55, heads
+
+
+async def test_an_export_that_meets_a_corrupt_frame_says_so(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    from xviz_server.foxglove.export import CUT_SHORT
+    from xviz_server.layout import file_number
+
+    log = write_log(tmp_path / "data" / "cars", ten_hz(10))
+    (log / f"{file_number(6)}-frame.glb").write_bytes(b"glTF" + bytes(40))  # frame 6 is corrupt
+    async with served(tmp_path / "data") as server:
+        status, _, body = await asyncio.to_thread(http_get, server.port, "/api/logs/cars/export")
+        first, _, refused = await asyncio.to_thread(http_get, server.port, "/api/logs/cars/export?start=100.6")
+        await healthz(server)
+    # Met on the way: the file ends before it, readable, and says where and why in a metadata record.
+    assert status == 200
+    reader = make_reader(io.BytesIO(body))
+    stamps = sorted({message.log_time for _, _, message in reader.iter_messages()})
+    assert stamps == [int(round((100 + i / 10) * 1e9)) for i in range(6)]
+    (cut,) = [record.metadata for record in reader.iter_metadata() if record.name == CUT_SHORT]
+    assert cut["frame"] == "6" and "cars" in cut["error"], cut
+    assert any("the export of log 'cars' ends before frame 6, which cannot be read" in line for line in server.lines)
+    # The clip's first frame: refused before the head.
+    assert first == 422 and refused.startswith(b"the clip's first frame cannot be read: "), refused
+
+
+async def test_a_session_url_parameter_given_twice_is_refused_and_ignored(kitti_root: Path) -> None:
+    async with running_server(kitti_root) as server:
+        async with client(server, "/?log=kitti&max_mbps=5&max_mbps=1000&speed=1&speed=2") as viewer:
+            first, second, third = [await viewer.recv(30) for _ in range(3)]
+    assert [first["type"], second["type"], third["type"]] == ["xviz/error", "xviz/error", "xviz/metadata"]
+    assert first["data"]["message"].endswith("bad connection URL parameter 'max_mbps': give it at most once; it is ignored")
+    assert second["data"]["message"].endswith("bad connection URL parameter 'speed': give it at most once; it is ignored")
+
+
+# -- the catalog ---------------------------------------------------------------------------------------------------
+
+
+async def test_a_tfrecord_whose_first_length_crc_is_wrong_is_left_out_with_a_warning(kitti_root: Path) -> None:
+    header = struct.pack("<QI", 1000, 12345)  # a length and a CRC that is not its masked CRC32C
+    (kitti_root / "segment.tfrecord").write_bytes(header + bytes(1004))
+    async with served(kitti_root) as server:
+
+        async def listed() -> bool:
+            return "kitti" in await server.logs()
+
+        await eventually(listed)
+        logs = await server.logs()
+    assert "segment" not in logs
+    warned = [line for line in server.lines if "segment.tfrecord: left out of the catalog" in line]
+    assert warned and "WARNING" in warned[0].upper(), server.lines
+    assert "the CRC of its first record's length (1000) does not match" in warned[0]
+
+
+# -- HTTP answers ---------------------------------------------------------------------------------------------------
+
+
+def raw(port: int, request: bytes) -> tuple[bytes, dict[str, str], bytes]:
+    """Send ``request`` as it is; the status line, the headers (lower-case names) and the body, until the server closes."""
+    with socket.create_connection(("127.0.0.1", port), timeout=30) as sock:
+        sock.sendall(request)
+        data = b""
+        while chunk := sock.recv(65536):
+            data += chunk
+    head, _, body = data.partition(b"\r\n\r\n")
+    status, *lines = head.split(b"\r\n")
+    headers = {name.decode().lower(): value.decode() for name, _, value in (line.partition(b": ") for line in lines)}
+    return status, headers, body
+
+
+async def test_every_http_answer_carries_the_same_headers_and_says_what_was_asked(kitti_root: Path) -> None:
+    async with served(kitti_root) as server:
+        await healthz(server)
+        answers: dict[str, tuple[bytes, dict[str, str], bytes]] = {}
+        for name, request in {
+            "200": b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n",
+            "404": b"GET /nowhere HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n",
+            "405": b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\n\r\n",
+            "204": b"OPTIONS / HTTP/1.1\r\nHost: x\r\n\r\n",
+            "400": b"\x01\x02\x03 garbage\r\n\r\n",
+            "414": b"GET /" + b"a" * 10_000 + b" HTTP/1.1\r\nHost: x\r\n\r\n",
+            "head 405": b"HEAD / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n",
+            "export 400": b"GET /api/logs/kitti/export?start=1&start=2 HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n",
+        }.items():
+            answers[name] = await asyncio.to_thread(raw, server.port, request)
+    for name, (status, headers, body) in answers.items():
+        assert status.split(b" ")[1].decode() == name.split(" ")[-1], (name, status)
+        assert headers.get("x-content-type-options") == "nosniff", (name, headers)
+        assert headers.get("referrer-policy") == "strict-origin", (name, headers)
+        assert b"WebSocket connection" not in body, (name, body)
+    assert answers["414"][2] == b"cannot read this request: read 10016 bytes, expected no more than 8192 bytes.\n"
