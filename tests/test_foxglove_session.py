@@ -45,6 +45,7 @@ class Log:
     channels: list[Channel] = field(default_factory=lambda: [channel(1, "/a"), channel(2, "/b")])
     start_time: int = START
     end_time: int = END
+    frames: int = 25  # a frame every 0.1 s
 
 
 def op(event: Any) -> dict[str, Any]:
@@ -151,7 +152,7 @@ def test_a_name_that_is_neither_a_log_nor_a_running_feed_is_refused() -> None:
         ("{not json", "malformed JSON"),
         ("[1, 2]", "JSON object with a string 'op'"),
         (json.dumps({"op": "launch"}), "unknown op 'launch'"),
-        (json.dumps({"op": "getParameters", "parameterNames": []}), "'getParameters' is not offered"),
+        (json.dumps({"op": "subscribeConnectionGraph"}), "'subscribeConnectionGraph' is not offered"),
         (json.dumps({"op": "subscribe", "subscriptions": {"id": 1}}), "must be a list of {id, channelId}"),
         (json.dumps({"op": "unsubscribe", "subscriptionIds": 3}), "'subscriptionIds' must be a list"),
         (b"", "an empty binary message"),
