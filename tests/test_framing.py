@@ -27,7 +27,7 @@ from websockets.server import ServerProtocol
 from helpers import close_received, paused_viewer, running_server
 from xviz_server.codec import Format, decode, encode
 from xviz_server.framing import SEPARATE_PAYLOAD, FramingConnection, FramingProtocol, frame_header, ready_to_write, write_message
-from xviz_server.session import Variant
+from xviz_server.events import Variant
 
 OP_TEXT, OP_BINARY, OP_CONT = Opcode.TEXT, Opcode.BINARY, Opcode.CONT
 SIZES = [0, 125, 126, 65535, 65536]

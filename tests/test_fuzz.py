@@ -52,8 +52,9 @@ from xviz_server.admission import admit
 from xviz_server.codec import Format, decode, decode_glb, decode_json, decode_pbe, encode
 from xviz_server.exceptions import DatasetError, DecodeError, EncodeError, MessageError
 from xviz_server.index import TimeIndex
+from xviz_server.events import Send
 from xviz_server.layout import METADATA_NUMBER
-from xviz_server.session import Send, Session
+from xviz_server.session import Session
 
 pytestmark = [pytest.mark.slow, needs_data]
 

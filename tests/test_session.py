@@ -12,22 +12,16 @@ from xviz_server.codec import Format, decode, encode
 from xviz_server.exceptions import FrameError, LogNotFound
 from xviz_server.index import TimeIndex
 from xviz_server.messages import envelope
+from xviz_server.events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
 from xviz_server.session import (
     CancelStream,
-    Close,
     ConfigureLive,
-    LiveFacts,
-    LookUpLive,
-    OpenLog,
     QueryInstant,
-    Send,
     SendLiveMetadata,
     SendLiveUpdate,
     Session,
     SkipToState,
     StreamFrames,
-    SubscribeLive,
-    Variant,
 )
 
 

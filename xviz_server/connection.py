@@ -20,193 +20,108 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Sequence
 from typing import Any
-from urllib.parse import parse_qsl, unquote, urlsplit
+from urllib.parse import urlsplit
 
-from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
-from websockets.frames import CloseCode
 
-from .budget import LogThrottle
 from .codec import Format
-from .exceptions import XVIZError
 from .detail import Sample
-from .flow import close, watch_progress
+from .events import SubscribeLive
+from .exceptions import XVIZError
+from .face import FaceConnection
 from .framing import ready_to_write, write_message
 from .levels import LEVELS, Level
 from .linkwatch import is_loopback, sample_link
-from .live import FeedEvent, LiveRegistry, LiveUpdate, Subscription, watch_lag
-from .logfmt import ending, log_event, peer, redact_url
-from .logs import Catalog, Log
-from .metrics import Metrics
+from .live import FeedEvent, LiveUpdate, Subscription
+from .logfmt import log_event, peer
+from .logs import Log
 from .params import repeated
 from .readahead import ReadAhead, Window
-from .session import Close, ConfigureLive, Event, LookUpLive, OpenLog, QueryInstant, Send, Session, SubscribeLive
-from .session import CancelStream, DetailChanged, SendLiveMetadata, SendLiveUpdate, SkipToState, StreamFrames
-from .settings import Settings
+from .session import CancelStream, ConfigureLive, DetailChanged, QueryInstant, SendLiveMetadata, SendLiveUpdate, Session
+from .session import SkipToState, StreamFrames
 
 __all__ = ["Connection"]
 
 logger = logging.getLogger("xviz_server.session")
 
 
-class Connection:
+class Connection(FaceConnection[Session]):
     """One WebSocket connection running one XVIZ session."""
 
-    def __init__(
-        self,
-        websocket: ServerConnection,
-        catalog: Catalog,
-        live: LiveRegistry,
-        metrics: Metrics,
-        settings: Settings,
-    ) -> None:
-        self.websocket = websocket
-        self.catalog = catalog
-        self.live = live
-        self.metrics = metrics
-        self.settings = settings
-        self.path, path, query = request_target(websocket)
-        self.session = Session(
-            path=path,
-            query=query,
-            available=catalog.available(),
-            live=live.names(),
-            lag_timeout=settings.live_lag_timeout,
-            detail=settings.detail == "auto",
-            local=is_loopback(websocket),
-            repeated=repeated(urlsplit(self.path).query),
-        )
+    def _make_session(self, path: str, query: dict[str, str]) -> Session:
         self._logs: dict[str, Log] = {}
         self._stream: tuple[StreamFrames, asyncio.Event] | None = None
         self._subscription: Subscription | None = None
         self._held: LiveUpdate | None = None  # the live update the session is deciding about
         self._live_idle = False  # the live task waits for the next update: the feed may hand it over at once
         self._measuring = False  # the link is sampled (see _follow_link)
-        self._tasks: set[asyncio.Task[None]] = set()
         self.frames_sent = 0
         self.bytes_sent = 0
-        self.messages_sent = 0
-        self._mistakes = LogThrottle()  # lines logged about the errors and notices it is sent
-        self.bytes_written = 0  # every message's bytes, as handed to the connection
+        return Session(
+            path=path,
+            query=query,
+            available=self.catalog.available(),
+            live=self.live.names(),
+            lag_timeout=self.settings.live_lag_timeout,
+            detail=self.settings.detail == "auto",
+            local=is_loopback(self.websocket),
+            repeated=repeated(urlsplit(self.path).query),
+        )
 
-    async def run(self) -> None:
-        """Serve the session until the client goes away or the server shuts down."""
-        started = time.monotonic()
-        self.metrics.sessions.inc()
-        self.metrics.sessions_open.inc()
+    def _opened(self) -> None:
         self.metrics.sessions_by_detail.labels(self.session.chooser.level.name).inc()
-        remote = peer(self.websocket)
-        log_event(logger, "session start", remote=remote, path=redact_url(self.path))
-        try:
-            self._spawn("a stalled send", watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
-            self._follow_link()
-            await self._step("the connection", self.session.connect)
-            self._follow_link()
-            async for message in self.websocket:
-                await self._step("a message", self.session.receive, message)
-                self._follow_link()
-        except ConnectionClosed:
-            pass
-        finally:
-            if self._subscription is not None:
-                self._subscription.close()
-            for task in self._tasks:
-                task.cancel()
-            await asyncio.gather(*self._tasks, return_exceptions=True)
-            self.metrics.sessions_open.dec()
-            self.metrics.sessions_by_detail.labels(self.session.chooser.level.name).dec()
-            log = self.session.log.name if self.session.log else None
-            duration, fmt = round(time.monotonic() - started, 3), self.session.format.value
-            log_event(logger, "session end", remote=remote, log=log, format=fmt, frames=self.frames_sent,
-                      bytes=self.bytes_sent, duration=duration, **ending(self.websocket))
+        self._follow_link()
+
+    def _closing(self) -> None:
+        if self._subscription is not None:
+            self._subscription.close()
+
+    def _closed(self) -> None:
+        self.metrics.sessions_by_detail.labels(self.session.chooser.level.name).dec()
+
+    def _end_fields(self) -> dict[str, Any]:
+        log = self.session.log.name if self.session.log else None
+        return {"log": log, "format": self.session.format.value, "frames": self.frames_sent, "bytes": self.bytes_sent}
 
     # -- carrying events out ----------------------------------------------
 
-    async def _step(self, what: str, step: Callable[..., list[Event]], *args: Any) -> None:
-        """Feed the session one input and carry out its answer; a bug is reported to the client, not fatal."""
-        try:
-            await self._execute(step(*args))
-        except (ConnectionClosed, asyncio.CancelledError):
-            raise
-        except Exception as exc:
-            await self._failed(what, exc)
+    async def _step(self, what: str, step: Callable[..., Sequence[object]], *args: Any) -> None:
+        await super()._step(what, step, *args)
+        self._follow_link()
 
-    async def _failed(self, what: str, exc: Exception) -> None:
-        logger.exception("error handling %s from %s", what, peer(self.websocket), exc_info=exc)
-        await self._quietly(self._execute(self.session.internal_error(what, exc)))
-
-    async def _execute(self, events: list[Event]) -> None:
-        for event in events:
-            if isinstance(event, Send):
-                await self._send(event)
-            elif isinstance(event, SendLiveUpdate):
-                update = self._held
-                assert update is not None and update.number == event.number
-                assert self._subscription is not None
-                data = await update.encoded(event.variant, self.live.workers)
-                self.session.update_made(event.variant.level, len(data))
-                await self._send_update(data, event.variant.fmt)
-            elif isinstance(event, SkipToState):
-                assert self._subscription is not None
-                await self._execute(self.session.live_skipped(self._hold(self._subscription.feed.state())))
-            elif isinstance(event, SendLiveMetadata):
-                assert self._subscription is not None
-                metadata = self._subscription.feed.metadata_message(event.fmt)
-                if metadata is not None:
-                    await self._write(metadata, event.fmt is Format.JSON)
-            elif isinstance(event, OpenLog):
-                await self._open_log(event.name)
-            elif isinstance(event, StreamFrames):
-                stop = asyncio.Event()
-                self._stream = (event, stop)
-                self._spawn(f"transform_log {event.request_id!r}", self._run_stream(event, stop))
-            elif isinstance(event, CancelStream):
-                if self._stream is not None and self._stream[0].request_id == event.request_id:
-                    self._stream[1].set()
-            elif isinstance(event, QueryInstant):
-                self._spawn(f"transform_point_in_time {event.request_id!r}", self._run_query(event))
-            elif isinstance(event, LookUpLive):
-                await self._execute(self.session.live_found(self.live.facts(event.name)))
-            elif isinstance(event, SubscribeLive):
-                self._spawn("the live feed", self._run_live(event), fatal=True)
-            elif isinstance(event, ConfigureLive):
-                await self._configure_live(event)
-            elif isinstance(event, DetailChanged):
-                self._detail_changed(event)
-            elif isinstance(event, Close):
-                await close(self.websocket, event.code, event.reason)
-
-    def _spawn(self, what: str, coroutine: Coroutine[Any, Any, None], fatal: bool = False) -> None:
-        """Run ``coroutine`` beside the session; if it fails, the client is told (and, if ``fatal``, closed)."""
-
-        async def guarded() -> None:
-            try:
-                await coroutine
-            except ConnectionClosed:
-                pass
-            except Exception as exc:
-                await self._failed(what, exc)
-                if fatal:
-                    await close(self.websocket, CloseCode.INTERNAL_ERROR, f"{what} failed")
-
-        task = asyncio.ensure_future(guarded())
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
-
-    async def _write(self, data: bytes, text: bool) -> None:
-        self.bytes_written += len(data)  # before: the bytes are in the transport while send waits
-        await self.websocket.send(data, text=text)
-        self.messages_sent += 1
-
-    async def _send(self, event: Send) -> None:
-        await self._write(event.data, event.text)
-        if event.error is not None:
-            self.metrics.errors.labels(event.error).inc()
-            self._mistakes.log(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
-        elif event.notice is not None:
-            self._mistakes.log(logger, "notice sent", remote=peer(self.websocket), kind=event.notice, message=event.message)
+    async def _carry_out(self, event: object) -> None:
+        if isinstance(event, SendLiveUpdate):
+            update = self._held
+            assert update is not None and update.number == event.number
+            assert self._subscription is not None
+            data = await update.encoded(event.variant, self.live.workers)
+            self.session.update_made(event.variant.level, len(data))
+            await self._send_update(data, event.variant.fmt)
+        elif isinstance(event, SkipToState):
+            assert self._subscription is not None
+            await self._execute(self.session.live_skipped(self._hold(self._subscription.feed.state())))
+        elif isinstance(event, SendLiveMetadata):
+            assert self._subscription is not None
+            metadata = self._subscription.feed.metadata_message(event.fmt)
+            if metadata is not None:
+                await self._write(metadata, event.fmt is Format.JSON)
+        elif isinstance(event, StreamFrames):
+            stop = asyncio.Event()
+            self._stream = (event, stop)
+            self._spawn(f"transform_log {event.request_id!r}", self._run_stream(event, stop))
+        elif isinstance(event, CancelStream):
+            if self._stream is not None and self._stream[0].request_id == event.request_id:
+                self._stream[1].set()
+        elif isinstance(event, QueryInstant):
+            self._spawn(f"transform_point_in_time {event.request_id!r}", self._run_query(event))
+        elif isinstance(event, SubscribeLive):
+            self._spawn("the live feed", self._run_live(event), fatal=True)
+        elif isinstance(event, ConfigureLive):
+            await self._configure_live(event)
+        elif isinstance(event, DetailChanged):
+            self._detail_changed(event)
 
     async def _send_update(self, data: bytes, fmt: Format) -> None:
         """Send a state update and count it."""
@@ -218,23 +133,11 @@ class Connection:
         self.bytes_sent += len(data)
         self.metrics.update_sent(fmt.value, len(data))
 
-    async def _quietly(self, awaitable: Coroutine[Any, Any, None]) -> None:
-        """Run ``awaitable`` unless the connection is gone."""
-        try:
-            await awaitable
-        except ConnectionClosed:
-            pass
-
     # -- recorded logs ------------------------------------------------------
 
-    async def _open_log(self, name: str) -> None:
-        try:
-            log = await self.catalog.open(name)
-        except XVIZError as exc:
-            await self._execute(self.session.log_failed(exc))
-        else:
-            self._logs[log.name] = log
-            await self._execute(self.session.log_opened(log))
+    async def _log_opened(self, log: Log) -> None:
+        self._logs[log.name] = log
+        await self._execute(self.session.log_opened(log))
 
     async def _run_stream(self, request: StreamFrames, stop: asyncio.Event) -> None:
         received = time.perf_counter()
@@ -301,14 +204,11 @@ class Connection:
         asked = self.session.start.log
         if asked is not None and asked != event.name:
             logger.info("live session asked for %r; serving the only live feed %r", asked, event.name)
-        try:
-            feed = await self.live.wait_for(event.name)
-        except XVIZError:  # too many names waited for
-            await self._execute(self.session.live_failed(event.name))
+        subscribed = await self._subscribe(event.name, decimate=self.session.decimate, deliver=self._deliver)
+        if subscribed is None:
             return
-        self._subscription = subscription = feed.subscribe(self.settings.live_queue, self.session.decimate, self._deliver)
-        lag = watch_lag(subscription, self.websocket.transport, self.settings.live_lag_timeout, self._lagging)
-        self._spawn("a slow live viewer", lag)
+        feed, subscription = subscribed
+        self._subscription = subscription
         state = self._hold(feed.state())
         await self._execute(self.session.live_joined(feed.name, state, feed.metadata is not None))
         while True:
@@ -400,10 +300,6 @@ class Connection:
         log_event(logger, "detail changed", remote=peer(self.websocket), detail=event.level.name,
                   previous=event.previous.name, auto=event.auto, link_mbps=mbps)
 
-    async def _lagging(self, seconds: float) -> None:
-        """Tell the session how long the viewer has been dropping updates."""
-        await self._execute(self.session.live_lagging(seconds))
-
 
 async def _wait(stop: asyncio.Event, seconds: float) -> None:
     """Sleep for ``seconds``, or less if ``stop`` is set meanwhile."""
@@ -412,11 +308,3 @@ async def _wait(stop: asyncio.Event, seconds: float) -> None:
             await asyncio.wait_for(stop.wait(), seconds)
         except asyncio.TimeoutError:
             pass
-
-
-def request_target(websocket: ServerConnection) -> tuple[str, str, dict[str, str]]:
-    """What a session's handshake asked for: the request target as sent, its path percent-decoded, and its query."""
-    target = websocket.request.path if websocket.request else "/"
-    url = urlsplit(target)
-    return target, unquote(url.path), dict(parse_qsl(url.query, keep_blank_values=True))
-

@@ -72,12 +72,12 @@ def backlog(transport: asyncio.WriteTransport) -> int:
     """Bytes written to ``transport`` and not yet delivered: those in its write buffer and in the kernel's
     send queue (not sent, or not acknowledged by the peer: ``TIOCOUTQ``; 0 where the system does not tell)."""
     queued = transport.get_write_buffer_size()
-    sock = transport.get_extra_info("socket")
+    sock = _socket(transport)
     if sock is None:
         return queued
     try:
         answer = fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0")
-    except (OSError, ValueError):  # closed, or not a stream socket
+    except OSError:  # not a stream socket
         return queued
     return queued + struct.unpack("i", answer)[0]
 
@@ -97,12 +97,12 @@ def limit_unsent(transport: asyncio.WriteTransport, limit: int = UNSENT_LIMIT) -
     option.
     """
     option = getattr(socket, "TCP_NOTSENT_LOWAT", None)
-    sock = transport.get_extra_info("socket")
+    sock = _socket(transport)
     if option is None or sock is None:
         return
     try:
         sock.setsockopt(socket.IPPROTO_TCP, option, limit)
-    except OSError:  # closed already, or not TCP
+    except OSError:  # not TCP
         pass
 
 
@@ -117,14 +117,28 @@ def link_times(transport: asyncio.WriteTransport) -> tuple[int, int] | None:
     reads slower than the link carries), from ``TCP_INFO``; ``None`` where the system does not tell.
     The kernel counts them in its clock ticks (4 ms at 250 Hz)."""
     option = getattr(socket, "TCP_INFO", None)
-    sock = transport.get_extra_info("socket")
+    sock = _socket(transport)
     if option is None or sock is None:
         return None
     try:
         info = sock.getsockopt(socket.IPPROTO_TCP, option, _BUSY_TIME_OFFSET + _TIMES.size)
-    except OSError:
+    except OSError:  # not TCP
         return None
     if len(info) < _BUSY_TIME_OFFSET + _TIMES.size:
         return None
     busy, receiver = _TIMES.unpack_from(info, _BUSY_TIME_OFFSET)
     return int(busy), int(receiver)
+
+
+def _socket(transport: asyncio.BaseTransport) -> socket.socket | None:
+    """``transport``'s socket while it is open; ``None`` once the transport closed it, or for one without a socket.
+
+    A closed socket has no file descriptor (``fileno()`` is -1): the standard
+    library's sockets raise :exc:`OSError` when asked about it, uvloop's
+    raise :exc:`ValueError` ("negative file descriptor"); a socket looked at
+    after its connection ended is simply not there.
+    """
+    sock: socket.socket | None = transport.get_extra_info("socket")
+    if sock is None or sock.fileno() < 0:
+        return None
+    return sock

@@ -53,6 +53,7 @@ from websockets.frames import CloseCode
 from .budget import shown
 from .codec import Format, decode, encode
 from .detail import DetailChooser, Sample
+from .events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
 from .exceptions import DecodeError, LogNotFound, MessageError, XVIZError
 from .levels import FULL, Level, profile_level
 from .index import TimeIndex
@@ -60,9 +61,8 @@ from .messages import Error, Reconfigure, SessionType, Start, TransformLog, Tran
 from .messages import SessionConfig, describe_validation_error, merge_patch, parse_client_message, stream_filter
 
 __all__ = [
-    "Session", "LogView", "Variant", "Event", "Send", "Close", "OpenLog", "StreamFrames", "CancelStream", "QueryInstant",
-    "LookUpLive", "LiveFacts", "SubscribeLive", "ConfigureLive", "SendLiveMetadata", "SendLiveUpdate", "SkipToState",
-    "DetailChanged",
+    "Session", "LogView", "Event", "StreamFrames", "CancelStream", "QueryInstant", "ConfigureLive", "SendLiveMetadata",
+    "SendLiveUpdate", "SkipToState", "DetailChanged",
 ]
 
 
@@ -76,48 +76,7 @@ class LogView(Protocol):
     def metadata_message(self, fmt: Format) -> bytes: ...
 
 
-@dataclass(frozen=True)
-class Variant:
-    """How a live viewer wants updates: format, streams (``None``: all), most points per cloud, level of detail."""
-
-    fmt: Format
-    streams: frozenset[str] | None = None
-    max_points: int | None = None
-    level: Level = FULL
-
-
-# ----------------------------------------------------------------- events
-
-
-@dataclass(frozen=True)
-class Send:
-    """Send ``data``; as a text frame when ``text``.
-
-    ``error`` names the kind of an ``xviz/error`` that reports a problem,
-    ``notice`` the kind of one that only informs (a live feed went away);
-    ``message`` is its text, for the server's log.
-    """
-
-    data: bytes
-    text: bool
-    error: str | None = None
-    notice: str | None = None
-    message: str | None = None
-
-
-@dataclass(frozen=True)
-class Close:
-    """Close the connection with ``code`` and ``reason``."""
-
-    code: int
-    reason: str
-
-
-@dataclass(frozen=True)
-class OpenLog:
-    """Open the recorded log ``name``, then call :meth:`Session.log_opened` or :meth:`Session.log_failed`."""
-
-    name: str
+# ----------------------------------------------------------------- events of this face (the shared ones: events.py)
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,31 +113,6 @@ class QueryInstant:
     instant: float
     fmt: Format
     streams: frozenset[str] | None
-
-
-@dataclass(frozen=True)
-class LookUpLive:
-    """Tell :meth:`Session.live_found` what the live feed registry knows of feed ``name`` (``None``: none named)."""
-
-    name: str | None
-
-
-@dataclass(frozen=True)
-class LiveFacts:
-    """What the live feed registry knows when a viewer asks for a feed: facts, for the session to decide on."""
-
-    allowed: bool  #: the name asked for could be a feed's (none asked for is allowed)
-    exists: bool  #: a source created the feed of that name (it may not have sent its metadata yet)
-    started: bool  #: that feed has its metadata
-    running: tuple[str, ...]  #: every feed whose source is connected and has sent its metadata
-
-
-@dataclass(frozen=True)
-class SubscribeLive:
-    """Follow live feed ``name``, waiting for a source to create it if none has; then call
-    :meth:`Session.live_joined` (or :meth:`Session.live_failed` if it cannot be waited for)."""
-
-    name: str
 
 
 @dataclass(frozen=True)

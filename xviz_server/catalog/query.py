@@ -4,7 +4,7 @@ Parameters (each at most once; others, like ``token``, are left alone):
 
 * ``q``: a substring of the name or the description, any case;
 * ``stream``: a stream the log has (its exact name);
-* ``kind``: one kind or several, comma-separated (see :data:`KINDS`);
+* ``kind``: one kind or several, comma-separated (see :func:`~xviz_server.catalog.scan.listed_kinds`);
 * ``from``, ``to``: seconds; the log's time range overlaps them;
 * ``min_duration``: seconds;
 * ``sort``: :data:`SORTS`, ``-`` first for the reverse (``-start_time``);
@@ -28,11 +28,10 @@ import orjson
 
 from ..exceptions import QueryError
 from ..params import seconds, single
+from .scan import listed_kinds
 
-__all__ = ["KINDS", "SORTS", "LIMIT", "MAX_LIMIT", "Query", "parse_query"]
+__all__ = ["SORTS", "LIMIT", "MAX_LIMIT", "Query", "parse_query"]
 
-#: Source kinds a log is listed as (see :func:`~xviz_server.catalog.scan.source_kind`).
-KINDS = ("xviz", "kitti", "waymo", "vista", "demo", "bag", "mcap", "nuscenes", "argoverse2", "pandaset")
 #: Orders of a listing: by name, or by a fact then name.
 SORTS = ("name", "start_time", "end_time", "duration", "frames", "bytes", "modified")
 LIMIT = 100
@@ -136,8 +135,9 @@ def parse_query(parameters: dict[str, list[str]]) -> Query:
     if "from" in numbers and "to" in numbers and numbers["from"] > numbers["to"]:
         raise QueryError("from", f"from ({numbers['from']:g}) is after to ({numbers['to']:g})")
     kinds = tuple(values["kind"].split(",")) if "kind" in values else ()
-    if unknown := [kind for kind in kinds if kind not in KINDS]:
-        raise QueryError("kind", f"unknown kind {unknown[0][:50]!r}; kinds are {', '.join(KINDS)}")
+    known = listed_kinds()
+    if unknown := [kind for kind in kinds if kind not in known]:
+        raise QueryError("kind", f"unknown kind {unknown[0][:50]!r}; kinds are {', '.join(known)}")
     sort = values.get("sort", "name")
     if sort.removeprefix("-") not in SORTS:
         raise QueryError("sort", f"sort by one of {', '.join(SORTS)} (with '-' first for the reverse), not {sort[:50]!r}")

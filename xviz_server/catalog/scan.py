@@ -22,11 +22,11 @@ from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..datasets import FILE_KINDS, file_problem
+from ..datasets import FILE_KINDS, KINDS, file_problem
 from ..layout import FRAME_FILE, INDEX_FILE, LOG, place_of, split_place, stamp_from, stamp_of
 from .db import Row
 
-__all__ = ["LocalScan", "source_kind", "version_of"]
+__all__ = ["LocalScan", "source_kind", "listed_kinds", "version_of"]
 
 logger = logging.getLogger(__name__)
 
@@ -34,15 +34,27 @@ logger = logging.getLogger(__name__)
 BATCH = 1000
 
 
+#: Dataset kinds whose logs are listed under another kind by the suffix of their place (the first: any other).
+_BY_SUFFIX: dict[str, tuple[tuple[str, str], ...]] = {"rosbag": (("", "bag"), (".mcap", "mcap"))}
+
+
 def source_kind(kind: str, place: str) -> str:
-    """The kind a log is listed as: ``xviz``, ``kitti``, ``waymo``, ``vista``, ``demo``, ``bag`` or ``mcap``.
+    """The kind a log is listed as (one of :func:`listed_kinds`).
 
     ``kind`` is the kind discovery gave (:data:`~xviz_server.layout.LOG`
     or a dataset kind); ROS recordings are told apart by ``place``'s suffix.
     """
-    if kind == "rosbag":
-        return "mcap" if place.endswith(".mcap") else "bag"
-    return kind
+    listed = kind
+    for suffix, name in _BY_SUFFIX.get(kind, ()):
+        if place.endswith(suffix):
+            listed = name
+    return listed
+
+
+def listed_kinds() -> tuple[str, ...]:
+    """Every kind the catalog lists logs as: static logs, then each dataset kind registered in
+    :data:`xviz_server.datasets.KINDS` (ROS recordings as ``bag`` and ``mcap``)."""
+    return tuple(name for kind in (LOG, *KINDS) for name in ([n for _, n in _BY_SUFFIX[kind]] if kind in _BY_SUFFIX else [kind]))
 
 
 def version_of(path: str) -> str | None:

@@ -27,41 +27,35 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from operator import itemgetter
+from typing import Any
 
 import numpy as np
 
-from websockets.asyncio.server import ServerConnection
-from websockets.exceptions import ConnectionClosed
-from websockets.frames import CloseCode
-
-from ..budget import LogThrottle
-from ..connection import request_target
 from ..detail import Sample
+from ..events import SubscribeLive
 from ..exceptions import XVIZError
-from ..flow import close, watch_progress
-from ..live import FeedEvent, LiveRegistry, LiveUpdate, watch_lag
-from ..logfmt import ending, log_event, peer, redact_url
-from ..logs import Catalog, Log
-from ..metrics import Metrics
+from ..face import FaceConnection
 from ..linkwatch import is_loopback, sample_link
+from ..live import FeedEvent, LiveUpdate
+from ..logfmt import log_event, peer
+from ..logs import Log
 from ..records import unpack
-from ..session import Close, DetailChanged, LookUpLive, OpenLog, Send, SubscribeLive
-from ..settings import Settings
+from ..session import DetailChanged
 from ..version import __version__
 from .convert import Channel, Plan, nanoseconds
 from .frame import Message, frame_messages, log_plan
 from .live import LivePlan, converted, feed_plan, update_time
-from .session import Event, FoxgloveSession, Play, SendLatest, SendLive, Stop
+from .session import FoxgloveSession, Play, SendLatest, SendLive, Stop
 from .wire import message_header, time_message
 
 __all__ = ["FoxgloveConnection"]
 
 logger = logging.getLogger("xviz_server.session")
+
 
 @dataclass
 class _OpenLog:
@@ -97,93 +91,52 @@ class _OpenLog:
         return len(self.times)
 
 
-class FoxgloveConnection:
+class FoxgloveConnection(FaceConnection[FoxgloveSession]):
     """One WebSocket connection speaking the Foxglove protocol, with its own playback of one log, or a live feed."""
 
-    def __init__(
-        self, websocket: ServerConnection, catalog: Catalog, live: LiveRegistry, metrics: Metrics, settings: Settings
-    ) -> None:
-        self.websocket = websocket
-        self.catalog = catalog
-        self.live = live
-        self.metrics = metrics
-        self.settings = settings
-        self.path, path, query = request_target(websocket)
-        self.session = FoxgloveSession(
-            path=path,
-            query=query,
-            available=catalog.available(),
-            server_name=f"xviz-server {__version__}",
-            lag_timeout=settings.live_lag_timeout,
-            detail=settings.detail == "auto",
-            local=is_loopback(websocket),
-        )
+    def _make_session(self, path: str, query: dict[str, str]) -> FoxgloveSession:
         self._log: _OpenLog | None = None
         self._player: asyncio.Task[None] | None = None
-        self._follower: asyncio.Task[None] | None = None
         self._update: tuple[LiveUpdate, LivePlan] | None = None  # the live update the session is deciding about
-        self._watch: asyncio.Task[None] | None = None
         self._measure: asyncio.Task[None] | None = None  # sampling the link, while the level depends on it
         self._offered: Callable[[], int] | None = None  # updates a live feed offered this client so far
-        self.messages_sent = 0
-        self.bytes_sent = 0
-        self.bytes_written = 0  # every message's bytes, as handed to the connection
-        self._mistakes = LogThrottle()  # lines logged about the client's mistakes
+        return FoxgloveSession(
+            path=path,
+            query=query,
+            available=self.catalog.available(),
+            server_name=f"xviz-server {__version__}",
+            lag_timeout=self.settings.live_lag_timeout,
+            detail=self.settings.detail == "auto",
+            local=is_loopback(self.websocket),
+        )
 
-    async def run(self) -> None:
-        """Serve the session until the client goes away or the server shuts down."""
-        started = time.monotonic()
-        self.metrics.sessions.inc()
-        self.metrics.sessions_open.inc()
-        remote = peer(self.websocket)
-        log_event(logger, "session start", remote=remote, path=redact_url(self.path), protocol=self.websocket.subprotocol)
-        self._watch = asyncio.ensure_future(watch_progress(self.websocket, self.settings.idle_timeout, lambda: self.messages_sent))
-        try:
-            await self._execute(self.session.connect())
-            self._follow_link()
-            async for message in self.websocket:
-                await self._execute(self.session.receive(message))
-                self._follow_link()
-        except ConnectionClosed:
-            pass
-        finally:
-            tasks = [task for task in (self._player, self._watch, self._follower, self._measure) if task is not None]
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            self.metrics.sessions_open.dec()
-            log_event(logger, "session end", remote=remote, log=self._log.name if self._log else self.session.feed, format="foxglove",
-                      messages=self.messages_sent, bytes=self.bytes_sent, duration=round(time.monotonic() - started, 3),
-                      **ending(self.websocket))
+    def _start_fields(self) -> dict[str, Any]:
+        return {"protocol": self.websocket.subprotocol}
 
-    async def _execute(self, events: list[Event]) -> None:
-        for event in events:
-            if isinstance(event, Send):
-                await self._write(event.data, event.text)
-                if event.error is not None:
-                    self.metrics.errors.labels(event.error).inc()
-                    self._mistakes.log(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
-            elif isinstance(event, OpenLog):
-                await self._open(event.name)
-            elif isinstance(event, Play):
-                await self._stop()
-                self._player = asyncio.ensure_future(self._play(event))
-            elif isinstance(event, Stop):
-                await self._stop()
-            elif isinstance(event, SendLatest):
-                await self._send_frame(event.place, event.targets)
-            elif isinstance(event, LookUpLive):
-                await self._execute(self.session.live_found(self.live.facts(event.name)))
-            elif isinstance(event, SubscribeLive):
-                self._follower = asyncio.ensure_future(self._follow(event.name))
-            elif isinstance(event, SendLive):
-                await self._send_live(event)
-            elif isinstance(event, DetailChanged):
-                mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
-                log_event(logger, "detail changed", remote=peer(self.websocket), detail=event.level.name,
-                          previous=event.previous.name, auto=event.auto, link_mbps=mbps)
-            elif isinstance(event, Close):
-                await close(self.websocket, event.code, event.reason)
+    def _end_fields(self) -> dict[str, Any]:
+        log = self._log.name if self._log else self.session.feed
+        return {"log": log, "format": "foxglove", "messages": self.messages_sent, "bytes": self.bytes_written}
+
+    async def _step(self, what: str, step: Callable[..., Sequence[object]], *args: Any) -> None:
+        await super()._step(what, step, *args)
+        self._follow_link()
+
+    async def _carry_out(self, event: object) -> None:
+        if isinstance(event, Play):
+            await self._stop()
+            self._player = self._spawn("playing the log", self._play(event))
+        elif isinstance(event, Stop):
+            await self._stop()
+        elif isinstance(event, SendLatest):
+            await self._send_frame(event.place, event.targets)
+        elif isinstance(event, SubscribeLive):
+            self._spawn("following the live feed", self._follow(event.name), fatal=True)
+        elif isinstance(event, SendLive):
+            await self._send_live(event)
+        elif isinstance(event, DetailChanged):
+            mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
+            log_event(logger, "detail changed", remote=peer(self.websocket), detail=event.level.name,
+                      previous=event.previous.name, auto=event.auto, link_mbps=mbps)
 
     def _follow_link(self) -> None:
         """Sample the connection's delivery for the session's level of detail once it depends on it."""
@@ -193,21 +146,10 @@ class FoxgloveConnection:
                 await self._execute(self.session.link_sampled(sample, None if self._offered is None else self._offered()))
 
             sampling = sample_link(self.websocket.transport, lambda: self.bytes_written, sampled, lambda: self.session.chooser.measures)
-            self._measure = asyncio.ensure_future(sampling)
+            self._measure = self._spawn("measuring the link", sampling)
             self._measure.add_done_callback(lambda _: setattr(self, "_measure", None))
 
-    async def _write(self, data: bytes, text: bool) -> None:
-        self.bytes_written += len(data)  # before: the bytes are in the transport while send waits
-        await self.websocket.send(data, text=text)
-        self.messages_sent += 1
-        self.bytes_sent += len(data)
-
-    async def _open(self, name: str) -> None:
-        try:
-            log = await self.catalog.open(name)
-        except XVIZError as exc:
-            await self._execute(self.session.log_failed(exc))
-            return
+    async def _log_opened(self, log: Log) -> None:
         self._log = _OpenLog(log, await log_plan(log))
         await self._execute(self.session.log_opened(self._log))
 
@@ -225,29 +167,24 @@ class FoxgloveConnection:
         (what comes before was sent), unless nothing of it was.
         """
         assert self._log is not None
-        log, times = self._log.log, self._log.times
+        times = self._log.times
         first = max(0, int(np.searchsorted(times, request.start, side="right")) - 1)
         skip_before = request.start if not request.seek and len(times) and request.start > times[first] else None
         loop = asyncio.get_running_loop()
         clock = loop.time()
-        try:
-            for position in range(first, len(times)):
-                for at, group in _by_time(int(times[position]), await self._messages(position)):
-                    if skip_before is not None and at < skip_before:
-                        continue
-                    if request.once and at > request.start:
-                        return
-                    await asyncio.sleep(max(0.0, clock + (at - request.start) / 1e9 / request.speed - loop.time()))
-                    # The time first: the apps stamp a message with the last time they were sent.
-                    await self._write(time_message(at), text=False)
-                    await self._send(group, self.session.frame(at, position))
-                if request.once:
+        for position in range(first, len(times)):
+            for at, group in _by_time(int(times[position]), await self._messages(position)):
+                if skip_before is not None and at < skip_before:
+                    continue
+                if request.once and at > request.start:
                     return
-            await self._execute(self.session.ended())
-        except ConnectionClosed:
-            pass
-        except Exception as exc:
-            logger.exception("error playing log %r to %s", log.name, peer(self.websocket), exc_info=exc)
+                await asyncio.sleep(max(0.0, clock + (at - request.start) / 1e9 / request.speed - loop.time()))
+                # The time first: the apps stamp a message with the last time they were sent.
+                await self._write(time_message(at), text=False)
+                await self._send_messages(group, self.session.frame(at, position))
+            if request.once:
+                return
+        await self._execute(self.session.ended())
 
     async def _messages(self, position: int, *, report: bool = True) -> list[Message]:
         """The messages of the frame at ``position``, in time order; with ``report``, a status for a part missing."""
@@ -262,9 +199,9 @@ class FoxgloveConnection:
     async def _send_frame(self, position: int, targets: Mapping[int, int]) -> None:
         """Send the messages of the frame at ``position`` up to the playback's time to ``targets``, subscriptions by channel."""
         until = self.session.position
-        await self._send([m for m in await self._messages(position, report=False) if m[1] <= until], targets)
+        await self._send_messages([m for m in await self._messages(position, report=False) if m[1] <= until], targets)
 
-    async def _send(self, messages: list[Message], targets: Mapping[int, int]) -> None:
+    async def _send_messages(self, messages: list[Message], targets: Mapping[int, int]) -> None:
         for channel, stamp, payload in messages:
             subscription = targets.get(channel)
             if subscription is not None:
@@ -274,14 +211,11 @@ class FoxgloveConnection:
 
     async def _follow(self, name: str) -> None:
         """Follow live feed ``name`` (once a source creates it): tell the session what it does, send what it says."""
-        try:
-            feed = await self.live.wait_for(name)
-        except XVIZError:  # too many names waited for
-            await self._execute(self.session.live_failed(name))
+        subscribed = await self._subscribe(name)
+        if subscribed is None:
             return
-        subscription = feed.subscribe(self.settings.live_queue)
+        feed, subscription = subscribed
         self._offered = lambda: subscription.offered
-        lag = asyncio.ensure_future(watch_lag(subscription, self.websocket.transport, self.settings.live_lag_timeout, self._lagging))
         try:
             channels = feed_plan(feed)
             await self._execute(self.session.live_joined(None if channels is None else channels.plan.channels))
@@ -298,18 +232,9 @@ class FoxgloveConnection:
                     self._update = item, channels
                     behind = subscription.lagging_since is not None
                     await self._execute(self.session.live_update(update_time(item), subscription.take_drops(), behind))
-        except ConnectionClosed:
-            pass
-        except Exception as exc:
-            logger.exception("error following live feed %r for %s", name, peer(self.websocket), exc_info=exc)
-            await close(self.websocket, CloseCode.INTERNAL_ERROR, "following the live feed failed")
         finally:
             subscription.close()
-            lag.cancel()
             self._update = None
-
-    async def _lagging(self, seconds: float) -> None:
-        await self._execute(self.session.live_lagging(seconds))
 
     async def _send_live(self, event: SendLive) -> None:
         """Send the live update at hand to ``event.targets``, converted once for every client of the feed."""
@@ -325,7 +250,7 @@ class FoxgloveConnection:
                 await self._execute(self.session.frame_failed(exc))
             else:
                 self.session.update_made(level, len(packed))
-                await self._send(list(unpack(packed)), event.targets)
+                await self._send_messages(list(unpack(packed)), event.targets)
 
 
 def _by_time(tick: int, messages: list[Message]) -> Iterator[tuple[int, list[Message]]]:

@@ -50,8 +50,9 @@ from websockets.frames import CloseCode
 from ..budget import MAX_ITEMS, Problems, shown, too_many
 from ..detail import DetailChooser, Sample
 from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
+from ..events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
 from ..levels import Level, profile_level
-from ..session import Close, DetailChanged, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
+from ..session import DetailChanged
 from .convert import Channel
 from .wire import (
     CLIENT_MESSAGE_DATA, ENDED, PAUSED, PLAYBACK_CONTROL_REQUEST, PLAYING, SERVICE_CALL_REQUEST, PlaybackControl,
@@ -252,6 +253,10 @@ class FoxgloveSession:
         self.playing = False
         # A client that never asked for playback control may not know the playback state message.
         return [self._state(ENDED, False, None)] if self._controlled else []
+
+    def internal_error(self, what: str, error: BaseException) -> list[Event]:
+        """Something unexpected failed while handling ``what``; the session goes on."""
+        return [self._status(ERROR, f"internal server error while handling {what}: {error!r}", kind="internal")]
 
     def frame_failed(self, error: XVIZError) -> list[Event]:
         """A frame (or live update) could not be read or converted; playback goes on with the next."""

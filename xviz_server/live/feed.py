@@ -33,7 +33,7 @@ from ..codec import Format, decode, detect_format, encode
 from ..exceptions import XVIZError
 from ..messages import XVIZ_VERSION, envelope, unwrap
 from ..layout import check_log_name
-from ..session import LiveFacts, Variant
+from ..events import LiveFacts, Variant
 from ..frames import placement, render, render_message
 from ..levels import FULL, Level
 from ..state import COMPLETE_TYPES, complete_state

@@ -24,7 +24,7 @@ from redis.exceptions import OutOfMemoryError, ResponseError
 
 from ..codec import Format
 from ..exceptions import BrokerError
-from ..session import Variant
+from ..events import Variant
 from ..state import COMPLETE_TYPES
 from ..work import Workers
 from .feed import FeedEvent, LiveFeed, LiveUpdate

@@ -28,7 +28,7 @@ from typing import Any
 from ..codec import Format
 from ..exceptions import LogWriteError
 from ..metrics import Metrics
-from ..session import Variant
+from ..events import Variant
 from ..work import Workers
 from ..writer import LogWriter
 from .feed import LiveFeed, LiveRegistry, LiveUpdate
