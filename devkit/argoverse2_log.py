@@ -31,9 +31,14 @@ def ego(stamp: int) -> tuple[tuple[float, float, float], float]:
 
 def sweep(index: int) -> dict[str, np.ndarray]:
     angles = np.radians(np.arange(0, 360, 2, dtype=np.float64))
-    return {"x": (8 * np.cos(angles)).astype(np.float16), "y": (8 * np.sin(angles)).astype(np.float16),
-            "z": np.full(len(angles), -1.0 + 0.125 * index, np.float16), "intensity": (np.arange(len(angles)) % 256).astype(np.uint8),
-            "laser_number": (np.arange(len(angles)) % 32).astype(np.uint8), "offset_ns": np.arange(len(angles), dtype=np.uint32) * 1000}
+    return {
+        "x": (8 * np.cos(angles)).astype(np.float16),
+        "y": (8 * np.sin(angles)).astype(np.float16),
+        "z": np.full(len(angles), -1.0 + 0.125 * index, np.float16),
+        "intensity": (np.arange(len(angles)) % 256).astype(np.uint8),
+        "laser_number": (np.arange(len(angles)) % 32).astype(np.uint8),
+        "offset_ns": np.arange(len(angles), dtype=np.uint32) * 1000,
+    }
 
 
 def quaternion(yaw: float) -> tuple[float, float, float, float]:
@@ -58,7 +63,10 @@ def write_av2_log(folder: Path, sweeps: int = 5, annotated: bool = True) -> Writ
         stamp = T0 + i * SWEEP_PERIOD
         written.sweeps.append(stamp)
         feather.write_feather(pa.table(sweep(i)), folder / "sensors" / "lidar" / f"{stamp}.feather")
-    colours = {"ring_front_center": jpeg_image(2048 // 8, 1550 // 8, (30, 160, 30)), "ring_side_left": jpeg_image(1550 // 8, 2048 // 8, (160, 30, 160))}
+    colours = {
+        "ring_front_center": jpeg_image(2048 // 8, 1550 // 8, (30, 160, 30)),
+        "ring_side_left": jpeg_image(1550 // 8, 2048 // 8, (160, 30, 160)),
+    }
     for number, camera in enumerate(CAMERAS):
         (folder / "sensors" / "cameras" / camera).mkdir(parents=True)
         for j in range(-1, 2 * sweeps + 1):
@@ -68,14 +76,56 @@ def write_av2_log(folder: Path, sweeps: int = 5, annotated: bool = True) -> Writ
     stamps = sorted({*written.sweeps, *(stamp for _, stamp in written.images)})
     poses = [(stamp, *quaternion(ego(stamp)[1]), *ego(stamp)[0]) for stamp in stamps]
     columns = ("timestamp_ns", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
-    feather.write_feather(pa.table({c: [p[k] for p in poses] for k, c in enumerate(columns)}), folder / "city_SE3_egovehicle.feather")
+    feather.write_feather(
+        pa.table({c: [p[k] for p in poses] for k, c in enumerate(columns)}), folder / "city_SE3_egovehicle.feather"
+    )
     if annotated:
         rows = []
         for stamp in written.sweeps:
             seconds = (stamp - T0) / 1e9
-            rows.append((stamp, "8f4a4fd6-5c34-4a4d-bb7e-0a3a1c2d3e4f", "REGULAR_VEHICLE", 4.6, 1.9, 1.5, *quaternion(0.1), 12.0 + 2 * seconds, 1.0, 0.75))
-            rows.append((stamp, "0b1c2d3e-aaaa-4bbb-8ccc-123456789abc", "PEDESTRIAN", 0.6, 0.6, 1.8, *quaternion(0.0), 5.0 - 10 * seconds, -3.0, 0.9))
-        names = ("timestamp_ns", "track_uuid", "category", "length_m", "width_m", "height_m", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
+            rows.append(
+                (
+                    stamp,
+                    "8f4a4fd6-5c34-4a4d-bb7e-0a3a1c2d3e4f",
+                    "REGULAR_VEHICLE",
+                    4.6,
+                    1.9,
+                    1.5,
+                    *quaternion(0.1),
+                    12.0 + 2 * seconds,
+                    1.0,
+                    0.75,
+                )
+            )
+            rows.append(
+                (
+                    stamp,
+                    "0b1c2d3e-aaaa-4bbb-8ccc-123456789abc",
+                    "PEDESTRIAN",
+                    0.6,
+                    0.6,
+                    1.8,
+                    *quaternion(0.0),
+                    5.0 - 10 * seconds,
+                    -3.0,
+                    0.9,
+                )
+            )
+        names = (
+            "timestamp_ns",
+            "track_uuid",
+            "category",
+            "length_m",
+            "width_m",
+            "height_m",
+            "qw",
+            "qx",
+            "qy",
+            "qz",
+            "tx_m",
+            "ty_m",
+            "tz_m",
+        )
         table = {c: [r[k] for r in rows] for k, c in enumerate(names)}
         table["num_interior_pts"] = [50] * len(rows)
         feather.write_feather(pa.table(table), folder / "annotations.feather")

@@ -53,11 +53,23 @@ def write_fleet(
         road = "highway" if i % 4 == 0 else "city"
         name = f"{car}/seg-{i:06d}"
         description = f"segment {i} of {car}, {road}"
-        streams = {"/vehicle_pose": {"category": "POSE"}, "/points": {"category": "PRIMITIVE", "primitive_type": "POINT"}}
+        streams = {
+            "/vehicle_pose": {"category": "POSE"},
+            "/points": {"category": "PRIMITIVE", "primitive_type": "POINT"},
+        }
         if i % 3 == 0:
             streams["/camera"] = {"category": "PRIMITIVE", "primitive_type": "IMAGE"}
-        meta = {"version": "2.0.0", "streams": streams,
-                "log_info": {"start_time": start, "end_time": end, "description": description, "vehicle": car, "tags": [road]}}
+        meta = {
+            "version": "2.0.0",
+            "streams": streams,
+            "log_info": {
+                "start_time": start,
+                "end_time": end,
+                "description": description,
+                "vehicle": car,
+                "tags": [road],
+            },
+        }
         directory = root / name
         directory.mkdir(parents=True)
         (directory / "1-frame.json").write_bytes(encode({"type": "xviz/metadata", "data": meta}, Format.JSON))

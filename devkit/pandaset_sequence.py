@@ -45,26 +45,52 @@ def write_sequence(folder: Path, sweeps: int = 4) -> Path:
     poses, times = [], []
     for index in range(sweeps):
         (x, y, z), yaw = pose(index)
-        poses.append({"position": {"x": x, "y": y, "z": z}, "heading": {"w": math.cos(yaw / 2), "x": 0.0, "y": 0.0, "z": math.sin(yaw / 2)}})
+        poses.append(
+            {
+                "position": {"x": x, "y": y, "z": z},
+                "heading": {"w": math.cos(yaw / 2), "x": 0.0, "y": 0.0, "z": math.sin(yaw / 2)},
+            }
+        )
         times.append(T0 + index * PERIOD)
         local = local_points(index)
-        world = local @ np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]).T + (x, y, z)
+        world = local @ np.array(
+            [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]
+        ).T + (x, y, z)
         count = len(world)
-        pd.DataFrame({"x": world[:, 0], "y": world[:, 1], "z": world[:, 2], "i": np.arange(count, dtype=np.float64) % 256,
-                      "t": np.full(count, times[-1]), "d": np.zeros(count, dtype=np.int64)}).to_pickle(
-            folder / "lidar" / f"{index:02d}.pkl.gz", compression="gzip")
-        pd.DataFrame({"uuid": ["2a1e8b0c-9d3f-4c56-a7b8-0e1f2a3b4c5d"], "label": ["Car"], "yaw": [PARKED_YAW],
-                      "stationary": [True], "camera_used": [0],
-                      **{f"position.{k}": [v] for k, v in zip("xyz", PARKED_POSITION)},
-                      **{f"dimensions.{k}": [v] for k, v in zip("xyz", PARKED_DIMENSIONS)},
-                      "attributes.object_motion": ["Parked"], "cuboids.sibling_id": ["-"], "cuboids.sensor_id": [-1]}).to_pickle(
-            folder / "annotations" / "cuboids" / f"{index:02d}.pkl.gz", compression="gzip")
+        pd.DataFrame(
+            {
+                "x": world[:, 0],
+                "y": world[:, 1],
+                "z": world[:, 2],
+                "i": np.arange(count, dtype=np.float64) % 256,
+                "t": np.full(count, times[-1]),
+                "d": np.zeros(count, dtype=np.int64),
+            }
+        ).to_pickle(folder / "lidar" / f"{index:02d}.pkl.gz", compression="gzip")
+        pd.DataFrame(
+            {
+                "uuid": ["2a1e8b0c-9d3f-4c56-a7b8-0e1f2a3b4c5d"],
+                "label": ["Car"],
+                "yaw": [PARKED_YAW],
+                "stationary": [True],
+                "camera_used": [0],
+                **{f"position.{k}": [v] for k, v in zip("xyz", PARKED_POSITION)},
+                **{f"dimensions.{k}": [v] for k, v in zip("xyz", PARKED_DIMENSIONS)},
+                "attributes.object_motion": ["Parked"],
+                "cuboids.sibling_id": ["-"],
+                "cuboids.sensor_id": [-1],
+            }
+        ).to_pickle(folder / "annotations" / "cuboids" / f"{index:02d}.pkl.gz", compression="gzip")
     (folder / "lidar" / "poses.json").write_text(json.dumps(poses))
     (folder / "lidar" / "timestamps.json").write_text(json.dumps(times))
     for number, camera in enumerate(CAMERAS):
         for index in range(sweeps):
-            (folder / "camera" / camera / f"{index:02d}.jpg").write_bytes(jpeg_image(192, 108, (60 * number + 40, 90, 140)))
+            (folder / "camera" / camera / f"{index:02d}.jpg").write_bytes(
+                jpeg_image(192, 108, (60 * number + 40, 90, 140))
+            )
         (folder / "camera" / camera / "timestamps.json").write_text(json.dumps([t + 0.02 for t in times]))
     (folder / "meta" / "timestamps.json").write_text(json.dumps(times))
-    (folder / "meta" / "gps.json").write_text(json.dumps([{"lat": 37.776, "long": -122.42, "height": 2.0, "xvel": 5.0, "yvel": 0.1}] * sweeps))
+    (folder / "meta" / "gps.json").write_text(
+        json.dumps([{"lat": 37.776, "long": -122.42, "height": 2.0, "xvel": 5.0, "yvel": 0.1}] * sweeps)
+    )
     return folder

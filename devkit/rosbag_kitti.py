@@ -26,13 +26,15 @@ from __future__ import annotations
 import io
 import math
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 from PIL import Image
 from rosbags.rosbag1 import Writer as Writer1
-from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -53,7 +55,12 @@ def quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, flo
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )
 
 
 def rotation_quaternion(r: np.ndarray) -> tuple[float, float, float, float]:
@@ -74,7 +81,9 @@ class Messages:
     def __init__(self, store: Stores) -> None:
         self.store = get_typestore(store)
         if "tf2_msgs/msg/TFMessage" not in self.store.types:  # noetic's store lacks it; its definition is one line
-            self.store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+            self.store.register(
+                get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+            )
         self.types = self.store.types
         self.ros1 = store == Stores.ROS1_NOETIC
 
@@ -96,16 +105,26 @@ class Messages:
 
     def transform(self, t: int, parent: str, child: str, translation: Any, rotation: Any) -> Any:
         return self.geometry_msgs__TransformStamped(
-            header=self.header(t, parent), child_frame_id=child,
-            transform=self.geometry_msgs__Transform(translation=self.vector(*translation), rotation=self.rotation(rotation)),
+            header=self.header(t, parent),
+            child_frame_id=child,
+            transform=self.geometry_msgs__Transform(
+                translation=self.vector(*translation), rotation=self.rotation(rotation)
+            ),
         )
 
     def cloud(self, t: int, sweep: np.ndarray, frame: str = "velo_link") -> Any:
-        fields = [self.sensor_msgs__PointField(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz") ]
+        fields = [self.sensor_msgs__PointField(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
         fields.append(self.sensor_msgs__PointField(name="intensity", offset=12, datatype=7, count=1))
         return self.sensor_msgs__PointCloud2(
-            header=self.header(t, frame), height=1, width=len(sweep), fields=fields, is_bigendian=False,
-            point_step=16, row_step=16 * len(sweep), data=np.frombuffer(sweep.astype("<f4").tobytes(), np.uint8), is_dense=True,
+            header=self.header(t, frame),
+            height=1,
+            width=len(sweep),
+            fields=fields,
+            is_bigendian=False,
+            point_step=16,
+            row_step=16 * len(sweep),
+            data=np.frombuffer(sweep.astype("<f4").tobytes(), np.uint8),
+            is_dense=True,
         )
 
     def image(self, t: int, png: bytes, frame: str) -> Any:
@@ -114,15 +133,24 @@ class Messages:
         encoding = "mono8" if pixels.ndim == 2 else "rgb8"
         height, width = pixels.shape[:2]
         return self.sensor_msgs__Image(
-            header=self.header(t, frame), height=height, width=width, encoding=encoding, is_bigendian=0,
-            step=pixels.strides[0], data=pixels.reshape(-1).copy(),
+            header=self.header(t, frame),
+            height=height,
+            width=width,
+            encoding=encoding,
+            is_bigendian=0,
+            step=pixels.strides[0],
+            data=pixels.reshape(-1).copy(),
         )
 
     def compressed(self, t: int, png: bytes, frame: str) -> Any:
-        return self.sensor_msgs__CompressedImage(header=self.header(t, frame), format="png", data=np.frombuffer(png, np.uint8))
+        return self.sensor_msgs__CompressedImage(
+            header=self.header(t, frame), format="png", data=np.frombuffer(png, np.uint8)
+        )
 
     def serialize(self, message: Any, msgtype: str) -> bytes:
-        return bytes(self.store.serialize_ros1(message, msgtype) if self.ros1 else self.store.serialize_cdr(message, msgtype))
+        return bytes(
+            self.store.serialize_ros1(message, msgtype) if self.ros1 else self.store.serialize_cdr(message, msgtype)
+        )
 
 
 def kitti_messages(drive: KittiDrive, m: Messages, frames: int | None = None) -> Iterator[tuple[str, str, int, Any]]:
@@ -148,36 +176,70 @@ def kitti_messages(drive: KittiDrive, m: Messages, frames: int | None = None) ->
         world = m.transform(t, "world", "base_link", position, rotation)
         yield "/tf", "tf2_msgs/msg/TFMessage", t, m.tf2_msgs__TFMessage(transforms=[world])
         fix = m.sensor_msgs__NavSatFix(
-            header=m.header(t, "base_link"), status=m.sensor_msgs__NavSatStatus(status=0, service=1),
-            latitude=oxts.lat, longitude=oxts.lon, altitude=oxts.alt,
-            position_covariance=np.zeros(9), position_covariance_type=0,
+            header=m.header(t, "base_link"),
+            status=m.sensor_msgs__NavSatStatus(status=0, service=1),
+            latitude=oxts.lat,
+            longitude=oxts.lon,
+            altitude=oxts.alt,
+            position_covariance=np.zeros(9),
+            position_covariance_type=0,
         )
         yield FIX_TOPIC, "sensor_msgs/msg/NavSatFix", t, fix
         imu = m.sensor_msgs__Imu(
-            header=m.header(t, "base_link"), orientation=m.rotation(rotation), orientation_covariance=np.zeros(9),
-            angular_velocity=m.vector(oxts.wx, oxts.wy, oxts.wz), angular_velocity_covariance=np.zeros(9),
-            linear_acceleration=m.vector(oxts.ax, oxts.ay, oxts.az), linear_acceleration_covariance=np.zeros(9),
+            header=m.header(t, "base_link"),
+            orientation=m.rotation(rotation),
+            orientation_covariance=np.zeros(9),
+            angular_velocity=m.vector(oxts.wx, oxts.wy, oxts.wz),
+            angular_velocity_covariance=np.zeros(9),
+            linear_acceleration=m.vector(oxts.ax, oxts.ay, oxts.az),
+            linear_acceleration_covariance=np.zeros(9),
         )
         yield IMU_TOPIC, "sensor_msgs/msg/Imu", t, imu
-        pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=position[0], y=position[1], z=position[2]),
-                                     orientation=m.rotation(rotation))
+        pose = m.geometry_msgs__Pose(
+            position=m.geometry_msgs__Point(x=position[0], y=position[1], z=position[2]),
+            orientation=m.rotation(rotation),
+        )
         odometry = m.nav_msgs__Odometry(
-            header=m.header(t, "world"), child_frame_id="base_link",
+            header=m.header(t, "world"),
+            child_frame_id="base_link",
             pose=m.geometry_msgs__PoseWithCovariance(pose=pose, covariance=np.zeros(36)),
             twist=m.geometry_msgs__TwistWithCovariance(
                 twist=m.geometry_msgs__Twist(linear=m.vector(oxts.vf, 0.0, 0.0), angular=m.vector(0.0, 0.0, oxts.wu)),
-                covariance=np.zeros(36)),
+                covariance=np.zeros(36),
+            ),
         )
         yield "/odom", "nav_msgs/msg/Odometry", t, odometry
         yield CLOUD_TOPIC, "sensor_msgs/msg/PointCloud2", t, m.cloud(t, np.array(drive.velodyne(i)), "/velo_link")
-        yield GRAY_TOPIC, "sensor_msgs/msg/Image", t, m.image(t, drive.image_path("image_00", i).read_bytes(), "camera_gray_left")
-        yield COLOR_TOPIC, "sensor_msgs/msg/Image", t, m.image(t, drive.image_path("image_02", i).read_bytes(), "camera_color_left")
-        yield COMPRESSED_TOPIC, "sensor_msgs/msg/CompressedImage", t, m.compressed(t, drive.image_path("image_03", i).read_bytes(), "camera_color_right")
-        yield "/markers", "visualization_msgs/msg/MarkerArray", t, m.visualization_msgs__MarkerArray(markers=[
-            marker(m, t, action=3, kind=1, id=0, x=0.0, text=""),
-            marker(m, t, action=0, kind=1, id=i, x=float(i), text=""),
-            marker(m, t, action=0, kind=9, id=100 + i, x=float(i), text=f"box {i}"),
-        ])
+        yield (
+            GRAY_TOPIC,
+            "sensor_msgs/msg/Image",
+            t,
+            m.image(t, drive.image_path("image_00", i).read_bytes(), "camera_gray_left"),
+        )
+        yield (
+            COLOR_TOPIC,
+            "sensor_msgs/msg/Image",
+            t,
+            m.image(t, drive.image_path("image_02", i).read_bytes(), "camera_color_left"),
+        )
+        yield (
+            COMPRESSED_TOPIC,
+            "sensor_msgs/msg/CompressedImage",
+            t,
+            m.compressed(t, drive.image_path("image_03", i).read_bytes(), "camera_color_right"),
+        )
+        yield (
+            "/markers",
+            "visualization_msgs/msg/MarkerArray",
+            t,
+            m.visualization_msgs__MarkerArray(
+                markers=[
+                    marker(m, t, action=3, kind=1, id=0, x=0.0, text=""),
+                    marker(m, t, action=0, kind=1, id=i, x=float(i), text=""),
+                    marker(m, t, action=0, kind=9, id=100 + i, x=float(i), text=f"box {i}"),
+                ]
+            ),
+        )
 
 
 def viz_messages(m: Messages, pose_type: str = "geometry_msgs/msg/PoseStamped") -> Iterator[tuple[str, str, int, Any]]:
@@ -191,10 +253,13 @@ def viz_messages(m: Messages, pose_type: str = "geometry_msgs/msg/PoseStamped") 
     ahead = [(0.0, 0.0, 0.0), (0.0, 5.0, 0.0)]
     messages: list[tuple[str, str, int, Any]] = []
     for i in range(5):
-        pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
+        pose = m.geometry_msgs__Pose(
+            position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0))
+        )
         if pose_type.endswith("PoseWithCovarianceStamped"):
             stamped_pose = m.geometry_msgs__PoseWithCovarianceStamped(
-                header=m.header(t0, "map"), pose=m.geometry_msgs__PoseWithCovariance(pose=pose, covariance=np.zeros(36)))
+                header=m.header(t0, "map"), pose=m.geometry_msgs__PoseWithCovariance(pose=pose, covariance=np.zeros(36))
+            )
         else:
             stamped_pose = m.geometry_msgs__PoseStamped(header=m.header(t0, "map"), pose=pose)
         messages.append(("/pose", pose_type, t0 + i * tick, stamped_pose))
@@ -204,45 +269,106 @@ def viz_messages(m: Messages, pose_type: str = "geometry_msgs/msg/PoseStamped") 
     marker_type = "visualization_msgs/msg/Marker"
     messages += [
         ("/viz", marker_type, t0, marker(m, t0, action=0, kind=2, id=1, x=10.0, frame="map", scale=2.0)),  # SPHERE
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=4, id=2, x=0.0, frame="map", points=ahead)),  # LINE_STRIP
+        (
+            "/viz",
+            marker_type,
+            t0,
+            marker(m, t0, action=0, kind=4, id=2, x=0.0, frame="map", points=ahead),
+        ),  # LINE_STRIP
         ("/viz", marker_type, t0, marker(m, t0, action=0, kind=8, id=3, x=0.0, frame="map", points=ahead)),  # POINTS
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=0, id=4, x=0.0, frame="map", lifetime=150_000_000)),  # ARROW
-        ("/viz", marker_type, t0, marker(m, t0, action=0, kind=5, id=5, x=0.0, frame="map", points=ahead * 2)),  # LINE_LIST
+        (
+            "/viz",
+            marker_type,
+            t0,
+            marker(m, t0, action=0, kind=0, id=4, x=0.0, frame="map", lifetime=150_000_000),
+        ),  # ARROW
+        (
+            "/viz",
+            marker_type,
+            t0,
+            marker(m, t0, action=0, kind=5, id=5, x=0.0, frame="map", points=ahead * 2),
+        ),  # LINE_LIST
         ("/viz", marker_type, t0, marker(m, t0, action=0, kind=6, id=6, x=0.0, frame="map", points=ahead)),  # CUBE_LIST
         ("/shapes", marker_type, t0, marker(m, t0, action=0, kind=1, id=7, x=3.0, frame="map")),  # CUBE
         ("/shapes", marker_type, t0, marker(m, t0, action=0, kind=3, id=8, x=6.0, frame="map")),  # CYLINDER
-        ("/shapes", marker_type, t0, marker(m, t0, action=0, kind=7, id=9, x=0.0, frame="map", points=ahead)),  # SPHERE_LIST
+        (
+            "/shapes",
+            marker_type,
+            t0,
+            marker(m, t0, action=0, kind=7, id=9, x=0.0, frame="map", points=ahead),
+        ),  # SPHERE_LIST
         ("/viz", marker_type, t0 + tick, marker(m, t0, action=2, kind=4, id=2, x=0.0, frame="map")),  # DELETE the strip
     ]
-    stamped = [m.geometry_msgs__PoseStamped(header=m.header(t0, "map"), pose=m.geometry_msgs__Pose(
-        position=m.geometry_msgs__Point(x=x, y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))) for x in (0.0, 5.0, 10.0)]
+    stamped = [
+        m.geometry_msgs__PoseStamped(
+            header=m.header(t0, "map"),
+            pose=m.geometry_msgs__Pose(
+                position=m.geometry_msgs__Point(x=x, y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0))
+            ),
+        )
+        for x in (0.0, 5.0, 10.0)
+    ]
     messages.append(("/plan", "nav_msgs/msg/Path", t0, m.nav_msgs__Path(header=m.header(t0, "map"), poses=stamped)))
     return iter(sorted(messages, key=lambda e: e[2]))
 
 
-def marker(m: Messages, t: int, *, action: int, kind: int, id: int, x: float, text: str = "", frame: str = "base_link",
-           points: list[tuple[float, float, float]] | None = None, lifetime: int = 0, scale: float = 4.0) -> Any:
+def marker(
+    m: Messages,
+    t: int,
+    *,
+    action: int,
+    kind: int,
+    id: int,
+    x: float,
+    text: str = "",
+    frame: str = "base_link",
+    points: list[tuple[float, float, float]] | None = None,
+    lifetime: int = 0,
+    scale: float = 4.0,
+) -> Any:
     """A Marker: namespace ``boxes``, orange, at (x, 0, 0.75), scaled (scale, 2, 1.5); ``lifetime`` in ns."""
-    pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=x, y=0.0, z=0.75), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
+    pose = m.geometry_msgs__Pose(
+        position=m.geometry_msgs__Point(x=x, y=0.0, z=0.75), orientation=m.rotation((0.0, 0.0, 0.0, 1.0))
+    )
     lifetime_message = m.builtin_interfaces__Duration(sec=lifetime // 10**9, nanosec=lifetime % 10**9)
     color = m.std_msgs__ColorRGBA(r=1.0, g=0.5, b=0.0, a=1.0)
     fields: dict[str, Any] = dict(
-        header=m.header(t, frame), ns="boxes", id=id, type=kind, action=action, pose=pose,
-        scale=m.vector(scale, 2.0, 1.5), color=color, lifetime=lifetime_message, frame_locked=False,
+        header=m.header(t, frame),
+        ns="boxes",
+        id=id,
+        type=kind,
+        action=action,
+        pose=pose,
+        scale=m.vector(scale, 2.0, 1.5),
+        color=color,
+        lifetime=lifetime_message,
+        frame_locked=False,
         points=[m.geometry_msgs__Point(x=p[0], y=p[1], z=p[2]) for p in points or []],
-        colors=[color for _ in points or []], text=text, mesh_resource="", mesh_use_embedded_materials=False,
+        colors=[color for _ in points or []],
+        text=text,
+        mesh_resource="",
+        mesh_use_embedded_materials=False,
     )
     if not m.ros1:
         fields["texture_resource"] = ""
-        fields["texture"] = m.sensor_msgs__CompressedImage(header=m.header(t, ""), format="", data=np.zeros(0, np.uint8))
+        fields["texture"] = m.sensor_msgs__CompressedImage(
+            header=m.header(t, ""), format="", data=np.zeros(0, np.uint8)
+        )
         fields["uv_coordinates"] = []
         fields["mesh_file"] = m.visualization_msgs__MeshFile(filename="", data=np.zeros(0, np.uint8))
     return m.visualization_msgs__Marker(**fields)
 
 
-def write_bag(path: Path, container: str, messages: Iterator[tuple[str, str, int, Any]] | None = None, *,
-              drive: KittiDrive | None = None, compression: str | None = None, frames: int | None = None,
-              mode: str = "storage") -> Path:
+def write_bag(
+    path: Path,
+    container: str,
+    messages: Iterator[tuple[str, str, int, Any]] | None = None,
+    *,
+    drive: KittiDrive | None = None,
+    compression: str | None = None,
+    frames: int | None = None,
+    mode: str = "storage",
+) -> Path:
     """Write a bag of ``container`` (``ros1``, ``sqlite3``, ``mcap``: a bare .mcap file) at ``path``; return it.
 
     ``compression``: ``bz2`` or ``lz4`` chunks for ROS 1, ``zstd`` for ROS 2 and MCAP: of MCAP chunks
@@ -256,7 +382,9 @@ def write_bag(path: Path, container: str, messages: Iterator[tuple[str, str, int
             writer.set_compression(getattr(Writer1.CompressionFormat, compression.upper()))
     else:
         folder = path if container == "sqlite3" else path.with_suffix("")
-        writer = Writer2(folder, version=9, storage_plugin=StoragePlugin.SQLITE3 if container == "sqlite3" else StoragePlugin.MCAP)
+        writer = Writer2(
+            folder, version=9, storage_plugin=StoragePlugin.SQLITE3 if container == "sqlite3" else StoragePlugin.MCAP
+        )
         if compression:
             writer.set_compression(CompressionMode[mode.upper()], CompressionFormat.ZSTD)
     connections: dict[str, Any] = {}

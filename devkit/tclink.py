@@ -69,7 +69,9 @@ class TcLink:
         """
         burst = self.bucket or max(_LEAST_BURST, int(mbps * 125_000 / 100))
         verb = "change" if self.shaped else "add"
-        _run(f"tc qdisc {verb} dev {self.device} root tbf rate {mbps}mbit burst {burst} latency {self.latency * 1000:g}ms")
+        _run(
+            f"tc qdisc {verb} dev {self.device} root tbf rate {mbps}mbit burst {burst} latency {self.latency * 1000:g}ms"
+        )
         self.shaped = True
 
     def connect(self, port: int) -> socket.socket:

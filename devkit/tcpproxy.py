@@ -112,7 +112,9 @@ class Proxy:
                 self._in_flight += 1
                 self.most_in_flight = max(self.most_in_flight, self._in_flight)
                 try:
-                    if not await self._exchange(request, head + body, writer, server_reader, upstream, method == b"HEAD"):
+                    if not await self._exchange(
+                        request, head + body, writer, server_reader, upstream, method == b"HEAD"
+                    ):
                         return
                 finally:
                     self._in_flight -= 1
@@ -139,7 +141,9 @@ class Proxy:
         if fault is not None and fault.stall:
             await asyncio.Event().wait()
         if fault is not None and fault.status is not None:
-            text = f"<?xml version=\"1.0\"?><Error><Code>Injected</Code><Message>{fault.status}</Message></Error>".encode()
+            text = (
+                f'<?xml version="1.0"?><Error><Code>Injected</Code><Message>{fault.status}</Message></Error>'.encode()
+            )
             client.write(
                 f"HTTP/1.1 {fault.status} Injected\r\nContent-Type: application/xml\r\nContent-Length: {len(text)}\r\n\r\n".encode()
                 + text

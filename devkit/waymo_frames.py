@@ -9,8 +9,9 @@ from __future__ import annotations
 import io
 import math
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -31,18 +32,34 @@ def transform(values: np.ndarray) -> pb.Transform:
 
 def pose_matrix(yaw: float, translation: Sequence[float], roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
     """(4, 4) transform with rotation Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    cr, sr, cp, sp, cy, sy = (
+        math.cos(roll),
+        math.sin(roll),
+        math.cos(pitch),
+        math.sin(pitch),
+        math.cos(yaw),
+        math.sin(yaw),
+    )
     matrix4 = np.eye(4)
-    matrix4[:3, :3] = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                       [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                       [-sp, cp * sr, cp * cr]]
+    matrix4[:3, :3] = [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
     matrix4[:3, 3] = translation
     return matrix4
 
 
-def calibration(laser: str, extrinsic: np.ndarray, beams: Sequence[float] = (), low: float = 0.0, high: float = 0.0) -> pb.LaserCalibration:
-    return pb.LaserCalibration(name=laser, beam_inclinations=list(beams), beam_inclination_min=low,
-                               beam_inclination_max=high, extrinsic=transform(extrinsic))
+def calibration(
+    laser: str, extrinsic: np.ndarray, beams: Sequence[float] = (), low: float = 0.0, high: float = 0.0
+) -> pb.LaserCalibration:
+    return pb.LaserCalibration(
+        name=laser,
+        beam_inclinations=list(beams),
+        beam_inclination_min=low,
+        beam_inclination_max=high,
+        extrinsic=transform(extrinsic),
+    )
 
 
 def jpeg_image(width: int, height: int, color: tuple[int, int, int]) -> bytes:
@@ -87,7 +104,11 @@ def write_segment(path: Path, frames: Sequence[pb.Frame]) -> Path:
 
 
 def real_size_frame(
-    micros: int, rng: np.random.Generator, cameras: dict[str, bytes], returns_top: tuple[float, float], returns_short: tuple[float, float],
+    micros: int,
+    rng: np.random.Generator,
+    cameras: dict[str, bytes],
+    returns_top: tuple[float, float],
+    returns_short: tuple[float, float],
 ) -> pb.Frame:
     """A frame at the sizes of the real data: a 64 x 2650 TOP range image with pixel poses,
     four 200 x 600 short-range ones, the given camera images, 60 labels.
@@ -96,10 +117,22 @@ def real_size_frame(
     first and a second return, for the TOP and the short-range lidars.
     """
     calibrations, lasers = [], {}
-    for name, (height, width) in {"TOP": (64, 2650), "FRONT": (200, 600), "SIDE_LEFT": (200, 600),
-                                  "SIDE_RIGHT": (200, 600), "REAR": (200, 600)}.items():
-        calibrations.append(calibration(name, pose_matrix(0.1, (1.0, 0.0, 2.0)), np.linspace(-0.3, 0.04, height).tolist() if name == "TOP" else [],
-                                        -1.5, 0.5))
+    for name, (height, width) in {
+        "TOP": (64, 2650),
+        "FRONT": (200, 600),
+        "SIDE_LEFT": (200, 600),
+        "SIDE_RIGHT": (200, 600),
+        "REAR": (200, 600),
+    }.items():
+        calibrations.append(
+            calibration(
+                name,
+                pose_matrix(0.1, (1.0, 0.0, 2.0)),
+                np.linspace(-0.3, 0.04, height).tolist() if name == "TOP" else [],
+                -1.5,
+                0.5,
+            )
+        )
         returns: list[Any] = []
         for share in returns_top if name == "TOP" else returns_short:
             image = np.zeros((height, width, 4), np.float32)
@@ -115,5 +148,8 @@ def real_size_frame(
             pixel_pose[..., 3] = 5000.0 + np.linspace(0.0, 1.0, width)
             pixel_pose[..., 4] = -3000.0
         lasers[name] = (returns[0], returns[1], pixel_pose)
-    labels = [((float(x), float(y), 1.0, 4.0, 2.0, 1.6, 0.3), 1, f"obj-{k}") for k, (x, y) in enumerate(rng.uniform(-40, 40, (60, 2)))]
+    labels = [
+        ((float(x), float(y), 1.0, 4.0, 2.0, 1.6, 0.3), 1, f"obj-{k}")
+        for k, (x, y) in enumerate(rng.uniform(-40, 40, (60, 2)))
+    ]
     return frame(micros, pose_matrix(0.0, (5000.0, -3000.0, 0.0)), calibrations, lasers, cameras, labels)

@@ -28,7 +28,9 @@ X0, Y0 = 5000.0, -3000.0
 
 def ray(extrinsic: np.ndarray, inclination: float, azimuth: float) -> tuple[np.ndarray, np.ndarray]:
     """Origin and unit direction, in the vehicle frame, of a lidar ray (one pixel at a time)."""
-    local = np.array([math.cos(azimuth) * math.cos(inclination), math.sin(azimuth) * math.cos(inclination), math.sin(inclination)])
+    local = np.array(
+        [math.cos(azimuth) * math.cos(inclination), math.sin(azimuth) * math.cos(inclination), math.sin(inclination)]
+    )
     return extrinsic[:3, 3], extrinsic[:3, :3] @ local
 
 
@@ -44,7 +46,9 @@ def hit_room(origin: np.ndarray, direction: np.ndarray) -> float:
     return min(distances)
 
 
-def pixel_angles(height: int, width: int, extrinsic: np.ndarray, beams: list[float] | None, low: float = 0, high: float = 0) -> tuple[list[float], list[float]]:
+def pixel_angles(
+    height: int, width: int, extrinsic: np.ndarray, beams: list[float] | None, low: float = 0, high: float = 0
+) -> tuple[list[float], list[float]]:
     """Inclination of each row and azimuth of each column, as Waymo's range image definition gives them."""
     pitches = beams if beams else [low + (r + 0.5) / height * (high - low) for r in range(height)]
     rows = list(reversed(pitches))
@@ -108,7 +112,10 @@ def scene_calibrations() -> list[pb.LaserCalibration]:
     return [calibration("TOP", TOP_EXTRINSIC, TOP_BEAMS), calibration("FRONT", FRONT_EXTRINSIC, (), -1.2, 0.4)]
 
 
-LABELS = [((10.0, 5.0, 1.0, 4.0, 2.0, 1.6, math.radians(30)), 1, "car-a"), ((3.0, -2.0, 0.9, 0.8, 0.6, 1.8, 0.0), 2, "ped-b")]
+LABELS = [
+    ((10.0, 5.0, 1.0, 4.0, 2.0, 1.6, math.radians(30)), 1, "car-a"),
+    ((3.0, -2.0, 0.9, 0.8, 0.6, 1.8, 0.0), 2, "ped-b"),
+]
 
 
 def write_scene(directory: Path, frames: int = 3, rows_move: bool = False) -> tuple[Path, Path, list]:
@@ -125,12 +132,18 @@ def write_scene(directory: Path, frames: int = 3, rows_move: bool = False) -> tu
         expectations.append(expected)
         from PIL import Image
 
-        arrays = {"POSE": pose.astype(np.float32), "FRONT_IMAGE": np.asarray(Image.open(io.BytesIO(camera)).convert("RGB")),
-                  "LABEL_BOXES": np.array([box for box, _, _ in LABELS]), "LABEL_TYPES": np.array([k for _, k, _ in LABELS]),
-                  "LABEL_IDS": np.array([n for _, _, n in LABELS])}
+        arrays = {
+            "POSE": pose.astype(np.float32),
+            "FRONT_IMAGE": np.asarray(Image.open(io.BytesIO(camera)).convert("RGB")),
+            "LABEL_BOXES": np.array([box for box, _, _ in LABELS]),
+            "LABEL_TYPES": np.array([k for _, k, _ in LABELS]),
+            "LABEL_IDS": np.array([n for _, _, n in LABELS]),
+        }
         for name, (first, second, _) in lasers.items():
-            for suffix, zone_key, image, returns in (("FIRST_RETURN", "IN_NLZ", first, expected[name][0]),
-                                                     ("SECOND_RETURN", "IN_NLZ_SECOND_RETURN", second, expected[name][1])):
+            for suffix, zone_key, image, returns in (
+                ("FIRST_RETURN", "IN_NLZ", first, expected[name][0]),
+                ("SECOND_RETURN", "IN_NLZ_SECOND_RETURN", second, expected[name][1]),
+            ):
                 six = np.zeros(image.shape[:2] + (6,), np.float32)
                 six[..., :3] = image[..., :3]
                 six[image[..., 0] > 0, 3:6] = [p for p, _, _ in returns]
@@ -156,7 +169,9 @@ def write_v2_scene(directory: Path, frames: int = 3, rows_move: bool = False, se
     camera = jpeg_image(64, 48, (200, 30, 30))
     names = {"TOP": 1, "FRONT": 2}
     extrinsics = {"TOP": (TOP_EXTRINSIC, TOP_BEAMS, 0.0, 0.0), "FRONT": (FRONT_EXTRINSIC, [], -1.2, 0.4)}
-    tables: dict[str, dict[str, list]] = {part: {} for part in ("vehicle_pose", "lidar", "lidar_pose", "lidar_calibration", "camera_image", "lidar_box")}
+    tables: dict[str, dict[str, list]] = {
+        part: {} for part in ("vehicle_pose", "lidar", "lidar_pose", "lidar_calibration", "camera_image", "lidar_box")
+    }
 
     def row(part: str, **values: object) -> None:
         for column, value in {"key.segment_context_name": segment, **values}.items():
@@ -165,31 +180,72 @@ def write_v2_scene(directory: Path, frames: int = 3, rows_move: bool = False, se
     for i in range(frames):
         micros = T0 + i * 100_000
         pose, lasers, _ = scene_frame(i, rng, rows_move)
-        row("vehicle_pose", **{"key.frame_timestamp_micros": micros, "[VehiclePoseComponent].world_from_vehicle.transform": pose.reshape(16).tolist()})
+        row(
+            "vehicle_pose",
+            **{
+                "key.frame_timestamp_micros": micros,
+                "[VehiclePoseComponent].world_from_vehicle.transform": pose.reshape(16).tolist(),
+            },
+        )
         for name, (first, second, pixel_pose) in lasers.items():
-            row("lidar", **{"key.frame_timestamp_micros": micros, "key.laser_name": names[name],
-                            "[LiDARComponent].range_image_return1.values": first.reshape(-1).tolist(),
-                            "[LiDARComponent].range_image_return1.shape": list(first.shape),
-                            "[LiDARComponent].range_image_return2.values": second.reshape(-1).tolist(),
-                            "[LiDARComponent].range_image_return2.shape": list(second.shape)})
+            row(
+                "lidar",
+                **{
+                    "key.frame_timestamp_micros": micros,
+                    "key.laser_name": names[name],
+                    "[LiDARComponent].range_image_return1.values": first.reshape(-1).tolist(),
+                    "[LiDARComponent].range_image_return1.shape": list(first.shape),
+                    "[LiDARComponent].range_image_return2.values": second.reshape(-1).tolist(),
+                    "[LiDARComponent].range_image_return2.shape": list(second.shape),
+                },
+            )
             if pixel_pose is not None:
-                row("lidar_pose", **{"key.frame_timestamp_micros": micros, "key.laser_name": names[name],
-                                     "[LiDARPoseComponent].range_image_return1.values": pixel_pose.reshape(-1).tolist(),
-                                     "[LiDARPoseComponent].range_image_return1.shape": list(pixel_pose.shape)})
-        row("camera_image", **{"key.frame_timestamp_micros": micros, "key.camera_name": 1, "[CameraImageComponent].image": camera})
+                row(
+                    "lidar_pose",
+                    **{
+                        "key.frame_timestamp_micros": micros,
+                        "key.laser_name": names[name],
+                        "[LiDARPoseComponent].range_image_return1.values": pixel_pose.reshape(-1).tolist(),
+                        "[LiDARPoseComponent].range_image_return1.shape": list(pixel_pose.shape),
+                    },
+                )
+        row(
+            "camera_image",
+            **{"key.frame_timestamp_micros": micros, "key.camera_name": 1, "[CameraImageComponent].image": camera},
+        )
         for (x, y, z, length, width, height, heading), kind, object_id in LABELS:
-            row("lidar_box", **{"key.frame_timestamp_micros": micros, "key.laser_object_id": object_id,
-                                "[LiDARBoxComponent].box.center.x": x, "[LiDARBoxComponent].box.center.y": y,
-                                "[LiDARBoxComponent].box.center.z": z, "[LiDARBoxComponent].box.size.x": length,
-                                "[LiDARBoxComponent].box.size.y": width, "[LiDARBoxComponent].box.size.z": height,
-                                "[LiDARBoxComponent].box.heading": heading, "[LiDARBoxComponent].type": kind})
+            row(
+                "lidar_box",
+                **{
+                    "key.frame_timestamp_micros": micros,
+                    "key.laser_object_id": object_id,
+                    "[LiDARBoxComponent].box.center.x": x,
+                    "[LiDARBoxComponent].box.center.y": y,
+                    "[LiDARBoxComponent].box.center.z": z,
+                    "[LiDARBoxComponent].box.size.x": length,
+                    "[LiDARBoxComponent].box.size.y": width,
+                    "[LiDARBoxComponent].box.size.z": height,
+                    "[LiDARBoxComponent].box.heading": heading,
+                    "[LiDARBoxComponent].type": kind,
+                },
+            )
     for name, (extrinsic, beams, low, high) in extrinsics.items():
-        row("lidar_calibration", **{"key.laser_name": names[name], "[LiDARCalibrationComponent].extrinsic.transform": extrinsic.reshape(16).tolist(),
-                                    "[LiDARCalibrationComponent].beam_inclination.values": list(beams) or None,
-                                    "[LiDARCalibrationComponent].beam_inclination.min": low,
-                                    "[LiDARCalibrationComponent].beam_inclination.max": high})
-    types = {"key.laser_name": pa.int8(), "key.camera_name": pa.int8(), "[LiDARBoxComponent].type": pa.int8(),
-             "key.frame_timestamp_micros": pa.int64()}
+        row(
+            "lidar_calibration",
+            **{
+                "key.laser_name": names[name],
+                "[LiDARCalibrationComponent].extrinsic.transform": extrinsic.reshape(16).tolist(),
+                "[LiDARCalibrationComponent].beam_inclination.values": list(beams) or None,
+                "[LiDARCalibrationComponent].beam_inclination.min": low,
+                "[LiDARCalibrationComponent].beam_inclination.max": high,
+            },
+        )
+    types = {
+        "key.laser_name": pa.int8(),
+        "key.camera_name": pa.int8(),
+        "[LiDARBoxComponent].type": pa.int8(),
+        "key.frame_timestamp_micros": pa.int64(),
+    }
     for part, columns in tables.items():
         fields = []
         for column, values in columns.items():

@@ -17,8 +17,8 @@ served.
 
 from __future__ import annotations
 
-from pathlib import Path
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,10 +50,14 @@ def explicit_datasets(kind: str, path: Path, options: Mapping[str, str] | None =
     name = path.stem if path.is_file() else path.name
     if detect(path) == kind or not path.is_dir():
         several = scenes(kind, path) if SCENE not in dict(given) else []
-        return [Found(scene, path, kind, tuple(sorted({**dict(given), SCENE: scene}.items()))) for scene in several] or [
-            Found(name, path, kind, given)]
-    found = [Found(entry.name, entry.path, kind, tuple(sorted({**dict(given), **dict(entry.options)}.items())))
-             for entry in discover(path, detect, scenes) if entry.kind == kind]
+        return [
+            Found(scene, path, kind, tuple(sorted({**dict(given), SCENE: scene}.items()))) for scene in several
+        ] or [Found(name, path, kind, given)]
+    found = [
+        Found(entry.name, entry.path, kind, tuple(sorted({**dict(given), **dict(entry.options)}.items())))
+        for entry in discover(path, detect, scenes)
+        if entry.kind == kind
+    ]
     if len(found) == 1:
         return [Found(name, found[0].path, kind, given)]
     return found or [Found(name, path, kind, given)]
@@ -71,7 +75,9 @@ class DatasetProvider:
         path = found.path  # an object in a store goes as it is: picklable, without a credential
         where = path if isinstance(path, (StorePath, StoreTree)) else str(path)
         try:
-            metadata, times, originals = await self._workers.cpu(describe_dataset, found.kind, where, options, isolated=True)
+            metadata, times, originals = await self._workers.cpu(
+                describe_dataset, found.kind, where, options, isolated=True
+            )
         except (DatasetError, StoreError, WorkerError) as exc:
             raise LogError(f"log {found.name!r}: {without_path(exc, where)}", log=found.name) from None
         return DatasetLog(found.name, found.kind, where, metadata, times, options, self._workers, originals)
@@ -92,8 +98,15 @@ class DatasetLog:
     format = Format.BINARY
 
     def __init__(
-        self, name: str, kind: str, path: str | StorePath | StoreTree, metadata: dict[str, Any], times: np.ndarray,
-        options: dict[str, Any], workers: Workers, originals: tuple[OriginalTopic, ...] = (),
+        self,
+        name: str,
+        kind: str,
+        path: str | StorePath | StoreTree,
+        metadata: dict[str, Any],
+        times: np.ndarray,
+        options: dict[str, Any],
+        workers: Workers,
+        originals: tuple[OriginalTopic, ...] = (),
     ) -> None:
         self.name = name
         self._kind = kind
@@ -116,13 +129,23 @@ class DatasetLog:
 
     async def read(self, frame: int) -> bytes:
         try:
-            return await self._workers.cpu(convert_frame, self._kind, self._path, self._options, frame, self._metadata, isolated=True)
+            return await self._workers.cpu(
+                convert_frame, self._kind, self._path, self._options, frame, self._metadata, isolated=True
+            )
         except (DatasetError, StoreError) as exc:
-            raise FrameError(f"frame {frame} of log {self.name!r}: {without_path(exc, self._path)}", log=self.name, frame=frame) from None
+            raise FrameError(
+                f"frame {frame} of log {self.name!r}: {without_path(exc, self._path)}", log=self.name, frame=frame
+            ) from None
 
     async def read_originals(self, frame: int) -> bytes:
         """The original messages of ``frame``, packed (see :func:`~xviz_server.datasets.original_messages`)."""
         try:
-            return await self._workers.cpu(original_messages, self._kind, self._path, self._options, frame, isolated=True)
+            return await self._workers.cpu(
+                original_messages, self._kind, self._path, self._options, frame, isolated=True
+            )
         except (DatasetError, StoreError) as exc:
-            raise FrameError(f"frame {frame} of log {self.name!r}: its original messages: {without_path(exc, self._path)}", log=self.name, frame=frame) from None
+            raise FrameError(
+                f"frame {frame} of log {self.name!r}: its original messages: {without_path(exc, self._path)}",
+                log=self.name,
+                frame=frame,
+            ) from None

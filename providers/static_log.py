@@ -129,7 +129,9 @@ class StaticLog:
             data = await self._read(INDEX_NUMBER)
             index = await self._workers.io(lambda: TimeIndex.from_reference(orjson.loads(data)))
         except (OSError, orjson.JSONDecodeError, DecodeError) as exc:
-            logger.warning("log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc)
+            logger.warning(
+                "log %r: ignoring unreadable %s (%s); rebuilding it from the frames", self.name, INDEX_FILE, exc
+            )
             return None
         problem = index_problem(index, self._files)
         if problem is not None:

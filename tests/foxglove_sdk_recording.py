@@ -33,11 +33,20 @@ def write_sdk_recording(path: Path) -> Path:
     from foxglove import messages as fm
 
     context = foxglove.Context()
-    channels = {name: kind(name, context=context) for name, kind in (
-        ("/lidar", ch.PointCloudChannel), ("/camera", ch.CompressedImageChannel), ("/raw", ch.RawImageChannel),
-        ("/tf", ch.FrameTransformsChannel), ("/goal", ch.PoseInFrameChannel), ("/gps", ch.LocationFixChannel),
-        ("/scene", ch.SceneUpdateChannel), ("/scan", ch.LaserScanChannel), ("/log", ch.LogChannel),
-    )}
+    channels = {
+        name: kind(name, context=context)
+        for name, kind in (
+            ("/lidar", ch.PointCloudChannel),
+            ("/camera", ch.CompressedImageChannel),
+            ("/raw", ch.RawImageChannel),
+            ("/tf", ch.FrameTransformsChannel),
+            ("/goal", ch.PoseInFrameChannel),
+            ("/gps", ch.LocationFixChannel),
+            ("/scene", ch.SceneUpdateChannel),
+            ("/scan", ch.LaserScanChannel),
+            ("/log", ch.LogChannel),
+        )
+    }
     identity = fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
     float32 = fm.PackedElementFieldNumericType.Float32
     with foxglove.open_mcap(path, allow_overwrite=True, context=context):
@@ -45,29 +54,108 @@ def write_sdk_recording(path: Path) -> Path:
             t = T0 + i * STEP
             stamp = fm.Timestamp(sec=t // 10**9, nsec=t % 10**9)
             at = {"log_time": t}
-            channels["/lidar"].log(fm.PointCloud(
-                timestamp=stamp, frame_id="base_link", pose=fm.Pose(position=fm.Vector3(x=0.0, y=0.0, z=0.0), orientation=identity),
-                point_stride=12, fields=[fm.PackedElementField(name=a, offset=4 * k, type=float32) for k, a in enumerate("xyz")],
-                data=POINTS.tobytes()), **at)
-            channels["/camera"].log(fm.CompressedImage(timestamp=stamp, frame_id="camera", data=_png(32, 16), format="png"), **at)
-            channels["/raw"].log(fm.RawImage(timestamp=stamp, frame_id="camera", width=4, height=2, encoding="rgb8", step=12,
-                                             data=bytes(range(24))), **at)
-            channels["/tf"].log(fm.FrameTransforms(transforms=[fm.FrameTransform(
-                timestamp=stamp, parent_frame_id="world", child_frame_id="base_link",
-                translation=fm.Vector3(x=float(i), y=0.0, z=0.0), rotation=identity)]), **at)
-            channels["/goal"].log(fm.PoseInFrame(timestamp=stamp, frame_id="world", pose=fm.Pose(
-                position=fm.Vector3(x=10.0 + i, y=1.0, z=0.0), orientation=identity)), **at)
-            channels["/gps"].log(fm.LocationFix(timestamp=stamp, frame_id="gps", latitude=49.0, longitude=8.4 + i * 1e-5, altitude=110.0), **at)
-            channels["/scene"].log(fm.SceneUpdate(entities=[fm.SceneEntity(
-                timestamp=stamp, frame_id="base_link", id="car",
-                cubes=[fm.CubePrimitive(pose=fm.Pose(position=fm.Vector3(x=5.0, y=0.0, z=0.0), orientation=identity),
-                                        size=fm.Vector3(x=4.0, y=2.0, z=1.5), color=fm.Color(r=1.0, g=0.0, b=0.0, a=1.0))],
-                texts=[fm.TextPrimitive(pose=fm.Pose(position=fm.Vector3(x=5.0, y=0.0, z=2.0), orientation=identity),
-                                        text="car", color=fm.Color(r=1.0, g=1.0, b=1.0, a=1.0))])]), **at)
-            channels["/scan"].log(fm.LaserScan(timestamp=stamp, frame_id="base_link", start_angle=0.0, end_angle=np.pi / 2,
-                                               ranges=[2.0, float("inf"), 3.0], intensities=[]), **at)
-            channels["/log"].log(fm.Log(timestamp=stamp, level=fm.LogLevel.Warning, message=f"frame {i}", name="planner",
-                                        file="plan.py", line=7), **at)
+            channels["/lidar"].log(
+                fm.PointCloud(
+                    timestamp=stamp,
+                    frame_id="base_link",
+                    pose=fm.Pose(position=fm.Vector3(x=0.0, y=0.0, z=0.0), orientation=identity),
+                    point_stride=12,
+                    fields=[fm.PackedElementField(name=a, offset=4 * k, type=float32) for k, a in enumerate("xyz")],
+                    data=POINTS.tobytes(),
+                ),
+                **at,
+            )
+            channels["/camera"].log(
+                fm.CompressedImage(timestamp=stamp, frame_id="camera", data=_png(32, 16), format="png"), **at
+            )
+            channels["/raw"].log(
+                fm.RawImage(
+                    timestamp=stamp,
+                    frame_id="camera",
+                    width=4,
+                    height=2,
+                    encoding="rgb8",
+                    step=12,
+                    data=bytes(range(24)),
+                ),
+                **at,
+            )
+            channels["/tf"].log(
+                fm.FrameTransforms(
+                    transforms=[
+                        fm.FrameTransform(
+                            timestamp=stamp,
+                            parent_frame_id="world",
+                            child_frame_id="base_link",
+                            translation=fm.Vector3(x=float(i), y=0.0, z=0.0),
+                            rotation=identity,
+                        )
+                    ]
+                ),
+                **at,
+            )
+            channels["/goal"].log(
+                fm.PoseInFrame(
+                    timestamp=stamp,
+                    frame_id="world",
+                    pose=fm.Pose(position=fm.Vector3(x=10.0 + i, y=1.0, z=0.0), orientation=identity),
+                ),
+                **at,
+            )
+            channels["/gps"].log(
+                fm.LocationFix(
+                    timestamp=stamp, frame_id="gps", latitude=49.0, longitude=8.4 + i * 1e-5, altitude=110.0
+                ),
+                **at,
+            )
+            channels["/scene"].log(
+                fm.SceneUpdate(
+                    entities=[
+                        fm.SceneEntity(
+                            timestamp=stamp,
+                            frame_id="base_link",
+                            id="car",
+                            cubes=[
+                                fm.CubePrimitive(
+                                    pose=fm.Pose(position=fm.Vector3(x=5.0, y=0.0, z=0.0), orientation=identity),
+                                    size=fm.Vector3(x=4.0, y=2.0, z=1.5),
+                                    color=fm.Color(r=1.0, g=0.0, b=0.0, a=1.0),
+                                )
+                            ],
+                            texts=[
+                                fm.TextPrimitive(
+                                    pose=fm.Pose(position=fm.Vector3(x=5.0, y=0.0, z=2.0), orientation=identity),
+                                    text="car",
+                                    color=fm.Color(r=1.0, g=1.0, b=1.0, a=1.0),
+                                )
+                            ],
+                        )
+                    ]
+                ),
+                **at,
+            )
+            channels["/scan"].log(
+                fm.LaserScan(
+                    timestamp=stamp,
+                    frame_id="base_link",
+                    start_angle=0.0,
+                    end_angle=np.pi / 2,
+                    ranges=[2.0, float("inf"), 3.0],
+                    intensities=[],
+                ),
+                **at,
+            )
+            channels["/log"].log(
+                fm.Log(
+                    timestamp=stamp,
+                    level=fm.LogLevel.Warning,
+                    message=f"frame {i}",
+                    name="planner",
+                    file="plan.py",
+                    line=7,
+                ),
+                **at,
+            )
     _add_json_channel(path)
     return path
 
@@ -95,7 +183,14 @@ def _add_json_channel(path: Path) -> None:
     json_log = writer.register_channel("/json_log", "json", log_schema)
     for i in range(FRAMES):
         t = T0 + i * STEP
-        document = {"timestamp": {"sec": t // 10**9, "nsec": t % 10**9}, "level": 4, "message": f"json {i}", "name": "json", "file": "", "line": 0}
+        document = {
+            "timestamp": {"sec": t // 10**9, "nsec": t % 10**9},
+            "level": 4,
+            "message": f"json {i}",
+            "name": "json",
+            "file": "",
+            "line": 0,
+        }
         writer.add_message(json_log, t, json.dumps(document).encode(), t)
     writer.finish()
     path.write_bytes(out.getvalue())

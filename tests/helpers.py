@@ -13,17 +13,16 @@ import json
 import os
 import re
 import shutil
-import socket
 import struct
 import subprocess
 import sys
 import time
 import urllib.error
 import urllib.request
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import Callable, Sequence
-from typing import Any, AsyncIterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -162,11 +161,19 @@ def metadata(streams: dict[str, dict] | None = None, **log_info: float) -> dict[
     return data
 
 
-def update(t: float, *, points: int = 10, update_type: str = "SNAPSHOT", streams: tuple[str, ...] = ("/vehicle_pose", "/points", "/speed")) -> dict[str, Any]:
+def update(
+    t: float,
+    *,
+    points: int = 10,
+    update_type: str = "SNAPSHOT",
+    streams: tuple[str, ...] = ("/vehicle_pose", "/points", "/speed"),
+) -> dict[str, Any]:
     """A state update at time ``t`` carrying some of three streams."""
     stream_set: dict[str, Any] = {"timestamp": t}
     if "/vehicle_pose" in streams:
-        stream_set["poses"] = {"/vehicle_pose": {"timestamp": t, "position": [t, 0.0, 0.0], "orientation": [0.0, 0.0, 0.0]}}
+        stream_set["poses"] = {
+            "/vehicle_pose": {"timestamp": t, "position": [t, 0.0, 0.0], "orientation": [0.0, 0.0, 0.0]}
+        }
     if "/points" in streams:
         cloud = np.full((points, 3), t, dtype=np.float32)
         stream_set["primitives"] = {"/points": {"points": [{"points": cloud}]}}
@@ -185,10 +192,14 @@ def write_log(
 ) -> Path:
     """Write a log directory in the reference layout (plainly, not as the product's writer does); return it."""
     directory.mkdir(parents=True, exist_ok=True)
-    (directory / f"{METADATA_NUMBER}-frame{fmt.suffix}").write_bytes(encode({"type": "xviz/metadata", "data": meta or metadata()}, fmt))
+    (directory / f"{METADATA_NUMBER}-frame{fmt.suffix}").write_bytes(
+        encode({"type": "xviz/metadata", "data": meta or metadata()}, fmt)
+    )
     spans = []
     for i, data in enumerate(updates):
-        (directory / f"{file_number(i)}-frame{fmt.suffix}").write_bytes(encode({"type": "xviz/state_update", "data": data}, fmt))
+        (directory / f"{file_number(i)}-frame{fmt.suffix}").write_bytes(
+            encode({"type": "xviz/state_update", "data": data}, fmt)
+        )
         spans.append(update_span(data))
     if index:
         (directory / INDEX_FILE).write_text(json.dumps(index_document(spans)))
@@ -216,8 +227,9 @@ def clean_env(**extra: str) -> dict[str, str]:
 
 def run_cli(*args: str, **env: str) -> subprocess.CompletedProcess[str]:
     """``xviz-server ARGS`` run to its end (60 s at most) with the variables ``env`` and no others of ours."""
-    return subprocess.run([sys.executable, "-m", "xviz_server", *args], capture_output=True, text=True,
-                          env=clean_env(**env), timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "xviz_server", *args], capture_output=True, text=True, env=clean_env(**env), timeout=60
+    )
 
 
 @contextlib.asynccontextmanager
@@ -254,8 +266,15 @@ def http_get(port: int, path: str, method: str = "GET", **headers: str) -> tuple
 async def start_serving(*args: str, **env: str) -> tuple[asyncio.subprocess.Process, int, list[str]]:
     """``xviz-server serve --port 0 ARGS``, once it listens: the process, its port and its log lines so far."""
     process = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "xviz_server", "serve", "--port", "0", *args,
-        stderr=asyncio.subprocess.PIPE, env=clean_env(**env),
+        sys.executable,
+        "-m",
+        "xviz_server",
+        "serve",
+        "--port",
+        "0",
+        *args,
+        stderr=asyncio.subprocess.PIPE,
+        env=clean_env(**env),
     )
     assert process.stderr is not None
     lines = []
@@ -404,7 +423,14 @@ async def foxglove_client(url: str, subprotocol: str, *sends: str, options: tupl
     node = shutil.which("node")
     assert node, "node is required for the interop tests"
     assert (INTEROP / "node_modules" / "@foxglove" / "ws-protocol").is_dir(), "run `npm ci --prefix tests/interop`"
-    args = [node, str(INTEROP / "foxglove-client.js"), url, subprotocol, *options, *(item for text in sends for item in ("--send", text))]
+    args = [
+        node,
+        str(INTEROP / "foxglove-client.js"),
+        url,
+        subprotocol,
+        *options,
+        *(item for text in sends for item in ("--send", text)),
+    ]
     process = await asyncio.create_subprocess_exec(*args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     stdout, stderr = await asyncio.wait_for(process.communicate(), 60)
     assert process.returncode == 0, stderr.decode()
@@ -412,7 +438,9 @@ async def foxglove_client(url: str, subprotocol: str, *sends: str, options: tupl
     return result
 
 
-async def foxglove_opened(websocket: ClientConnection, timeout: float = 10) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+async def foxglove_opened(
+    websocket: ClientConnection, timeout: float = 10
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """A Foxglove session's opening: ``serverInfo``, then (for a recorded log) the log's start time as a time message,
     checked, then ``advertise``; the server's info and the channels."""
     info = json.loads(await asyncio.wait_for(websocket.recv(), timeout))
@@ -448,12 +476,14 @@ def xviz_decode(paths: list[Path]) -> list[dict]:
     node = shutil.which("node")
     assert node, "node is required for the interop tests"
     assert (INTEROP / "node_modules" / "@xviz" / "parser").is_dir(), (
-        "the published client is not installed: run `npm ci --prefix tests/interop` "
-        "(scripts/test.sh does it)"
+        "the published client is not installed: run `npm ci --prefix tests/interop` (scripts/test.sh does it)"
     )
     result = subprocess.run(
         [node, str(INTEROP / "xviz-decode.js"), *map(str, paths)],
-        capture_output=True, text=True, check=True, timeout=300,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=300,
     )
     lines = [json.loads(line) for line in result.stdout.splitlines()]
     assert len(lines) == len(paths), result.stderr
@@ -470,7 +500,9 @@ def xviz_write(source: Path, **targets: Path) -> None:
     assert node, "node is required for the interop tests"
     subprocess.run(
         [node, str(INTEROP / "xviz-write.js"), str(source), *(f"{fmt}:{out}" for fmt, out in targets.items())],
-        check=True, capture_output=True, timeout=300,
+        check=True,
+        capture_output=True,
+        timeout=300,
     )
 
 
@@ -484,7 +516,9 @@ def xviz_validate(paths: Sequence[Path]) -> list[dict[str, Any]]:
     assert (INTEROP / "node_modules" / "@xviz" / "schema").is_dir(), (
         "the published validator is not installed: run `npm ci --prefix tests/interop`"
     )
-    result = subprocess.run([node, str(INTEROP / "validate.js"), *map(str, paths)], capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [node, str(INTEROP / "validate.js"), *map(str, paths)], capture_output=True, text=True, timeout=300
+    )
     lines = [json.loads(line) for line in result.stdout.splitlines()]
     assert len(lines) == len(paths), result.stderr
     return lines
@@ -575,8 +609,7 @@ def _command(url: str, brief: bool, validate: bool) -> list[str]:
     node = shutil.which("node")
     assert node, "node is required for the interop tests"
     assert (INTEROP / "node_modules" / "ws").is_dir(), (
-        "the client libraries are not installed: run `npm ci --prefix tests/interop` "
-        "(scripts/test.sh does it)"
+        "the client libraries are not installed: run `npm ci --prefix tests/interop` (scripts/test.sh does it)"
     )
     # The script goes on stdin, so no command line limits its size.
     options = [*(["--brief"] if brief else []), *(["--validate"] if validate else [])]

@@ -79,8 +79,21 @@ def capture(frame: bytes, directory: Path | None = None) -> list[bytes]:
     with tempfile.TemporaryDirectory(dir=directory) as folder:
         path = Path(folder) / "redis.sock"
         server = subprocess.Popen(
-            ["redis-server", "--port", "0", "--unixsocket", str(path), "--save", "", "--appendonly", "no", "--dir", folder],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            [
+                "redis-server",
+                "--port",
+                "0",
+                "--unixsocket",
+                str(path),
+                "--save",
+                "",
+                "--appendonly",
+                "no",
+                "--dir",
+                folder,
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         try:
             with _connect(path) as sock:

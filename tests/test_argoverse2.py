@@ -39,8 +39,12 @@ def test_frames_are_every_sweep_and_every_front_camera_image(written):
 
 def test_every_camera_image_is_served_once(written):
     log = open_dataset("argoverse2", written.folder)
-    served = sorted((camera, int(file.name.removesuffix(".jpg"))) for frame in log._frames for camera, file in frame.items()
-                    if camera != "lidar")
+    served = sorted(
+        (camera, int(file.name.removesuffix(".jpg")))
+        for frame in log._frames
+        for camera, file in frame.items()
+        if camera != "lidar"
+    )
     assert served == sorted(written.images)  # 20 Hz cameras on a 20 Hz clock: none is lost
     for index in range(len(log)):
         streams = {s for s in log.convert(index)["updates"][0]["primitives"] if s.startswith("/camera/")}
@@ -53,7 +57,9 @@ def test_points_pose_and_cuboids(written):
     update = log.convert(index)["updates"][0]
     points = update["primitives"]["/lidar/points"]["points"][0]["points"]
     expected = sweep(2)
-    assert np.array_equal(np.asarray(points), np.column_stack([expected["x"], expected["y"], expected["z"]]).astype(np.float32))
+    assert np.array_equal(
+        np.asarray(points), np.column_stack([expected["x"], expected["y"], expected["z"]]).astype(np.float32)
+    )
     (x, y, _), heading = ego(written.sweeps[2])
     assert update["poses"]["/vehicle_pose"]["position"] == pytest.approx([x, y, 0.0])
     assert update["poses"]["/vehicle_pose"]["orientation"] == pytest.approx([0, 0, heading], abs=1e-9)
@@ -75,7 +81,9 @@ def test_between_sweeps_the_cuboids_stay_where_they_are_in_the_world(written):
     (x, y, _), h = ego(stamp)
     dx, dy = world[0] - x, world[1] - y
     centre = np.asarray(ped["vertices"]).mean(axis=0)
-    assert centre[:2] == pytest.approx((dx * math.cos(h) + dy * math.sin(h), -dx * math.sin(h) + dy * math.cos(h)), abs=1e-6)
+    assert centre[:2] == pytest.approx(
+        (dx * math.cos(h) + dy * math.sin(h), -dx * math.sin(h) + dy * math.cos(h)), abs=1e-6
+    )
 
 
 def test_found_by_its_layout_and_a_log_without_annotations_is_served(tmp_path: Path, written):
@@ -116,8 +124,9 @@ async def test_a_log_is_served_from_a_folder_and_from_an_object_store(written, m
                     in_store = await c.until("transform_log_done", "a")
     assert timestamps(in_store) == timestamps(on_disk) == [t / 1e9 for t in clock(written)]
     states = [m["data"]["updates"][0] for m in on_disk if m["type"] == "xviz/state_update"]
-    assert [s["primitives"].keys() for s in states] == [m["data"]["updates"][0]["primitives"].keys()
-                                                        for m in in_store if m["type"] == "xviz/state_update"]
+    assert [s["primitives"].keys() for s in states] == [
+        m["data"]["updates"][0]["primitives"].keys() for m in in_store if m["type"] == "xviz/state_update"
+    ]
 
 
 REAL = Path(__file__).parent / "data" / "argoverse2" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
@@ -128,7 +137,9 @@ def test_a_real_log_of_the_av2_devkit_reads_with_its_cuboids_and_poses():
 
     log = open_dataset("argoverse2", REAL)
     sweeps = sorted(int(f.stem) for f in (REAL / "sensors" / "lidar").glob("*.feather"))
-    assert log.times.tolist() == [stamp / 1e9 for stamp in sweeps]  # no camera in this excerpt: the sweeps are the clock
+    assert log.times.tolist() == [
+        stamp / 1e9 for stamp in sweeps
+    ]  # no camera in this excerpt: the sweeps are the clock
     annotations = feather.read_table(REAL / "annotations.feather")
     poses = feather.read_table(REAL / "city_SE3_egovehicle.feather")
     for index, stamp in enumerate(sweeps):
@@ -140,7 +151,8 @@ def test_a_real_log_of_the_av2_devkit_reads_with_its_cuboids_and_poses():
         assert expected > 0 and len(update["primitives"]["/objects/boxes"]["polygons"]) == expected
         row = int(np.flatnonzero(poses["timestamp_ns"].to_numpy() <= stamp)[-1])
         assert update["poses"]["/vehicle_pose"]["position"] == pytest.approx(
-            [poses[c][row].as_py() for c in ("tx_m", "ty_m", "tz_m")])
+            [poses[c][row].as_py() for c in ("tx_m", "ty_m", "tz_m")]
+        )
 
 
 def test_a_frame_whose_files_pass_the_frame_budget_is_refused_unread(written):

@@ -117,7 +117,10 @@ async def test_viewers_asking_for_made_up_feeds_create_nothing(monkeypatch: pyte
 @pytest.mark.parametrize("where", ["primitives", "behind a number"])
 async def test_an_accessor_referenced_many_times_is_refused(where: str):
     cloud = np.zeros((50_000, 3), dtype=np.float32)  # 600 KB
-    data = {"update_type": "SNAPSHOT", "updates": [{"timestamp": 1.0, "primitives": {"/points": {"points": [{"points": cloud}]}}}]}
+    data = {
+        "update_type": "SNAPSHOT",
+        "updates": [{"timestamp": 1.0, "primitives": {"/points": {"points": [{"points": cloud}]}}}],
+    }
     glb = encode({"type": "xviz/state_update", "data": data}, Format.BINARY)
 
     def reference_it_a_hundred_times(message):
@@ -138,7 +141,11 @@ async def test_an_accessor_referenced_many_times_is_refused(where: str):
 
 
 async def test_millions_of_tiny_json_elements_are_refused_before_parsing():
-    message = b'{"type": "xviz/state_update", "data": {"update_type": "SNAPSHOT", "updates": [{"timestamp": 1, "x": [' + b"[]," * 2_100_000 + b"[]]}]}}"
+    message = (
+        b'{"type": "xviz/state_update", "data": {"update_type": "SNAPSHOT", "updates": [{"timestamp": 1, "x": ['
+        + b"[]," * 2_100_000
+        + b"[]]}]}}"
+    )
     async with running_server(None) as server:
         source = await push_metadata(server, "car")
         problem = await refused_with(source, message)
@@ -165,7 +172,9 @@ async def test_a_json_viewer_of_a_glb_feed_with_images_gets_every_update():
             assert (await viewer.recv())["type"] == "xviz/metadata"
             for i in range(5):
                 data = update(float(i), points=20_000)
-                data["updates"][0]["primitives"]["/camera"] = {"images": [{"data": PNG_2X1, "width_px": 2, "height_px": 1}]}
+                data["updates"][0]["primitives"]["/camera"] = {
+                    "images": [{"data": PNG_2X1, "width_px": 2, "height_px": 1}]
+                }
                 await feed.publish(encode({"type": "xviz/state_update", "data": data}, Format.BINARY))
                 received = await viewer.recv(10)
                 assert received["_text"] and received["data"]["updates"][0]["timestamp"] == float(i)

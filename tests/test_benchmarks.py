@@ -54,7 +54,11 @@ def test_quick_run(name: str) -> None:
     env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_") or k == "XVIZ_SHARED_DIR"}
     result = subprocess.run(
         [sys.executable, str(BENCH / f"{name}.py"), "--quick"],
-        capture_output=True, text=True, timeout=300, env=env, cwd=BENCH.parents[1],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        cwd=BENCH.parents[1],
     )
     assert result.returncode == 0, f"exit {result.returncode}\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
     assert ROW.search(result.stdout), f"no row of results in:\n{result.stdout[-3000:]}"

@@ -11,12 +11,11 @@ from __future__ import annotations
 
 import asyncio
 import bz2
-import re
 import sqlite3
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import lz4.frame
 import numpy as np
@@ -89,8 +88,11 @@ def ros1_bomb(bag: Path, bomb: bytes | None) -> tuple[bytes, int]:
     """``bag`` with its largest chunk's data replaced by ``bomb`` (padded to its length), or, with no bomb, that
     chunk's header declaring :data:`LIES` bytes; and the chunk's offset."""
     data = bytearray(bag.read_bytes())
-    chunks = [(length, position, fields, start) for position, fields, start, length in ros1_records(bytes(data))
-              if data[fields[b"op"][0]] == 0x05]
+    chunks = [
+        (length, position, fields, start)
+        for position, fields, start, length in ros1_records(bytes(data))
+        if data[fields[b"op"][0]] == 0x05
+    ]
     length, position, fields, start = max(chunks)
     if bomb is None:
         at, end = fields[b"size"]
@@ -138,7 +140,9 @@ def mcap_bomb(mcap: Path, bomb: bytes | None, compression: str = "zstd") -> tupl
     name = compression.encode()
     head = bytes(data[content : content + 24]) + struct.pack("<I", 0) + struct.pack("<I", len(name)) + name
     body = head + struct.pack("<Q", len(bomb)) + bomb
-    assert len(body) <= record_end - content, f"a bomb of {len(bomb)} bytes does not fit in a chunk of {sizes[position]}"
+    assert len(body) <= record_end - content, (
+        f"a bomb of {len(bomb)} bytes does not fit in a chunk of {sizes[position]}"
+    )
     data[content:record_end] = body.ljust(record_end - content, b"\0")
     # Its index: the same, with the compression and the compressed size changed; a byte of padding where the name is
     # shorter (readers skip what a record has after its fields).
@@ -182,7 +186,9 @@ BOMBS = _bombs()
 
 
 @pytest.mark.parametrize("bomb", sorted(BOMBS))
-async def test_a_bomb_in_a_bag_is_refused_named_and_the_server_stays_small(bomb: str, bags: dict[str, Path], tmp_path: Path):
+async def test_a_bomb_in_a_bag_is_refused_named_and_the_server_stays_small(
+    bomb: str, bags: dict[str, Path], tmp_path: Path
+):
     suffix, says, make = BOMBS[bomb]
     root = tmp_path / "data"
     root.mkdir()
@@ -191,14 +197,17 @@ async def test_a_bomb_in_a_bag_is_refused_named_and_the_server_stays_small(bomb:
     (root / "good.bag").write_bytes(bags["lz4"].read_bytes())
     async with served(root) as server:
         good = await server.session("good")  # the workers are up and warm
-        assert [m for m in good if m["type"] == "xviz/state_update"] and not [m for m in good if m["type"] == "xviz/error"]
+        assert [m for m in good if m["type"] == "xviz/state_update"] and not [
+            m for m in good if m["type"] == "xviz/error"
+        ]
         before = server.rss()
         logs, healthy, again = await asyncio.gather(server.logs(), server.get("/healthz"), server.session("good"))
         assert healthy == (200, "ok\n")
         assert not [m for m in again if m["type"] == "xviz/error"]
         # The chunk is refused where it is first read: opening the bag (listing it) or playing it.
-        errors = [logs["bomb"].get("error", "")] + [m["data"]["message"] for m in await server.session("bomb")
-                                                    if m["type"] == "xviz/error"]
+        errors = [logs["bomb"].get("error", "")] + [
+            m["data"]["message"] for m in await server.session("bomb") if m["type"] == "xviz/error"
+        ]
         named = f"log 'bomb': chunk at byte {chunk} {says}"  # the log's name and the cause, not the file's path
         assert any(named in error for error in errors), errors
         assert await server.get("/healthz") == (200, "ok\n")
@@ -208,7 +217,9 @@ async def test_a_bomb_in_a_bag_is_refused_named_and_the_server_stays_small(bomb:
         assert max(grown.values()) < GROWTH, {pid: f"{g / _MiB:.0f} MiB" for pid, g in grown.items()}
 
 
-async def test_a_chunk_declared_larger_than_the_limit_is_refused_when_the_bag_opens(bags: dict[str, Path], tmp_path: Path):
+async def test_a_chunk_declared_larger_than_the_limit_is_refused_when_the_bag_opens(
+    bags: dict[str, Path], tmp_path: Path
+):
     from xviz_server.datasets.ros.bag import Bag
     from xviz_server.exceptions import OversizeError
 
@@ -217,8 +228,9 @@ async def test_a_chunk_declared_larger_than_the_limit_is_refused_when_the_bag_op
     with pytest.raises(OversizeError) as refused:
         Bag(tmp_path / "x.bag")
     assert refused.value.size == LIES and refused.value.limit == MAX_CHUNK_BYTES
-    assert str(refused.value).startswith(f"{tmp_path / 'x.bag'}: chunk at byte {chunk} declares 3 GiB uncompressed, "
-                                         "more than the limit of 256 MiB")
+    assert str(refused.value).startswith(
+        f"{tmp_path / 'x.bag'}: chunk at byte {chunk} declares 3 GiB uncompressed, more than the limit of 256 MiB"
+    )
 
 
 def _varint(value: int) -> bytes:
@@ -248,9 +260,13 @@ async def test_tfrecords_with_a_huge_length_or_deep_nesting_are_refused_named(ba
         await server.session("good")
         before = server.rss()
         logs = await server.logs()
-        huge, deep_session, good = await asyncio.gather(server.session("huge"), server.session("deep"), server.session("good"))
-        for log, session, says in (("huge", huge, "declares 3 GiB of data, more than the limit of 256 MiB"),
-                                   ("deep", deep_session, "not a Waymo Frame")):
+        huge, deep_session, good = await asyncio.gather(
+            server.session("huge"), server.session("deep"), server.session("good")
+        )
+        for log, session, says in (
+            ("huge", huge, "declares 3 GiB of data, more than the limit of 256 MiB"),
+            ("deep", deep_session, "not a Waymo Frame"),
+        ):
             errors = [logs[log]["error"]] + [m["data"]["message"] for m in session if m["type"] == "xviz/error"]
             assert all(f"log '{log}': record 0 at offset 0: {says}" in error for error in errors), errors  # no path
         assert not [m for m in good if m["type"] == "xviz/error"] and await server.get("/healthz") == (200, "ok\n")
@@ -258,7 +274,9 @@ async def test_tfrecords_with_a_huge_length_or_deep_nesting_are_refused_named(ba
         assert max(peaks[pid] - rss for pid, rss in before.items() if pid in peaks) < GROWTH
 
 
-async def test_sessions_each_opening_a_different_bag_at_once_keep_the_server_bounded(bags: dict[str, Path], tmp_path: Path):
+async def test_sessions_each_opening_a_different_bag_at_once_keep_the_server_bounded(
+    bags: dict[str, Path], tmp_path: Path
+):
     """Six sessions open six different bags at the same moment (scripts/bench/bomb_sessions.py plays 30): every frame
     is played, /healthz answers meanwhile, and no process grows by more than the bound (the server's frame cache
     holds the frames played: 24 frames of a few MB)."""
@@ -282,7 +300,10 @@ async def test_a_static_frame_whose_cloud_is_referenced_many_times_is_refused_na
     """A GLB frame of a static log that references one 600 KB cloud 500 times: a few KB more on disk, 290 MiB of
     arrays (and a JSON text of gigabytes) when re-encoded for a JSON client."""
     cloud = np.zeros((50_000, 3), dtype=np.float32)
-    data = {"update_type": "SNAPSHOT", "updates": [{"timestamp": 100.0, "primitives": {"/points": {"points": [{"points": cloud}]}}}]}
+    data = {
+        "update_type": "SNAPSHOT",
+        "updates": [{"timestamp": 100.0, "primitives": {"/points": {"points": [{"points": cloud}]}}}],
+    }
 
     def reference_it_500_times(message: Any) -> Any:
         stream = message["data"]["updates"][0]["primitives"]["/points"]
@@ -297,13 +318,18 @@ async def test_a_static_frame_whose_cloud_is_referenced_many_times_is_refused_na
     async with served(root) as server:
         await server.session("kitti")
         before = server.rss()
-        async with connect(f"ws://127.0.0.1:{server.port}/?log=amplified&message_format=JSON", max_size=None) as websocket:
+        async with connect(
+            f"ws://127.0.0.1:{server.port}/?log=amplified&message_format=JSON", max_size=None
+        ) as websocket:
             viewer = Client(websocket)
             assert (await viewer.recv(60))["type"] == "xviz/metadata"
             await viewer.send("transform_log", {"id": "all"})
             played = await viewer.until("transform_log_done", "all", timeout=120)
         errors = [m["data"]["message"] for m in played if m["type"] == "xviz/error"]
-        assert len(errors) == 1 and "(2-frame.glb) of log 'amplified' is corrupt: state update expands to 286.1 MiB" in errors[0], errors
+        assert (
+            len(errors) == 1
+            and "(2-frame.glb) of log 'amplified' is corrupt: state update expands to 286.1 MiB" in errors[0]
+        ), errors
         assert len([m for m in played if m["type"] == "xviz/state_update"]) == 1
         assert await server.get("/healthz") == (200, "ok\n")
         peaks = server.peaks()
@@ -318,7 +344,9 @@ def test_an_mcap_file_without_a_summary_is_read_through_within_the_bound(bags: d
     (data_end,) = [position for opcode, position, _ in mcap_records(data) if opcode == 0x0F]
     footer = struct.pack("<BQQQI", 0x02, 20, 0, 0, 0)  # no summary
     (tmp_path / "x.mcap").write_bytes(data[: data_end + 9 + 4] + footer + b"\x89MCAP0\r\n")
-    with pytest.raises(DatasetError, match=f"^{tmp_path / 'x.mcap'}: chunk at byte [0-9]+ declares 3 GiB uncompressed, more "):
+    with pytest.raises(
+        DatasetError, match=f"^{tmp_path / 'x.mcap'}: chunk at byte [0-9]+ declares 3 GiB uncompressed, more "
+    ):
         open_bag(tmp_path / "x.mcap")
 
 
@@ -329,7 +357,9 @@ async def test_a_ros2_bag_compressed_per_message_or_per_file_unpacks_within_the_
     """rosbags unpacks these itself, declaring no size: a message at most MAX_FRAME_BYTES, a file 100 times its size."""
     root = tmp_path / "data"
     root.mkdir()
-    folder = write_bag(root / "bomb", "sqlite3", drive=KittiDrive(shared_dir / "data" / RAW), frames=2, compression="zstd", mode=mode)
+    folder = write_bag(
+        root / "bomb", "sqlite3", drive=KittiDrive(shared_dir / "data" / RAW), frames=2, compression="zstd", mode=mode
+    )
     if mode == "message":  # the largest message becomes a bomb
         with sqlite3.connect(next(folder.glob("*.db3"))) as database:
             (largest,) = database.execute("SELECT id FROM messages ORDER BY length(data) DESC LIMIT 1").fetchone()
@@ -344,8 +374,9 @@ async def test_a_ros2_bag_compressed_per_message_or_per_file_unpacks_within_the_
         assert not [m for m in await server.session("good") if m["type"] == "xviz/error"]
         before = server.rss()
         logs = await server.logs()
-        errors = [logs["bomb"].get("error", "")] + [m["data"]["message"] for m in await server.session("bomb")
-                                                    if m["type"] == "xviz/error"]
+        errors = [logs["bomb"].get("error", "")] + [
+            m["data"]["message"] for m in await server.session("bomb") if m["type"] == "xviz/error"
+        ]
         assert any(says in error for error in errors), errors
         assert await server.get("/healthz") == (200, "ok\n")
         assert not [m for m in await server.session("good") if m["type"] == "xviz/error"]
@@ -354,4 +385,6 @@ async def test_a_ros2_bag_compressed_per_message_or_per_file_unpacks_within_the_
         # The server process never unpacks; a worker holds at most the limit while it refuses it, twice over (the
         # decompressor's buffer and the bytes made of it).
         assert grown[server.process.pid] < GROWTH, grown
-        assert max(grown.values()) < 2 * MAX_CHUNK_BYTES + GROWTH, {pid: f"{g / _MiB:.0f} MiB" for pid, g in grown.items()}
+        assert max(grown.values()) < 2 * MAX_CHUNK_BYTES + GROWTH, {
+            pid: f"{g / _MiB:.0f} MiB" for pid, g in grown.items()
+        }

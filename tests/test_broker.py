@@ -19,8 +19,9 @@ import subprocess
 import sys
 import time
 import urllib.request
+from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any, AsyncIterator
+from typing import Any
 
 import orjson
 import pytest
@@ -76,9 +77,23 @@ class Broker:
 
     async def start(self) -> None:
         self.process = subprocess.Popen(
-            ["redis-server", "--port", str(self.port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
-             "--requirepass", PASSWORD, "--dir", str(self.directory)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            [
+                "redis-server",
+                "--port",
+                str(self.port),
+                "--bind",
+                "127.0.0.1",
+                "--save",
+                "",
+                "--appendonly",
+                "no",
+                "--requirepass",
+                PASSWORD,
+                "--dir",
+                str(self.directory),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         client = self.client()
         for _ in range(100):
@@ -109,9 +124,22 @@ class Replica:
         directory.mkdir(exist_ok=True)
         env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_") and "proxy" not in k.lower()}
         process = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(directory), "--port", "0",
-            "--broker", broker.url, "--broker-ttl", str(TTL), *flags,
-            stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE, env=env,
+            sys.executable,
+            "-m",
+            "xviz_server",
+            "serve",
+            "--data-dir",
+            str(directory),
+            "--port",
+            "0",
+            "--broker",
+            broker.url,
+            "--broker-ttl",
+            str(TTL),
+            *flags,
+            stdout=asyncio.subprocess.DEVNULL,
+            stderr=asyncio.subprocess.PIPE,
+            env=env,
         )
         replica = cls(process)
         assert process.stderr is not None
@@ -141,6 +169,7 @@ class Replica:
                     return response.status, response.read().decode()
             except urllib.error.HTTPError as error:
                 return error.code, error.read().decode()
+
         return await asyncio.to_thread(fetch)
 
     async def live(self) -> dict[str, bool]:
@@ -243,6 +272,7 @@ class Viewer:
     async def count(self, updates: int, timeout: float = 30) -> None:
         async def enough() -> bool:
             return len(self.updates) >= updates
+
         await until(enough, timeout, f"{updates} updates (got {len(self.updates)})")
 
     async def close(self) -> None:
@@ -261,10 +291,13 @@ async def test_a_feed_on_one_replica_reaches_viewers_on_the_others_as_on_its_own
             for replica in (b, c):
                 await until(lambda: _listed(replica, "car"), what="B and C to list A's feed")
             viewers = [await Viewer.join(replica) for replica in (a, b, c, b)]
-            published = asyncio.ensure_future(run_xviz_session_async(
-                b.url("/?logGuid=car&worker=true&profile=default"),  # the URL of streetscape.gl's XVIZLiveLoader
-                [{"wait": "metadata"}, {"wait": "state_updates", "count": len(updates)}], brief=True,
-            ))
+            published = asyncio.ensure_future(
+                run_xviz_session_async(
+                    b.url("/?logGuid=car&worker=true&profile=default"),  # the URL of streetscape.gl's XVIZLiveLoader
+                    [{"wait": "metadata"}, {"wait": "state_updates", "count": len(updates)}],
+                    brief=True,
+                )
+            )
             await until(lambda: _sessions(b, 3), what="the viewers on B")
             await push(car, updates)
             for viewer in viewers:
@@ -313,8 +346,8 @@ async def test_a_feed_on_one_replica_reaches_viewers_on_the_others_as_on_its_own
                 for viewer in viewers[1:]:
                     # From the newest complete state when B started reading again (each KITTI frame is one).
                     await until(lambda: _got(viewer, updates[2]), what="the viewers who stayed to resume")
-                    resumed = viewer.updates[len(updates):]
-                    assert resumed == updates[3 - len(resumed):3] and viewer.metadata == 1
+                    resumed = viewer.updates[len(updates) :]
+                    assert resumed == updates[3 - len(resumed) : 3] and viewer.metadata == 1
         finally:
             await again.stop()
         for viewer in viewers[1:]:
@@ -329,22 +362,34 @@ async def test_reconfigure_passes_through_the_broker_and_a_second_source_is_refu
             async with connect(b.url("/?log=car&session_type=live"), max_size=None) as viewer:
                 assert decode(await viewer.recv())["type"] == "xviz/metadata"
                 change = {"desired_streams": ["/vehicle_pose", "/lidar/points"], "message_format": "JSON"}
-                await viewer.send(json.dumps({"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}}))
+                await viewer.send(
+                    json.dumps({"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}})
+                )
                 reconfigure = json.loads(await asyncio.wait_for(car.recv(), 10))
-                assert reconfigure == {"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}}
+                assert reconfigure == {
+                    "type": "xviz/reconfigure",
+                    "data": {"update_type": "DELTA", "config_update": change},
+                }
                 # Reconfigures that no viewer sends: skipped, and the next one still reaches the source.
                 client = broker.client()
                 for data in (orjson.dumps({"pad": "x" * 100_000}), b"[1, 2]", b"not json"):
-                    await client.xadd("xviz:control:car", {"v": "1", "t": "reconfigure", "o": "intruder", "n": "0", "d": data})
+                    await client.xadd(
+                        "xviz:control:car", {"v": "1", "t": "reconfigure", "o": "intruder", "n": "0", "d": data}
+                    )
                 await client.aclose()
-                await viewer.send(json.dumps({"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}}))
+                await viewer.send(
+                    json.dumps({"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": change}})
+                )
                 assert json.loads(await asyncio.wait_for(car.recv(), 10))["data"]["config_update"] == change
                 assert len(a.log("skipped a reconfigure entry")) == 3
                 await push(car, updates[:1])
                 message = await asyncio.wait_for(viewer.recv(), 10)
                 assert isinstance(message, str)  # JSON, as this viewer asked, made on B
                 update = decode(message)["data"]["updates"][0]
-                assert set(update.get("primitives", {})) | set(update.get("poses", {})) == {"/vehicle_pose", "/lidar/points"}
+                assert set(update.get("primitives", {})) | set(update.get("poses", {})) == {
+                    "/vehicle_pose",
+                    "/lidar/points",
+                }
 
             # A second source for the same name, on the other replica: refused as on one replica.
             async with connect(b.url("/ingest/car"), max_size=None) as second:
@@ -357,7 +402,9 @@ async def test_reconfigure_passes_through_the_broker_and_a_second_source_is_refu
             await until(lambda: _sessions(b, 1), what="the viewer on B")
             client = broker.client()
             await client.xadd("xviz:updates:car", {"hello": "world"})
-            await client.xadd("xviz:updates:car", {"v": "1", "t": "update", "o": "intruder", "n": "7", "d": b"glTF not really"})
+            await client.xadd(
+                "xviz:updates:car", {"v": "1", "t": "update", "o": "intruder", "n": "7", "d": b"glTF not really"}
+            )
             await client.aclose()
             await push(car, updates[1:])
             await viewer_b.count(len(updates))  # the complete state it joined with, then the updates
@@ -503,10 +550,20 @@ async def test_the_built_in_viewer_on_another_replica_lists_and_plays_the_feed(t
         async with source(a) as car:
             await until(lambda: _listed(b, "car"), what="B to list A's feed")
             pushing = asyncio.ensure_future(push(car, frames() * 4))
-            options = {"url": f"http://127.0.0.1:{b.port}/", "click": "car", "frames": 10, "timeout": 90_000,
-                       "screenshot": str(tmp_path / "viewer-on-b.png")}
+            options = {
+                "url": f"http://127.0.0.1:{b.port}/",
+                "click": "car",
+                "frames": 10,
+                "timeout": 90_000,
+                "screenshot": str(tmp_path / "viewer-on-b.png"),
+            }
             process = await asyncio.create_subprocess_exec(
-                "node", str(BROWSER), json.dumps(options), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+                "node",
+                str(BROWSER),
+                json.dumps(options),
+                stdout=asyncio.subprocess.PIPE,
+                stderr=asyncio.subprocess.PIPE,
+            )
             stdout, stderr = await process.communicate()
             pushing.cancel()
     assert process.returncode == 0, stderr.decode()
@@ -517,14 +574,19 @@ async def test_the_built_in_viewer_on_another_replica_lists_and_plays_the_feed(t
     print(f"the viewer on B drew A's feed {report['firstDrawnMs']} ms after opening the page")
 
 
-async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_started_later(tmp_path: Path, broker: Broker):
+async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_started_later(
+    tmp_path: Path, broker: Broker
+):
     """``server.live.feed(...)`` is shared too; a replica that starts reading begins at a keyframe, which the
     owner writes for a source of incremental updates (every few updates when the stream is short)."""
     settings = {"broker": broker.url, "broker_ttl": TTL, "broker_max_mb": 0.002}  # ~5 entries of the updates here
 
     def written(server: Any) -> float:
-        return sum(float(line.rsplit(" ", 1)[1]) for line in server.metrics.exposition().decode().splitlines()
-                   if line.startswith("xviz_broker_writes_total"))
+        return sum(
+            float(line.rsplit(" ", 1)[1])
+            for line in server.metrics.exposition().decode().splitlines()
+            if line.startswith("xviz_broker_writes_total")
+        )
 
     async with running_server(tmp_path, **settings) as a:
         feed = a.live.feed("sim")
@@ -539,6 +601,7 @@ async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_start
 
         await until(all_written, what="A to write the feed")
         async with running_server(tmp_path, **settings) as c:
+
             async def listed() -> bool:
                 found = c.live.get("sim")
                 return found is not None and found.metadata is not None
@@ -552,7 +615,11 @@ async def test_an_in_process_feed_of_incremental_updates_reaches_a_replica_start
                 assert state["data"]["updates"][0]["primitives"]["/points"]["points"][0]["points"].shape == (50, 3)
                 poses = [state["data"]["updates"][0]["poses"]["/vehicle_pose"]["position"][0]]
                 while poses[-1] != 2.2:  # then the updates after it, up to the newest
-                    poses.append((await asyncio.wait_for(viewer.recv(), 10))["data"]["updates"][0]["poses"]["/vehicle_pose"]["position"][0])
+                    poses.append(
+                        (await asyncio.wait_for(viewer.recv(), 10))["data"]["updates"][0]["poses"]["/vehicle_pose"][
+                            "position"
+                        ][0]
+                    )
             assert poses == sorted(poses) and poses[0] >= 1.9, poses
             assert c.live.get("sim").origin == a.broker.link.id.decode()
 
@@ -591,7 +658,9 @@ async def test_entries_that_ingest_would_refuse_are_skipped_and_the_feed_goes_on
             attacks = [*poisoned(updates[1]).items(), ("not the owner's next", updates[1])]
             for sent, (problem, data) in enumerate(attacks, start=1):
                 number = 10**15 if problem == "not the owner's next" else sent  # the owner's next is `sent`
-                await client.xadd("xviz:updates:car", {"v": "1", "t": "update", "o": owner, "n": str(number), "d": data})
+                await client.xadd(
+                    "xviz:updates:car", {"v": "1", "t": "update", "o": owner, "n": str(number), "d": data}
+                )
                 await push(car, updates[sent : sent + 1])
                 await there.count(1 + sent)
                 assert len(b.log(r"skipped entry .*" + re.escape(problem))) == 1, b.lines[-5:]
@@ -625,9 +694,13 @@ async def test_a_reader_that_fails_is_restarted_and_reported(tmp_path: Path, bro
 
             await until(failing, what="B's reader to fail three times")
             status, health = await b.get("/healthz")
-            assert status == 200 and re.search(r"degraded: the reader of live feed 'car' failed \d+ times in a row", health), health
+            assert status == 200 and re.search(
+                r"degraded: the reader of live feed 'car' failed \d+ times in a row", health
+            ), health
             assert "b'not-an-id' is not a stream id" in health
-            assert len(b.log(r"live feed 'car': reading it from the broker failed")) == 1  # said once, counted each time
+            assert (
+                len(b.log(r"live feed 'car': reading it from the broker failed")) == 1
+            )  # said once, counted each time
             await push(car, updates[1:2])  # A writes the registration's key again
             await viewer.count(1)
             await push(car, updates[2:])
@@ -642,12 +715,22 @@ async def test_a_reader_that_fails_is_restarted_and_reported(tmp_path: Path, bro
 
 def test_the_broker_url_is_shown_without_its_password():
     env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}
-    shown = subprocess.run([sys.executable, "-m", "xviz_server", "config", "--broker", "rediss://app:s3cr3t@cache.example:6380/2"],
-                           capture_output=True, text=True, env=env, timeout=60)
+    shown = subprocess.run(
+        [sys.executable, "-m", "xviz_server", "config", "--broker", "rediss://app:s3cr3t@cache.example:6380/2"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+    )
     assert shown.returncode == 0 and "s3cr3t" not in shown.stdout + shown.stderr
     assert 'broker = "rediss://app:REDACTED@cache.example:6380/2"' in shown.stdout
-    wrong = subprocess.run([sys.executable, "-m", "xviz_server", "config", "--broker", "http://:s3cr3t@cache.example"],
-                           capture_output=True, text=True, env=env, timeout=60)
+    wrong = subprocess.run(
+        [sys.executable, "-m", "xviz_server", "config", "--broker", "http://:s3cr3t@cache.example"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+    )
     assert wrong.returncode == 2 and "s3cr3t" not in wrong.stderr and "redis://, rediss:// or unix://" in wrong.stderr
 
 
@@ -720,7 +803,10 @@ async def test_a_broker_that_answers_what_is_not_resp_fails_the_wire_at_once():
 
     server = await asyncio.start_server(garbage, "127.0.0.1", 0)
     try:
-        with pytest.raises(BrokerConnectionError, match="carried what is not RESP: not a RESP2 reply from the broker: b'!not RESP at all'"):
+        with pytest.raises(
+            BrokerConnectionError,
+            match="carried what is not RESP: not a RESP2 reply from the broker: b'!not RESP at all'",
+        ):
             await Wire.open(f"redis://127.0.0.1:{server.sockets[0].getsockname()[1]}/0", "xviz-test", timeout=5)
     finally:
         server.close()
@@ -758,7 +844,9 @@ def test_an_update_is_taken_as_the_owner_s_next_within_a_bounded_gap():
     assert numbering.missing(b"a", 42) == 0 and numbering.missing(b"a", 45) == 3
     assert numbering.missing(b"a", 41 + MAX_GAP + 1) == MAX_GAP
     for number in (41 + MAX_GAP + 2, 10**15, 40, 0):
-        with pytest.raises(BrokerError, match=f"update {number} of replica a is not the owner's next \\(its newest is 41"):
+        with pytest.raises(
+            BrokerError, match=f"update {number} of replica a is not the owner's next \\(its newest is 41"
+        ):
             numbering.missing(b"a", number)
     assert numbering.missing(b"a", 42) == 0  # refused ones move nothing
     assert numbering.missing(b"a", 1) == 0  # follows the one refused last: the owner numbers afresh

@@ -21,7 +21,18 @@ import numpy as np
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
-from helpers import Client, Served, client, eventually, foxglove_opened, http_get, running_server, served, ten_hz, write_log
+from helpers import (
+    Client,
+    Served,
+    client,
+    eventually,
+    foxglove_opened,
+    http_get,
+    running_server,
+    served,
+    ten_hz,
+    write_log,
+)
 from xviz_server.budget import LOG_LINES, MAX_ITEMS, NAMED
 
 pytestmark = pytest.mark.slow
@@ -40,7 +51,9 @@ def grown(server: Served, before: dict[int, int]) -> dict[int, int]:
 
 
 async def foxglove(server: Served, log: str = "kitti") -> ClientConnection:
-    websocket = await connect(f"ws://127.0.0.1:{server.port}/?log={log}", subprotocols=["foxglove.websocket.v1"], max_size=None)  # type: ignore[list-item]
+    websocket = await connect(
+        f"ws://127.0.0.1:{server.port}/?log={log}", subprotocols=["foxglove.websocket.v1"], max_size=None
+    )  # type: ignore[list-item]
     _, websocket.channels = await foxglove_opened(websocket, 30)  # type: ignore[attr-defined]
     return websocket
 
@@ -71,26 +84,38 @@ async def healthz(server: Served) -> None:
 # -- one message, many items ---------------------------------------------------------------------------------------
 
 
-async def test_a_foxglove_message_of_half_a_million_bad_items_gets_one_status_and_costs_nothing(kitti_root: Path) -> None:
+async def test_a_foxglove_message_of_half_a_million_bad_items_gets_one_status_and_costs_nothing(
+    kitti_root: Path,
+) -> None:
     async with served(kitti_root) as server:
         async with await foxglove(server) as warm:  # the workers are up and the log's frames cached
-            await warm.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in warm.channels]}))  # type: ignore[attr-defined]
+            await warm.send(
+                json.dumps(
+                    {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in warm.channels]}
+                )
+            )  # type: ignore[attr-defined]
             await arrivals(warm, 2.0)
         before = server.rss()
         watcher, attacker = await foxglove(server), await foxglove(server)
-        await watcher.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in watcher.channels]}))  # type: ignore[attr-defined]
+        await watcher.send(
+            json.dumps(
+                {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in watcher.channels]}
+            )
+        )  # type: ignore[attr-defined]
         await watcher.recv()
         watching = asyncio.ensure_future(arrivals(watcher))
         # 524 000 items in 1 MB: refused whole, unread, in one status.
         for op, key in (("subscribe", "subscriptions"), ("unsubscribe", "subscriptionIds")):
-            await attacker.send('{"op":"%s","%s":[%s]}' % (op, key, ",".join(["0"] * 524_000)))
+            await attacker.send('{{"op":"{}","{}":[{}]}}'.format(op, key, ",".join(["0"] * 524_000)))
             said = await status(attacker)
             assert said == f"{op}: 524000 items, more than the {MAX_ITEMS} one message may hold: refused whole"
         # Under the limit: every item looked at, one status naming the first few and counting the rest.
         items = [{"id": 1000 + i, "channelId": 99_999} for i in range(MAX_ITEMS)]
         await attacker.send(json.dumps({"op": "subscribe", "subscriptions": items}))
         said = await status(attacker)
-        assert said.startswith(f"subscribe: {MAX_ITEMS} of {MAX_ITEMS} items refused: no channel 99999 in log 'kitti'; ")
+        assert said.startswith(
+            f"subscribe: {MAX_ITEMS} of {MAX_ITEMS} items refused: no channel 99999 in log 'kitti'; "
+        )
         assert said.endswith(f"; and {MAX_ITEMS - NAMED} more") and len(said) < 500
         # Many bad messages: a status each, but a bounded number of log lines.
         for _ in range(100):
@@ -123,13 +148,18 @@ async def test_a_transform_log_of_209000_bad_streams_gets_one_short_error(kitti_
                 await viewer.send(kind, data)
                 error = await viewer.recv(30)
                 assert error["type"] == "xviz/error" and error["_bytes"] < 1000, error["_bytes"]
-                assert f"holds more than the {MAX_ITEMS} items a message may hold: refused whole" in error["data"]["message"]
+                assert (
+                    f"holds more than the {MAX_ITEMS} items a message may hold: refused whole"
+                    in error["data"]["message"]
+                )
             # Under the limit: the first few named, the rest counted.
             await viewer.send("transform_log", {"id": "some", "desired_streams": [[]] * MAX_ITEMS})
             error = await viewer.recv(30)
             message = error["data"]["message"]
             assert error["type"] == "xviz/error" and error["_bytes"] < 1000, error["_bytes"]
-            assert message.startswith(f"xviz/transform_log (id 'some'): {MAX_ITEMS} problems: 'desired_streams.0' must be a string, not []; ")
+            assert message.startswith(
+                f"xviz/transform_log (id 'some'): {MAX_ITEMS} problems: 'desired_streams.0' must be a string, not []; "
+            )
             assert message.endswith(f"; and {MAX_ITEMS - NAMED} more (log 'kitti')")
             # The session goes on.
             await viewer.send("transform_log", {"id": "good"})
@@ -155,8 +185,15 @@ def _clouds(m: Any) -> Any:
         t = base + (number + 1) * 10**8
         fields = [m.sensor_msgs__PointField(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
         cloud = m.sensor_msgs__PointCloud2(
-            header=m.header(t, "base_link"), height=1, width=size // 16, fields=fields, is_bigendian=False,
-            point_step=16, row_step=size, data=np.zeros(size, np.uint8), is_dense=True,
+            header=m.header(t, "base_link"),
+            height=1,
+            width=size // 16,
+            fields=fields,
+            is_bigendian=False,
+            point_step=16,
+            row_step=size,
+            data=np.zeros(size, np.uint8),
+            is_dense=True,
         )
         yield "/points", "sensor_msgs/msg/PointCloud2", t, cloud
 
@@ -168,7 +205,12 @@ def clouds(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     from devkit.rosbag_kitti import Messages, write_bag
 
-    path = write_bag(tmp_path_factory.mktemp("clouds") / "clouds.mcap", "mcap", _clouds(Messages(Stores.ROS2_HUMBLE)), compression="zstd")
+    path = write_bag(
+        tmp_path_factory.mktemp("clouds") / "clouds.mcap",
+        "mcap",
+        _clouds(Messages(Stores.ROS2_HUMBLE)),
+        compression="zstd",
+    )
     assert path.stat().st_size < 16 * _MiB
     return path
 
@@ -181,14 +223,26 @@ async def test_a_frame_of_huge_valid_clouds_is_refused_unread_on_both_faces(clou
         before = server.rss()
         xviz, good = await asyncio.gather(server.session("clouds"), server.session("kitti"))
         async with await foxglove(server, "clouds") as websocket:
-            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in websocket.channels]}))  # type: ignore[attr-defined]
+            await websocket.send(
+                json.dumps(
+                    {
+                        "op": "subscribe",
+                        "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in websocket.channels],
+                    }
+                )
+            )  # type: ignore[attr-defined]
             statuses = [await status(websocket) for _ in range(3)]
         await healthz(server)
         growth = grown(server, before)
     refused = "would unpack 250.0 MiB, more than the limit of 128 MiB for one frame: refused unread"
     errors = [m["data"]["message"] for m in xviz if m["type"] == "xviz/error"]
-    assert [m["data"]["updates"][0]["timestamp"] for m in xviz if m["type"] == "xviz/state_update"] == [1_700_000_000.1], errors
-    assert len(errors) == 3 and all(f"frame {n} of log 'clouds': frame {n}: its messages and images {refused}" in e for n, e in zip((1, 2, 3), errors)), errors
+    assert [m["data"]["updates"][0]["timestamp"] for m in xviz if m["type"] == "xviz/state_update"] == [
+        1_700_000_000.1
+    ], errors
+    assert len(errors) == 3 and all(
+        f"frame {n} of log 'clouds': frame {n}: its messages and images {refused}" in e
+        for n, e in zip((1, 2, 3), errors)
+    ), errors
     assert len(statuses) == 3 and all(refused in said for said in statuses), statuses
     assert [m for m in good if m["type"] == "xviz/state_update"] and not [m for m in good if m["type"] == "xviz/error"]
     assert max(growth.values()) < TENS_OF_MB, {pid: f"{g / _MiB:.0f} MiB" for pid, g in growth.items()}
@@ -248,8 +302,12 @@ async def test_a_session_url_parameter_given_twice_is_refused_and_ignored(kitti_
         async with client(server, "/?log=kitti&max_mbps=5&max_mbps=1000&speed=1&speed=2") as viewer:
             first, second, third = [await viewer.recv(30) for _ in range(3)]
     assert [first["type"], second["type"], third["type"]] == ["xviz/error", "xviz/error", "xviz/metadata"]
-    assert first["data"]["message"].endswith("bad connection URL parameter 'max_mbps': give it at most once; it is ignored")
-    assert second["data"]["message"].endswith("bad connection URL parameter 'speed': give it at most once; it is ignored")
+    assert first["data"]["message"].endswith(
+        "bad connection URL parameter 'max_mbps': give it at most once; it is ignored"
+    )
+    assert second["data"]["message"].endswith(
+        "bad connection URL parameter 'speed': give it at most once; it is ignored"
+    )
 
 
 # -- the catalog ---------------------------------------------------------------------------------------------------
@@ -372,7 +430,11 @@ async def flood(port: int, subprotocol: str, frame: bytes, sent: list[int]) -> f
 async def test_clients_that_send_512_kb_messages_and_never_read_cost_tens_of_mb(kitti_root: Path) -> None:
     async with served(kitti_root, XVIZ_IDLE_TIMEOUT="10") as server:
         async with await foxglove(server) as warm:  # the workers are up and the log's frames cached
-            await warm.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in warm.channels]}))  # type: ignore[attr-defined]
+            await warm.send(
+                json.dumps(
+                    {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in warm.channels]}
+                )
+            )  # type: ignore[attr-defined]
             await arrivals(warm, 2.0)
         before = server.rss()
         watcher = await foxglove(server)
@@ -387,7 +449,11 @@ async def test_clients_that_send_512_kb_messages_and_never_read_cost_tens_of_mb(
             return all(count[0] >= 2 * _FLOOD or future.done() for count, future in zip(counts, floods))
 
         await eventually(under_way, 30)
-        await watcher.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in watcher.channels]}))  # type: ignore[attr-defined]
+        await watcher.send(
+            json.dumps(
+                {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in watcher.channels]}
+            )
+        )  # type: ignore[attr-defined]
         watching = asyncio.ensure_future(arrivals(watcher))
         await healthz(server)
         ended = await asyncio.wait_for(asyncio.gather(*floods), 60)

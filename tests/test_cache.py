@@ -15,6 +15,7 @@ def loader(value: bytes, calls: list, delay: float = 0.0):
         calls.append(value)
         await asyncio.sleep(delay)
         return value
+
     return load
 
 

@@ -22,13 +22,24 @@ import time
 import urllib.error
 import urllib.parse
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import pytest
 
 from devkit.fleet import FLEET_START, FleetLog, write_fleet
-from helpers import client, eventually, http_get, metadata, running_server, start_serving, stop_serving, ten_hz, write_log
+from helpers import (
+    client,
+    eventually,
+    http_get,
+    metadata,
+    running_server,
+    start_serving,
+    stop_serving,
+    ten_hz,
+    write_log,
+)
 from xviz_server.catalog import indexer
 from xviz_server.catalog.db import FILE_NAME, SCHEMA, SORT_INDEXES
 from xviz_server.codec import Format, encode
@@ -112,16 +123,25 @@ async def test_searches_filter_and_sort(fleet: tuple[Path, list[FleetLog]]):
     root, logs = fleet
     names = lambda found: [log["name"] for log in found]  # noqa: E731
     async with running_server(root) as server:
-        assert names(await every_page(server, q="HIGHWAY")) == sorted(log.name for log in logs if "highway" in log.description)
-        assert names(await every_page(server, q="car-03/")) == sorted(log.name for log in logs if log.vehicle == "car-03")
+        assert names(await every_page(server, q="HIGHWAY")) == sorted(
+            log.name for log in logs if "highway" in log.description
+        )
+        assert names(await every_page(server, q="car-03/")) == sorted(
+            log.name for log in logs if log.vehicle == "car-03"
+        )
         assert names(await every_page(server, q="%")) == [] and names(await every_page(server, q="_")) == []
         start, end = FLEET_START + 3000, FLEET_START + 3600
         overlapping = sorted(log.name for log in logs if log.end >= start and log.start <= end)
-        assert names(await every_page(server, **{"from": start, "to": end}, limit=3)) == overlapping and len(overlapping) == 11
+        assert (
+            names(await every_page(server, **{"from": start, "to": end}, limit=3)) == overlapping
+            and len(overlapping) == 11
+        )
         assert names(await every_page(server, q="city", **{"from": start})) == sorted(
             log.name for log in logs if log.end >= start and "city" in log.description
         )
-        assert names(await every_page(server, min_duration=55)) == sorted(log.name for log in logs if log.end - log.start >= 55)
+        assert names(await every_page(server, min_duration=55)) == sorted(
+            log.name for log in logs if log.end - log.start >= 55
+        )
         cameras = sorted(log.name for i, log in enumerate(logs) if i % 3 == 0)
         assert names(await every_page(server, stream="/camera", limit=17)) == cameras
         assert names(await every_page(server, stream="/no/such")) == []
@@ -150,12 +170,28 @@ async def test_one_log_gives_every_fact(fleet: tuple[Path, list[FleetLog]]):
 @pytest.mark.parametrize(
     "query, parameter",
     [
-        ("limit=0", "limit"), ("limit=abc", "limit"), ("limit=1001", "limit"), ("limit=%EF%BC%95", "limit"),
-        ("from=yesterday", "from"), ("to=nan", "to"), ("from=inf", "from"), ("from=10&to=5", "from"),
-        ("min_duration=-1", "min_duration"), ("sort=colour", "sort"), ("sort=--name", "sort"), ("kind=tape", "kind"),
-        ("kind=xviz,", "kind"), ("cursor=garbage", "cursor"), ("cursor=WyJuYW1lIiwxLCJ4Il0", "cursor"),
-        ("q=a&q=b", "q"), ("q=", "q"), ("stream=" + "x" * 501, "stream"),
-        ("from=1_000", "from"), ("to=%205", "to"), ("min_duration=%2B5", "min_duration"), ("from=0x10", "from"),
+        ("limit=0", "limit"),
+        ("limit=abc", "limit"),
+        ("limit=1001", "limit"),
+        ("limit=%EF%BC%95", "limit"),
+        ("from=yesterday", "from"),
+        ("to=nan", "to"),
+        ("from=inf", "from"),
+        ("from=10&to=5", "from"),
+        ("min_duration=-1", "min_duration"),
+        ("sort=colour", "sort"),
+        ("sort=--name", "sort"),
+        ("kind=tape", "kind"),
+        ("kind=xviz,", "kind"),
+        ("cursor=garbage", "cursor"),
+        ("cursor=WyJuYW1lIiwxLCJ4Il0", "cursor"),
+        ("q=a&q=b", "q"),
+        ("q=", "q"),
+        ("stream=" + "x" * 501, "stream"),
+        ("from=1_000", "from"),
+        ("to=%205", "to"),
+        ("min_duration=%2B5", "min_duration"),
+        ("from=0x10", "from"),
         ("from=1&from=2", "from"),
         ("sort=frames&cursor=" + cursor_of(["frames", 2**63, "a"]), "cursor"),
         ("sort=-bytes&cursor=" + cursor_of(["-bytes", 2**64 - 1, "a"]), "cursor"),
@@ -197,17 +233,34 @@ async def test_a_restart_lists_every_log_from_its_catalog_at_once(tmp_path: Path
 
 #: What the server imports for sessions only (codecs, numpy, schemas, recordings, stores): none of it on the way to listening.
 SESSION_ONLY = (
-    "numpy", "pygltflib", "jsonschema", "google.protobuf", "PIL", "rosbags", "mcap", "foxglove_schemas_protobuf",
-    "xviz_server.codec", "xviz_server.messages", "xviz_server.session", "xviz_server.connection", "xviz_server.logs",
+    "numpy",
+    "pygltflib",
+    "jsonschema",
+    "google.protobuf",
+    "PIL",
+    "rosbags",
+    "mcap",
+    "foxglove_schemas_protobuf",
+    "xviz_server.codec",
+    "xviz_server.messages",
+    "xviz_server.session",
+    "xviz_server.connection",
+    "xviz_server.logs",
     "xviz_server.catalog.facts",
 )
 
 
 def test_the_command_and_the_server_import_nothing_that_only_sessions_need():
     found = subprocess.run(
-        [sys.executable, "-c", "import sys, xviz_server.cli, xviz_server.server\n"
-         f"print(','.join(name for name in {SESSION_ONLY!r} if name in sys.modules))"],
-        capture_output=True, text=True, timeout=60,
+        [
+            sys.executable,
+            "-c",
+            "import sys, xviz_server.cli, xviz_server.server\n"
+            f"print(','.join(name for name in {SESSION_ONLY!r} if name in sys.modules))",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert found.returncode == 0, found.stderr
     assert found.stdout.strip() == ""
@@ -218,7 +271,9 @@ async def test_a_restart_answers_its_first_page_and_health_with_no_worker_proces
     state = tmp_path / "state"
     async with running_server(tmp_path / "logs", state_dir=state):
         pass
-    process, port, lines = await start_serving("--data-dir", str(tmp_path / "logs"), "--state-dir", str(state), "--host", "127.0.0.1")
+    process, port, lines = await start_serving(
+        "--data-dir", str(tmp_path / "logs"), "--state-dir", str(state), "--host", "127.0.0.1"
+    )
     try:
         health = await asyncio.to_thread(http_get, port, "/healthz")
         status, _, body = await asyncio.to_thread(http_get, port, "/api/logs")
@@ -265,7 +320,9 @@ async def test_logs_added_changed_and_removed_while_serving_are_listed_within_se
         assert page["found"] == page["indexed"] == 20 + 2 - 2
 
 
-async def test_a_log_rewritten_in_place_is_found_by_the_sweep_a_page_a_look(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+async def test_a_log_rewritten_in_place_is_found_by_the_sweep_a_page_a_look(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
     monkeypatch.setattr(indexer, "SWEEP_PAGE", 4)  # 21 logs: every log compared once in six looks
     root = tmp_path / "logs"
     logs = sorted(log.name for log in write_fleet(root, 21))
@@ -311,7 +368,9 @@ def written_long_ago(root: Path) -> None:
 
 async def test_logs_without_index_documents_are_listed_from_metadata_and_first_and_last_frames(tmp_path: Path):
     logs = write_fleet(tmp_path, 12, index=False)
-    write_log(tmp_path / "untimed", ten_hz(5, start=100.0), fmt=Format.JSON, index=False)  # no log_info: times from frames
+    write_log(
+        tmp_path / "untimed", ten_hz(5, start=100.0), fmt=Format.JSON, index=False
+    )  # no log_info: times from frames
     write_log(tmp_path / "untimed-glb", ten_hz(3, start=200.0), index=False)
     corrupt = write_log(tmp_path / "corrupt-last", ten_hz(4, start=300.0), index=False)
     (corrupt / "5-frame.glb").write_bytes(b"\x00not a frame")
@@ -323,9 +382,16 @@ async def test_logs_without_index_documents_are_listed_from_metadata_and_first_a
         entry = listed[log.name]
         assert entry["indexed"] is True and "error" not in entry and entry["frames"] == 2
         assert (entry["start_time"], entry["end_time"], entry["vehicle"]) == (log.start, log.end, log.vehicle)
-        assert entry["streams"] == sorted(["/points", "/vehicle_pose", *(["/camera"] if int(log.name[-6:]) % 3 == 0 else [])])
+        assert entry["streams"] == sorted(
+            ["/points", "/vehicle_pose", *(["/camera"] if int(log.name[-6:]) % 3 == 0 else [])]
+        )
     untimed = listed["untimed"]
-    assert (untimed["format"], untimed["frames"], untimed["start_time"], untimed["end_time"]) == ("JSON", 5, 100.0, 100.4)
+    assert (untimed["format"], untimed["frames"], untimed["start_time"], untimed["end_time"]) == (
+        "JSON",
+        5,
+        100.0,
+        100.4,
+    )
     assert untimed["streams"] == ["/points", "/speed", "/vehicle_pose"]
     glb = listed["untimed-glb"]
     assert (glb["format"], glb["frames"], glb["start_time"], glb["end_time"]) == ("BINARY", 3, 200.0, 200.2)
@@ -369,7 +435,9 @@ async def test_a_corrupt_or_older_catalog_file_is_built_again_with_one_log_line(
         path.write_bytes(b"this is not a database" * 100)
     elif damage == "older":
         with sqlite3.connect(path) as old:
-            old.executescript(f"CREATE TABLE logs (name TEXT); INSERT INTO logs VALUES ('ghost'); PRAGMA user_version = {SCHEMA - 1};")
+            old.executescript(
+                f"CREATE TABLE logs (name TEXT); INSERT INTO logs VALUES ('ghost'); PRAGMA user_version = {SCHEMA - 1};"
+            )
     else:
         async with running_server(tmp_path / "logs", state_dir=state):
             pass
@@ -414,7 +482,9 @@ def test_a_full_disk_keeps_the_catalog_in_memory_and_the_server_serving(tmp_path
     # Files of the process may not grow past 150 KB: the catalog's database soon cannot.
     result = subprocess.run(
         [sys.executable, "-c", FULL_DISK, str(tmp_path / "logs"), str(tmp_path / "state"), str(150_000)],
-        capture_output=True, text=True, timeout=120,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout) == {"found": 400, "indexed": 400, "listed": 400, "memory": True}
@@ -422,7 +492,9 @@ def test_a_full_disk_keeps_the_catalog_in_memory_and_the_server_serving(tmp_path
     assert len(warnings) == 1 and "cannot be written" in warnings[0], result.stderr
 
 
-async def test_a_state_directory_that_cannot_be_made_keeps_the_catalog_in_memory(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+async def test_a_state_directory_that_cannot_be_made_keeps_the_catalog_in_memory(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+):
     write_fleet(tmp_path / "logs", 3)
     (tmp_path / "file").write_text("in the way")
     async with running_server(tmp_path / "logs", state_dir=tmp_path / "file" / "state") as server:
@@ -450,7 +522,9 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
     files = {path.name: path.read_bytes() for path in source.iterdir()}
     with moto_process() as s3:
         s3.bucket(BUCKET)
-        puts = [(f"fleet/car-{i % 10}/seg-{i:04d}/{name}", data) for i in range(STORE_LOGS) for name, data in files.items()]
+        puts = [
+            (f"fleet/car-{i % 10}/seg-{i:04d}/{name}", data) for i in range(STORE_LOGS) for name, data in files.items()
+        ]
         with ThreadPoolExecutor(10) as pool:  # botocore's pool of connections
             list(pool.map(lambda put: s3.put(BUCKET, *put), puts))
         yield s3, files
@@ -485,7 +559,11 @@ async def test_a_store_of_ten_thousand_keys_is_listed_from_one_listing_and_two_g
             for name, data in files.items():
                 s3.put(BUCKET, f"fleet/car-x/new/{name}", data)
             described = metadata(start_time=100.0, end_time=103.7, description="rewritten")
-            s3.put(BUCKET, "fleet/car-1/seg-0001/1-frame.json", encode({"type": "xviz/metadata", "data": described}, Format.JSON))
+            s3.put(
+                BUCKET,
+                "fleet/car-1/seg-0001/1-frame.json",
+                encode({"type": "xviz/metadata", "data": described}, Format.JSON),
+            )
             for name in files:
                 s3.delete(BUCKET, f"fleet/car-2/seg-0002/{name}")
             before = len(proxy.gets())

@@ -21,4 +21,15 @@ def test_a_dataset_kind_registered_in_datasets_kinds_is_listed_and_queried(monke
 
 def test_ros_recordings_are_listed_by_their_suffix() -> None:
     assert [source_kind("rosbag", place) for place in ("a.bag", "b.mcap", "c.db3")] == ["bag", "mcap", "bag"]
-    assert listed_kinds() == ("xviz", "kitti", "waymo", "vista", "demo", "bag", "mcap", "nuscenes", "argoverse2", "pandaset")
+    assert listed_kinds() == (
+        "xviz",
+        "kitti",
+        "waymo",
+        "vista",
+        "demo",
+        "bag",
+        "mcap",
+        "nuscenes",
+        "argoverse2",
+        "pandaset",
+    )

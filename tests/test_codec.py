@@ -151,9 +151,7 @@ def test_numpy_arrays_go_to_bin_by_key_and_dtype():
     colors = np.array([[1, 2, 3, 4]] * 4)
     ids = np.array([1, 2, 3], dtype=np.uint16)
     precise = np.array([0.1, 0.2], dtype=np.float64)
-    message = state_update(
-        {"/p": {"points": [{"points": points, "colors": colors, "ids": ids, "precise": precise}]}}
-    )
+    message = state_update({"/p": {"points": [{"points": points, "colors": colors, "ids": ids, "precise": precise}]}})
     data = encode_glb(message)
     document, _ = glb_parts(data)
     assert [(a["type"], a["componentType"]) for a in document["accessors"]] == [
@@ -233,7 +231,9 @@ def test_json_encoding_refuses_unknown_objects():
 # ------------------------------------------------------------ decoder variants
 
 
-def build_glb(document: dict, binary: bytes = b"", *, magic=b"glTF", json_type=0x4E4F534A, bin_type=0x004E4942) -> bytes:
+def build_glb(
+    document: dict, binary: bytes = b"", *, magic=b"glTF", json_type=0x4E4F534A, bin_type=0x004E4942
+) -> bytes:
     text = json.dumps(document, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
     binary += bytes(-len(binary) % 4)
@@ -281,7 +281,10 @@ def test_edit_glb_writes_the_current_form_of_legacy_files():
         "accessors": [{"bufferView": 0, "type": "VEC3", "componentType": 5126, "count": 1}],
         "extensionsUsed": ["AVS_xviz", "OTHER"],
         "extensionsRequired": ["AVS_xviz"],
-        "extensions": {"AVS_xviz": state_update({"/v": {"polylines": [{"vertices": "#/accessors/0"}]}}), "OTHER": {"a": 1}},
+        "extensions": {
+            "AVS_xviz": state_update({"/v": {"polylines": [{"vertices": "#/accessors/0"}]}}),
+            "OTHER": {"a": 1},
+        },
     }
     edited = edit_glb(build_glb(document, floats, magic=b"XVIZ", json_type=0, bin_type=1), lambda envelope: envelope)
     written, binary = glb_parts(edited)  # current magic and chunk types
@@ -289,7 +292,9 @@ def test_edit_glb_writes_the_current_form_of_legacy_files():
     assert written["extensions"] == {"OTHER": {"a": 1}}
     assert written["extensionsUsed"] == ["OTHER"] and "extensionsRequired" not in written
     assert written["xviz"] == document["extensions"]["AVS_xviz"]
-    assert decode_glb(edited)["data"]["updates"][0]["primitives"]["/v"]["polylines"][0]["vertices"].tolist() == [[1, 2, 3]]
+    assert decode_glb(edited)["data"]["updates"][0]["primitives"]["/v"]["polylines"][0]["vertices"].tolist() == [
+        [1, 2, 3]
+    ]
     with pytest.raises(DecodeError, match="declares"):
         edit_glb(edited[:-4], lambda envelope: envelope)
 
@@ -304,16 +309,63 @@ def test_edit_glb_writes_the_current_form_of_legacy_files():
         (b"abcd" + bytes(20), "magic b'abcd' at offset 0"),
         (struct.pack("<4sII", b"glTF", 1, 20) + bytes(8), "version 1 at offset 4"),
         (struct.pack("<4sII", b"glTF", 2, 500) + bytes(8), "declares 500 bytes, only 20 present"),
-        (struct.pack("<4sII", b"glTF", 2, 28) + struct.pack("<II", 100, 0x4E4F534A) + bytes(8), "chunk at offset 12 declares 100 bytes"),
+        (
+            struct.pack("<4sII", b"glTF", 2, 28) + struct.pack("<II", 100, 0x4E4F534A) + bytes(8),
+            "chunk at offset 12 declares 100 bytes",
+        ),
         (build_glb({"xviz": {}}, json_type=7), "no JSON chunk"),
         (build_glb({"no": "xviz"}), "no 'xviz' key"),
-        (build_glb({"bufferViews": [{"byteOffset": 0, "byteLength": 64}], "xviz": {}}), "bufferViews\\[0\\] spans bytes 0-64 of a 0-byte BIN chunk"),
-        (build_glb({"bufferViews": [{"byteLength": -1}], "xviz": {}}), "bufferViews\\[0\\].byteLength must be a non-negative integer"),
-        (build_glb({"accessors": [{"bufferView": 3, "type": "VEC3", "componentType": 5126, "count": 1}], "xviz": {}}), "accessors\\[0\\].bufferView 3 is out of range"),
-        (build_glb({"bufferViews": [{"byteLength": 4}], "accessors": [{"bufferView": 0, "type": "VEC3", "componentType": 5126, "count": 1}], "xviz": {}}, bytes(4)), "accessors\\[0\\] needs 12 bytes"),
-        (build_glb({"bufferViews": [{"byteLength": 4}], "accessors": [{"bufferView": 0, "type": "MAT9", "componentType": 5126, "count": 1}], "xviz": {}}, bytes(4)), "accessors\\[0\\].type 'MAT9'"),
-        (build_glb({"bufferViews": [{"byteLength": 4}], "accessors": [{"bufferView": 0, "type": "SCALAR", "componentType": 5130, "count": 1}], "xviz": {}}, bytes(4)), "componentType 5130"),
-        (build_glb({"xviz": {"data": {"updates": [{"points": "#/accessors/4"}]}}}), "'#/accessors/4' at \\$.data.updates\\[0\\].points names nothing"),
+        (
+            build_glb({"bufferViews": [{"byteOffset": 0, "byteLength": 64}], "xviz": {}}),
+            "bufferViews\\[0\\] spans bytes 0-64 of a 0-byte BIN chunk",
+        ),
+        (
+            build_glb({"bufferViews": [{"byteLength": -1}], "xviz": {}}),
+            "bufferViews\\[0\\].byteLength must be a non-negative integer",
+        ),
+        (
+            build_glb(
+                {"accessors": [{"bufferView": 3, "type": "VEC3", "componentType": 5126, "count": 1}], "xviz": {}}
+            ),
+            "accessors\\[0\\].bufferView 3 is out of range",
+        ),
+        (
+            build_glb(
+                {
+                    "bufferViews": [{"byteLength": 4}],
+                    "accessors": [{"bufferView": 0, "type": "VEC3", "componentType": 5126, "count": 1}],
+                    "xviz": {},
+                },
+                bytes(4),
+            ),
+            "accessors\\[0\\] needs 12 bytes",
+        ),
+        (
+            build_glb(
+                {
+                    "bufferViews": [{"byteLength": 4}],
+                    "accessors": [{"bufferView": 0, "type": "MAT9", "componentType": 5126, "count": 1}],
+                    "xviz": {},
+                },
+                bytes(4),
+            ),
+            "accessors\\[0\\].type 'MAT9'",
+        ),
+        (
+            build_glb(
+                {
+                    "bufferViews": [{"byteLength": 4}],
+                    "accessors": [{"bufferView": 0, "type": "SCALAR", "componentType": 5130, "count": 1}],
+                    "xviz": {},
+                },
+                bytes(4),
+            ),
+            "componentType 5130",
+        ),
+        (
+            build_glb({"xviz": {"data": {"updates": [{"points": "#/accessors/4"}]}}}),
+            "'#/accessors/4' at \\$.data.updates\\[0\\].points names nothing",
+        ),
     ],
 )
 def test_bad_glb_is_refused_with_offset_or_field(data, message):

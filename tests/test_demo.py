@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from helpers import assert_same_message, client, running_server, timestamps, write_demo, xviz_decode
-from xviz_server.validate import check_paths
 from xviz_server.codec import Format, decode, decode_json, encode
 from xviz_server.datasets.demo import DemoDrive
+from xviz_server.validate import check_paths
 from xviz_server.validation import get_validator
 
 START = 1_600_000_000.0

@@ -44,7 +44,9 @@ def image_prefix(tmp_path_factory) -> Path:
     (checkout / "build" / "lib" / "xviz_server").mkdir(parents=True)
     (checkout / "build" / "lib" / "xviz_server" / "stale_module.py").write_text("raise SystemExit('stale')\n")
     prefix = tmp_path_factory.mktemp("image") / "opt-xviz"
-    result = subprocess.run([str(checkout / "docker" / "install.sh"), str(prefix)], capture_output=True, text=True, timeout=900)
+    result = subprocess.run(
+        [str(checkout / "docker" / "install.sh"), str(prefix)], capture_output=True, text=True, timeout=900
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("xviz-server ")
     return prefix
@@ -59,11 +61,17 @@ def test_install_keeps_only_what_serving_uses(image_prefix: Path):
     assert not list(site.glob("numpy/**/*.h")) and not (site / "numpy" / "f2py").exists()
     assert not (image_prefix / "bin" / "pip").exists()
     # Bags and MCAP files are read (the ros extra); Pillow's formats serving never uses are gone.
-    assert (site / "rosbags").is_dir() and (site / "apsw").is_dir() and not (site / "apsw" / "sqlite_extra_binaries").exists()
+    assert (
+        (site / "rosbags").is_dir()
+        and (site / "apsw").is_dir()
+        and not (site / "apsw" / "sqlite_extra_binaries").exists()
+    )
     assert not list(site.glob("PIL/_avif.*")) and not list(site.glob("pillow.libs/libavif-*"))
     if shutil.which("readelf"):  # extension modules without debug info or static symbols (install.sh strips them)
         (uvloop,) = site.glob("uvloop/loop.*.so")
-        sections = subprocess.run(["readelf", "-S", "-W", str(uvloop)], capture_output=True, text=True, check=True).stdout
+        sections = subprocess.run(
+            ["readelf", "-S", "-W", str(uvloop)], capture_output=True, text=True, check=True
+        ).stdout
         assert ".debug_info" not in sections and ".symtab" not in sections
 
 
@@ -87,8 +95,16 @@ def test_dockerfile_uses_the_scripts_and_the_conventions():
 
 def test_compose_file_follows_the_compose_specification():
     result = subprocess.run(
-        [sys.executable, "-m", "check_jsonschema", "--builtin-schema", "vendor.compose-spec", str(DOCKER / "compose.yaml")],
-        capture_output=True, text=True,
+        [
+            sys.executable,
+            "-m",
+            "check_jsonschema",
+            "--builtin-schema",
+            "vendor.compose-spec",
+            str(DOCKER / "compose.yaml"),
+        ],
+        capture_output=True,
+        text=True,
     )
     assert result.returncode == 0, result.stdout + result.stderr
 
@@ -97,9 +113,14 @@ def test_entrypoint_serves_reports_health_and_stops_on_sigterm(image_prefix: Pat
     write_log(tmp_path / "data" / "drive", ten_hz(5))
     port = free_port()
     (tmp_path / "server.toml").write_text(f"port = {port}\n")
-    env = {**{k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")},
-           "PATH": f"{image_prefix / 'bin'}:{DOCKER}:{os.environ['PATH']}", "XVIZ_HOST": "127.0.0.1",
-           "XVIZ_CONFIG": str(tmp_path / "server.toml"), "XVIZ_DATA_DIR": str(tmp_path / "data"), "XVIZ_LOG_FORMAT": "json"}
+    env = {
+        **{k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")},
+        "PATH": f"{image_prefix / 'bin'}:{DOCKER}:{os.environ['PATH']}",
+        "XVIZ_HOST": "127.0.0.1",
+        "XVIZ_CONFIG": str(tmp_path / "server.toml"),
+        "XVIZ_DATA_DIR": str(tmp_path / "data"),
+        "XVIZ_LOG_FORMAT": "json",
+    }
     server = subprocess.Popen([str(DOCKER / "entrypoint.sh")], env=env, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     # As the image's HEALTHCHECK runs it: with PID 1's settings, here the entry point's process.
     healthcheck = [str(image_prefix / "bin" / "xviz-server"), "healthcheck", "--pid", str(server.pid)]
@@ -108,8 +129,12 @@ def test_entrypoint_serves_reports_health_and_stops_on_sigterm(image_prefix: Pat
         while subprocess.run(healthcheck, capture_output=True, timeout=60).returncode != 0:
             assert time.monotonic() < deadline and server.poll() is None, "the server never became healthy"
             time.sleep(0.3)
-        probe = subprocess.run([str(image_prefix / "bin" / "xviz-server"), "probe", f"ws://127.0.0.1:{port}/drive"],
-                               capture_output=True, text=True, timeout=60)
+        probe = subprocess.run(
+            [str(image_prefix / "bin" / "xviz-server"), "probe", f"ws://127.0.0.1:{port}/drive"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert probe.returncode == 0, probe.stdout
         server.send_signal(signal.SIGTERM)
         assert server.wait(20) == 0
@@ -124,14 +149,26 @@ def test_entrypoint_serves_reports_health_and_stops_on_sigterm(image_prefix: Pat
 
 def test_entrypoint_serves_the_demo_with_nothing_mounted(image_prefix: Path, tmp_path: Path):
     port = free_port()
-    env = {**{k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")},
-           "PATH": f"{image_prefix / 'bin'}:{os.environ['PATH']}", "XVIZ_HOST": "127.0.0.1", "XVIZ_PORT": str(port),
-           "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    env = {
+        **{k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")},
+        "PATH": f"{image_prefix / 'bin'}:{os.environ['PATH']}",
+        "XVIZ_HOST": "127.0.0.1",
+        "XVIZ_PORT": str(port),
+        "XDG_CACHE_HOME": str(tmp_path / "cache"),
+    }
     assert not Path("/data").exists() or not any(Path("/data").iterdir()), "this machine has a /data store"
     server = subprocess.Popen([str(DOCKER / "entrypoint.sh")], env=env, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     try:
         # The demo is made frame by frame on demand: the first second of it.
-        probe = [str(image_prefix / "bin" / "xviz-server"), "probe", "--timeout", "20", "--end", "+1", f"ws://127.0.0.1:{port}/?log=demo"]
+        probe = [
+            str(image_prefix / "bin" / "xviz-server"),
+            "probe",
+            "--timeout",
+            "20",
+            "--end",
+            "+1",
+            f"ws://127.0.0.1:{port}/?log=demo",
+        ]
         deadline = time.monotonic() + 60
         while (result := subprocess.run(probe, capture_output=True, text=True, timeout=60)).returncode != 0:
             assert time.monotonic() < deadline and server.poll() is None, result.stdout + result.stderr

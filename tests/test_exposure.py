@@ -44,7 +44,10 @@ def test_redact_url_hides_credential_parameters_only():
 
 
 def test_printable_escapes_control_characters():
-    assert printable("x=\x1b[31mRED a\rinjected\nline\x7f\x9b\u2028") == "x=\\x1b[31mRED a\\rinjected\\nline\\x7f\\x9b\\u2028"
+    assert (
+        printable("x=\x1b[31mRED a\rinjected\nline\x7f\x9b\u2028")
+        == "x=\\x1b[31mRED a\\rinjected\\nline\\x7f\\x9b\\u2028"
+    )
     assert printable("plain text, ünïcode") == "plain text, ünïcode"
 
 
@@ -53,7 +56,12 @@ async def test_no_token_reaches_the_log(root: Path, tmp_path: Path, log_format: 
     token_file = tmp_path / "viewer-token"
     token_file.write_text(TOKEN + "\n")
     process, port, lines = await start_serving(
-        "--data-dir", str(root), "--log-format", log_format, "--viewer-token-file", str(token_file),
+        "--data-dir",
+        str(root),
+        "--log-format",
+        log_format,
+        "--viewer-token-file",
+        str(token_file),
     )
     for path, headers in [
         (f"/drive?token={TOKEN}", {}),
@@ -143,8 +151,13 @@ def pems(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     authority.issue_cert("elsewhere").private_key_pem.write_to_path(str(files["other"]))
     files["garbage"].write_bytes(b"\x00not a pem file\n")
     key = serialization.load_pem_private_key(certificate.private_key_pem.bytes(), password=None)
-    files["encrypted"].write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                                     serialization.BestAvailableEncryption(b"secret")))
+    files["encrypted"].write_bytes(
+        key.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.BestAvailableEncryption(b"secret"),
+        )
+    )
     for path in files.values():
         path.chmod(0o600)
     return files
@@ -201,9 +214,15 @@ async def test_a_key_readable_by_everyone_is_served_with_a_warning(pems: dict[st
 
 def test_json_log_lines_escape_what_json_leaves_raw():
     line = subprocess.run(
-        [sys.executable, "-c", "import logging; from xviz_server.logfmt import configure_logging, log_event;"
-         "configure_logging('json'); log_event(logging.getLogger('t'), 'x', path='/?a=\\x9b31m\\x7f')"],
-        capture_output=True, text=True, timeout=30,
+        [
+            sys.executable,
+            "-c",
+            "import logging; from xviz_server.logfmt import configure_logging, log_event;"
+            "configure_logging('json'); log_event(logging.getLogger('t'), 'x', path='/?a=\\x9b31m\\x7f')",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
     ).stderr
     assert "\x9b" not in line and "\x7f" not in line
     assert json.loads(line)["path"] == "/?a=\\x9b31m\\x7f"

@@ -40,7 +40,9 @@ async def names(server: XVIZServer) -> list[str]:
 
 
 @pytest.mark.slow
-async def test_each_problem_in_the_data_folder_is_logged_once_with_its_cause(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+async def test_each_problem_in_the_data_folder_is_logged_once_with_its_cause(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+):
     data = tmp_path / "logs"
     data.mkdir()
     whole = mcap(data / "drive.mcap").read_bytes()
@@ -60,13 +62,15 @@ async def test_each_problem_in_the_data_folder_is_logged_once_with_its_cause(tmp
             await asyncio.sleep(0.1)
         listed = await names(server)
     assert sorted(listed) == ["cut", "drive", "later", "twin"]
-    assert sorted(warnings(caplog)) == sorted([
-        f"{data / 'cut.mcap'}: a truncated MCAP file: it does not end with the MCAP magic (cut short, or still being "
-        "written), and opens only once complete; listed all the same",
-        f"{data / 'empty.bag'}: left out of the catalog: not a ROS 1 bag: the file is empty",
-        f"{data / 'notes.bag'}: left out of the catalog: not a ROS 1 bag: it starts with b'these are not th'",
-        f"{data / 'twin.bag'}: twin.mcap has its name, 'twin', and is served under it",
-    ])
+    assert sorted(warnings(caplog)) == sorted(
+        [
+            f"{data / 'cut.mcap'}: a truncated MCAP file: it does not end with the MCAP magic (cut short, or still being "
+            "written), and opens only once complete; listed all the same",
+            f"{data / 'empty.bag'}: left out of the catalog: not a ROS 1 bag: the file is empty",
+            f"{data / 'notes.bag'}: left out of the catalog: not a ROS 1 bag: it starts with b'these are not th'",
+            f"{data / 'twin.bag'}: twin.mcap has its name, 'twin', and is served under it",
+        ]
+    )
 
 
 async def test_a_dataset_option_that_names_another_kind_or_a_truncated_file_is_logged(
@@ -76,8 +80,11 @@ async def test_a_dataset_option_that_names_another_kind_or_a_truncated_file_is_l
     whole = mcap(tmp_path / "whole.mcap").read_bytes()
     (tmp_path / "cut.mcap").write_bytes(whole[:-100])
     caplog.set_level(logging.WARNING, logger="xviz_server")
-    settings = Settings(host="127.0.0.1", port=0, dataset=[f"kitti:{bag}", f"rosbag:{tmp_path / 'cut.mcap'}",
-                                                           f"rosbag:{tmp_path / 'whole.mcap'}"])
+    settings = Settings(
+        host="127.0.0.1",
+        port=0,
+        dataset=[f"kitti:{bag}", f"rosbag:{tmp_path / 'cut.mcap'}", f"rosbag:{tmp_path / 'whole.mcap'}"],
+    )
     async with XVIZServer(settings):
         pass
     assert warnings(caplog) == [
@@ -91,13 +98,25 @@ async def test_a_dataset_option_that_names_another_kind_or_a_truncated_file_is_l
 @pytest.mark.slow
 def test_a_data_dir_that_is_a_bag_points_at_the_dataset_option(tmp_path: Path):
     bag = ros1(tmp_path / "my.bag")
-    result = subprocess.run([sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(bag)],
-                            capture_output=True, text=True, timeout=60, env=clean_env())
+    result = subprocess.run(
+        [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(bag)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=clean_env(),
+    )
     assert result.returncode == 2
-    assert result.stderr == (f"xviz-server serve: --data-dir {bag} is not a directory: to serve this file alone, give "
-                             f"--dataset rosbag:{bag} (--data-dir takes the folder that holds it)\n")
-    help_text = subprocess.run([sys.executable, "-m", "xviz_server", "serve", "--help"], capture_output=True, text=True,
-                               timeout=60, env=clean_env()).stdout
+    assert result.stderr == (
+        f"xviz-server serve: --data-dir {bag} is not a directory: to serve this file alone, give "
+        f"--dataset rosbag:{bag} (--data-dir takes the folder that holds it)\n"
+    )
+    help_text = subprocess.run(
+        [sys.executable, "-m", "xviz_server", "serve", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=clean_env(),
+    ).stdout
     assert "each log a folder" not in help_text and "ROS bags and" in help_text
 
 
@@ -105,6 +124,8 @@ def test_a_data_dir_that_is_a_bag_points_at_the_dataset_option(tmp_path: Path):
 async def test_a_default_run_logs_no_warning():
     process, port, lines = await start_serving()
     output = await stop_serving(process, lines)
-    assert f"listening on ws://127.0.0.1:{port}/\n" in output and f"the viewer page: http://127.0.0.1:{port}/\n" in output
+    assert (
+        f"listening on ws://127.0.0.1:{port}/\n" in output and f"the viewer page: http://127.0.0.1:{port}/\n" in output
+    )
     assert "live ingest (/ingest/NAME) is open to every local process" in output  # said, at INFO
     assert " WARNING " not in output and "Traceback" not in output

@@ -7,27 +7,45 @@ import io
 import json
 import socket
 import struct
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import pytest
-from websockets.asyncio.client import ClientConnection, connect
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from mcap.reader import make_reader
+from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import InvalidStatus
 
-from devkit.rosbag_kitti import CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, GRAY_TOPIC, RAW, Messages, kitti_messages, write_bag
-
+from devkit.rosbag_kitti import (
+    CLOUD_TOPIC,
+    COLOR_TOPIC,
+    COMPRESSED_TOPIC,
+    GRAY_TOPIC,
+    RAW,
+    Messages,
+    kitti_messages,
+    write_bag,
+)
+from helpers import (
+    client,
+    close_received,
+    eventually,
+    foxglove_client,
+    foxglove_opened,
+    http_get,
+    metric,
+    running_server,
+)
 from xviz_server.codec import decode
-from xviz_server.server import SHUTDOWN_TIMEOUT
-from xviz_server.foxglove.wire import SUBPROTOCOLS
 from xviz_server.datasets.kitti import KittiDrive
-from xviz_server.datasets.ros import RosBag, dataset as ros_dataset
+from xviz_server.datasets.ros import RosBag
+from xviz_server.datasets.ros import dataset as ros_dataset
 from xviz_server.exceptions import DatasetError, FrameSizeError
+from xviz_server.foxglove.wire import SUBPROTOCOLS
 from xviz_server.records import unpack
-
-from helpers import client, close_received, eventually, foxglove_client, foxglove_opened, http_get, metric, running_server
+from xviz_server.server import SHUTDOWN_TIMEOUT
 
 
 def kitti_frames(kitti_log: Path) -> list[dict[str, Any]]:
@@ -68,15 +86,21 @@ async def test_published_client_decodes_every_frame(kitti_root: Path, kitti_log:
         images = topics[camera]["summaries"]
         assert len(images) == len(updates)
         assert {image["format"] for image in images} == {"png"} and {image["magic"] for image in images} == {"89504e47"}
-        assert [image["bytes"] for image in images] == [len(update["primitives"][camera]["images"][0]["data"]) for update in updates]
+        assert [image["bytes"] for image in images] == [
+            len(update["primitives"][camera]["images"][0]["data"]) for update in updates
+        ]
     transforms = topics["/vehicle_pose"]["summaries"]
-    assert len(transforms) == len(updates) and {(t["parent"], t["child"]) for t in transforms} == {("map", "/vehicle_pose")}
+    assert len(transforms) == len(updates) and {(t["parent"], t["child"]) for t in transforms} == {
+        ("map", "/vehicle_pose")
+    }
     assert topics["/vehicle/velocity"]["count"] == len(updates)
     assert out["times"] == 1 + len(updates)  # the start time before the channels, then one per frame
 
 
 async def foxglove(server: Any, path: str = "/?log=kitti", subprotocols: list[str] | None = None) -> ClientConnection:
-    return await connect(f"ws://127.0.0.1:{server.port}{path}", subprotocols=subprotocols or ["foxglove.websocket.v1"], max_size=None)
+    return await connect(
+        f"ws://127.0.0.1:{server.port}{path}", subprotocols=subprotocols or ["foxglove.websocket.v1"], max_size=None
+    )
 
 
 async def opened(websocket: ClientConnection) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -94,7 +118,7 @@ async def next_of(websocket: ClientConnection, want: str, timeout: float = 10) -
             return struct.unpack_from("<IQ", data, 1)
         elif want == "state" and data[0] == 0x05:
             status, current, speed, did_seek, length = struct.unpack_from("<BQfBI", data, 1)
-            return status, current, speed, bool(did_seek), data[19:19 + length].decode()
+            return status, current, speed, bool(did_seek), data[19 : 19 + length].decode()
 
 
 def control(play: bool, speed: float = 1.0, seek: int | None = None, request_id: str = "r") -> bytes:
@@ -124,7 +148,12 @@ async def test_bad_input_gets_a_status_and_the_connection_goes_on(kitti_root: Pa
                 (json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": 999}]}), "no channel 999"),
                 (json.dumps({"op": "subscribe", "subscriptions": [{"id": -1, "channelId": 1}]}), "unsigned 32-bit"),
                 (json.dumps({"op": "fetchAsset", "uri": "x", "requestId": 1}), "not offered"),
-                (json.dumps({"op": "setParameters", "parameters": [{"name": "/xviz_server/profile", "value": "ultra"}]}), "unknown profile 'ultra'"),
+                (
+                    json.dumps(
+                        {"op": "setParameters", "parameters": [{"name": "/xviz_server/profile", "value": "ultra"}]}
+                    ),
+                    "unknown profile 'ultra'",
+                ),
                 (b"\x7fgarbage", "unknown binary opcode 0x7f"),
                 (b"", "empty binary message"),
                 (b"\x01\x00\x00\x00\x00xyz", "client message data is not offered"),
@@ -137,14 +166,20 @@ async def test_bad_input_gets_a_status_and_the_connection_goes_on(kitti_root: Pa
                 status = await next_of(websocket, "status")
                 assert status["level"] == 2 and expected in status["message"], (data, status)
             # Still serving: a subscription gets its messages.
-            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channels[0]["id"]}]}))
+            await websocket.send(
+                json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channels[0]["id"]}]})
+            )
             subscription, _ = await next_of(websocket, "message")
             assert subscription == 7
-            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channels[1]["id"]}]}))
+            await websocket.send(
+                json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channels[1]["id"]}]})
+            )
             assert "subscription id 7 is in use" in (await next_of(websocket, "status"))["message"]
 
 
-async def test_a_paused_seek_sends_the_frame_at_the_new_time_and_nothing_after(kitti_root: Path, kitti_log: Path) -> None:
+async def test_a_paused_seek_sends_the_frame_at_the_new_time_and_nothing_after(
+    kitti_root: Path, kitti_log: Path
+) -> None:
     times = [nanoseconds(update["timestamp"]) for update in kitti_frames(kitti_log)]
     async with running_server(kitti_root) as server:
         async with await foxglove(server, subprotocols=["foxglove.sdk.v1"]) as websocket:
@@ -163,7 +198,10 @@ async def test_a_paused_seek_sends_the_frame_at_the_new_time_and_nothing_after(k
 async def test_clients_seek_in_the_same_log_each_to_its_own_time(kitti_root: Path, kitti_log: Path) -> None:
     times = [nanoseconds(update["timestamp"]) for update in kitti_frames(kitti_log)]
     async with running_server(kitti_root) as server:
-        one, two = await foxglove(server, subprotocols=["foxglove.sdk.v1"]), await foxglove(server, subprotocols=["foxglove.sdk.v1"])
+        one, two = (
+            await foxglove(server, subprotocols=["foxglove.sdk.v1"]),
+            await foxglove(server, subprotocols=["foxglove.sdk.v1"]),
+        )
         async with one, two:
             for websocket, target in ((one, 20), (two, 4)):
                 _, channels = await opened(websocket)
@@ -193,7 +231,11 @@ async def test_the_viewer_token_applies_to_foxglove_handshakes(kitti_root: Path)
 
 BAG_FRAMES = 4
 #: Each container of the KITTI bags: its file name, its message and schema encoding.
-CONTAINERS = {"ros1": ("drive.bag", "ros1", "ros1msg"), "sqlite3": ("drive", "cdr", "ros2msg"), "mcap": ("drive.mcap", "cdr", "ros2msg")}
+CONTAINERS = {
+    "ros1": ("drive.bag", "ros1", "ros1msg"),
+    "sqlite3": ("drive", "cdr", "ros2msg"),
+    "mcap": ("drive.mcap", "cdr", "ros2msg"),
+}
 
 
 @pytest.fixture(scope="module")
@@ -202,7 +244,8 @@ def kitti_bags(shared_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> tu
     drive, root = KittiDrive(shared_dir / "data" / RAW), tmp_path_factory.mktemp("original-bags")
     return drive, {
         container: write_bag(root / container / name, container, drive=drive, frames=BAG_FRAMES)
-        for container, (name, _, _) in CONTAINERS.items() if (root / container).mkdir() is None
+        for container, (name, _, _) in CONTAINERS.items()
+        if (root / container).mkdir() is None
     }
 
 
@@ -224,7 +267,8 @@ def schema_name(msgtype: str, container: str) -> str:
 @pytest.mark.slow
 @pytest.mark.parametrize("container", CONTAINERS)
 async def test_the_published_client_decodes_the_original_messages_with_their_own_definitions(
-    container: str, kitti_bags: tuple[KittiDrive, dict[str, Path]],
+    container: str,
+    kitti_bags: tuple[KittiDrive, dict[str, Path]],
 ) -> None:
     drive, bags = kitti_bags
     expected = recorded(drive, container)
@@ -234,7 +278,7 @@ async def test_the_published_client_decodes_the_original_messages_with_their_own
     assert out["errors"] == [] and out["statuses"] == []
     channels = {channel["topic"]: channel for channel in out["channels"]}
     # One channel per original topic, under its own name, with the file's encoding and schema.
-    for topic, messages in expected.items():
+    for topic in expected:
         assert (channels[topic]["encoding"], channels[topic]["schemaEncoding"]) == (encoding, schema_encoding), topic
     assert channels[CLOUD_TOPIC]["schemaName"] == schema_name("sensor_msgs/msg/PointCloud2", container)
     assert channels["/tf"]["schemaName"] == schema_name("tf2_msgs/msg/TFMessage", container)
@@ -253,20 +297,29 @@ async def test_the_published_client_decodes_the_original_messages_with_their_own
     assert [(c["width"], c["height"], c["point_step"], c["bytes"]) for c in clouds] == [
         (len(drive.velodyne(i)), 1, 16, 16 * len(drive.velodyne(i))) for i in range(BAG_FRAMES)
     ]
-    assert {tuple(c["fields"]) for c in clouds} == {("x", "y", "z", "intensity")} and {c["frame_id"] for c in clouds} == {"/velo_link"}
+    assert {tuple(c["fields"]) for c in clouds} == {("x", "y", "z", "intensity")} and {
+        c["frame_id"] for c in clouds
+    } == {"/velo_link"}
     for topic in (GRAY_TOPIC, COLOR_TOPIC):
         images = [message for _, _, message in expected[topic]]
         assert topics[topic]["summaries"] == [
-            {"encoding": image.encoding, "width": image.width, "height": image.height, "bytes": len(image.data)} for image in images
+            {"encoding": image.encoding, "width": image.width, "height": image.height, "bytes": len(image.data)}
+            for image in images
         ]
     assert [(image["format"], image["magic"], image["bytes"]) for image in topics[COMPRESSED_TOPIC]["summaries"]] == [
         ("png", "89504e47", drive.image_path("image_03", i).stat().st_size) for i in range(BAG_FRAMES)
     ]
     for topic in ("/tf", "/tf_static"):
         assert [summary["transforms"] for summary in topics[topic]["summaries"]] == [
-            [{"parent": t.header.frame_id, "child": t.child_frame_id,
-              "translation": {axis: getattr(t.transform.translation, axis) for axis in "xyz"},
-              "rotation": {axis: getattr(t.transform.rotation, axis) for axis in "xyzw"}} for t in message.transforms]
+            [
+                {
+                    "parent": t.header.frame_id,
+                    "child": t.child_frame_id,
+                    "translation": {axis: getattr(t.transform.translation, axis) for axis in "xyz"},
+                    "rotation": {axis: getattr(t.transform.rotation, axis) for axis in "xyzw"},
+                }
+                for t in message.transforms
+            ]
             for _, _, message in expected[topic]
         ]
 
@@ -280,7 +333,9 @@ async def message_data(websocket: ClientConnection, timeout: float = 10) -> tupl
             return subscription, time, data[13:]
 
 
-async def test_original_bytes_arrive_unchanged_and_follow_subscriptions_and_seeks(kitti_bags: tuple[KittiDrive, dict[str, Path]]) -> None:
+async def test_original_bytes_arrive_unchanged_and_follow_subscriptions_and_seeks(
+    kitti_bags: tuple[KittiDrive, dict[str, Path]],
+) -> None:
     drive, bags = kitti_bags
     expected = recorded(drive, "ros1")
     times = [time for time, _, _ in expected[CLOUD_TOPIC]]
@@ -296,7 +351,9 @@ async def test_original_bytes_arrive_unchanged_and_follow_subscriptions_and_seek
                 await message_data(websocket, timeout=0.5)
             # Another channel instead: only its messages come, the bytes the file holds.
             await websocket.send(json.dumps({"op": "unsubscribe", "subscriptionIds": [1]}))
-            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 2, "channelId": ids[CLOUD_TOPIC]}]}))
+            await websocket.send(
+                json.dumps({"op": "subscribe", "subscriptions": [{"id": 2, "channelId": ids[CLOUD_TOPIC]}]})
+            )
             # A new subscription gets the frame on screen, then the seek plays on from its time.
             assert await message_data(websocket) == (2, times[2], expected[CLOUD_TOPIC][2][1])
             await websocket.send(control(True, speed=4.0, seek=times[1], request_id="play"))
@@ -316,12 +373,18 @@ async def test_the_export_has_the_original_channels(kitti_bags: tuple[KittiDrive
         schema = summary.schemas[channels[topic].schema_id]
         assert (channels[topic].message_encoding, schema.encoding) == ("cdr", "ros2msg")
         assert summary.statistics.channel_message_counts[channels[topic].id] == len(records)
-        assert [(time, data) for name, _, time, data in messages if name == topic] == [(time, data) for time, data, _ in records]
+        assert [(time, data) for name, _, time, data in messages if name == topic] == [
+            (time, data) for time, data, _ in records
+        ]
     clouds = [PointCloud.FromString(data) for name, _, _, data in messages if name == "/xviz" + CLOUD_TOPIC]
-    assert [len(cloud.data) // cloud.point_stride for cloud in clouds] == [len(drive.velodyne(i)) for i in range(BAG_FRAMES)]
+    assert [len(cloud.data) // cloud.point_stride for cloud in clouds] == [
+        len(drive.velodyne(i)) for i in range(BAG_FRAMES)
+    ]
 
 
-def test_the_original_messages_of_a_frame_are_bounded(kitti_bags: tuple[KittiDrive, dict[str, Path]], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_original_messages_of_a_frame_are_bounded(
+    kitti_bags: tuple[KittiDrive, dict[str, Path]], monkeypatch: pytest.MonkeyPatch
+) -> None:
     bag = RosBag(kitti_bags[1]["ros1"])
     records = list(unpack(bag.original_messages(1)))
     assert len(records) == len(bag.originals) - 1  # every topic but /tf_static, once
@@ -330,7 +393,10 @@ def test_the_original_messages_of_a_frame_are_bounded(kitti_bags: tuple[KittiDri
         bag.original_messages(1)
     monkeypatch.undo()
     monkeypatch.setattr(ros_dataset, "MAX_FRAME_BYTES", 1 << 20)  # the chunks it reads declare more: refused unread
-    with pytest.raises(FrameSizeError, match="frame 1: its messages and images would unpack .* more than the limit of 1 MiB for one frame"):
+    with pytest.raises(
+        FrameSizeError,
+        match="frame 1: its messages and images would unpack .* more than the limit of 1 MiB for one frame",
+    ):
         bag.original_messages(1)
 
 
@@ -354,7 +420,10 @@ async def test_a_frame_with_too_many_original_messages_gets_a_status_and_the_res
     async with running_server(None, dataset=[f"rosbag:{bag}"]) as server:
         out = await foxglove_client(f"ws://127.0.0.1:{server.port}/?log=flood", "foxglove.websocket.v1")
     assert out["errors"] == []
-    assert [(s["level"], f"more than {ros_dataset.MAX_FRAME_MESSAGES} original messages" in s["message"]) for s in out["statuses"]] == [(1, True)]
+    assert [
+        (s["level"], f"more than {ros_dataset.MAX_FRAME_MESSAGES} original messages" in s["message"])
+        for s in out["statuses"]
+    ] == [(1, True)]
     topics = out["topics"]
     assert topics["/xviz/cloud"]["timestamps"] == [str(t0), str(t0 + second)]  # both frames, converted
     assert topics["/cloud"]["timestamps"] == [str(t0 + second)]  # the second frame's original messages
@@ -366,7 +435,14 @@ async def test_an_xviz_session_and_a_foxglove_session_share_a_log(kitti_root: Pa
     async with running_server(kitti_root) as server:
         async with await foxglove(server) as websocket, client(server, "/?log=kitti") as xviz:
             _, channels = await opened(websocket)
-            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": c["id"]} for i, c in enumerate(channels)]}))
+            await websocket.send(
+                json.dumps(
+                    {
+                        "op": "subscribe",
+                        "subscriptions": [{"id": i, "channelId": c["id"]} for i, c in enumerate(channels)],
+                    }
+                )
+            )
             await xviz.recv()
             await xviz.send("transform_log", {"id": "all"})
             updates = [m for m in await xviz.until("transform_log_done") if m["type"] == "xviz/state_update"]
@@ -386,8 +462,13 @@ def kitti_source(kitti_log: Path) -> tuple[dict[str, Any], list[bytes]]:
 async def foxglove_subscribed(server: Any, count: int = 1, every: bool = False) -> None:
     """Wait until ``count`` Foxglove connections follow a live feed with subscriptions (to ``every`` channel)."""
     for _ in range(300):
-        following = [s for s in server.sessions if getattr(getattr(s, "session", None), "feed", None) is not None
-                     and s.session._subscriptions and (not every or len(s.session._subscriptions) == len(s.session._channels))]
+        following = [
+            s
+            for s in server.sessions
+            if getattr(getattr(s, "session", None), "feed", None) is not None
+            and s.session._subscriptions
+            and (not every or len(s.session._subscriptions) == len(s.session._channels))
+        ]
         if len(following) >= count:
             return
         await asyncio.sleep(0.05)
@@ -424,7 +505,9 @@ async def test_published_client_follows_a_live_feed_beside_an_xviz_viewer(
             assert await xviz_updates(xviz, len(frames)) == [update["timestamp"] for update in updates]
         out = await reading
     assert out["errors"] == [] and out["statuses"] == []
-    assert "playbackControl" not in out["serverInfo"]["capabilities"] and out["serverInfo"]["metadata"] == {"live": "car"}
+    assert "playbackControl" not in out["serverInfo"]["capabilities"] and out["serverInfo"]["metadata"] == {
+        "live": "car"
+    }
     # The channels of a log with the same metadata, converted the same way.
     async with running_server(kitti_root) as server:
         async with await foxglove(server) as websocket:
@@ -451,7 +534,9 @@ async def test_each_live_update_is_converted_once_for_every_foxglove_client(kitt
         clients = [await foxglove(server, path="/?session_type=live&log=car") for _ in range(3)]
         for websocket in clients:
             _, channels = await opened(websocket)
-            await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channels[0]["id"]}]}))
+            await websocket.send(
+                json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channels[0]["id"]}]})
+            )
         await foxglove_subscribed(server, 3)
         update = await feed.publish(frames[0])
         received = [await next_of(websocket, "message") for websocket in clients]
@@ -468,13 +553,17 @@ async def stalled_live_client(server: Any, metadata: dict[str, Any]) -> tuple[An
     feed.set_metadata(metadata)
     stalled = await foxglove(server, path="/?session_type=live&log=car")
     _, channels = await opened(stalled)
-    await stalled.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
+    await stalled.send(
+        json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]})
+    )
     await foxglove_subscribed(server)
     stalled.transport.pause_reading()
     return feed, stalled
 
 
-async def test_a_stalled_live_client_stays_bounded_and_is_told_it_fell_behind(kitti_root: Path, kitti_log: Path) -> None:
+async def test_a_stalled_live_client_stays_bounded_and_is_told_it_fell_behind(
+    kitti_root: Path, kitti_log: Path
+) -> None:
     metadata, frames = kitti_source(kitti_log)
     async with running_server(kitti_root, live_queue=4, live_lag_timeout=60) as server:
         feed, stalled = await stalled_live_client(server, metadata)
@@ -497,7 +586,11 @@ async def test_a_stalled_live_client_stays_bounded_and_is_told_it_fell_behind(ki
         assert status == 200 and metric(page, "xviz_live_dropped_updates_total") > 0
         stalled.transport.resume_reading()
         notice = await next_of(stalled, "status", timeout=30)
-        assert notice["level"] == 1 and "this client is behind" in notice["message"] and "updates were dropped" in notice["message"]
+        assert (
+            notice["level"] == 1
+            and "this client is behind" in notice["message"]
+            and "updates were dropped" in notice["message"]
+        )
         await stalled.close()
 
 
@@ -517,7 +610,9 @@ async def test_a_live_feed_is_found_waited_for_and_refuses_playback_control(kitt
     metadata, frames = kitti_source(kitti_log)
     async with running_server(kitti_root) as server:
         # Named before its source comes: waited for.
-        async with await foxglove(server, path="/?session_type=live&log=truck", subprotocols=["foxglove.sdk.v1"]) as waiting:
+        async with await foxglove(
+            server, path="/?session_type=live&log=truck", subprotocols=["foxglove.sdk.v1"]
+        ) as waiting:
             info = json.loads(await waiting.recv())
             assert info["op"] == "serverInfo" and "playbackControl" not in info["capabilities"]
             assert "has not started yet" in (await next_of(waiting, "status"))["message"]
@@ -540,9 +635,15 @@ async def test_a_live_feed_is_found_waited_for_and_refuses_playback_control(kitt
             gone = json.loads(await asyncio.wait_for(waiting.recv(), 10))
             assert gone == {"op": "unadvertise", "channelIds": [c["id"] for c in advertise["channels"]]}
             again = json.loads(await asyncio.wait_for(waiting.recv(), 10))
-            assert [c["topic"] for c in again["channels"]] == ["/vehicle_pose", "/vehicle_pose/pose", "/vehicle_pose/location"]
+            assert [c["topic"] for c in again["channels"]] == [
+                "/vehicle_pose",
+                "/vehicle_pose/pose",
+                "/vehicle_pose/location",
+            ]
             assert min(c["id"] for c in again["channels"]) > max(c["id"] for c in advertise["channels"])
-            await waiting.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 2, "channelId": again["channels"][0]["id"]}]}))
+            await waiting.send(
+                json.dumps({"op": "subscribe", "subscriptions": [{"id": 2, "channelId": again["channels"][0]["id"]}]})
+            )
             await asyncio.sleep(0.2)
             await feed.publish(frames[3])
             assert await next_of(waiting, "message") == (2, nanoseconds(kitti_frames(kitti_log)[3]["timestamp"]))
@@ -571,7 +672,10 @@ def read_mcap(data: bytes) -> tuple[Any, list[tuple[str, str, int, bytes]]]:
     """The summary of an MCAP file, and its messages as (topic, schema name, log time, payload), read by the published reader."""
     reader = make_reader(io.BytesIO(data))
     summary = reader.get_summary()
-    messages = [(channel.topic, schema.name, message.log_time, message.data) for schema, channel, message in reader.iter_messages()]
+    messages = [
+        (channel.topic, schema.name, message.log_time, message.data)
+        for schema, channel, message in reader.iter_messages()
+    ]
     return summary, messages
 
 
@@ -586,7 +690,9 @@ async def test_a_clip_exports_as_an_indexed_mcap_file_with_the_same_channels(kit
     assert headers["Content-Disposition"] == 'attachment; filename="kitti.mcap"'
     summary, messages = read_mcap(body)
     assert summary.chunk_indexes and summary.statistics.message_count == len(messages)
-    assert sorted(channel.topic for channel in summary.channels.values()) == sorted(channel["topic"] for channel in channels)
+    assert sorted(channel.topic for channel in summary.channels.values()) == sorted(
+        channel["topic"] for channel in channels
+    )
     clouds = [(time, PointCloud.FromString(data)) for topic, schema, time, data in messages if topic == "/lidar/points"]
     assert [time for time, _ in clouds] == [nanoseconds(update["timestamp"]) for update in updates[5:11]]
     assert [len(cloud.data) // cloud.point_stride for _, cloud in clouds] == [
@@ -611,7 +717,9 @@ async def test_a_clip_may_be_given_in_seconds_after_the_log_start(kitti_root: Pa
             assert status == 200, (query, body)
             _, messages = read_mcap(body)
             times = sorted({time for topic, _, time, _ in messages if topic == "/lidar/points"})
-            assert times == [nanoseconds(u["timestamp"]) for u in updates if first + 0.5 <= u["timestamp"] <= first + 1.0], query
+            assert times == [
+                nanoseconds(u["timestamp"]) for u in updates if first + 0.5 <= u["timestamp"] <= first + 1.0
+            ], query
             assert len(times) == 5
 
 
@@ -640,7 +748,9 @@ async def test_a_whole_log_export_is_sent_in_chunks_as_it_is_written(kitti_root:
     assert sizes[0] < 100 and len(sizes) > 5 and max(sizes) < len(body) / 4  # the start at once, then piece by piece
     summary, messages = read_mcap(bytes(body))
     assert summary.statistics.message_count == len(messages)
-    assert [time for topic, _, time, _ in messages if topic == "/lidar/points"] == [nanoseconds(u["timestamp"]) for u in updates]
+    assert [time for topic, _, time, _ in messages if topic == "/lidar/points"] == [
+        nanoseconds(u["timestamp"]) for u in updates
+    ]
 
 
 async def test_an_export_to_a_client_that_stops_reading_holds_a_bounded_buffer_and_is_dropped(kitti_root: Path) -> None:
@@ -736,8 +846,15 @@ async def test_a_bad_export_request_is_refused_naming_the_problem(kitti_root: Pa
             ("?end=%205", "kitti", (400, "not ' 5'")),
             ("?start=0x10", "kitti", (400, "not '0x10'")),
             # Times outside the log: its span is told, never an empty clip.
-            ("?start=0&end=2", "kitti", (400, "no frame of log 'kitti' starts in [0.0, 2.0]: its frames start from "
-                                         "1317042145.964 to 1317042148.444 s (+0 to +2.48 s after its start)")),
+            (
+                "?start=0&end=2",
+                "kitti",
+                (
+                    400,
+                    "no frame of log 'kitti' starts in [0.0, 2.0]: its frames start from "
+                    "1317042145.964 to 1317042148.444 s (+0 to +2.48 s after its start)",
+                ),
+            ),
             ("?start=+5", "kitti", (400, "starts in [+5, its end]")),
             ("?end=1000", "kitti", (400, "starts in [its start, 1000.0]")),
             ("", "nowhere", (404, "nowhere")),

@@ -11,15 +11,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_foxglove import foxglove_subscribed, kitti_source, opened
 from websockets.asyncio.client import connect
 
+from helpers import foxglove_client, http_get, running_server
 from xviz_server.builder import FrameBuilder, MetadataBuilder
 from xviz_server.codec import Format, decode, encode
 from xviz_server.foxglove.convert import plan, read_survey, survey
 from xviz_server.messages import envelope
-
-from helpers import foxglove_client, http_get, running_server
-from test_foxglove import foxglove_subscribed, kitti_source, opened
 
 #: The JSON types a property may have in Foxglove's and Lichtblick's JSON Schema parser (``parseJsonSchema``):
 #: one, as a string; ``oneOf`` only of numeric constants.
@@ -65,7 +64,9 @@ async def test_every_advertised_json_schema_has_one_type_per_property(kitti_root
             _, advertised = await opened(ws)
     json_schemas = {c["topic"]: json.loads(c["schema"]) for c in advertised if c["schemaEncoding"] == "jsonschema"}
     assert "/vehicle/velocity" in json_schemas
-    assert {topic: parser_problems(schema) for topic, schema in json_schemas.items()} == {topic: [] for topic in json_schemas}
+    assert {topic: parser_problems(schema) for topic, schema in json_schemas.items()} == {
+        topic: [] for topic in json_schemas
+    }
     assert json_schemas["/vehicle/velocity"]["properties"]["value"] == {"type": "number"}
     # Each time series message is {"timestamp", "value"}, as a Plot panel reads it.
     assert {tuple(keys) for keys in out["topics"]["/vehicle/velocity"]["summaries"]} == {("timestamp", "value")}
@@ -84,20 +85,31 @@ def test_a_time_series_without_a_scalar_type_takes_its_first_value_s_type() -> N
     metadata["streams"]["/count"] = {"category": "TIME_SERIES", "scalar_type": "INT32"}
     channels = {c.topic: json.loads(c.schema.schema) for c in plan(metadata, first=found).channels}
     assert {topic: schema["properties"]["value"] for topic, schema in channels.items()} == {
-        "/state": {"type": "string"}, "/engaged": {"type": "boolean"}, "/speed": {"type": "number"}, "/count": {"type": "integer"},
+        "/state": {"type": "string"},
+        "/engaged": {"type": "boolean"},
+        "/speed": {"type": "number"},
+        "/count": {"type": "integer"},
     }
     assert all(parser_problems(schema) == [] for schema in channels.values())
 
 
-async def test_the_time_comes_before_the_messages_it_stamps_with_their_xviz_timestamp(kitti_root: Path, kitti_log: Path) -> None:
+async def test_the_time_comes_before_the_messages_it_stamps_with_their_xviz_timestamp(
+    kitti_root: Path, kitti_log: Path
+) -> None:
     """The apps stamp a message with the last time message: each must be the message's own XVIZ timestamp."""
     expected = [round(update["timestamp"] * 1e9) for update in kitti_updates(kitti_log)]
     stamped: dict[int, list[int]] = {}
     payloads: dict[int, list[bytes]] = {}
     async with running_server(kitti_root) as server:
-        async with connect(f"ws://127.0.0.1:{server.port}/?log=kitti", subprotocols=["foxglove.websocket.v1"], max_size=None) as ws:  # type: ignore[list-item]
+        async with connect(
+            f"ws://127.0.0.1:{server.port}/?log=kitti", subprotocols=["foxglove.websocket.v1"], max_size=None
+        ) as ws:  # type: ignore[list-item]
             _, channels = await opened(ws)
-            await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
+            await ws.send(
+                json.dumps(
+                    {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}
+                )
+            )
             clock: int | None = None
             times: list[int] = []
             while len(times) < len(expected):
@@ -116,7 +128,9 @@ async def test_the_time_comes_before_the_messages_it_stamps_with_their_xviz_time
     # Every channel with data in every frame got it at that frame's time.
     velocity = next(c["id"] for c in channels if c["topic"] == "/vehicle/velocity")
     points = next(c["id"] for c in channels if c["topic"] == "/lidar/points")
-    assert stamped[velocity] == expected[:len(stamped[velocity])] and stamped[points] == expected[:len(stamped[points])]
+    assert (
+        stamped[velocity] == expected[: len(stamped[velocity])] and stamped[points] == expected[: len(stamped[points])]
+    )
     assert len(stamped[velocity]) >= len(expected) - 1
     # The time series' own timestamp is the XVIZ one, its value a number.
     values = [json.loads(payload) for payload in payloads[velocity]]
@@ -130,7 +144,9 @@ async def test_the_vehicle_moves_in_map_by_its_map_origin(kitti_root: Path, kitt
     async with running_server(kitti_root) as server:
         out = await foxglove_client(f"ws://127.0.0.1:{server.port}/?log=kitti", "foxglove.websocket.v1")
     # protobufjs leaves a field at its default (0) out
-    translations = [{k: t["translation"].get(k, 0.0) for k in "xyz"} for t in out["topics"]["/vehicle_pose"]["summaries"]]
+    translations = [
+        {k: t["translation"].get(k, 0.0) for k in "xyz"} for t in out["topics"]["/vehicle_pose"]["summaries"]
+    ]
     poses = out["topics"]["/vehicle_pose/pose"]["summaries"]
     assert len(translations) == len(updates)
     first = translations[0]
@@ -151,15 +167,21 @@ async def test_a_live_feed_moves_the_vehicle_from_its_first_map_origin(kitti_roo
         feed = server.live.feed("car")
         feed.set_metadata(metadata)
         url = f"ws://127.0.0.1:{server.port}/?session_type=live&log=car"
-        reading = asyncio.ensure_future(foxglove_client(url, "foxglove.websocket.v1", options=("--times", str(len(frames)))))
+        reading = asyncio.ensure_future(
+            foxglove_client(url, "foxglove.websocket.v1", options=("--times", str(len(frames))))
+        )
         await foxglove_subscribed(server, every=True)
         for frame in frames:
             await feed.publish(frame)
         out = await reading
-    translations = [{k: t["translation"].get(k, 0.0) for k in "xyz"} for t in out["topics"]["/vehicle_pose"]["summaries"]]
+    translations = [
+        {k: t["translation"].get(k, 0.0) for k in "xyz"} for t in out["topics"]["/vehicle_pose"]["summaries"]
+    ]
     assert len(translations) == len(frames)
     for translation, origin in zip(translations, origins):
-        assert math.hypot(translation["x"], translation["y"]) == pytest.approx(haversine(origins[0], origin), rel=0.01, abs=0.05)
+        assert math.hypot(translation["x"], translation["y"]) == pytest.approx(
+            haversine(origins[0], origin), rel=0.01, abs=0.05
+        )
 
 
 async def test_the_first_layout_shows_the_cloud_the_camera_the_car_and_a_plot(kitti_root: Path) -> None:
@@ -178,7 +200,9 @@ async def test_the_first_layout_shows_the_cloud_the_camera_the_car_and_a_plot(ki
     assert advertised[panels["Image!xviz"]["imageMode"]["imageTopic"]]["schemaName"] == "foxglove.CompressedImage"
     plotted = panels["Plot!xviz"]["paths"][0]["value"].removesuffix(".value")
     assert json.loads(advertised[plotted]["schema"])["properties"]["value"]["type"] == "number"
+
     # The layout tree places each configured panel once.
     def leaves(node: Any) -> list[str]:
         return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
     assert sorted(leaves(layout["layout"])) == sorted(panels)

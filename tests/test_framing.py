@@ -12,8 +12,9 @@ import asyncio
 import base64
 import json
 import ssl
+from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import Any, Awaitable, Callable
+from typing import Any
 
 import pytest
 import trustme
@@ -26,8 +27,15 @@ from websockets.server import ServerProtocol
 
 from helpers import close_received, paused_viewer, running_server
 from xviz_server.codec import Format, decode, encode
-from xviz_server.framing import SEPARATE_PAYLOAD, FramingConnection, FramingProtocol, frame_header, ready_to_write, write_message
 from xviz_server.events import Variant
+from xviz_server.framing import (
+    SEPARATE_PAYLOAD,
+    FramingConnection,
+    FramingProtocol,
+    frame_header,
+    ready_to_write,
+    write_message,
+)
 
 OP_TEXT, OP_BINARY, OP_CONT = Opcode.TEXT, Opcode.BINARY, Opcode.CONT
 SIZES = [0, 125, 126, 65535, 65536]
@@ -79,7 +87,9 @@ def test_large_payload_is_queued_by_reference(kitti_frame: bytes):
     assert payload is kitti_frame and header == b"\x82\x7f" + len(kitti_frame).to_bytes(8, "big")
 
 
-@pytest.mark.parametrize("payload", [bytes(SEPARATE_PAYLOAD - 1), bytearray(SEPARATE_PAYLOAD), memoryview(bytes(SEPARATE_PAYLOAD))])
+@pytest.mark.parametrize(
+    "payload", [bytes(SEPARATE_PAYLOAD - 1), bytearray(SEPARATE_PAYLOAD), memoryview(bytes(SEPARATE_PAYLOAD))]
+)
 def test_small_or_mutable_payloads_take_websockets_path(payload: Any):
     protocol = open_protocol()
     protocol.send_binary(payload)
@@ -105,14 +115,20 @@ def parse_frames(stream: bytes) -> tuple[list[tuple[bool, bool, int, int, bytes]
             length = int.from_bytes(stream[position + 2 : position + 10], "big") if len(stream) - position >= 10 else -1
         if length < 0 or len(stream) - position < size + length:
             break
-        frames.append((bool(first & 0x80), bool(first & 0x40), first & 0x0F, length, bytes(stream[position : position + size])))
+        frames.append(
+            (bool(first & 0x80), bool(first & 0x40), first & 0x0F, length, bytes(stream[position : position + size]))
+        )
         position += size + length
     return frames, position
 
 
-async def capture(port: int, *, deflate: bool, tls: ssl.SSLContext | None) -> tuple[bytes, list[tuple[bool, bool, int, int, bytes]]]:
+async def capture(
+    port: int, *, deflate: bool, tls: ssl.SSLContext | None
+) -> tuple[bytes, list[tuple[bool, bool, int, int, bytes]]]:
     """Every byte a server sends after its handshake response, until it closes; and its frames."""
-    reader, writer = await asyncio.open_connection("127.0.0.1", port, ssl=tls, server_hostname="localhost" if tls else None, limit=1 << 24)
+    reader, writer = await asyncio.open_connection(
+        "127.0.0.1", port, ssl=tls, server_hostname="localhost" if tls else None, limit=1 << 24
+    )
     offer = "Sec-WebSocket-Extensions: permessage-deflate\r\n" if deflate else ""
     writer.write(
         f"GET / HTTP/1.1\r\nHost: localhost\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
@@ -138,8 +154,11 @@ async def capture(port: int, *, deflate: bool, tls: ssl.SSLContext | None) -> tu
     return bytes(stream), frames
 
 
-def script(kitti_frame: bytes, kitti_json: bytes, protocols: list[type]) -> Callable[[ServerConnection], Awaitable[None]]:
+def script(
+    kitti_frame: bytes, kitti_json: bytes, protocols: list[type]
+) -> Callable[[ServerConnection], Awaitable[None]]:
     """A server handler sending every size, text and binary, with control frames between large frames."""
+
     async def handler(websocket: ServerConnection) -> None:
         protocols.append(type(websocket.protocol))
         for size in SIZES:
@@ -153,14 +172,25 @@ def script(kitti_frame: bytes, kitti_json: bytes, protocols: list[type]) -> Call
         await websocket.send([kitti_frame[: 1 << 20], kitti_frame[1 << 20 :]])  # binary, continuations
         await websocket.send(kitti_frame)
         await websocket.close(1000, "done")
+
     return handler
 
 
-async def both_servers(handler: Any, deflate_offered: bool, tls: tuple[ssl.SSLContext, ssl.SSLContext] | None) -> list[tuple[bytes, list]]:
+async def both_servers(
+    handler: Any, deflate_offered: bool, tls: tuple[ssl.SSLContext, ssl.SSLContext] | None
+) -> list[tuple[bytes, list]]:
     streams = []
     for create_connection in (None, FramingConnection):
-        async with serve(handler, "127.0.0.1", 0, ping_interval=None, compression="deflate", max_size=None,
-                         ssl=tls[0] if tls else None, create_connection=create_connection) as server:
+        async with serve(
+            handler,
+            "127.0.0.1",
+            0,
+            ping_interval=None,
+            compression="deflate",
+            max_size=None,
+            ssl=tls[0] if tls else None,
+            create_connection=create_connection,
+        ) as server:
             port = server.sockets[0].getsockname()[1]
             streams.append(await capture(port, deflate=deflate_offered, tls=tls[1] if tls else None))
     return streams
@@ -179,18 +209,30 @@ def tls_contexts() -> tuple[ssl.SSLContext, ssl.SSLContext]:
 @pytest.mark.parametrize("loop", LOOPS)
 @pytest.mark.parametrize("deflate", [False, True], ids=["plain", "deflate"])
 @pytest.mark.parametrize("tls", [False, True], ids=["ws", "wss"])
-def test_bytes_on_the_wire_are_websockets_bytes(loop: str, deflate: bool, tls: bool, kitti_frame: bytes, kitti_json: bytes, tls_contexts):
+def test_bytes_on_the_wire_are_websockets_bytes(
+    loop: str, deflate: bool, tls: bool, kitti_frame: bytes, kitti_json: bytes, tls_contexts
+):
     protocols: list[type] = []
     handler = script(kitti_frame, kitti_json, protocols)
-    (stock, stock_frames), (ours, our_frames) = LOOPS[loop](both_servers(handler, deflate, tls_contexts if tls else None))
+    (stock, stock_frames), (ours, our_frames) = LOOPS[loop](
+        both_servers(handler, deflate, tls_contexts if tls else None)
+    )
     assert protocols == [ServerProtocol, FramingProtocol]
     assert ours == stock
     assert our_frames == stock_frames
     kinds = [(opcode, fin) for fin, _, opcode, _, _ in our_frames]
     assert kinds == [
         *[(op, True) for _ in SIZES for op in (0x1, 0x2)],
-        (0x2, True), (0x9, True), (0x1, True), (0xA, True), (0x2, True),
-        (0x2, False), (0x0, False), (0x0, True), (0x2, True), (0x8, True),
+        (0x2, True),
+        (0x9, True),
+        (0x1, True),
+        (0xA, True),
+        (0x2, True),
+        (0x2, False),
+        (0x0, False),
+        (0x0, True),
+        (0x2, True),
+        (0x8, True),
     ]
     if deflate:
         assert all(rsv1 == (opcode in (0x1, 0x2)) for _, rsv1, opcode, _, _ in our_frames)
@@ -198,9 +240,26 @@ def test_bytes_on_the_wire_are_websockets_bytes(loop: str, deflate: bool, tls: b
     else:
         lengths = [length for _, _, _, length, _ in our_frames]
         assert lengths[: 2 * len(SIZES)] == [size for size in SIZES for _ in (0, 1)]
-        assert lengths[10:] == [len(kitti_frame), 7, len(kitti_json), 11, len(kitti_frame), 1 << 20, len(kitti_frame) - (1 << 20), 0, len(kitti_frame), 6]
+        assert lengths[10:] == [
+            len(kitti_frame),
+            7,
+            len(kitti_json),
+            11,
+            len(kitti_frame),
+            1 << 20,
+            len(kitti_frame) - (1 << 20),
+            0,
+            len(kitti_frame),
+            6,
+        ]
         headers = [header for _, _, opcode, _, header in our_frames if opcode == 0x2][:5]
-        assert headers == [b"\x82\x00", b"\x82\x7d", b"\x82\x7e\x00\x7e", b"\x82\x7e\xff\xff", b"\x82\x7f" + (65536).to_bytes(8, "big")]
+        assert headers == [
+            b"\x82\x00",
+            b"\x82\x7d",
+            b"\x82\x7e\x00\x7e",
+            b"\x82\x7e\xff\xff",
+            b"\x82\x7f" + (65536).to_bytes(8, "big"),
+        ]
 
 
 # ------------------------------------------------------------------ the server
@@ -230,7 +289,9 @@ def test_a_message_written_at_once_arrives_whole_and_only_while_the_connection_k
                 assert await client.recv() == '{"type": "xviz/state_update"}'
                 while "writes before the buffer is full" not in seen:
                     await asyncio.sleep(0.01)
-                for _ in range(seen["writes before the buffer is full"] - 2):  # the rest: the close is not held up behind it
+                for _ in range(
+                    seen["writes before the buffer is full"] - 2
+                ):  # the rest: the close is not held up behind it
                     assert await client.recv() == kitti_frame
         return seen
 
@@ -265,7 +326,11 @@ def test_stalled_clients_keep_evicted_frames_and_bounded_buffers(kitti_root: Pat
                     received = [await websocket.recv() for _ in range(26)]
                     assert received[:25] == files
             assert server.cache.size <= 3 * 2**20
-            buffered = [session.websocket.transport.get_write_buffer_size() for session in server.sessions if session.frames_sent < 25]
+            buffered = [
+                session.websocket.transport.get_write_buffer_size()
+                for session in server.sessions
+                if session.frames_sent < 25
+            ]
             assert len(buffered) == 10
             # each holds at most the frame being written plus the high-water mark
             assert all(0 < size <= largest + 2**16 for size in buffered), buffered
@@ -279,7 +344,9 @@ def test_stalled_clients_keep_evicted_frames_and_bounded_buffers(kitti_root: Pat
     uvloop.run(scenario())
 
 
-def test_a_live_viewer_that_stops_reading_large_frames_is_closed_by_the_lag_limit(kitti_root: Path, kitti_log: Path, kitti_frame: bytes):
+def test_a_live_viewer_that_stops_reading_large_frames_is_closed_by_the_lag_limit(
+    kitti_root: Path, kitti_log: Path, kitti_frame: bytes
+):
     metadata = decode((kitti_log / "1-frame.glb").read_bytes())["data"]
 
     async def scenario() -> None:
@@ -298,14 +365,19 @@ def test_a_live_viewer_that_stops_reading_large_frames_is_closed_by_the_lag_limi
     uvloop.run(scenario())
 
 
-def test_live_fan_out_shares_one_payload_and_every_viewer_gets_it(kitti_root: Path, kitti_log: Path, kitti_frame: bytes):
+def test_live_fan_out_shares_one_payload_and_every_viewer_gets_it(
+    kitti_root: Path, kitti_log: Path, kitti_frame: bytes
+):
     metadata = (kitti_log / "1-frame.glb").read_bytes()
 
     async def scenario() -> None:
         async with running_server(kitti_root) as server:
             feed = server.live.feed("car")
             feed.set_metadata(decode(metadata)["data"])
-            viewers = [await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None) for _ in range(20)]
+            viewers = [
+                await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None)
+                for _ in range(20)
+            ]
             for viewer in viewers:
                 assert decode(await viewer.recv())["type"] == "xviz/metadata"
             await asyncio.sleep(0.2)

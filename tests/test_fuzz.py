@@ -50,9 +50,9 @@ from devkit.data import FIXTURES, KITTI_LOG, SCHEMA_EXAMPLES
 from helpers import INTEROP, PNG_2X1, metadata, needs_data, update, write_log, xviz_write
 from xviz_server.admission import admit
 from xviz_server.codec import Format, decode, decode_glb, decode_json, decode_pbe, encode
+from xviz_server.events import Send
 from xviz_server.exceptions import DatasetError, DecodeError, EncodeError, MessageError
 from xviz_server.index import TimeIndex
-from xviz_server.events import Send
 from xviz_server.layout import METADATA_NUMBER
 from xviz_server.session import Session
 
@@ -60,12 +60,23 @@ pytestmark = [pytest.mark.slow, needs_data]
 
 PROFILES = {
     # The same examples on every run (no flaky CI), few enough for a few seconds per parser.
-    "ci": settings(max_examples=30, derandomize=True, deadline=None, database=None, print_blob=True,
-                   suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.large_base_example]),
+    "ci": settings(
+        max_examples=30,
+        derandomize=True,
+        deadline=None,
+        database=None,
+        print_blob=True,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.large_base_example],
+    ),
     # New examples on every run (XVIZ_FUZZ_EXAMPLES per parser, scripts/bench/fuzz.py runs it again until its time
     # is up); an example that takes over 10 s is a failure.
-    "long": settings(max_examples=int(os.environ.get("XVIZ_FUZZ_EXAMPLES", "1000")), derandomize=False, deadline=10_000, print_blob=True,
-                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.large_base_example]),
+    "long": settings(
+        max_examples=int(os.environ.get("XVIZ_FUZZ_EXAMPLES", "1000")),
+        derandomize=False,
+        deadline=10_000,
+        print_blob=True,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.large_base_example],
+    ),
 }
 FUZZ = PROFILES[os.environ.get("XVIZ_FUZZ", "ci")]
 
@@ -98,7 +109,26 @@ def refuses_by_name(parse: Callable[[], T], size: int, errors: tuple[type[BaseEx
 # Mutations
 
 
-INTERESTING = (0, 1, 2, 3, 4, 7, 8, 12, 16, 0x7F, 0x80, 0xFF, 0x100, 0xFFFF, 0x10000, 0x7FFFFFFF, 0x80000000, 0xFFFFFFFF)
+INTERESTING = (
+    0,
+    1,
+    2,
+    3,
+    4,
+    7,
+    8,
+    12,
+    16,
+    0x7F,
+    0x80,
+    0xFF,
+    0x100,
+    0xFFFF,
+    0x10000,
+    0x7FFFFFFF,
+    0x80000000,
+    0xFFFFFFFF,
+)
 MUTATIONS = ("flip", "truncate", "length", "u32", "u64", "insert", "delete", "repeat", "splice")
 
 
@@ -150,16 +180,67 @@ def mutated(draw: st.DrawFn, seeds: list[bytes]) -> bytes:
 _DEEP = "\x00deep"  # replaced by arrays nested as deep as orjson reads (1024 levels with the envelope)
 _HUGE = "\x00huge"  # replaced by an integer of 5 000 digits
 JSON_ATOMS = st.one_of(
-    st.none(), st.booleans(), st.integers(-(2**70), 2**70), st.floats(allow_nan=False), st.text(max_size=12),
-    st.sampled_from(["#/accessors/0", "#/accessors/99", "#/images/0", "#/accessors/" + "9" * 5000, "##/a", "#/buffers/0",
-                     "xviz/state_update", "xviz/metadata", "COMPLETE_STATE", "", _DEEP, _HUGE]),
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.floats(allow_nan=False),
+    st.text(max_size=12),
+    st.sampled_from(
+        [
+            "#/accessors/0",
+            "#/accessors/99",
+            "#/images/0",
+            "#/accessors/" + "9" * 5000,
+            "##/a",
+            "#/buffers/0",
+            "xviz/state_update",
+            "xviz/metadata",
+            "COMPLETE_STATE",
+            "",
+            _DEEP,
+            _HUGE,
+        ]
+    ),
 )
-JSON_KEYS = st.one_of(st.text(max_size=8), st.sampled_from([
-    "type", "data", "updates", "timestamp", "primitives", "points", "colors", "vertices", "images", "buffers", "bufferViews",
-    "accessors", "bufferView", "byteOffset", "byteLength", "count", "componentType", "extensions", "AVS_xviz", "xviz",
-    "version", "streams", "id", "update_type", "config_update", "desired_streams", "query_timestamp", "poses", "time_series",
-]))
-JSON_VALUES = st.recursive(JSON_ATOMS, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(JSON_KEYS, inner, max_size=4), max_leaves=8)
+JSON_KEYS = st.one_of(
+    st.text(max_size=8),
+    st.sampled_from(
+        [
+            "type",
+            "data",
+            "updates",
+            "timestamp",
+            "primitives",
+            "points",
+            "colors",
+            "vertices",
+            "images",
+            "buffers",
+            "bufferViews",
+            "accessors",
+            "bufferView",
+            "byteOffset",
+            "byteLength",
+            "count",
+            "componentType",
+            "extensions",
+            "AVS_xviz",
+            "xviz",
+            "version",
+            "streams",
+            "id",
+            "update_type",
+            "config_update",
+            "desired_streams",
+            "query_timestamp",
+            "poses",
+            "time_series",
+        ]
+    ),
+)
+JSON_VALUES = st.recursive(
+    JSON_ATOMS, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(JSON_KEYS, inner, max_size=4), max_leaves=8
+)
 
 
 def json_text(document: Any) -> bytes:
@@ -208,7 +289,16 @@ def glb_file(document_text: bytes, binary: bytes) -> bytes:
     text = document_text + b" " * (-len(document_text) % 4)
     body = binary + bytes(-len(binary) % 4)
     total = 12 + 8 + len(text) + 8 + len(body)
-    return b"glTF" + struct.pack("<II", 2, total) + struct.pack("<I", len(text)) + b"JSON" + text + struct.pack("<I", len(body)) + b"BIN\0" + body
+    return (
+        b"glTF"
+        + struct.pack("<II", 2, total)
+        + struct.pack("<I", len(text))
+        + b"JSON"
+        + text
+        + struct.pack("<I", len(body))
+        + b"BIN\0"
+        + body
+    )
 
 
 KITTI_GLB = [(KITTI_LOG / f"{n}-frame.glb").read_bytes() for n in (1, 2)] if KITTI_LOG.is_dir() else []
@@ -261,8 +351,18 @@ DEEP_JSON = b"[" * 1000 + b"]" * 1000
 # What the fuzzing found: lists, objects and pointers of the wrong kind; nesting that ran out of Python's stack.
 @example(glb_file(b'{"bufferViews":5,"xviz":{}}', b""))
 @example(glb_file(b'{"accessors":true,"xviz":{}}', b""))
-@example(glb_file(b'{"bufferViews":[{"byteLength":0}],"accessors":[{"bufferView":0,"componentType":[5126],"type":"VEC3","count":0}],"xviz":{}}', b""))
-@example(glb_file(b'{"bufferViews":[{"byteLength":0}],"accessors":[{"bufferView":0,"componentType":5126,"type":["VEC3"],"count":0}],"xviz":{}}', b""))
+@example(
+    glb_file(
+        b'{"bufferViews":[{"byteLength":0}],"accessors":[{"bufferView":0,"componentType":[5126],"type":"VEC3","count":0}],"xviz":{}}',
+        b"",
+    )
+)
+@example(
+    glb_file(
+        b'{"bufferViews":[{"byteLength":0}],"accessors":[{"bufferView":0,"componentType":5126,"type":["VEC3"],"count":0}],"xviz":{}}',
+        b"",
+    )
+)
 @example(glb_file(b'{"extensions":[1]}', b""))
 @example(glb_file(b'{"extensions":true}', b""))
 @example(glb_file(b'{"xviz":{"data":"#/accessors/' + b"9" * 5000 + b'"}}', b""))
@@ -365,12 +465,25 @@ def _client_glb(seed: bytes) -> bytes:
 
 
 @FUZZ
-@given(st.one_of(json_messages(CLIENT_SEEDS), mutated([_client_glb(seed) for seed in CLIENT_SEEDS])), st.booleans(), st.booleans())
-@example(b'{"type":"xviz/reconfigure","data":{"update_type":"DELTA","config_update":{"a":' + b'{"a":' * 900 + b"1" + b"}" * 901 + b"}}",
-         False, False)  # merge_patch recursed as deep as the patch
+@given(
+    st.one_of(json_messages(CLIENT_SEEDS), mutated([_client_glb(seed) for seed in CLIENT_SEEDS])),
+    st.booleans(),
+    st.booleans(),
+)
+@example(
+    b'{"type":"xviz/reconfigure","data":{"update_type":"DELTA","config_update":{"a":'
+    + b'{"a":' * 900
+    + b"1"
+    + b"}" * 901
+    + b"}}",
+    False,
+    False,
+)  # merge_patch recursed as deep as the patch
 def test_session_answers_every_client_message(data: bytes, text: bool, live: bool):
     # The session never raises on what a client sends: it answers with events, errors as xviz/error messages.
-    session = Session(path="/", query={"log": "drive", **({"session_type": "live"} if live else {})}, available=["drive"])
+    session = Session(
+        path="/", query={"log": "drive", **({"session_type": "live"} if live else {})}, available=["drive"]
+    )
     session.connect()
     if not live:
         session.log_opened(_Log())
@@ -381,9 +494,13 @@ def test_session_answers_every_client_message(data: bytes, text: bool, live: boo
 
 
 @FUZZ
-@given(st.dictionaries(st.sampled_from(["log", "logGuid", "session_type", "message_format", "version", "profile", "speed"]),
-                       st.one_of(st.text(max_size=20), st.sampled_from(["live", "LOG", "binary", "json", "1e309", "nan", "-1", "0"]))),
-       st.text(max_size=20))
+@given(
+    st.dictionaries(
+        st.sampled_from(["log", "logGuid", "session_type", "message_format", "version", "profile", "speed"]),
+        st.one_of(st.text(max_size=20), st.sampled_from(["live", "LOG", "binary", "json", "1e309", "nan", "-1", "0"])),
+    ),
+    st.text(max_size=20),
+)
 def test_session_answers_every_connection_url(query: dict[str, str], path: str):
     session = Session(path=path, query=query, available=["drive"])
     for event in refuses_by_name(session.connect, 0, ()) or []:
@@ -428,8 +545,12 @@ FOXGLOVE_BINARY_SEEDS = [
 
 
 @FUZZ
-@given(st.one_of(json_messages(FOXGLOVE_TEXT_SEEDS).map(lambda data: data.decode("utf-8", errors="replace")),
-                 mutated(FOXGLOVE_BINARY_SEEDS)))
+@given(
+    st.one_of(
+        json_messages(FOXGLOVE_TEXT_SEEDS).map(lambda data: data.decode("utf-8", errors="replace")),
+        mutated(FOXGLOVE_BINARY_SEEDS),
+    )
+)
 @example('{"op":"subscribe","subscriptions":[' + ",".join(["0"] * 20_000) + "]}")  # one status, not 20 000 (issue 39)
 @example('{"op":"unsubscribe","subscriptionIds":[' + ",".join(["[[[]]]"] * 5000) + "]}")
 def test_foxglove_session_answers_every_client_message(data: str | bytes):
@@ -444,9 +565,17 @@ def test_foxglove_session_answers_every_client_message(data: str | bytes):
 
 
 @FUZZ
-@given(st.lists(st.tuples(st.sampled_from(["start", "end", "format", "token", "x"]),
-                          st.one_of(st.text(max_size=12), st.sampled_from(["1_000", " 5", "+5", "1e309", "-0", ".5", "5.", "1e-3", "mcap"]))),
-                max_size=6))
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["start", "end", "format", "token", "x"]),
+            st.one_of(
+                st.text(max_size=12), st.sampled_from(["1_000", " 5", "+5", "1e309", "-0", ".5", "5.", "1e-3", "mcap"])
+            ),
+        ),
+        max_size=6,
+    )
+)
 def test_export_parameters_are_read_or_refused_by_name(pairs: list[tuple[str, str]]):
     from urllib.parse import parse_qs, urlencode
 
@@ -467,9 +596,15 @@ def test_export_parameters_are_read_or_refused_by_name(pairs: list[tuple[str, st
 
 
 @FUZZ
-@given(st.one_of(glb_messages(), json_messages(JSON_SEEDS + [seed for seed in CLIENT_SEEDS if b"state_update" in seed])))
-@example(b'{"type":"xviz/state_update","data":{"updates":[{"timestamp":1,"x":' + DEEP_JSON + b"}]}}")  # _expanded_size's recursion
-@example(glb_file(b'{"xviz":{"type":"xviz/state_update","data":{"updates":[{"timestamp":1,"x":' + DEEP_JSON + b"}]}}}", b""))
+@given(
+    st.one_of(glb_messages(), json_messages(JSON_SEEDS + [seed for seed in CLIENT_SEEDS if b"state_update" in seed]))
+)
+@example(
+    b'{"type":"xviz/state_update","data":{"updates":[{"timestamp":1,"x":' + DEEP_JSON + b"}]}}"
+)  # _expanded_size's recursion
+@example(
+    glb_file(b'{"xviz":{"type":"xviz/state_update","data":{"updates":[{"timestamp":1,"x":' + DEEP_JSON + b"}]}}}", b"")
+)
 def test_admission(data: bytes):
     admitted = refuses_by_name(lambda: admit(data, 64 * 2**20), len(data), (MessageError,))
     if admitted is not None:  # what is let in is a GLB message that decodes
@@ -486,25 +621,35 @@ def _range_image(height: int, width: int, channels: int, rng: np.random.Generato
     return image
 
 
-def waymo_frames(rng: np.random.Generator, lasers: list[int], cameras: list[int], dims: list[int] | None = None,
-                 beams: int = 4, pose_values: int = 16) -> list[bytes]:
+def waymo_frames(
+    rng: np.random.Generator,
+    lasers: list[int],
+    cameras: list[int],
+    dims: list[int] | None = None,
+    beams: int = 4,
+    pose_values: int = 16,
+) -> list[bytes]:
     """Two serialized Frames: the TOP laser's range images 4 x 8 with pixel poses, the others plain; a JPEG per camera."""
     from devkit.waymo_frames import calibration, frame, jpeg_image, pose_matrix
-
     from xviz_server.datasets.waymo import frame_pb2 as pb
 
     records = []
     for i in range(2):
-        message = frame(1_557_000_000_000_000 + i * 100_000, pose_matrix(0.1 * i, (5.0, 1.0, 0.0)),
-                        [calibration("TOP", pose_matrix(0.2, (1.0, 0.0, 2.0)), np.linspace(-0.3, 0.05, beams).tolist())],
-                        {"TOP": (_range_image(4, 8, 4, rng), _range_image(4, 8, 4, rng), _range_image(4, 8, 6, rng))},
-                        {"FRONT": jpeg_image(32, 24, (200, 30, 30))},
-                        [((10.0, 5.0, 1.0, 4.0, 2.0, 1.6, 0.5), 1, "car")])
+        message = frame(
+            1_557_000_000_000_000 + i * 100_000,
+            pose_matrix(0.1 * i, (5.0, 1.0, 0.0)),
+            [calibration("TOP", pose_matrix(0.2, (1.0, 0.0, 2.0)), np.linspace(-0.3, 0.05, beams).tolist())],
+            {"TOP": (_range_image(4, 8, 4, rng), _range_image(4, 8, 4, rng), _range_image(4, 8, 6, rng))},
+            {"FRONT": jpeg_image(32, 24, (200, 30, 30))},
+            [((10.0, 5.0, 1.0, 4.0, 2.0, 1.6, 0.5), 1, "car")],
+        )
         for name in lasers:  # lasers and cameras by number (the UNKNOWN 0 too), the same one twice too
             laser = message.lasers.add()
             laser.name = name  # type: ignore[assignment]
             laser.ri_return1.range_image_compressed = _matrix(_range_image(3, 5, 4, rng), dims)
-            message.context.laser_calibrations.add(name=name, extrinsic=pb.Transform(transform=np.eye(4).reshape(-1).tolist()))  # type: ignore[arg-type]
+            message.context.laser_calibrations.add(
+                name=name, extrinsic=pb.Transform(transform=np.eye(4).reshape(-1).tolist())
+            )  # type: ignore[arg-type]
         for name in cameras:
             message.images.add(name=name, image=jpeg_image(16, 8, (10, 200, 30)))  # type: ignore[arg-type]
         del message.pose.transform[pose_values:]
@@ -525,8 +670,13 @@ def _matrix(array: np.ndarray, dims: list[int] | None) -> bytes:
 def tfrecord(records: list[bytes]) -> bytes:
     from xviz_server.datasets.waymo.tfrecord import masked_crc
 
-    return b"".join(struct.pack("<Q", len(r)) + struct.pack("<I", masked_crc(struct.pack("<Q", len(r)))) + r
-                    + struct.pack("<I", masked_crc(r)) for r in records)
+    return b"".join(
+        struct.pack("<Q", len(r))
+        + struct.pack("<I", masked_crc(struct.pack("<Q", len(r))))
+        + r
+        + struct.pack("<I", masked_crc(r))
+        for r in records
+    )
 
 
 WAYMO_SEEDS = waymo_frames(np.random.default_rng(35), [], [])
@@ -543,8 +693,16 @@ def waymo_segments(draw: st.DrawFn) -> bytes:
         return tfrecord([draw(mutated(WAYMO_SEEDS)), WAYMO_SEEDS[1]])
     names = st.lists(st.integers(0, 5), max_size=2)
     dims = st.one_of(st.none(), st.lists(st.integers(-2, 2**31 - 1), max_size=4))  # int32, as MatrixShape declares
-    return tfrecord(waymo_frames(np.random.default_rng(0), draw(names), draw(names), draw(dims), draw(st.integers(0, 6)),
-                                 draw(st.sampled_from([16, 15, 0]))))
+    return tfrecord(
+        waymo_frames(
+            np.random.default_rng(0),
+            draw(names),
+            draw(names),
+            draw(dims),
+            draw(st.integers(0, 6)),
+            draw(st.sampled_from([16, 15, 0])),
+        )
+    )
 
 
 @pytest.fixture(scope="module")
@@ -593,11 +751,23 @@ def ros1_bags(directory: Path) -> list[bytes]:
     messages = []
     for i in range(6):
         t = t0 + i * 100_000_000
-        pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
+        pose = m.geometry_msgs__Pose(
+            position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0))
+        )
         messages += [
-            ("/pose", "geometry_msgs/msg/PoseStamped", t, m.geometry_msgs__PoseStamped(header=m.header(t, "map"), pose=pose)),
+            (
+                "/pose",
+                "geometry_msgs/msg/PoseStamped",
+                t,
+                m.geometry_msgs__PoseStamped(header=m.header(t, "map"), pose=pose),
+            ),
             ("/speed", "std_msgs/msg/Float64", t, m.std_msgs__Float64(data=1.5 * i)),
-            ("/tf", "tf2_msgs/msg/TFMessage", t, m.tf2_msgs__TFMessage(transforms=[m.transform(t, "map", "base_link", (i, 0, 0), (0, 0, 0, 1))])),
+            (
+                "/tf",
+                "tf2_msgs/msg/TFMessage",
+                t,
+                m.tf2_msgs__TFMessage(transforms=[m.transform(t, "map", "base_link", (i, 0, 0), (0, 0, 0, 1))]),
+            ),
             ("/points", "sensor_msgs/msg/PointCloud2", t, m.cloud(t, rng.uniform(-5, 5, (20, 4)), "base_link")),
         ]
     seeds = []
@@ -704,7 +874,13 @@ def outcome(parse: Callable[[], list[Any]]) -> Any:
     from redis.exceptions import InvalidResponse
 
     def plain(value: Any) -> Any:
-        return [plain(item) for item in value] if isinstance(value, list) else str(value) if isinstance(value, Exception) else value
+        return (
+            [plain(item) for item in value]
+            if isinstance(value, list)
+            else str(value)
+            if isinstance(value, Exception)
+            else value
+        )
 
     try:
         return plain(parse())
@@ -719,7 +895,11 @@ def test_resp_replies(resp_seeds: list[bytes]):
     def fuzz(data: bytes, sizes: list[int]) -> None:
         from redis.exceptions import InvalidResponse
 
-        whole = refuses_by_name(lambda: outcome(lambda: parse_replies(data, itertools.repeat(len(data) or 1))), len(data), (InvalidResponse,))
+        whole = refuses_by_name(
+            lambda: outcome(lambda: parse_replies(data, itertools.repeat(len(data) or 1))),
+            len(data),
+            (InvalidResponse,),
+        )
         fewest = len(data) // 2000  # at most some 2 000 reads of a large reply: the property, not the loop, is tested
         split = outcome(lambda: parse_replies(data, itertools.cycle([max(size, fewest) for size in sizes])))
         assert split == whole  # the same replies, or the same refusal, however the socket splits the bytes
@@ -765,8 +945,11 @@ def test_resp_replies_as_hiredis_reads_them(resp_seeds: list[bytes]):
             assert not refused, f"hiredis refused what the reader took as {mine!r}"
             assert outcome(lambda: mine) == outcome(lambda: theirs)
         elif not refused:  # hiredis took it all: the reader refused for a check of its own, which hiredis lacks
-            resp3 = re.search(r"not a RESP2 reply from the broker: b'([_,=(~%|>#!])", str(error))  # hiredis reads RESP3 too
-            assert resp3 or re.search(r"over \d+ bytes|at most \d+|a length of|does not end where its length says", str(error)), error
+            resp3 = re.search(
+                r"not a RESP2 reply from the broker: b'([_,=(~%|>#!])", str(error)
+            )  # hiredis reads RESP3 too
+            assert resp3 or re.search(
+                r"over \d+ bytes|at most \d+|a length of|does not end where its length says", str(error)
+            ), error
 
     fuzz()
-

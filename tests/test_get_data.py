@@ -44,8 +44,12 @@ def linked_copy(tmp_path: Path) -> Path:
 
 
 def test_the_list_is_every_file_of_the_shared_folder():
-    files = sorted(path.relative_to(SHARED_DIR).as_posix() for top in ("data", "conformance")
-                   for path in (SHARED_DIR / top).rglob("*") if path.is_file())
+    files = sorted(
+        path.relative_to(SHARED_DIR).as_posix()
+        for top in ("data", "conformance")
+        for path in (SHARED_DIR / top).rglob("*")
+        if path.is_file()
+    )
     assert sorted(listed()) == files and len(files) > 400
 
 
@@ -66,7 +70,9 @@ def test_an_archive_by_file_url_is_checked_and_installed(tmp_path: Path):
         tar.add(REPO / "README.md", arcname="shared/unrelated.md")
     result = get_data(tmp_path / "shared", archive.as_uri())
     assert result.returncode == 0, result.stderr
-    installed = sorted(path.relative_to(tmp_path / "shared").as_posix() for path in (tmp_path / "shared").rglob("*") if path.is_file())
+    installed = sorted(
+        path.relative_to(tmp_path / "shared").as_posix() for path in (tmp_path / "shared").rglob("*") if path.is_file()
+    )
     assert installed == sorted(listed())  # the files of the list, nothing else
 
 
@@ -84,8 +90,13 @@ def test_a_file_that_differs_stops_it_and_nothing_is_installed(tmp_path: Path, c
     (tmp_path / "shared" / "data").mkdir(parents=True)  # what was there stays
     result = get_data(tmp_path / "shared", str(source))
     assert result.returncode == 1
-    why = {"one byte": "SHA-256 differs", "cut short": f"{len(data) - 1} bytes, not {len(data)}", "missing": "missing"}[change]
-    assert f"1 of {len(listed())} files" in result.stderr and f"{KITTI_FRAME.relative_to(SHARED_DIR)}: {why}" in result.stderr
+    why = {"one byte": "SHA-256 differs", "cut short": f"{len(data) - 1} bytes, not {len(data)}", "missing": "missing"}[
+        change
+    ]
+    assert (
+        f"1 of {len(listed())} files" in result.stderr
+        and f"{KITTI_FRAME.relative_to(SHARED_DIR)}: {why}" in result.stderr
+    )
     assert "nothing was installed" in result.stderr and os.listdir(tmp_path / "shared" / "data") == []
 
 

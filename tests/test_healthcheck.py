@@ -17,8 +17,13 @@ from helpers import running_server, ten_hz, write_log
 
 def healthcheck(*args: str, **env: str) -> subprocess.CompletedProcess:
     clean = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}
-    return subprocess.run([sys.executable, "-m", "xviz_server", "healthcheck", *args], capture_output=True, text=True,
-                          env={**clean, **env}, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "xviz_server", "healthcheck", *args],
+        capture_output=True,
+        text=True,
+        env={**clean, **env},
+        timeout=60,
+    )
 
 
 async def test_https_on_the_port_of_the_configuration_file(tmp_path: Path):
@@ -56,7 +61,10 @@ def test_any_answer_but_200_is_unhealthy():
             failing.shutdown()
             thread.join()
     assert result.returncode == 1
-    assert result.stderr == f"unhealthy: http://127.0.0.1:{failing.server_address[1]}/healthz: HTTP 503 worker pool broken\n"
+    assert (
+        result.stderr
+        == f"unhealthy: http://127.0.0.1:{failing.server_address[1]}/healthz: HTTP 503 worker pool broken\n"
+    )
 
 
 def test_pid_of_a_process_that_is_not_a_server():

@@ -19,8 +19,9 @@ from helpers import client, metadata, running_server, ten_hz, update, write_log
 
 META = metadata()
 from xviz_server import server as server_module
-from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
+from xviz_server.validate import check_paths
+
 
 def stalled_socket(port: int) -> socket.socket:
     """A connected socket that will never read, with a tiny receive buffer."""
@@ -33,8 +34,9 @@ def stalled_socket(port: int) -> socket.socket:
 
 async def stalled_reader(port: int, path: str, request: dict | None = None):
     """A client that asks for something big, then stops reading."""
-    websocket = await connect(f"ws://127.0.0.1:{port}{path}", max_size=None, max_queue=1,
-                              sock=stalled_socket(port), ping_interval=None)
+    websocket = await connect(
+        f"ws://127.0.0.1:{port}{path}", max_size=None, max_queue=1, sock=stalled_socket(port), ping_interval=None
+    )
     websocket.transport.pause_reading()
     if request is not None:
         await websocket.send(json.dumps(request))
@@ -59,8 +61,10 @@ def big_log(tmp_path: Path) -> Path:
 
 async def test_sessions_that_stop_reading_are_ended_and_free_their_places(big_log: Path):
     async with running_server(big_log, idle_timeout=1, max_sessions=2) as server:
-        stalled = [await stalled_reader(server.port, "/big", {"type": "xviz/transform_log", "data": {"id": "1"}})
-                   for _ in range(2)]
+        stalled = [
+            await stalled_reader(server.port, "/big", {"type": "xviz/transform_log", "data": {"id": "1"}})
+            for _ in range(2)
+        ]
         with pytest.raises(InvalidStatus):  # both places taken
             await connect(f"ws://127.0.0.1:{server.port}/big")
         await until(lambda: not server.sessions, 15)
@@ -74,7 +78,9 @@ async def test_shutdown_is_bounded_whatever_the_clients_do(big_log: Path, monkey
     monkeypatch.setattr(server_module, "SHUTDOWN_TIMEOUT", 1.0)
     async with running_server(big_log) as server:  # idle timeout 60 s: only shutdown ends them
         stalled = await stalled_reader(server.port, "/big", {"type": "xviz/transform_log", "data": {"id": "1"}})
-        await until(lambda: server.sessions and next(iter(server.sessions)).websocket.transport.get_write_buffer_size(), 10)
+        await until(
+            lambda: server.sessions and next(iter(server.sessions)).websocket.transport.get_write_buffer_size(), 10
+        )
         started = time.monotonic()
     assert time.monotonic() - started < 8  # SHUTDOWN_TIMEOUT, then the stuck connection is aborted
     stalled.transport.abort()
@@ -122,9 +128,15 @@ POISON = [
     ({"update_type": "INCREMENTAL", "updates": [5]}, "updates[0]: must be an object"),
     ({"update_type": "INCREMENTAL", "updates": [{"timestamp": "noon"}]}, "updates[0].timestamp"),
     ({"update_type": "INCREMENTAL", "updates": [{"poses": {}}]}, "updates[0].timestamp"),
-    ({"update_type": "INCREMENTAL", "updates": [{"timestamp": 1, "primitives": {"/points": 5}}]}, "primitives['/points']"),
+    (
+        {"update_type": "INCREMENTAL", "updates": [{"timestamp": 1, "primitives": {"/points": 5}}]},
+        "primitives['/points']",
+    ),
     ({"update_type": "BOGUS", "updates": [{"timestamp": 1}]}, "update_type: must be one of"),
-    ({"updates": [{"timestamp": 1, "primitives": {"/points": {"points": [{"points": "xyz"}]}}}]}, "points: must be an array"),
+    (
+        {"updates": [{"timestamp": 1, "primitives": {"/points": {"points": [{"points": "xyz"}]}}}]},
+        "points: must be an array",
+    ),
 ]
 
 
@@ -143,7 +155,7 @@ async def test_poisoned_updates_are_refused_at_the_door_and_the_source_stays(tmp
                 await source.send(encode({"type": "xviz/state_update", "data": update(7.0)}, Format.BINARY))
                 good = await viewer.recv()  # the first update the viewer sees is the good one
                 assert good["type"] == "xviz/state_update" and good["data"]["updates"][0]["timestamp"] == 7.0
-        assert 'xviz_ingest_refused_total 8.0' in server.metrics.exposition().decode()
+        assert "xviz_ingest_refused_total 8.0" in server.metrics.exposition().decode()
     [recording] = list((tmp_path / "record" / "car").iterdir())
     assert check_paths([recording]).ok  # only the good update was recorded, as a valid log
 
@@ -151,8 +163,12 @@ async def test_poisoned_updates_are_refused_at_the_door_and_the_source_stays(tmp
 @pytest.mark.slow
 async def test_a_large_json_update_is_parsed_off_the_event_loop(tmp_path: Path):
     points = np.random.default_rng(1).uniform(-50, 50, (600_000, 3)).round(3).tolist()
-    big = poisoned({"update_type": "SNAPSHOT", "updates": [
-        {"timestamp": 1.0, "primitives": {"/points": {"points": [{"points": points}]}}}]})
+    big = poisoned(
+        {
+            "update_type": "SNAPSHOT",
+            "updates": [{"timestamp": 1.0, "primitives": {"/points": {"points": [{"points": points}]}}}],
+        }
+    )
     assert len(big) > 15e6
     async with running_server(None) as server:
         gaps: list[float] = []

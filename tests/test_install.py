@@ -27,8 +27,17 @@ pytestmark = pytest.mark.slow
 
 REPO = Path(__file__).resolve().parents[1]
 # What the package is built from; the viewer's bundle and npm's folder are made by the build.
-SOURCES = ["pyproject.toml", "setup.py", "MANIFEST.in", "README.md", "xviz_server", "providers", "schema", "viewer",
-           "scripts/build-viewer.sh"]
+SOURCES = [
+    "pyproject.toml",
+    "setup.py",
+    "MANIFEST.in",
+    "README.md",
+    "xviz_server",
+    "providers",
+    "schema",
+    "viewer",
+    "scripts/build-viewer.sh",
+]
 LEFT_OUT = shutil.ignore_patterns("__pycache__", "viewer_static", "node_modules")
 
 
@@ -44,9 +53,24 @@ def copy_sources(target: Path) -> Path:
 
 def pip_wheel(source: Path, into: Path, path: str, **variables: str) -> subprocess.CompletedProcess[str]:
     """``pip wheel`` of ``source`` (a folder or an sdist) with PATH set to ``path``; the build's output is in stderr."""
-    return subprocess.run([sys.executable, "-m", "pip", "wheel", "-v", "--no-deps", "--disable-pip-version-check",
-                           "-w", str(into), str(source)],
-                          capture_output=True, text=True, env=clean_env(PATH=path, **variables), timeout=900)
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-v",
+            "--no-deps",
+            "--disable-pip-version-check",
+            "-w",
+            str(into),
+            str(source),
+        ],
+        capture_output=True,
+        text=True,
+        env=clean_env(PATH=path, **variables),
+        timeout=900,
+    )
 
 
 def viewer_files(wheel: Path) -> list[str]:
@@ -63,8 +87,13 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
         pytest.skip("npm is needed to build the viewer into the wheel")
     work = tmp_path_factory.mktemp("install")
     source = copy_sources(work / "source")
-    sdist = subprocess.run([sys.executable, "-m", "build", "--sdist", "--outdir", str(work / "dist"), str(source)],
-                           capture_output=True, text=True, env=clean_env(), timeout=600)
+    sdist = subprocess.run(
+        [sys.executable, "-m", "build", "--sdist", "--outdir", str(work / "dist"), str(source)],
+        capture_output=True,
+        text=True,
+        env=clean_env(),
+        timeout=600,
+    )
     assert sdist.returncode == 0, sdist.stdout + sdist.stderr
     (archive,) = (work / "dist").glob("xviz_server-*.tar.gz")
     wheel_build = pip_wheel(archive, work / "dist", clean_env()["PATH"])
@@ -74,18 +103,33 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert "xviz_server/viewer_static/index.html" in viewer_files(wheel)
     environment = work / "venv"
     venv.EnvBuilder(with_pip=True).create(environment)
-    install = subprocess.run([str(environment / "bin" / "pip"), "install", "--quiet", "--no-compile",
-                              "--disable-pip-version-check", str(wheel)],
-                             capture_output=True, text=True, env=clean_env(), timeout=900)
+    install = subprocess.run(
+        [
+            str(environment / "bin" / "pip"),
+            "install",
+            "--quiet",
+            "--no-compile",
+            "--disable-pip-version-check",
+            str(wheel),
+        ],
+        capture_output=True,
+        text=True,
+        env=clean_env(),
+        timeout=900,
+    )
     assert install.returncode == 0, install.stdout + install.stderr
     return environment / "bin"
 
 
 def test_installed_server_started_in_the_checkout_serves_the_demo_and_the_viewer(installed: Path, tmp_path: Path):
     assert (REPO / "xviz_server" / "__init__.py").is_file()  # the working directory holds another copy
-    server = subprocess.Popen([str(installed / "xviz-server"), "serve", "--host", "127.0.0.1", "--port", "0"],
-                              cwd=REPO, env=clean_env(XDG_CACHE_HOME=str(tmp_path / "cache")),
-                              stderr=subprocess.PIPE, text=True)
+    server = subprocess.Popen(
+        [str(installed / "xviz-server"), "serve", "--host", "127.0.0.1", "--port", "0"],
+        cwd=REPO,
+        env=clean_env(XDG_CACHE_HOME=str(tmp_path / "cache")),
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert server.stderr is not None
         log = []
@@ -97,11 +141,26 @@ def test_installed_server_started_in_the_checkout_serves_the_demo_and_the_viewer
         else:
             pytest.fail("the server stopped before listening:\n" + "".join(log))
         # The demo's frames are made by jobs in the worker processes.
-        probe = subprocess.run([str(installed / "xviz-server"), "probe", "--timeout", "60", "--end", "+1",
-                                f"ws://127.0.0.1:{port}/?log=demo"],
-                               cwd=REPO, capture_output=True, text=True, env=clean_env(), timeout=120)
+        probe = subprocess.run(
+            [
+                str(installed / "xviz-server"),
+                "probe",
+                "--timeout",
+                "60",
+                "--end",
+                "+1",
+                f"ws://127.0.0.1:{port}/?log=demo",
+            ],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            env=clean_env(),
+            timeout=120,
+        )
         assert probe.returncode == 0, probe.stdout + probe.stderr
-        assert re.search(r"xviz/state_update +\d+", probe.stdout) and re.search(r"errors +none", probe.stdout), probe.stdout
+        assert re.search(r"xviz/state_update +\d+", probe.stdout) and re.search(r"errors +none", probe.stdout), (
+            probe.stdout
+        )
         request = urllib.request.Request(f"http://127.0.0.1:{port}/", headers={"Accept": "text/html"})
         with urllib.request.urlopen(request, timeout=30) as response:
             page = response.read().decode()
@@ -115,12 +174,22 @@ def test_installed_server_started_in_the_checkout_serves_the_demo_and_the_viewer
     assert "ModuleNotFoundError" not in "".join(log) + rest
 
 
-@pytest.mark.parametrize(("npm", "variables", "bundle", "said", "packaged"), [
-    (False, {}, False, "WARNING npm not found: building without the viewer page", False),
-    (False, {}, True, "npm not found: packaging the viewer bundle already in", True),
-    (True, {"XVIZ_BUILD_VIEWER": "0"}, False, "WARNING XVIZ_BUILD_VIEWER=0: building without the viewer page", False),
-    (True, {}, True, "is newer than its sources: packaging it as it is", True),
-], ids=["no npm", "no npm, a bundle", "XVIZ_BUILD_VIEWER=0", "a bundle newer than its sources"])
+@pytest.mark.parametrize(
+    ("npm", "variables", "bundle", "said", "packaged"),
+    [
+        (False, {}, False, "WARNING npm not found: building without the viewer page", False),
+        (False, {}, True, "npm not found: packaging the viewer bundle already in", True),
+        (
+            True,
+            {"XVIZ_BUILD_VIEWER": "0"},
+            False,
+            "WARNING XVIZ_BUILD_VIEWER=0: building without the viewer page",
+            False,
+        ),
+        (True, {}, True, "is newer than its sources: packaging it as it is", True),
+    ],
+    ids=["no npm", "no npm, a bundle", "XVIZ_BUILD_VIEWER=0", "a bundle newer than its sources"],
+)
 def test_a_wheel_builds_without_running_npm_and_says_what_it_packaged(
     tmp_path: Path, npm: bool, variables: dict[str, str], bundle: bool, said: str, packaged: bool
 ):

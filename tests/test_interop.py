@@ -15,8 +15,6 @@ import pytest
 from helpers import PNG_2X1, assert_same_parse, sha, xviz_decode
 from xviz_server.codec import Format, decode_glb, encode
 
-
-
 METADATA = {
     "type": "xviz/metadata",
     "data": {
@@ -38,37 +36,44 @@ def sample_update(rng: np.random.Generator) -> dict:
     # Alpha starts at 1: given nested JSON colours, the client turns an alpha
     # of 0 into 255 (`color[3] || 255`), which no server can prevent.
     colors = rng.integers(1, 256, (5000, 4), dtype=np.uint8)
-    return {
-        "type": "xviz/state_update",
-        "data": {
-            "update_type": "SNAPSHOT",
-            "updates": [
-                {
-                    "timestamp": 100.5,
-                    "poses": {
-                        "/vehicle_pose": {
-                            "timestamp": 100.5,
-                            "map_origin": {"longitude": 8.43, "latitude": 49.01, "altitude": 116.4},
-                            "position": [1.0, 2.0, 0.0],
-                            "orientation": [0.0, 0.0, 1.25],
-                        }
-                    },
-                    "primitives": {
-                        "/lidar/points": {"points": [{"points": points, "colors": colors}]},
-                        "/objects": {
-                            "polygons": [
-                                {"vertices": [[0, 0, 0], [4, 0, 0], [4, 2, 0], [0, 2, 0]], "base": {"object_id": "car-1"}}
-                            ]
+    return (
+        {
+            "type": "xviz/state_update",
+            "data": {
+                "update_type": "SNAPSHOT",
+                "updates": [
+                    {
+                        "timestamp": 100.5,
+                        "poses": {
+                            "/vehicle_pose": {
+                                "timestamp": 100.5,
+                                "map_origin": {"longitude": 8.43, "latitude": 49.01, "altitude": 116.4},
+                                "position": [1.0, 2.0, 0.0],
+                                "orientation": [0.0, 0.0, 1.25],
+                            }
                         },
-                        "/camera/front": {"images": [{"data": PNG_2X1, "width_px": 2, "height_px": 1}]},
-                    },
-                    "time_series": [
-                        {"timestamp": 100.5, "streams": ["/vehicle/velocity"], "values": {"doubles": [12.5]}}
-                    ],
-                }
-            ],
+                        "primitives": {
+                            "/lidar/points": {"points": [{"points": points, "colors": colors}]},
+                            "/objects": {
+                                "polygons": [
+                                    {
+                                        "vertices": [[0, 0, 0], [4, 0, 0], [4, 2, 0], [0, 2, 0]],
+                                        "base": {"object_id": "car-1"},
+                                    }
+                                ]
+                            },
+                            "/camera/front": {"images": [{"data": PNG_2X1, "width_px": 2, "height_px": 1}]},
+                        },
+                        "time_series": [
+                            {"timestamp": 100.5, "streams": ["/vehicle/velocity"], "values": {"doubles": [12.5]}}
+                        ],
+                    }
+                ],
+            },
         },
-    }, points, colors
+        points,
+        colors,
+    )
 
 
 @pytest.mark.parametrize("fmt", [Format.JSON, Format.BINARY])

@@ -28,7 +28,14 @@ SESSION = [
     {"wait": "done", "id": "0"},
     {"send": {"type": "xviz/transform_point_in_time", "data": {"id": "p", "query_timestamp": {"$timestamp": 1.05}}}},
     {"wait": "state_updates", "count": 26},
-    {"send_transform_log": {"id": "1", "from_start": 0.5, "to_start": 1.45, "desired_streams": ["/vehicle_pose", "/lidar/points"]}},
+    {
+        "send_transform_log": {
+            "id": "1",
+            "from_start": 0.5,
+            "to_start": 1.45,
+            "desired_streams": ["/vehicle_pose", "/lidar/points"],
+        }
+    },
     {"wait": "done", "id": "1"},
     {"close": True},
 ]

@@ -106,7 +106,8 @@ async def test_transform_log_window_is_placed_from_the_metadata_start_time(timin
     start = timing[0][0]
     timestamps = [update["parsed"]["timestamp"] for update in result.of_type("xviz/state_update")]
     assert timestamps == (
-        timestamps_between(timing, start, start + WINDOW_OF_THREE) + timestamps_between(timing, start, start + WINDOW_OF_TWO)
+        timestamps_between(timing, start, start + WINDOW_OF_THREE)
+        + timestamps_between(timing, start, start + WINDOW_OF_TWO)
     )
     assert len(timestamps) == 5
 

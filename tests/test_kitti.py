@@ -16,21 +16,38 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps
-from xviz_server.validate import check_paths
 from xviz_server.codec import decode
 from xviz_server.datasets import detect
 from xviz_server.datasets.kitti import KittiDrive, is_kitti_drive, read_timestamps, read_tracklets
 from xviz_server.datasets.shared import footprints, reflectance_colors
 from xviz_server.exceptions import DatasetError
+from xviz_server.validate import check_paths
 
 # A tracklet_labels.xml in the devkit's format (boost serialisation XML, tabs,
 # class attributes on the first item of each kind only): a car seen in frames
 # 0-1, a pedestrian in frame 1, a truck (no style class of its own) in frame 2.
-_POSE_FIELDS = ("tx", "ty", "tz", "rx", "ry", "rz", "state", "occlusion", "occlusion_kf", "truncation",
-                "amt_occlusion", "amt_occlusion_kf", "amt_border_l", "amt_border_r", "amt_border_kf")
+_POSE_FIELDS = (
+    "tx",
+    "ty",
+    "tz",
+    "rx",
+    "ry",
+    "rz",
+    "state",
+    "occlusion",
+    "occlusion_kf",
+    "truncation",
+    "amt_occlusion",
+    "amt_occlusion_kf",
+    "amt_border_l",
+    "amt_border_r",
+    "amt_border_kf",
+)
 
 
-def _tracklet(kind: str, h: str, w: str, l: str, first_frame: int, poses: list[tuple[str, ...]], first: bool) -> str:
+def _tracklet(
+    kind: str, h: str, w: str, length: str, first_frame: int, poses: list[tuple[str, ...]], first: bool
+) -> str:
     """One tracklet of ``tracklet_labels.xml``; the devkit writes class attributes on the first item of each kind only."""
     item = '<item class_id="1" tracking_level="0" version="1">' if first else "<item>"
     pose_items = []
@@ -40,7 +57,7 @@ def _tracklet(kind: str, h: str, w: str, l: str, first_frame: int, poses: list[t
         pose_items.append(f"\t\t\t{tag}\n{fields}\t\t\t</item>\n")
     poses_tag = '<poses class_id="2" tracking_level="0" version="0">' if first else "<poses>"
     return (
-        f"\t{item}\n\t\t<objectType>{kind}</objectType>\n\t\t<h>{h}</h>\n\t\t<w>{w}</w>\n\t\t<l>{l}</l>\n"
+        f"\t{item}\n\t\t<objectType>{kind}</objectType>\n\t\t<h>{h}</h>\n\t\t<w>{w}</w>\n\t\t<l>{length}</l>\n"
         f"\t\t<first_frame>{first_frame}</first_frame>\n\t\t{poses_tag}\n\t\t\t<count>{len(poses)}</count>\n"
         f"\t\t\t<item_version>2</item_version>\n{''.join(pose_items)}\t\t</poses>\n\t\t<finished>1</finished>\n\t</item>\n"
     )
@@ -50,16 +67,40 @@ TRACKLETS = (
     '<?xml version="1.0" encoding="UTF-8" standalone="yes" ?>\n<!DOCTYPE boost_serialization>\n'
     '<boost_serialization signature="serialization::archive" version="9">\n'
     '<tracklets class_id="0" tracking_level="0" version="0">\n\t<count>3</count>\n\t<item_version>1</item_version>\n'
-    + _tracklet("Car", "1.5", "1.8", "4.0", 0, [
-        ("10.0", "2.0", "-1.7", "0", "0", "1.5707963267948966", "2", "0", "1", "0", "0", "1", "0", "0", "-1"),
-        ("11.3125", "2.0", "-1.7", "0", "0", "0", "1", "0", "0", "0", "-1", "-1", "-1", "-1", "-1"),
-    ], first=True)
-    + _tracklet("Pedestrian", "1.8", "0.6", "0.8", 1, [
-        ("5.0", "-3.0", "-1.65", "0", "0", "-0.5", "2", "1", "1", "0", "0", "1", "0", "0", "-1"),
-    ], first=False)
-    + _tracklet("Truck", "3.2", "2.5", "9.0", 2, [
-        ("30.0", "-4.0", "-1.8", "0", "0", "3.14", "2", "2", "1", "0", "0", "1", "0", "0", "-1"),
-    ], first=False)
+    + _tracklet(
+        "Car",
+        "1.5",
+        "1.8",
+        "4.0",
+        0,
+        [
+            ("10.0", "2.0", "-1.7", "0", "0", "1.5707963267948966", "2", "0", "1", "0", "0", "1", "0", "0", "-1"),
+            ("11.3125", "2.0", "-1.7", "0", "0", "0", "1", "0", "0", "0", "-1", "-1", "-1", "-1", "-1"),
+        ],
+        first=True,
+    )
+    + _tracklet(
+        "Pedestrian",
+        "1.8",
+        "0.6",
+        "0.8",
+        1,
+        [
+            ("5.0", "-3.0", "-1.65", "0", "0", "-0.5", "2", "1", "1", "0", "0", "1", "0", "0", "-1"),
+        ],
+        first=False,
+    )
+    + _tracklet(
+        "Truck",
+        "3.2",
+        "2.5",
+        "9.0",
+        2,
+        [
+            ("30.0", "-4.0", "-1.8", "0", "0", "3.14", "2", "2", "1", "0", "0", "1", "0", "0", "-1"),
+        ],
+        first=False,
+    )
     + "</tracklets>\n</boost_serialization>\n"
 )
 
@@ -88,7 +129,12 @@ def official(kitti_log: Path, frame: int) -> dict:
 
 def official_series(update: dict) -> dict[str, float]:
     """The numeric time series of an update, by stream."""
-    return {s: v for e in update["time_series"] if "doubles" in e["values"] for s, v in zip(e["streams"], e["values"]["doubles"])}
+    return {
+        s: v
+        for e in update["time_series"]
+        if "doubles" in e["values"]
+        for s, v in zip(e["streams"], e["values"]["doubles"])
+    }
 
 
 def test_drive_is_recognised_by_its_layout(raw: Path, drive: KittiDrive, tmp_path: Path):
@@ -113,7 +159,9 @@ def test_frame_times_are_the_official_index(drive: KittiDrive, kitti_log: Path):
 def test_a_bad_timestamp_is_named_with_its_line(tmp_path: Path):
     path = tmp_path / "timestamps.txt"
     path.write_text("2011-09-26 13:02:25.964389445\n\n2011-09-26 13:02:26.0743\n2011-09-26 25:02:26.174598199\n")
-    with pytest.raises(DatasetError, match=r"timestamps\.txt, line 4: '2011-09-26 25:02:26.174598199' is not a KITTI timestamp"):
+    with pytest.raises(
+        DatasetError, match=r"timestamps\.txt, line 4: '2011-09-26 25:02:26.174598199' is not a KITTI timestamp"
+    ):
         read_timestamps(path)
     path.write_text("2011-09-26 13:02:25.964389445\n\n2011-09-26 13:02:26.0743\n")
     assert read_timestamps(path).tolist() == [1317042145.964, 1317042146.074]
@@ -131,7 +179,13 @@ def test_reflectance_colours_are_the_official_formula():
     hundredths = (np.arange(101) / 100).astype(np.float32)  # KITTI's reflectances
     colours = reflectance_colors(hundredths)
     assert colours.dtype == np.uint8 and colours.shape == (101, 3)
-    assert colours[[0, 10, 35, 50, 100]].tolist() == [[80, 0, 0], [88, 8, 6], [107, 27, 20], [120, 40, 30], [160, 80, 60]]
+    assert colours[[0, 10, 35, 50, 100]].tolist() == [
+        [80, 0, 0],
+        [88, 8, 6],
+        [107, 27, 20],
+        [120, 40, 30],
+        [160, 80, 60],
+    ]
     assert reflectance_colors(np.array([5.0], np.float32)).tolist() == [[64, 240, 180]]  # min(r, 3), then modulo 256
 
 
@@ -156,7 +210,12 @@ def test_colours_reproduce_the_official_colours_exactly(drive: KittiDrive, kitti
 
 def test_oxts_gives_the_official_pose_and_time_series(drive: KittiDrive, kitti_log: Path):
     first = drive.oxts(0)  # the one original record: every field real
-    assert dataclasses.astuple(first)[-5:] == (4, 11, 6, 6, 6) and first.vn == -6.811441479104 and first.wu == -0.018809330937153 and first.pos_accuracy == 0.027658633371879
+    assert (
+        dataclasses.astuple(first)[-5:] == (4, 11, 6, 6, 6)
+        and first.vn == -6.811441479104
+        and first.wu == -0.018809330937153
+        and first.pos_accuracy == 0.027658633371879
+    )
     for frame in range(len(drive)):
         oxts, theirs = drive.oxts(frame), official(kitti_log, frame)
         pose = theirs["poses"]["/vehicle_pose"]
@@ -213,7 +272,11 @@ def test_wide_images_are_scaled_down_keeping_the_aspect(own_copy: Path):
 def test_tracklets_parse_into_objects_per_frame(own_copy: Path):
     (own_copy / "tracklet_labels.xml").write_text(TRACKLETS)
     tracklets = read_tracklets(own_copy / "tracklet_labels.xml")
-    assert [(t.object_type, t.first_frame, len(t.poses)) for t in tracklets] == [("Car", 0, 2), ("Pedestrian", 1, 1), ("Truck", 2, 1)]
+    assert [(t.object_type, t.first_frame, len(t.poses)) for t in tracklets] == [
+        ("Car", 0, 2),
+        ("Pedestrian", 1, 1),
+        ("Truck", 2, 1),
+    ]
     assert (tracklets[0].length, tracklets[0].width, tracklets[0].height) == (4.0, 1.8, 1.5)
     drive = KittiDrive(own_copy)
     assert [list(drive.objects(frame).classes) for frame in range(4)] == [["Car"], ["Car", "Pedestrian"], ["Truck"], []]
@@ -260,7 +323,10 @@ def test_tracklets_are_drawn(own_copy: Path):
     frame1 = drive.convert(1, metadata)["updates"][0]["primitives"]
     polygons = frame1["/tracklets/objects"]["polygons"]
     assert [p["base"]["classes"] for p in polygons] == [["Car"], ["Pedestrian"]]
-    assert polygons[0]["base"]["style"] == {"stroke_color": "#50B3FF", "height": 1.5}  # the class's outline, and its own height
+    assert polygons[0]["base"]["style"] == {
+        "stroke_color": "#50B3FF",
+        "height": 1.5,
+    }  # the class's outline, and its own height
     assert np.allclose(np.ptp(polygons[0]["vertices"][:, 0]), 4.0)  # yaw 0 in frame 1
     assert [t["text"] for t in frame1["/tracklets/label"]["texts"]] == ["Car-0", "Pedestrian-1"]
     frame2 = drive.convert(2, metadata)["updates"][0]["primitives"]
@@ -295,7 +361,9 @@ def test_missing_and_corrupt_raw_files_are_named(own_copy: Path):
     (own_copy / "tracklet_labels.xml").unlink()
     calibration = own_copy.parent / "calib_imu_to_velo.txt"
     calibration.unlink()
-    with pytest.raises(DatasetError, match=r"calib_imu_to_velo\.txt not found: KITTI keeps the calibration files in the date folder"):
+    with pytest.raises(
+        DatasetError, match=r"calib_imu_to_velo\.txt not found: KITTI keeps the calibration files in the date folder"
+    ):
         KittiDrive(own_copy)
     calibration.write_text("calib_time: 25-May-2012 16:47:16\nR: 1 0 0 0 1 0 0 0 1\nT: -0.8 0.3\n")
     with pytest.raises(DatasetError, match=r"calib_imu_to_velo\.txt: no 'T:' translation of 3 numbers"):
@@ -310,7 +378,14 @@ def test_every_frame_converts_to_the_official_points_and_pose(drive: KittiDrive,
     theirs_metadata = decode((kitti_log / "1-frame.glb").read_bytes())["data"]
     metadata = drive.metadata()
     assert metadata["log_info"]["start_time"] == index["startTime"]
-    for stream in ("/vehicle_pose", "/lidar/points", "/vehicle/velocity", "/vehicle/acceleration", "/vehicle/trajectory", "/camera/image_02"):
+    for stream in (
+        "/vehicle_pose",
+        "/lidar/points",
+        "/vehicle/velocity",
+        "/vehicle/acceleration",
+        "/vehicle/trajectory",
+        "/camera/image_02",
+    ):
         assert metadata["streams"][stream]["category"] == theirs_metadata["streams"][stream]["category"]
     assert metadata["streams"]["/lidar/points"]["transform"] == theirs_metadata["streams"]["/lidar/points"]["transform"]
     for frame in range(len(drive)):
@@ -351,7 +426,10 @@ def test_convert_command_writes_a_valid_log_and_resumes(raw: Path, tmp_path: Pat
     command = [sys.executable, "-m", "xviz_server", "convert", "kitti", str(raw), str(out)]
     first = subprocess.run([*command, "--frames", "0:10"], capture_output=True, text=True)
     assert first.returncode == 0, first.stderr
-    assert f"converting 10 of 10 frames of 2011_09_26_drive_0001_sync to {out} (BINARY) with {os.cpu_count()} processes" in first.stderr
+    assert (
+        f"converting 10 of 10 frames of 2011_09_26_drive_0001_sync to {out} (BINARY) with {os.cpu_count()} processes"
+        in first.stderr
+    )
     assert check_paths([out]).ok
     kept = (out / "5-frame.glb").stat().st_ino
     (out / "0-frame.json").unlink()

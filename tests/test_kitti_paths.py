@@ -44,8 +44,12 @@ def test_each_level_finds_the_drive_and_its_calibration(raw: Path, level: str):
 def test_convert_takes_each_level(raw: Path, tmp_path: Path, level: str):
     source = raw / DATE if level == "date" else raw
     out = tmp_path / "log"
-    result = subprocess.run([sys.executable, "-m", "xviz_server", "convert", "kitti", str(source), str(out), "--frames", "0:2"],
-                            capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [sys.executable, "-m", "xviz_server", "convert", "kitti", str(source), str(out), "--frames", "0:2"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in out.iterdir()) == ["0-frame.json", "1-frame.glb", "2-frame.glb", "3-frame.glb"]
 
@@ -66,15 +70,22 @@ def test_several_drives_are_listed_to_choose_from(raw: Path, tmp_path: Path):
             KittiDrive(path)
         assert str(error.value) == f"{path}: 2 KITTI drives, give one of them: {drives[0]}, {drives[1]}"
     assert KittiDrive(drives[1]).name == "2011_09_26_drive_0002_sync"  # the drive named, inside its date folder
-    result = subprocess.run([sys.executable, "-m", "xviz_server", "convert", "kitti", str(date), str(tmp_path / "out")],
-                            capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-m", "xviz_server", "convert", "kitti", str(date), str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 1 and "2 KITTI drives, give one of them" in result.stderr
 
 
 def test_a_drive_folder_alone_says_to_give_the_date_folder(raw: Path, tmp_path: Path):
     alone = linked_copy(raw / DATE / DRIVE, tmp_path / "mounted" / DRIVE)  # as a bind mount of the drive alone
-    with pytest.raises(DatasetError, match=rf"{tmp_path / 'mounted' / 'calib_imu_to_velo.txt'} not found: KITTI keeps the "
-                       "calibration files in the date folder above each drive; give \\(or mount\\) the date folder"):
+    with pytest.raises(
+        DatasetError,
+        match=rf"{tmp_path / 'mounted' / 'calib_imu_to_velo.txt'} not found: KITTI keeps the "
+        "calibration files in the date folder above each drive; give \\(or mount\\) the date folder",
+    ):
         KittiDrive(alone)
     with pytest.raises(DatasetError, match="not a KITTI raw drive, date folder or folder of dates"):
         KittiDrive(tmp_path / "mounted" / DRIVE / "oxts")

@@ -9,16 +9,15 @@ import zlib
 
 import numpy as np
 import pytest
+from conftest import KITTI_LOG as KITTI
 from PIL import Image, PngImagePlugin
 
+from helpers import assert_same_message, require_data
 from xviz_server import frames
 from xviz_server.codec import Format, decode
 from xviz_server.codec.image import decode_image
 from xviz_server.exceptions import DecodeError
 from xviz_server.levels import FULL, LEVELS, MAX_IMAGE_PIXELS, profile_level, thin_indices
-
-from conftest import KITTI_LOG as KITTI
-from helpers import assert_same_message, require_data
 
 FRAMES = [2, 14, 26]  # first, middle and last state update of the drive
 LIDAR = "/lidar/points"
@@ -47,7 +46,7 @@ def nearest(sample: np.ndarray, points: np.ndarray) -> np.ndarray:
     best = np.full(len(sample), np.inf)
     squares = (sample**2).sum(1)[:, None]
     for start in range(0, len(points), 8192):
-        chunk = points[start:start + 8192]
+        chunk = points[start : start + 8192]
         distances = squares + (chunk**2).sum(1)[None, :] - 2 * sample @ chunk.T
         best = np.minimum(best, distances.min(1))
     return np.sqrt(np.maximum(best, 0))
@@ -178,7 +177,7 @@ def png(pixels: np.ndarray, filters: dict[int, int] | None = None, split: int = 
     data = zlib.compress(b"".join(lines), 6)
     colour = {1: 0, 3: 2, 4: 6}[channels]
     header = chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, depth, colour, 0, 0, 0))
-    body = b"".join(chunk(b"IDAT", data[i:i + split]) for i in range(0, len(data), split))
+    body = b"".join(chunk(b"IDAT", data[i : i + split]) for i in range(0, len(data), split))
     return b"\x89PNG\r\n\x1a\n" + header + body + chunk(b"IEND", b"")
 
 
@@ -266,9 +265,17 @@ def test_a_huge_camera_image_is_sent_as_it_is():
     side = 6000  # 36 million pixels, over MAX_IMAGE_PIXELS: only its header is read
     assert side * side > MAX_IMAGE_PIXELS
     rows = zlib.compress(bytes(side * (3 * side + 1)), 1)
-    huge = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", side, side, 8, 2, 0, 0, 0)) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
+    huge = (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", side, side, 8, 2, 0, 0, 0))
+        + chunk(b"IDAT", rows)
+        + chunk(b"IEND", b"")
+    )
     message = decode(frame(14))
     stream_set(message)["primitives"]["/camera/image_00"]["images"][0]["data"] = huge
     reduced = decode(frames.render_message(message, Format.BINARY, None, None, LEVEL["low"]))
     assert bytes(stream_set(reduced)["primitives"]["/camera/image_00"]["images"][0]["data"]) == huge
-    assert Image.open(io.BytesIO(bytes(stream_set(reduced)["primitives"]["/camera/image_01"]["images"][0]["data"]))).format == "JPEG"
+    assert (
+        Image.open(io.BytesIO(bytes(stream_set(reduced)["primitives"]["/camera/image_01"]["images"][0]["data"]))).format
+        == "JPEG"
+    )

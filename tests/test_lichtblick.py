@@ -26,13 +26,12 @@ from urllib.parse import quote
 
 import pytest
 from mcap.reader import make_reader
+from test_foxglove import opened
 from websockets.asyncio.client import connect
 
 from devkit.rosbag_kitti import RAW, write_bag
-from xviz_server.datasets.kitti import KittiDrive
-
 from helpers import foxglove_client, http_get, running_server
-from test_foxglove import opened
+from xviz_server.datasets.kitti import KittiDrive
 
 pytestmark = pytest.mark.slow
 
@@ -45,8 +44,11 @@ PLACEHOLDER = "/*LICHTBLICK_SUITE_DEFAULT_LAYOUT_PLACEHOLDER*/"
 PLOT_COLOUR = "#ff00ff"
 
 if not APP or not (Path(APP) / "index.html").is_file():
-    pytest.skip("set XVIZ_LICHTBLICK_DIR to a Lichtblick web build (its Dockerfile's yarn run web:build:prod: web/.webpack)",
-                allow_module_level=True)
+    pytest.skip(
+        "set XVIZ_LICHTBLICK_DIR to a Lichtblick web build (its Dockerfile's yarn run web:build:prod: web/.webpack)",
+        allow_module_level=True,
+    )
+
 
 class _AppHandler(SimpleHTTPRequestHandler):
     """Lichtblick's static files, with ``index.html`` carrying the layout (as its Docker image's entrypoint does)."""
@@ -98,11 +100,23 @@ def with_probes(served: dict[str, Any], velocity: str, pose: str) -> dict[str, A
     layout = json.loads(json.dumps(served))
     config = layout["configById"]
     config["Plot!xviz"] = {
-        "paths": [{"value": f"{velocity}.value", "enabled": True, "timestampMethod": "receiveTime", "color": PLOT_COLOUR}],
-        "showLegend": False, "legendDisplay": "none", "showXAxisLabels": True, "showYAxisLabels": True, "isSynced": True,
+        "paths": [
+            {"value": f"{velocity}.value", "enabled": True, "timestampMethod": "receiveTime", "color": PLOT_COLOUR}
+        ],
+        "showLegend": False,
+        "legendDisplay": "none",
+        "showXAxisLabels": True,
+        "showYAxisLabels": True,
+        "isSynced": True,
         "xAxisVal": "timestamp",
     }
-    raw = {"diffEnabled": False, "diffMethod": "custom", "diffTopicPath": "", "showFullMessageForDiff": False, "expansion": "all"}
+    raw = {
+        "diffEnabled": False,
+        "diffMethod": "custom",
+        "diffTopicPath": "",
+        "showFullMessageForDiff": False,
+        "expansion": "all",
+    }
     config["RawMessages!pose"] = {**raw, "topicPath": f"{pose}.translation"}
     config["RawMessages!stamps"] = {**raw, "topicPath": velocity}
     layout["layout"] = {
@@ -112,7 +126,8 @@ def with_probes(served: dict[str, Any], velocity: str, pose: str) -> dict[str, A
             "second": {"first": "RawMessages!pose", "second": "RawMessages!stamps", "direction": "column"},
             "direction": "column",
         },
-        "direction": "row", "splitPercentage": 50,
+        "direction": "row",
+        "splitPercentage": 50,
     }
     return layout
 
@@ -120,7 +135,11 @@ def with_probes(served: dict[str, Any], velocity: str, pose: str) -> dict[str, A
 async def drive(url: str, shot: Path, **options: Any) -> dict[str, Any]:
     arguments = {"url": url, "screenshot": str(shot), "plotColor": PLOT_COLOUR, "timeout": 90_000, **options}
     process = await asyncio.create_subprocess_exec(
-        "node", str(DRIVER), json.dumps(arguments), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        "node",
+        str(DRIVER),
+        json.dumps(arguments),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
     )
     stdout, stderr = await process.communicate()
     assert process.returncode == 0, stderr.decode()
@@ -149,18 +168,26 @@ async def check_log(app: Any, server: Any, log: str, velocity: str, pose: str, s
     transforms = out["topics"][pose]["summaries"]
     assert {k: transforms[0]["translation"].get(k, 0.0) for k in "xy"} == {"x": 0.0, "y": 0.0}
     moved = tuple(transforms[-1]["translation"].get(k, 0.0) for k in "xy")
-    report = await drive(url, ARTIFACTS / shot, panels=["RawMessages!pose", "RawMessages!stamps", "Plot!xviz"],
-                         until={"RawMessages!stamps": last, "RawMessages!pose": f"x {moved[0]!r}"})
+    report = await drive(
+        url,
+        ARTIFACTS / shot,
+        panels=["RawMessages!pose", "RawMessages!stamps", "Plot!xviz"],
+        until={"RawMessages!stamps": last, "RawMessages!pose": f"x {moved[0]!r}"},
+    )
     assert report["externalRequests"] == [] and report["pageErrors"] == []
     # Every advertised channel is listed, under its schema; no problem with a schema.
     listed = {row[0]: row[1] if len(row) > 1 else None for row in report["topics"]}
     assert {c["topic"]: c["schemaName"] for c in channels} == listed
-    assert not [p for p in report["problems"] if "schema" in p.lower() or "unsupported" in p.lower()], report["problems"]
+    assert not [p for p in report["problems"] if "schema" in p.lower() or "unsupported" in p.lower()], report[
+        "problems"
+    ]
     # A Plot of the velocity draws its line.
     assert report["plots"].get("Plot!xviz", 0) > 100
     # Each velocity message as the app shows it: received at the time the message carries (its XVIZ timestamp).
-    shown = [(re.search(r"@ (\d+\.\d+) sec", text), re.search(r"timestamp (\d+\.\d+)", text))
-             for text in report["raw"].get("RawMessages!stamps", [])]
+    shown = [
+        (re.search(r"@ (\d+\.\d+) sec", text), re.search(r"timestamp (\d+\.\d+)", text))
+        for text in report["raw"].get("RawMessages!stamps", [])
+    ]
     pairs = [(float(receive[1]), float(stamp[1])) for receive, stamp in shown if receive and stamp]
     # On a loaded machine the app may paint only the last of them: that one is checked at least (a message stamped
     # with the time before its own, as when the time came after it, would show the previous frame's time).
@@ -199,20 +226,43 @@ async def test_lichtblick_seeks_to_the_middle_of_a_log_file_reading_a_few_chunks
         starts = sorted(float(t) for t in log.index.start)
         middle = starts[0] + (starts[-1] - starts[0]) / 2
         shown = max(t for t in starts if t <= middle)  # the frame the app shows at the middle
-        raw = {"diffEnabled": False, "diffMethod": "custom", "diffTopicPath": "", "showFullMessageForDiff": False, "expansion": "all"}
-        layout = {"configById": {"RawMessages!seek": {**raw, "topicPath": "/vehicle_pose.timestamp"}}, "globalVariables": {},
-                  "userNodes": {}, "playbackConfig": {"speed": 1}, "layout": "RawMessages!seek"}
+        raw = {
+            "diffEnabled": False,
+            "diffMethod": "custom",
+            "diffTopicPath": "",
+            "showFullMessageForDiff": False,
+            "expansion": "all",
+        }
+        layout = {
+            "configById": {"RawMessages!seek": {**raw, "topicPath": "/vehicle_pose.timestamp"}},
+            "globalVariables": {},
+            "userNodes": {},
+            "playbackConfig": {"speed": 1},
+            "layout": "RawMessages!seek",
+        }
         url = app(layout) + f"?ds=remote-file&ds.url={quote(file, safe='')}"
         sec, nsec = divmod(round(shown * 1e9), 10**9)
-        options = {"url": url, "metrics": f"http://127.0.0.1:{server.port}/metrics", "panel": "RawMessages!seek",
-                   "until": [f"{sec}", f"{nsec}"], "fraction": 0.5, "timeout": 90_000}
+        options = {
+            "url": url,
+            "metrics": f"http://127.0.0.1:{server.port}/metrics",
+            "panel": "RawMessages!seek",
+            "until": [f"{sec}", f"{nsec}"],
+            "fraction": 0.5,
+            "timeout": 90_000,
+        }
         process = await asyncio.create_subprocess_exec(
-            "node", str(SEEK_DRIVER), json.dumps(options), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+            "node",
+            str(SEEK_DRIVER),
+            json.dumps(options),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
         )
         stdout, stderr = await process.communicate()
         assert process.returncode == 0, stderr.decode()
         report = json.loads(stdout)
-        chunk = max(c.chunk_length + c.message_index_length for c in await asyncio.to_thread(chunk_indexes, server.port))
+        chunk = max(
+            c.chunk_length + c.message_index_length for c in await asyncio.to_thread(chunk_indexes, server.port)
+        )
     print(json.dumps(report, indent=1)[:3000], size)
     assert report["pageErrors"] == [] and report["externalRequests"] == []
     # The frame at the middle is shown within a second of the click, reading at most a few chunks for it.

@@ -16,27 +16,26 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import struct
 import math
+import struct
 import time
 import urllib.request
 from collections import Counter
 from functools import cache
 
 import pytest
+from conftest import KITTI_LOG
 from websockets.asyncio.client import connect
 
+from devkit.tclink import can_shape_links, tc_link
+from devkit.tcpproxy import shaped_link
+from helpers import foxglove_opened, metric, require_data, running_server, xviz_decode
 from xviz_server import frames
 from xviz_server.codec import Format, decode
 from xviz_server.detail import START
 from xviz_server.levels import LEVELS
 from xviz_server.server import XVIZServer
 from xviz_server.settings import Settings
-
-from conftest import KITTI_LOG
-from devkit.tcpproxy import shaped_link
-from devkit.tclink import can_shape_links, tc_link
-from helpers import foxglove_opened, metric, require_data, running_server, xviz_decode
 
 LOG = KITTI_LOG.name
 NUMBERS = list(range(2, 27))  # the frames of the log, in order
@@ -100,6 +99,7 @@ async def test_each_level_of_a_frame_is_made_once_whatever_the_viewers_at_it(kit
 
     async def loads(viewers: int) -> float:
         async with running_server(kitti_root) as server:
+
             async def view() -> list[bytes]:
                 async with connect(f"ws://127.0.0.1:{server.port}/?log=kitti&profile=low", max_size=None) as websocket:
                     await websocket.recv()
@@ -144,7 +144,9 @@ async def test_a_log_over_a_slow_link_starts_with_a_frame_that_fits_and_plays_in
         assert changes == []
     else:  # a climb to the level the link carries: every change a step up, none back down
         names = [LEVELS[START].name] + [change.split()[3].removeprefix("detail=") for change in changes]
-        assert all(LEVEL[a].share < LEVEL[b].share for a, b in zip(names, names[1:])) and names[-1] == levels[-1], changes
+        assert all(LEVEL[a].share < LEVEL[b].share for a, b in zip(names, names[1:])) and names[-1] == levels[-1], (
+            changes
+        )
 
 
 async def test_a_slow_reader_is_no_slow_link(kitti_root):
@@ -282,7 +284,10 @@ async def test_the_user_picks_a_level_or_a_cap_and_bad_ones_are_named(kitti_root
             assert decode(await websocket.recv())["type"] == "xviz/metadata"  # the session goes on, in auto
             received, _ = await whole_log(websocket, "auto")
             assert {level_of(n, d) for n, d in zip(NUMBERS, received)} == {"full"}
-            reconfigure = {"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": {"profile": "x"}}}
+            reconfigure = {
+                "type": "xviz/reconfigure",
+                "data": {"update_type": "DELTA", "config_update": {"profile": "x"}},
+            }
             await websocket.send(json.dumps(reconfigure))
             assert "'profile': unknown profile 'x'" in decode(await websocket.recv())["data"]["message"]
             reconfigure["data"]["config_update"] = {"profile": "medium"}
@@ -330,7 +335,9 @@ def test_the_published_client_reads_every_level(tmp_path):
 @cache
 def points_at(number: int, level_name: str) -> int:
     """How many lidar points frame ``number`` has at a level."""
-    return len(decode(made(number, level_name))["data"]["updates"][0]["primitives"]["/lidar/points"]["points"][0]["points"])
+    return len(
+        decode(made(number, level_name))["data"]["updates"][0]["primitives"]["/lidar/points"]["points"][0]["points"]
+    )
 
 
 async def foxglove_clouds(websocket, count: int) -> list[tuple[int, int]]:
@@ -355,12 +362,18 @@ async def test_a_foxglove_client_pins_a_level_by_url_and_by_parameter(kitti_root
             info, channels = await foxglove_opened(websocket)
             assert {"parameters", "parametersSubscribe"} <= set(info["capabilities"])
             lidar = next(channel["id"] for channel in channels if channel["topic"] == "/lidar/points")
-            await websocket.send(json.dumps({"op": "subscribeParameterUpdates", "parameterNames": ["/xviz_server/level"]}))
+            await websocket.send(
+                json.dumps({"op": "subscribeParameterUpdates", "parameterNames": ["/xviz_server/level"]})
+            )
             await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": lidar}]}))
             for number, points in await foxglove_clouds(websocket, 3):
                 assert points == points_at(number, "low")  # the very cloud an XVIZ session at low gets
             await websocket.send(json.dumps({"op": "getParameters", "parameterNames": [], "id": "g"}))
-            set_ = {"op": "setParameters", "parameters": [{"name": "/xviz_server/profile", "value": "medium"}], "id": "s"}
+            set_ = {
+                "op": "setParameters",
+                "parameters": [{"name": "/xviz_server/profile", "value": "medium"}],
+                "id": "s",
+            }
             await websocket.send(json.dumps(set_))
             answers = []
             while len(answers) < 3:
@@ -383,14 +396,18 @@ async def test_a_foxglove_client_shares_each_level_of_a_frame_with_xviz_sessions
         async with running_server(kitti_root) as server:
             for face in faces:
                 url = f"ws://127.0.0.1:{server.port}/?log=kitti&profile=minimal"
-                async with connect(url, subprotocols=[FOXGLOVE] if face == FOXGLOVE else None, max_size=None) as websocket:
+                async with connect(
+                    url, subprotocols=[FOXGLOVE] if face == FOXGLOVE else None, max_size=None
+                ) as websocket:
                     if face == FOXGLOVE:
                         _, channels = await foxglove_opened(websocket)
                     else:
                         await websocket.recv()
                     if face == FOXGLOVE:
                         lidar = next(channel["id"] for channel in channels if channel["topic"] == "/lidar/points")
-                        await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": lidar}]}))
+                        await websocket.send(
+                            json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": lidar}]})
+                        )
                         speed = struct.pack("<BBfBQI", 0x03, 0, 100.0, 0, 0, 1) + b"r"  # play, at 100 times real time
                         await websocket.send(speed)
                         clouds = await foxglove_clouds(websocket, len(NUMBERS))

@@ -12,9 +12,9 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from helpers import client, Client, close_received, paused_viewer, running_server, ten_hz, update, write_log
-from xviz_server.codec import Format, decode, encode
+from helpers import Client, client, close_received, paused_viewer, running_server, ten_hz, update, write_log
 from xviz_server.auth import ingest_refusal as refusal
+from xviz_server.codec import Format, decode, encode
 from xviz_server.state import downsample_points
 
 META = {
@@ -146,8 +146,18 @@ async def test_reconfigure_filter_decimation_downsampling_and_format(root: Path)
         feed.on_reconfigure = accept
         async with client(server, "/?log=car&session_type=live") as c:
             await c.recv()
-            await c.send("reconfigure", {"update_type": "DELTA", "config_update": {
-                "desired_streams": ["/points"], "decimate": 2, "max_points": 100, "message_format": "JSON"}})
+            await c.send(
+                "reconfigure",
+                {
+                    "update_type": "DELTA",
+                    "config_update": {
+                        "desired_streams": ["/points"],
+                        "decimate": 2,
+                        "max_points": 100,
+                        "message_format": "JSON",
+                    },
+                },
+            )
             await asyncio.sleep(0.1)
             for i in range(6):
                 await feed.publish(update(10 + i, points=1000))
@@ -161,13 +171,20 @@ async def test_reconfigure_filter_decimation_downsampling_and_format(root: Path)
             await c.send("reconfigure", {"update_type": "DELTA", "config_update": {"rate_hz": 5}})
             error = await c.recv()
             assert "unknown key 'rate_hz'" in error["data"]["message"]
-        assert received_config == [{"desired_streams": ["/points"], "decimate": 2, "max_points": 100, "message_format": "JSON"}]
+        assert received_config == [
+            {"desired_streams": ["/points"], "decimate": 2, "max_points": 100, "message_format": "JSON"}
+        ]
 
 
 def test_downsampling_keeps_every_kth_point_with_its_colour():
     points = np.arange(30, dtype=np.float32).reshape(10, 3)
     colors = np.arange(40, dtype=np.uint8).reshape(10, 4)
-    message = {"type": "xviz/state_update", "data": {"updates": [{"timestamp": 1, "primitives": {"/p": {"points": [{"points": points, "colors": colors}]}}}]}}
+    message = {
+        "type": "xviz/state_update",
+        "data": {
+            "updates": [{"timestamp": 1, "primitives": {"/p": {"points": [{"points": points, "colors": colors}]}}}]
+        },
+    }
     thinned = downsample_points(message, 4)["data"]["updates"][0]["primitives"]["/p"]["points"][0]
     assert thinned["points"].tolist() == points[::3].tolist() and thinned["colors"].tolist() == colors[::3].tolist()
 
@@ -195,8 +212,11 @@ async def test_network_ingest_with_reconfigure_forwarding(root: Path):
         with pytest.raises(InvalidStatus) as refused:
             await connect(f"ws://127.0.0.1:{server.port}/ingest/truck?token=wrong")
         assert refused.value.response.status_code == 403
-        async with connect(f"ws://127.0.0.1:{server.port}/ingest/truck?reconfigure=1",
-                           additional_headers={"Authorization": "Bearer s3cret"}, max_size=None) as source:
+        async with connect(
+            f"ws://127.0.0.1:{server.port}/ingest/truck?reconfigure=1",
+            additional_headers={"Authorization": "Bearer s3cret"},
+            max_size=None,
+        ) as source:
             await source.send(json.dumps({"type": "xviz/metadata", "data": META}))
             await source.send(encode({"type": "xviz/state_update", "data": update(3.0)}, Format.BINARY))
             await asyncio.sleep(0.1)
@@ -207,7 +227,10 @@ async def test_network_ingest_with_reconfigure_forwarding(root: Path):
                 assert (await next_update(viewer))["data"]["updates"][0]["timestamp"] == 3.1
                 await viewer.send("reconfigure", {"update_type": "DELTA", "config_update": {"max_points": 5}})
                 forwarded = json.loads(await asyncio.wait_for(source.recv(), 5))
-                assert forwarded == {"type": "xviz/reconfigure", "data": {"update_type": "DELTA", "config_update": {"max_points": 5}}}
+                assert forwarded == {
+                    "type": "xviz/reconfigure",
+                    "data": {"update_type": "DELTA", "config_update": {"max_points": 5}},
+                }
                 await source.send(json.dumps({"type": "xviz/transform_log", "data": {"id": "x"}}))
                 error = json.loads(await asyncio.wait_for(source.recv(), 5))
                 assert error["type"] == "xviz/error" and "not 'xviz/transform_log'" in error["data"]["message"]
@@ -278,7 +301,9 @@ async def test_streetscape_live_loader_url_through_the_published_client(root: Pa
 
         publisher = asyncio.ensure_future(publish())
         url = f"ws://127.0.0.1:{server.port}/?logGuid=mock&worker=true&profile=default"
-        result = await run_xviz_session_async(url, [{"wait": "metadata"}, {"wait": "state_updates", "count": 5}, {"close": True}])
+        result = await run_xviz_session_async(
+            url, [{"wait": "metadata"}, {"wait": "state_updates", "count": 5}, {"close": True}]
+        )
         publisher.cancel()
     assert result.ok, result.stderr
     assert result.summary["errors"] == []
@@ -341,7 +366,9 @@ async def test_one_publish_writes_to_every_viewer_that_keeps_up_and_queues_for_o
         feed = server.live.feed("car")
         feed.set_metadata(META)
         await feed.publish(update(0.0))
-        fast = [await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None) for _ in range(3)]
+        fast = [
+            await connect(f"ws://127.0.0.1:{server.port}/?log=car&session_type=live", max_size=None) for _ in range(3)
+        ]
         slow = await paused_viewer(server, "/?log=car&session_type=live")
         try:
             for websocket in fast:
@@ -355,7 +382,9 @@ async def test_one_publish_writes_to_every_viewer_that_keeps_up_and_queues_for_o
             for t in range(1, 30):  # large updates until the paused viewer's socket is full
                 published += 1
                 before = {s: s.frames_sent for s in server.sessions}
-                await feed.publish(encode({"type": "xviz/state_update", "data": update(float(t), points=50_000)}, Format.BINARY))
+                await feed.publish(
+                    encode({"type": "xviz/state_update", "data": update(float(t), points=50_000)}, Format.BINARY)
+                )
                 assert all(s.frames_sent == before[s] + 1 for s in fast_sessions)  # sent before publish returned
                 for websocket in fast:
                     assert decode(await websocket.recv())["data"]["updates"][0]["timestamp"] == float(t)
@@ -364,7 +393,9 @@ async def test_one_publish_writes_to_every_viewer_that_keeps_up_and_queues_for_o
             else:
                 pytest.fail("the paused viewer's socket never filled")
             for t in range(100, 108):  # the paused viewer's queue (4) overflows; the others keep up
-                await feed.publish(encode({"type": "xviz/state_update", "data": update(float(t), points=50_000)}, Format.BINARY))
+                await feed.publish(
+                    encode({"type": "xviz/state_update", "data": update(float(t), points=50_000)}, Format.BINARY)
+                )
                 for websocket in fast:
                     assert decode(await websocket.recv())["data"]["updates"][0]["timestamp"] == float(t)
             slow.transport.resume_reading()

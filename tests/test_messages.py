@@ -46,19 +46,30 @@ def test_point_in_time_and_reconfigure():
 @pytest.mark.parametrize(
     "message, text, request_id",
     [
-        (env("transform_log", {"id": "r1", "start_timestamp": 5, "end_timestamp": 1}),
-         "xviz/transform_log (id 'r1'): start_timestamp 5.0 is after end_timestamp 1.0", "r1"),
-        (env("transform_log", {"id": 9, "start_timestamp": "soon"}),
-         "xviz/transform_log (id '9'): 'start_timestamp' must be a number, not 'soon'", "9"),
+        (
+            env("transform_log", {"id": "r1", "start_timestamp": 5, "end_timestamp": 1}),
+            "xviz/transform_log (id 'r1'): start_timestamp 5.0 is after end_timestamp 1.0",
+            "r1",
+        ),
+        (
+            env("transform_log", {"id": 9, "start_timestamp": "soon"}),
+            "xviz/transform_log (id '9'): 'start_timestamp' must be a number, not 'soon'",
+            "9",
+        ),
         (env("transform_log", {"start_timestamp": 1}), "xviz/transform_log: 'id' is required", None),
-        (env("transform_log", {"id": "x", "desired_streams": "/a"}),
-         "'desired_streams' must be a list, not '/a'", "x"),
+        (env("transform_log", {"id": "x", "desired_streams": "/a"}), "'desired_streams' must be a list, not '/a'", "x"),
         (env("transform_log", [1, 2]), "xviz/transform_log: the data must be a JSON object, not [1, 2]", None),
-        (env("transform_point_in_time", {"id": "q", "query_timestamp": float("inf")}),
-         "'query_timestamp' must be a finite number, not inf", "q"),
+        (
+            env("transform_point_in_time", {"id": "q", "query_timestamp": float("inf")}),
+            "'query_timestamp' must be a finite number, not inf",
+            "q",
+        ),
         (env("start", {"session_type": "replay"}), "'session_type' must be one of 'LOG' or 'LIVE', not 'replay'", None),
-        (env("reconfigure", {"update_type": "FULL", "config_update": 3}),
-         "'config_update' must be a JSON object, not 3", None),
+        (
+            env("reconfigure", {"update_type": "FULL", "config_update": 3}),
+            "'config_update' must be a JSON object, not 3",
+            None,
+        ),
         (env("flush", {}), "unknown message type 'xviz/flush'; a client may send xviz/start, xviz/transform_log", None),
         (env("state_update", {}), "unknown message type 'xviz/state_update'", None),
         ({"type": 5, "data": {}}, "message 'type' must be a string", None),
@@ -81,4 +92,7 @@ def test_bare_messages_are_recognised_like_clients_do():
 
 def test_sent_messages_are_envelopes_without_unset_fields():
     assert TransformLogDone(id="4").to_envelope() == {"type": "xviz/transform_log_done", "data": {"id": "4"}}
-    assert Start(session_type=SessionType.LIVE).to_envelope() == {"type": "xviz/start", "data": {"session_type": "LIVE"}}
+    assert Start(session_type=SessionType.LIVE).to_envelope() == {
+        "type": "xviz/start",
+        "data": {"session_type": "LIVE"},
+    }

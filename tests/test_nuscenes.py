@@ -10,10 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from devkit.nuscenes_scene import CAMERAS, LIDAR_ON_CAR, car, ego, sweep_points, write_nuscenes
+from devkit.nuscenes_scene import LIDAR_ON_CAR, car, ego, sweep_points, write_nuscenes
 from helpers import client, foxglove_client, http_get, running_server, timestamps
-from xviz_server.datasets import detect, open_dataset
-from xviz_server.datasets import nuscenes
+from xviz_server.datasets import detect, nuscenes, open_dataset
 from xviz_server.exceptions import DatasetError, FrameSizeError
 
 
@@ -31,7 +30,9 @@ def frame_times(root, scene: str) -> list[int]:
 def test_every_lidar_sweep_is_a_frame_at_its_own_time(root):
     scene = open_dataset("nuscenes", root.root, scene="scene-0103")
     assert scene.name == "scene-0103"
-    assert sum(root.keys["scene-0103"]) == 3 and len(root.lidar["scene-0103"]) == 25  # 3 key frames, 22 sweeps around them
+    assert (
+        sum(root.keys["scene-0103"]) == 3 and len(root.lidar["scene-0103"]) == 25
+    )  # 3 key frames, 22 sweeps around them
     assert scene.times.tolist() == [t / 1e6 for t in frame_times(root, "scene-0103")]
     assert len(scene) == 26  # and the cameras' images after the last sweep, taken at once
     last = scene.convert(len(scene) - 1)["updates"][0]
@@ -52,7 +53,9 @@ def test_every_camera_image_is_served_once_in_the_first_frame_at_or_after_it(roo
     assert sorted(served) == sorted(images)
     for index in range(len(scene)):
         cameras = {f"/camera/{c.lower()}" for c in scene._images[index]}
-        assert cameras == {stream for stream in scene.convert(index)["updates"][0]["primitives"] if stream.startswith("/camera/")}
+        assert cameras == {
+            stream for stream in scene.convert(index)["updates"][0]["primitives"] if stream.startswith("/camera/")
+        }
 
 
 def test_points_are_in_the_vehicle_frame_by_the_sensors_calibration(root):
@@ -61,7 +64,9 @@ def test_points_are_in_the_vehicle_frame_by_the_sensors_calibration(root):
     points = update["primitives"]["/lidar/points"]["points"][0]["points"]
     cloud = sweep_points(4)
     # LIDAR_TOP is turned by 90 degrees on the car: the sensor's x is the car's y.
-    expected = np.column_stack([-cloud[:, 1] + LIDAR_ON_CAR[0], cloud[:, 0] + LIDAR_ON_CAR[1], cloud[:, 2] + LIDAR_ON_CAR[2]])
+    expected = np.column_stack(
+        [-cloud[:, 1] + LIDAR_ON_CAR[0], cloud[:, 0] + LIDAR_ON_CAR[1], cloud[:, 2] + LIDAR_ON_CAR[2]]
+    )
     assert np.abs(np.asarray(points) - expected).max() < 1e-4
 
 
@@ -98,8 +103,13 @@ def test_boxes_are_the_key_frames_interpolated_to_each_sweep(root, index: int):
 def test_an_object_in_one_key_frame_only_is_kept_from_the_nearer(tmp_path: Path):
     written = write_nuscenes(tmp_path / "n", keys=3)
     scene = open_dataset("nuscenes", written.root)
-    categories = [sorted(label["text"].split()[0] for label in scene.convert(i)["updates"][0]["primitives"]["/objects/label"]["texts"])
-                  for i in range(len(scene))]
+    categories = [
+        sorted(
+            label["text"].split()[0]
+            for label in scene.convert(i)["updates"][0]["primitives"]["/objects/label"]["texts"]
+        )
+        for i in range(len(scene))
+    ]
     # The pedestrian is annotated in key frames 0 and 1 (sweeps 2 and 12), not 2 (sweep 22): it is shown up to the
     # middle between key frames 1 and 2, and not after.
     assert all("human.pedestrian.adult" in c for c in categories[:17])
@@ -144,9 +154,17 @@ async def test_each_scene_is_a_log_served_over_the_protocol(root):
         assert server.catalog.names() == ["scene-0061", "scene-0103"]
         async with client(server, "/?log=scene-0103") as c:
             metadata = (await c.recv())["data"]
-            assert {"/vehicle_pose", "/lidar/points", "/objects/boxes", "/vehicle/trajectory", "/camera/cam_front"} <= set(metadata["streams"])
+            assert {
+                "/vehicle_pose",
+                "/lidar/points",
+                "/objects/boxes",
+                "/vehicle/trajectory",
+                "/camera/cam_front",
+            } <= set(metadata["streams"])
             await c.send("transform_log", {"id": "n"})
-            assert timestamps(await c.until("transform_log_done", "n")) == [t / 1e6 for t in frame_times(root, "scene-0103")]
+            assert timestamps(await c.until("transform_log_done", "n")) == [
+                t / 1e6 for t in frame_times(root, "scene-0103")
+            ]
 
 
 async def test_the_scenes_of_a_root_in_a_data_dir_are_listed_and_served(tmp_path: Path):
@@ -173,13 +191,19 @@ async def test_the_published_foxglove_client_gets_every_sweep_and_image_as_chann
         out = await foxglove_client(f"ws://127.0.0.1:{server.port}/?log=nuscenes", "foxglove.websocket.v1")
     assert out["errors"] == [] and out["statuses"] == []
     schemas = {channel["topic"]: channel["schemaName"] for channel in out["channels"]}
-    assert schemas["/lidar/points"] == "foxglove.PointCloud" and schemas["/camera/cam_front"] == "foxglove.CompressedImage"
+    assert (
+        schemas["/lidar/points"] == "foxglove.PointCloud" and schemas["/camera/cam_front"] == "foxglove.CompressedImage"
+    )
     assert schemas["/objects/boxes"] == "foxglove.SceneUpdate"
     clouds = out["topics"]["/lidar/points"]
-    sent = [int(t) for t in clouds["timestamps"]]  # each sweep at its own time (XVIZ times are float seconds: to the µs)
+    sent = [
+        int(t) for t in clouds["timestamps"]
+    ]  # each sweep at its own time (XVIZ times are float seconds: to the µs)
     assert len(sent) == len(root.lidar["scene-0061"])
     assert all(abs(ns - t * 1000) < 1000 for ns, t in zip(sent, root.lidar["scene-0061"]))
-    assert len(out["topics"]["/camera/cam_front"]["summaries"]) == sum(c == "CAM_FRONT" for c, _ in root.images["scene-0061"])
+    assert len(out["topics"]["/camera/cam_front"]["summaries"]) == sum(
+        c == "CAM_FRONT" for c, _ in root.images["scene-0061"]
+    )
 
 
 def test_a_frame_whose_files_pass_the_frame_budget_is_refused_unread(root):
@@ -188,6 +212,8 @@ def test_a_frame_whose_files_pass_the_frame_budget_is_refused_unread(root):
     for capture in [*scene._images[index].values(), scene._frames[index]]:
         with open(root.root / capture["filename"], "r+b") as file:  # sparse: 60 MiB each, nothing written
             file.truncate(60 << 20)
-    with pytest.raises(FrameSizeError, match=rf"scene-0061: frame {index}: its messages and images would unpack 180 MiB"):
+    with pytest.raises(
+        FrameSizeError, match=rf"scene-0061: frame {index}: its messages and images would unpack 180 MiB"
+    ):
         scene.convert(index)
     assert scene.convert(index + 1)

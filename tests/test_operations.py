@@ -66,8 +66,18 @@ def test_bad_configuration_is_a_clear_cli_error(tmp_path: Path, content: str, me
 async def test_json_log_lines_for_sessions_and_errors(root: Path):
     env = {k: v for k, v in os.environ.items() if not k.startswith("XVIZ_")}
     process = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root), "--port", "0", "--log-format", "json",
-        stderr=asyncio.subprocess.PIPE, env=env,
+        sys.executable,
+        "-m",
+        "xviz_server",
+        "serve",
+        "--data-dir",
+        str(root),
+        "--port",
+        "0",
+        "--log-format",
+        "json",
+        stderr=asyncio.subprocess.PIPE,
+        env=env,
     )
     lines = []
     while True:
@@ -87,7 +97,12 @@ async def test_json_log_lines_for_sessions_and_errors(root: Path):
     events = {line["event"]: line for line in map(json.loads, rest) if "event" in line}
     assert {"session start", "error sent", "session end"} <= set(events)
     end = events["session end"]
-    assert end["log"] == "drive" and end["format"] == "BINARY" and end["reason"] == "1000" and end["remote"].startswith("127.0.0.1:")
+    assert (
+        end["log"] == "drive"
+        and end["format"] == "BINARY"
+        and end["reason"] == "1000"
+        and end["remote"].startswith("127.0.0.1:")
+    )
     assert {"frames", "bytes", "duration", "time", "level"} <= set(end)
     assert events["error sent"]["kind"] == "malformed" and "invalid JSON" in events["error sent"]["message"]
 
@@ -103,7 +118,9 @@ async def test_tls_serves_wss_and_https(root: Path, tmp_path: Path):
     async with running_server(root, certfile=certfile, keyfile=keyfile) as server:
         async with connect(f"wss://127.0.0.1:{server.port}/drive", ssl=trusted) as websocket:
             assert decode(await websocket.recv())["type"] == "xviz/metadata"
-        body = await asyncio.to_thread(lambda: urllib.request.urlopen(f"https://127.0.0.1:{server.port}/healthz", context=trusted).read())
+        body = await asyncio.to_thread(
+            lambda: urllib.request.urlopen(f"https://127.0.0.1:{server.port}/healthz", context=trusted).read()
+        )
         assert body == b"ok\n"
         with pytest.raises(ssl.SSLError):  # a client that does not trust the certificate
             async with connect(f"wss://127.0.0.1:{server.port}/drive", ssl=ssl.create_default_context()):
@@ -170,7 +187,11 @@ async def test_a_session_end_says_which_side_closed(root: Path, caplog: pytest.L
             if len(ends) == 3:
                 break
             await asyncio.sleep(0.05)
-    assert [end.partition(" reason=")[2] for end in ends] == ["1000 closed_by=client", "1011 closed_by=client", "connection lost"]
+    assert [end.partition(" reason=")[2] for end in ends] == [
+        "1000 closed_by=client",
+        "1011 closed_by=client",
+        "connection lost",
+    ]
 
 
 async def test_allowed_origins(root: Path):
@@ -195,11 +216,24 @@ async def test_metrics_parse_as_prometheus_text(root: Path):
             await c.recv()
             await c.websocket.send("{")
             await c.recv()
-        text = await asyncio.to_thread(lambda: urllib.request.urlopen(f"http://127.0.0.1:{server.port}/metrics").read().decode())
+        text = await asyncio.to_thread(
+            lambda: urllib.request.urlopen(f"http://127.0.0.1:{server.port}/metrics").read().decode()
+        )
     families = {family.name: family for family in text_string_to_metric_families(text)}
-    for name in ("xviz_sessions_open", "xviz_sessions", "xviz_frames_sent", "xviz_bytes_sent", "xviz_cache_hits",
-                 "xviz_cache_misses", "xviz_cache_bytes", "xviz_cache_evictions", "xviz_live_dropped_updates",
-                 "xviz_errors", "xviz_request_seconds", "xviz_first_frame_seconds"):
+    for name in (
+        "xviz_sessions_open",
+        "xviz_sessions",
+        "xviz_frames_sent",
+        "xviz_bytes_sent",
+        "xviz_cache_hits",
+        "xviz_cache_misses",
+        "xviz_cache_bytes",
+        "xviz_cache_evictions",
+        "xviz_live_dropped_updates",
+        "xviz_errors",
+        "xviz_request_seconds",
+        "xviz_first_frame_seconds",
+    ):
         assert name in families, name
     assert metric(text, "xviz_frames_sent_total", format="BINARY") == 6  # 5 frames and the complete state
     assert metric(text, "xviz_errors_total", kind="malformed") == 1

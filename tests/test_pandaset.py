@@ -28,7 +28,9 @@ def test_sweeps_are_frames_and_every_camera_image_is_served(sequence: Path):
     log = open_dataset("pandaset", sequence)
     assert log.name == "001" and log.cameras == ["front_camera", "back_camera"]
     sweeps = [T0 + i * 0.1 for i in range(4)]
-    assert log.times.tolist() == pytest.approx(sweeps + [sweeps[-1] + 0.02])  # the last images come after the last sweep
+    assert log.times.tolist() == pytest.approx(
+        sweeps + [sweeps[-1] + 0.02]
+    )  # the last images come after the last sweep
     served = [(camera, file.name) for frame in log._frames for camera, file in frame.items() if camera != "lidar"]
     assert sorted(served) == sorted((camera, f"{i:02d}.jpg") for camera in CAMERAS for i in range(4))
 
@@ -36,13 +38,17 @@ def test_sweeps_are_frames_and_every_camera_image_is_served(sequence: Path):
 def test_points_and_cuboids_are_in_the_vehicle_frame(sequence: Path):
     log = open_dataset("pandaset", sequence)
     update = log.convert(2)["updates"][0]
-    assert np.abs(np.asarray(update["primitives"]["/lidar/points"]["points"][0]["points"]) - local_points(2)).max() < 1e-4
+    assert (
+        np.abs(np.asarray(update["primitives"]["/lidar/points"]["points"][0]["points"]) - local_points(2)).max() < 1e-4
+    )
     (x, y, _), yaw = pose(2)
     px, py, _ = PARKED_POSITION
     dx, dy = px - x, py - y
     polygon = update["primitives"]["/objects/boxes"]["polygons"][0]
     centre = np.asarray(polygon["vertices"]).mean(axis=0)
-    assert centre[:2] == pytest.approx((dx * math.cos(yaw) + dy * math.sin(yaw), -dx * math.sin(yaw) + dy * math.cos(yaw)), abs=1e-5)
+    assert centre[:2] == pytest.approx(
+        (dx * math.cos(yaw) + dy * math.sin(yaw), -dx * math.sin(yaw) + dy * math.cos(yaw)), abs=1e-5
+    )
     assert update["primitives"]["/objects/label"]["texts"][0]["text"] == "Car 2a1e8b0c"
     assert polygon["base"]["classes"] == ["car"]
 
@@ -58,7 +64,9 @@ def test_a_pickle_that_names_anything_but_a_frame_is_refused_before_it_runs(sequ
     sweep = sequence / "lidar" / "01.pkl.gz"
     sweep.write_bytes(gzip.compress(pickle.dumps(Boom())))
     log = open_dataset("pandaset", sequence)
-    with pytest.raises(DatasetError, match=r"01\.pkl\.gz: not a pickled DataFrame: refused: the pickle names posix\.system"):
+    with pytest.raises(
+        DatasetError, match=r"01\.pkl\.gz: not a pickled DataFrame: refused: the pickle names posix\.system"
+    ):
         log.convert(1)
     assert not marker.exists()
     sweep.write_bytes(gzip.compress(pickle.dumps({"x": [1.0]})))
@@ -89,6 +97,9 @@ def test_a_frame_whose_files_declare_more_than_the_frame_budget_is_refused_unrea
     data[-4:] = (200 << 20).to_bytes(4, "little")  # the gzip trailer says 200 MiB
     sweep.write_bytes(bytes(data))
     log = open_dataset("pandaset", sequence)
-    with pytest.raises(FrameSizeError, match=r"frame 2: its messages and images would unpack 200\.\d MiB, more than the limit of 128 MiB"):
+    with pytest.raises(
+        FrameSizeError,
+        match=r"frame 2: its messages and images would unpack 200\.\d MiB, more than the limit of 128 MiB",
+    ):
         log.convert(2)
     assert log.convert(3)["updates"][0]["primitives"]["/lidar/points"]

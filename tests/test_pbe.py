@@ -19,14 +19,22 @@ from typing import Any
 import numpy as np
 import pytest
 
-from helpers import PNG_2X1, assert_same_message, client, run_xviz_session_async, running_server, timestamps, write_log
-from helpers import xviz_decode, xviz_write
+from helpers import (
+    PNG_2X1,
+    assert_same_message,
+    client,
+    run_xviz_session_async,
+    running_server,
+    timestamps,
+    write_log,
+    xviz_decode,
+    xviz_write,
+)
 from xviz_server import frames
-from xviz_server.validate import check_paths
 from xviz_server.codec import Format, decode, decode_pbe
 from xviz_server.codec.xviz_v2_pb2 import Envelope, StateUpdate
 from xviz_server.exceptions import DecodeError
-
+from xviz_server.validate import check_paths
 
 # --------------------------------------------------------------------------
 # A log with every kind of XVIZ content, next to the KITTI excerpt
@@ -38,18 +46,38 @@ RICH_METADATA = {
         "/vehicle_pose": {"category": "POSE"},
         "/other_pose": {"category": "POSE"},
         "/points": {
-            "category": "PRIMITIVE", "primitive_type": "POINT", "coordinate": "VEHICLE_RELATIVE",
-            "stream_style": {"radius_pixels": 2, "point_color_mode": "ELEVATION", "point_color_domain": [0, 3.5], "opacity": 0.8},
+            "category": "PRIMITIVE",
+            "primitive_type": "POINT",
+            "coordinate": "VEHICLE_RELATIVE",
+            "stream_style": {
+                "radius_pixels": 2,
+                "point_color_mode": "ELEVATION",
+                "point_color_domain": [0, 3.5],
+                "opacity": 0.8,
+            },
         },
         "/objects": {
-            "category": "PRIMITIVE", "primitive_type": "POLYGON", "coordinate": "IDENTITY",
+            "category": "PRIMITIVE",
+            "primitive_type": "POLYGON",
+            "coordinate": "IDENTITY",
             "stream_style": {"fill_color": "#50B3FF80", "stroke_color": "#FF0000", "extruded": True, "height": 1.5},
             "style_classes": [{"name": "Car", "style": {"fill_color": "#00FF00", "stroke_width": 0.2}}],
         },
-        "/lanes": {"category": "PRIMITIVE", "primitive_type": "POLYLINE", "stream_style": {"stroke_width": 0.1, "stroke_width_min_pixels": 1}},
+        "/lanes": {
+            "category": "PRIMITIVE",
+            "primitive_type": "POLYLINE",
+            "stream_style": {"stroke_width": 0.1, "stroke_width_min_pixels": 1},
+        },
         "/labels": {
-            "category": "PRIMITIVE", "primitive_type": "TEXT",
-            "stream_style": {"text_size": 14, "text_anchor": "MIDDLE", "text_baseline": "CENTER", "font_family": "Arial", "font_weight": 700},
+            "category": "PRIMITIVE",
+            "primitive_type": "TEXT",
+            "stream_style": {
+                "text_size": 14,
+                "text_anchor": "MIDDLE",
+                "text_baseline": "CENTER",
+                "font_family": "Arial",
+                "font_weight": 700,
+            },
         },
         "/markers": {"category": "PRIMITIVE", "primitive_type": "CIRCLE", "stream_style": {"radius": 0.3}},
         "/paths": {"category": "PRIMITIVE", "primitive_type": "STADIUM"},
@@ -66,7 +94,11 @@ RICH_METADATA = {
         "Panel": {
             "name": "Panel",
             "needed_streams": ["/speed"],
-            "config": {"type": "PANEL", "name": "Panel", "children": [{"type": "METRIC", "streams": ["/speed"], "title": "Speed"}]},
+            "config": {
+                "type": "PANEL",
+                "name": "Panel",
+                "children": [{"type": "METRIC", "streams": ["/speed"], "title": "Speed"}],
+            },
         }
     },
 }
@@ -81,47 +113,100 @@ def rich_update(i: int) -> dict[str, Any]:
     colors = rng.integers(0, 256, (300, 4), dtype=np.uint8)
     return {
         "update_type": ["SNAPSHOT", "INCREMENTAL", "COMPLETE_STATE", "PERSISTENT"][i % 4],
-        "updates": [{
-            "timestamp": t,
-            "poses": {"/vehicle_pose": {
-                "timestamp": t, "map_origin": {"longitude": 0.0 if zero else 8.4, "latitude": 49.0, "altitude": 0.0 if zero else 110.25},
-                "position": [t, 1.5, 0.25], "orientation": [0.0, 0.01, 1.25],
-            }},
-            "primitives": {
-                "/points": {"points": [{"points": points.tolist(), "colors": colors.tolist(), "base": {"object_id": "cloud"}}]},
-                "/objects": {"polygons": [{
-                    "vertices": [[0, 0, 0], [4, 0, 0], [4, 2, 0], [0, 2, 0]],
-                    "base": {"object_id": f"car-{i}", "classes": ["Car"], "style": {"fill_color": "#FF000080", "height": 2.5}},
-                }]},
-                "/lanes": {"polylines": [{
-                    "vertices": [[0, 0, 0], [10, 0.5, 0], [20, 1.5, 0]],
-                    "colors": [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255]],
-                }]},
-                "/labels": {"texts": [{"position": [1.5, 2.25, 0.5], "text": "" if zero else f"frame {i}"}]},
-                "/markers": {"circles": [{"center": [3.0, 4.0, 0.0], "radius": 0.0 if zero else 1.1}]},
-                "/paths": {"stadiums": [{"start": [0, 0, 0], "end": [5, 5, 0], "radius": 0.7}]},
-                "/camera": {"images": [{"data": base64.b64encode(PNG_2X1).decode(), "width_px": 2, "height_px": 1}]},
-            },
-            "time_series": [
-                {"timestamp": t, "streams": ["/speed"], "values": {"doubles": [12.5 + i]}},
-                {"timestamp": t, "streams": ["/gear"], "values": {"int32s": [3]}},
-                {"timestamp": t, "streams": ["/engaged"], "values": {"bools": [True]}, "object_id": "ego"},
-            ],
-            "variables": {"/plan": {"variables": [{"values": {"doubles": [1.0, 2.0, 3.5]}, "base": {"object_id": "route"}}]}},
-            "annotations": {"/highlight": {"visuals": [
-                {"base": {"object_id": f"car-{i}"}, "style_classes": ["Car"], "inline_style": {"stroke_color": "#FFFF00"}}
-            ]}},
-            "future_instances": {"/futures": {"timestamps": [t + 0.5, t + 1.0], "primitives": [
-                {"polygons": [{"vertices": [[1, 1, 0], [2, 1, 0], [2, 2, 0]]}]},
-                {"polygons": [{"vertices": [[2, 2, 0], [3, 2, 0], [3, 3, 0]]}]},
-            ]}},
-            "ui_primitives": {"/table": {"treetable": {
-                "columns": [{"display_text": "Name", "type": "STRING"}, {"display_text": "Value", "type": "DOUBLE", "unit": "m"}],
-                "nodes": [{"id": 1, "column_values": ["a", "1.5"]}, {"id": 0, "parent": 1, "column_values": ["b", "2"]}],
-            }}},
-            "links": {"/other_pose": {"target_pose": "/vehicle_pose"}},
-            "no_data_streams": ["/gear"],
-        }],
+        "updates": [
+            {
+                "timestamp": t,
+                "poses": {
+                    "/vehicle_pose": {
+                        "timestamp": t,
+                        "map_origin": {
+                            "longitude": 0.0 if zero else 8.4,
+                            "latitude": 49.0,
+                            "altitude": 0.0 if zero else 110.25,
+                        },
+                        "position": [t, 1.5, 0.25],
+                        "orientation": [0.0, 0.01, 1.25],
+                    }
+                },
+                "primitives": {
+                    "/points": {
+                        "points": [
+                            {"points": points.tolist(), "colors": colors.tolist(), "base": {"object_id": "cloud"}}
+                        ]
+                    },
+                    "/objects": {
+                        "polygons": [
+                            {
+                                "vertices": [[0, 0, 0], [4, 0, 0], [4, 2, 0], [0, 2, 0]],
+                                "base": {
+                                    "object_id": f"car-{i}",
+                                    "classes": ["Car"],
+                                    "style": {"fill_color": "#FF000080", "height": 2.5},
+                                },
+                            }
+                        ]
+                    },
+                    "/lanes": {
+                        "polylines": [
+                            {
+                                "vertices": [[0, 0, 0], [10, 0.5, 0], [20, 1.5, 0]],
+                                "colors": [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255]],
+                            }
+                        ]
+                    },
+                    "/labels": {"texts": [{"position": [1.5, 2.25, 0.5], "text": "" if zero else f"frame {i}"}]},
+                    "/markers": {"circles": [{"center": [3.0, 4.0, 0.0], "radius": 0.0 if zero else 1.1}]},
+                    "/paths": {"stadiums": [{"start": [0, 0, 0], "end": [5, 5, 0], "radius": 0.7}]},
+                    "/camera": {
+                        "images": [{"data": base64.b64encode(PNG_2X1).decode(), "width_px": 2, "height_px": 1}]
+                    },
+                },
+                "time_series": [
+                    {"timestamp": t, "streams": ["/speed"], "values": {"doubles": [12.5 + i]}},
+                    {"timestamp": t, "streams": ["/gear"], "values": {"int32s": [3]}},
+                    {"timestamp": t, "streams": ["/engaged"], "values": {"bools": [True]}, "object_id": "ego"},
+                ],
+                "variables": {
+                    "/plan": {"variables": [{"values": {"doubles": [1.0, 2.0, 3.5]}, "base": {"object_id": "route"}}]}
+                },
+                "annotations": {
+                    "/highlight": {
+                        "visuals": [
+                            {
+                                "base": {"object_id": f"car-{i}"},
+                                "style_classes": ["Car"],
+                                "inline_style": {"stroke_color": "#FFFF00"},
+                            }
+                        ]
+                    }
+                },
+                "future_instances": {
+                    "/futures": {
+                        "timestamps": [t + 0.5, t + 1.0],
+                        "primitives": [
+                            {"polygons": [{"vertices": [[1, 1, 0], [2, 1, 0], [2, 2, 0]]}]},
+                            {"polygons": [{"vertices": [[2, 2, 0], [3, 2, 0], [3, 3, 0]]}]},
+                        ],
+                    }
+                },
+                "ui_primitives": {
+                    "/table": {
+                        "treetable": {
+                            "columns": [
+                                {"display_text": "Name", "type": "STRING"},
+                                {"display_text": "Value", "type": "DOUBLE", "unit": "m"},
+                            ],
+                            "nodes": [
+                                {"id": 1, "column_values": ["a", "1.5"]},
+                                {"id": 0, "parent": 1, "column_values": ["b", "2"]},
+                            ],
+                        }
+                    }
+                },
+                "links": {"/other_pose": {"target_pose": "/vehicle_pose"}},
+                "no_data_streams": ["/gear"],
+            }
+        ],
     }
 
 
@@ -179,7 +264,7 @@ def ordered_like(actual: Any, expected: Any) -> Any:
         order = [k for k in expected if k in actual] + [k for k in actual if k not in expected]
         return {k: ordered_like(actual[k], expected.get(k)) for k in order}
     if isinstance(actual, list) and isinstance(expected, list) and actual and isinstance(actual[0], dict):
-        return [ordered_like(a, e) for a, e in zip(actual, expected)] + actual[len(expected):]
+        return [ordered_like(a, e) for a, e in zip(actual, expected)] + actual[len(expected) :]
     return actual
 
 
@@ -301,14 +386,19 @@ def test_any_type_url_with_the_standard_prefix_is_read():
 @pytest.mark.parametrize(
     "data, message",
     [
-        (points_message(np.zeros(4, "<f4").tobytes()), r"StateUpdate\.updates\[0\]\.primitives\['/p'\]\.points\[0\]\.points: holds 4 floats"),
+        (
+            points_message(np.zeros(4, "<f4").tobytes()),
+            r"StateUpdate\.updates\[0\]\.primitives\['/p'\]\.points\[0\]\.points: holds 4 floats",
+        ),
         (points_message(b"\x00" * 6), r"\.points: 6 bytes of packed floats"),
         (points_message(np.zeros(3, "<f4").tobytes(), unpacked=(1.0, 2.0, 3.0)), r"mixes packed and unpacked"),
         (points_message(np.zeros(6, "<f4").tobytes(), colors=b"\x01" * 7), r"has 2 points but 7 bytes of colors"),
         (b"PBE1" + StateUpdate(update_type=StateUpdate.SNAPSHOT).SerializeToString(), "has no envelope type"),
         (b"PBE1" + Envelope(type="xviz/transform_log").SerializeToString(), "holds 'xviz/transform_log'"),
-        (b"PBE1" + Envelope(type="xviz/metadata", data={"type_url": "xviz.v2.StateUpdate"}).SerializeToString(),
-         r"holds a 'xviz\.v2\.StateUpdate', not a xviz\.v2\.Metadata"),
+        (
+            b"PBE1" + Envelope(type="xviz/metadata", data={"type_url": "xviz.v2.StateUpdate"}).SerializeToString(),
+            r"holds a 'xviz\.v2\.StateUpdate', not a xviz\.v2\.Metadata",
+        ),
         (b"PBE1\x0a\x09xviz/", r"offset 4: xviz\.v2\.Envelope\.type: needs 9 bytes, only 5 remain"),
         (b"PBE1\x0a\x02\xff\xfe", r"offset 6: xviz\.v2\.Envelope\.type is not UTF-8 text"),
     ],
@@ -382,9 +472,7 @@ async def test_pbe_log_serves_the_state_updates_of_the_glb_log(
 
 async def test_published_client_reads_the_pbe_log_as_the_binary_writer_files(written: Path):
     directory = written / "glb" / "kitti"
-    expected = {
-        line["parsed"]["timestamp"]: line["parsed"] for line in xviz_decode(frame_files(directory, ".glb"))[1:]
-    }
+    expected = {line["parsed"]["timestamp"]: line["parsed"] for line in xviz_decode(frame_files(directory, ".glb"))[1:]}
     script = [
         {"wait": "metadata"},
         {"send_transform_log": {"id": "0", "from_start": -1}},
@@ -447,7 +535,9 @@ async def test_damaged_pbe_frames_are_named_and_the_rest_is_served(damaged: Path
         errors = [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
         assert len(timestamps(messages)) == 25 - 3
         assert len(errors) == 3, errors
-        five, seven, nine = ([e for e in errors if f"({name})" in e] for name in ("5-frame.pbe", "7-frame.pbe", "9-frame.pbe"))
+        five, seven, nine = (
+            [e for e in errors if f"({name})" in e] for name in ("5-frame.pbe", "7-frame.pbe", "9-frame.pbe")
+        )
         # 23 = "PBE1", then the type's tag, length and 17 letters: where the truncated data field starts
         assert "PBE message corrupt at offset 23: xviz.v2.Envelope.data: needs" in five[0]
         assert "xviz.v2.Envelope.data.value.updates.primitives.value: varint longer than 10 bytes" in seven[0]

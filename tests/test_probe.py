@@ -7,16 +7,17 @@ import contextlib
 import json
 import re
 import sys
+from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
-from typing import Any, AsyncIterator, Awaitable, Callable
+from typing import Any
 
 import pytest
 from websockets.asyncio.server import ServerConnection, serve
 
 from helpers import metadata, running_server, ten_hz, update, write_log
-from xviz_server.probe import client as probe_module
 from xviz_server.codec import Format, encode
 from xviz_server.probe import Instant, ProbeReport, Problem, probe, with_format
+from xviz_server.probe import client as probe_module
 
 KITTI_START, KITTI_END = 1317042145.964, 1317042148.444  # first and last frame
 
@@ -293,8 +294,13 @@ def test_text_summary_is_aligned():
 
 async def run_cli(*args: str) -> tuple[int, str, str]:
     process = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "xviz_server", "probe", *args,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        sys.executable,
+        "-m",
+        "xviz_server",
+        "probe",
+        *args,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
     )
     out, err = await process.communicate()
     return process.returncode, out.decode(), err.decode()
@@ -314,8 +320,19 @@ async def test_command_line(root: Path):
     assert clean == 0
     data = json.loads(summary)
     assert set(data) == {
-        "url", "clean", "log_info", "declared_streams", "messages", "frames", "bytes",
-        "time_range", "streams", "elapsed_s", "mb_per_s", "errors", "warnings",
+        "url",
+        "clean",
+        "log_info",
+        "declared_streams",
+        "messages",
+        "frames",
+        "bytes",
+        "time_range",
+        "streams",
+        "elapsed_s",
+        "mb_per_s",
+        "errors",
+        "warnings",
     }
     assert data["clean"] and data["frames"] == 3 and data["url"].endswith("&message_format=JSON")
     assert data["time_range"] == {"first": KITTI_START, "last": 1317042146.174}

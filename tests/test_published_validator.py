@@ -31,7 +31,7 @@ from typing import Any
 import pytest
 
 from devkit.data import KITTI_LOG, KITTI_RAW
-from helpers import require_data, running_server, run_xviz_session_async, write_log, xviz_validate, xviz_write
+from helpers import require_data, run_xviz_session_async, running_server, write_log, xviz_validate, xviz_write
 from xviz_server.codec import Format
 from xviz_server.convert import convert
 from xviz_server.datasets import open_dataset
@@ -200,8 +200,9 @@ def _viz_bag(container: str, pose_type: str) -> Callable[[Path], Served]:
     """Markers of every kind, a path, numbers, and a pose of ``pose_type``, as a bag."""
 
     def make(root: Path) -> Served:
-        from devkit.rosbag_kitti import Messages, viz_messages, write_bag
         from rosbags.typesys import Stores
+
+        from devkit.rosbag_kitti import Messages, viz_messages, write_bag
 
         m = Messages(Stores.ROS1_NOETIC if container == "ros1" else Stores.ROS2_HUMBLE)
         bag = write_bag(root / _BAGS[container], container, viz_messages(m, pose_type))
@@ -255,7 +256,9 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "rosbag-ros1-viz": _viz_bag("ros1", POSE_WITH_COVARIANCE),
     "rosbag-sqlite3-viz": _viz_bag("sqlite3", POSE_STAMPED),
     "rosbag-mcap-viz": _viz_bag("mcap", POSE_STAMPED),
-    "mcap-conformance-ten-messages": _recording("mcap-conformance/TenMessages/TenMessages-ch-chx-pad-rch-rsh-st-sum.mcap"),
+    "mcap-conformance-ten-messages": _recording(
+        "mcap-conformance/TenMessages/TenMessages-ch-chx-pad-rch-rsh-st-sum.mcap"
+    ),
     "rosbag2-service-events": _recording("rosbag2/mcap/bag_with_topics_and_service_events"),
     "rosbag2-talker-strings": _recording("rosbag2/sqlite3/talker"),
     "rosbag2-bare-db3": _recording("rosbag2/topics_and_services.db3"),
@@ -266,7 +269,14 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
 }
 #: The sources that ``convert`` takes.
 DATASETS = [
-    "demo", "kitti-raw", "kitti-raw-tracklets", "waymo-npz", "waymo-tfrecord", "vista", "waymo-v2", "nuscenes",
+    "demo",
+    "kitti-raw",
+    "kitti-raw-tracklets",
+    "waymo-npz",
+    "waymo-tfrecord",
+    "vista",
+    "waymo-v2",
+    "nuscenes",
     "argoverse2-real",
     *(source for source in SOURCES if source.startswith("rosbag-")),
 ]
@@ -366,19 +376,39 @@ async def test_a_live_feed_and_its_recording_are_valid(fmt: Format, tmp_path: Pa
 
 
 def frame(t: float, *, longitude: bool = True, style: dict[str, Any] | None = None) -> dict[str, Any]:
-    origin = {"longitude": 8.4, "latitude": 49.0, "altitude": 110.0} if longitude else {"latitude": 49.0, "altitude": 110.0}
+    origin = (
+        {"longitude": 8.4, "latitude": 49.0, "altitude": 110.0} if longitude else {"latitude": 49.0, "altitude": 110.0}
+    )
     pose = {"timestamp": t, "map_origin": origin, "position": [0, 0, 0], "orientation": [0, 0, 0]}
-    polygon = {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"style": style or {"fill_color": "#FF0000", "height": 2.0}}}
-    return {"update_type": "SNAPSHOT", "updates": [{"timestamp": t, "poses": {"/vehicle_pose": pose},
-                                                    "primitives": {"/objects": {"polygons": [polygon]}}}]}
+    polygon = {
+        "vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]],
+        "base": {"style": style or {"fill_color": "#FF0000", "height": 2.0}},
+    }
+    return {
+        "update_type": "SNAPSHOT",
+        "updates": [
+            {"timestamp": t, "poses": {"/vehicle_pose": pose}, "primitives": {"/objects": {"polygons": [polygon]}}}
+        ],
+    }
 
 
 @pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.value.lower())
 async def test_the_validator_refuses_what_the_schema_refuses(fmt: Format, tmp_path: Path):
     """The drivers do validate: a map origin without longitude and a height-only style are refused, with the path."""
-    meta = {"version": "2.0.0", "log_info": {"start_time": 1.0, "end_time": 1.1},
-            "streams": {"/vehicle_pose": {"category": "POSE"}, "/objects": {"category": "PRIMITIVE", "primitive_type": "POLYGON"}}}
-    log = write_log(tmp_path / "log", [frame(1.0), frame(1.05, longitude=False), frame(1.1, style={"height": 2.0})], fmt=fmt, meta=meta)
+    meta = {
+        "version": "2.0.0",
+        "log_info": {"start_time": 1.0, "end_time": 1.1},
+        "streams": {
+            "/vehicle_pose": {"category": "POSE"},
+            "/objects": {"category": "PRIMITIVE", "primitive_type": "POLYGON"},
+        },
+    }
+    log = write_log(
+        tmp_path / "log",
+        [frame(1.0), frame(1.05, longitude=False), frame(1.1, style={"height": 2.0})],
+        fmt=fmt,
+        meta=meta,
+    )
     no_longitude = ".updates[0].poses['/vehicle_pose'].map_origin: should have required property 'longitude'"
     height_only = ".updates[0].primitives['/objects'].polygons[0].base.style: "
 
@@ -394,6 +424,10 @@ async def test_the_validator_refuses_what_the_schema_refuses(fmt: Format, tmp_pa
         result = await run_xviz_session_async(url, window_script(), validate=True)
     assert result.ok, result.stderr
     refused = [(error["source"], error["index"], error["message"]) for error in result.summary["errors"]]
-    assert {index for _, index, _ in refused} == {2, 3} and {source for source, _, _ in refused} == {"schema"}  # 0 is the metadata
-    assert refused[0][2].startswith(f"xviz/state_update: {no_longitude}") and refused[1][2].startswith(f"xviz/state_update: {height_only}")
+    assert {index for _, index, _ in refused} == {2, 3} and {source for source, _, _ in refused} == {
+        "schema"
+    }  # 0 is the metadata
+    assert refused[0][2].startswith(f"xviz/state_update: {no_longitude}") and refused[1][2].startswith(
+        f"xviz/state_update: {height_only}"
+    )
     assert "invalid" not in result.messages[1] and result.messages[2]["invalid"][0].startswith(no_longitude)

@@ -42,7 +42,11 @@ def test_every_conformance_file_opens_with_its_messages(name: str):
     assert log.convert(0)["updates"][0]["poses"]["/vehicle_pose"]["position"] == [0.0, 0.0, 0.0]
     # Every message reaches Foxglove clients as the file holds it, once; but a channel without a schema, which the
     # Foxglove protocol cannot advertise.
-    served = [(time, bytes(payload).hex()) for frame in range(len(log)) for _, time, payload in unpack(log.original_messages(frame))]
+    served = [
+        (time, bytes(payload).hex())
+        for frame in range(len(log))
+        for _, time, payload in unpack(log.original_messages(frame))
+    ]
     schemaless = name.startswith("OneSchemalessMessage")
     assert sorted(served) == [] if schemaless else sorted((int(t), str(data)) for _, t, data in EXPECTED[name])  # type: ignore[call-overload]
 
@@ -120,8 +124,18 @@ def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(s
     log = RosBag(sdk_recording)
     assert log.bag.problems == {} and log.bag.container == "MCAP"
     roles = {m.topic: m.role for m in log.mappings}
-    assert roles == {"/camera": "image", "/raw": "image", "/lidar": "points", "/scan": "points", "/tf": "transforms",
-                     "/goal": "trajectory", "/gps": "origin", "/scene": "markers", "/log": "text", "/json_log": "text"}
+    assert roles == {
+        "/camera": "image",
+        "/raw": "image",
+        "/lidar": "points",
+        "/scan": "points",
+        "/tf": "transforms",
+        "/goal": "trajectory",
+        "/gps": "origin",
+        "/scene": "markers",
+        "/log": "text",
+        "/json_log": "text",
+    }
     assert log.pose_source.describe() == "/tf: world -> base_link" and len(log) == FRAMES
     assert log.map_origin == (8.4, 49.0, 110.0)
     update = log.convert(1)["updates"][0]
@@ -145,7 +159,10 @@ def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(s
     # Foxglove clients get the channels as written: protobuf schemas in base64, JSON as it is.
     originals = {o.topic: o for o in log.originals}
     assert (originals["/lidar"].encoding, originals["/lidar"].schema_name, originals["/lidar"].schema_encoding) == (
-        "protobuf", "foxglove.PointCloud", "protobuf")
+        "protobuf",
+        "foxglove.PointCloud",
+        "protobuf",
+    )
     assert (originals["/json_log"].encoding, originals["/json_log"].schema_encoding) == ("json", "jsonschema")
 
 
@@ -171,7 +188,10 @@ def test_a_turtlesim_recording_shows_its_twist_as_time_series():
             continue
         t, message = before[-1]
         values = {stream: value for s in series for stream, value in zip(s["streams"], s["values"]["doubles"])}
-        assert values == {"/turtle1/cmd_vel/linear_x": message.linear.x, "/turtle1/cmd_vel/angular_z": message.angular.z}
+        assert values == {
+            "/turtle1/cmd_vel/linear_x": message.linear.x,
+            "/turtle1/cmd_vel/angular_z": message.angular.z,
+        }
         assert {s["timestamp"] for s in series} == {t / 1e9}
         shown += 1
     assert shown > len(log) // 2
@@ -187,30 +207,48 @@ def test_a_truck_recording_cloud_odometry_and_a_scan_without_its_frame(caplog: p
     path = EMBAG / "test.bag"
     store = get_typestore(Stores.ROS1_NOETIC)
     with Reader(path) as reader:  # the clouds as rosbags reads them, to compare with
-        clouds = [store.deserialize_ros1(data, c.msgtype) for c, _, data in reader.messages() if c.topic == "/luminar_pointcloud"]
+        clouds = [
+            store.deserialize_ros1(data, c.msgtype)
+            for c, _, data in reader.messages()
+            if c.topic == "/luminar_pointcloud"
+        ]
     log = RosBag(path)
-    assert {m.topic: m.role for m in log.mappings} == {"/base_pose_ground_truth": "pose", "/base_scan": "points",
-                                                       "/luminar_pointcloud": "points"}
+    assert {m.topic: m.role for m in log.mappings} == {
+        "/base_pose_ground_truth": "pose",
+        "/base_scan": "points",
+        "/luminar_pointcloud": "points",
+    }
     # The PointCloud2 topic is the clock (not the LaserScan beside it, recorded 7 s later).
     assert log.clock.tolist() == log.bag.topics["/luminar_pointcloud"].times.tolist()
     for frame, cloud in enumerate(clouds):
         update = log.convert(frame)["updates"][0]
-        records = np.frombuffer(bytes(cloud.data), np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3,
-                                                            "offsets": [0, 4, 8], "itemsize": cloud.point_step}))
+        records = np.frombuffer(
+            bytes(cloud.data),
+            np.dtype(
+                {"names": ["x", "y", "z"], "formats": ["<f4"] * 3, "offsets": [0, 4, 8], "itemsize": cloud.point_step}
+            ),
+        )
         xyz = np.stack([records[a] for a in "xyz"], axis=1)
         returned = xyz[np.isfinite(xyz).all(axis=1) & (xyz != 0).any(axis=1)]
         (points,) = update["primitives"]["/luminar_pointcloud"]["points"]
         assert np.array_equal(points["points"], returned) and len(returned) > 30_000
         assert "/base_scan" not in update["primitives"]  # its frame has no transform to the vehicle's: named once
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
-    assert warnings == [f"{path}: topic /base_scan: frame 'base_laser_link' is not connected to the vehicle frame (left out of the frames)"]
+    assert warnings == [
+        f"{path}: topic /base_scan: frame 'base_laser_link' is not connected to the vehicle frame (left out of the frames)"
+    ]
 
 
 def test_strings_recorded_two_minutes_apart_each_shown():
     log = RosBag(EMBAG / "test_2.bag")
-    shown = {(row[0], row[3]) for frame in (0, len(log) - 1)
-             for row in _text_rows_of(log.convert(frame)["updates"][0], "/chatter")}
-    assert shown == {(str(t / 1e9), log.bag.message("chatter", i)[1].data) for i, t in enumerate(log.bag.topics["chatter"].times)}
+    shown = {
+        (row[0], row[3])
+        for frame in (0, len(log) - 1)
+        for row in _text_rows_of(log.convert(frame)["updates"][0], "/chatter")
+    }
+    assert shown == {
+        (str(t / 1e9), log.bag.message("chatter", i)[1].data) for i, t in enumerate(log.bag.topics["chatter"].times)
+    }
 
 
 def _text_rows_of(update: dict[str, object], stream: str) -> list[list[str]]:
@@ -218,11 +256,16 @@ def _text_rows_of(update: dict[str, object], stream: str) -> list[list[str]]:
     return [node["column_values"] for node in table["treetable"]["nodes"]] if table else []
 
 
-@pytest.mark.parametrize(("relative", "container"), [
-    ("rosbag2/sqlite3/talker", "ROS 2 sqlite3"), ("rosbag2/topics_and_services.db3", "ROS 2 sqlite3"),
-    ("rosbag2/mcap/bag_with_topics_and_service_events", "ROS 2 mcap"), ("ros1/turtlesim.bag", "ROS 1"),
-    ("mcap-conformance/OneMessage/OneMessage-ch-chx-mx.mcap", "MCAP"),
-])
+@pytest.mark.parametrize(
+    ("relative", "container"),
+    [
+        ("rosbag2/sqlite3/talker", "ROS 2 sqlite3"),
+        ("rosbag2/topics_and_services.db3", "ROS 2 sqlite3"),
+        ("rosbag2/mcap/bag_with_topics_and_service_events", "ROS 2 mcap"),
+        ("ros1/turtlesim.bag", "ROS 1"),
+        ("mcap-conformance/OneMessage/OneMessage-ch-chx-mx.mcap", "MCAP"),
+    ],
+)
 def test_the_catalog_gives_a_recording_its_container_as_format(relative: str, container: str):
     from xviz_server.catalog.facts import facts
     from xviz_server.codec import Format

@@ -31,7 +31,14 @@ async def http(port: int, request: bytes, timeout: float = 10) -> bytes:
         while chunk := await asyncio.wait_for(reader.read(65536), timeout):
             answer += chunk
             head, _, body = answer.partition(b"\r\n\r\n")
-            length = next((int(line.split(b":")[1]) for line in head.split(b"\r\n") if line.lower().startswith(b"content-length:")), None)
+            length = next(
+                (
+                    int(line.split(b":")[1])
+                    for line in head.split(b"\r\n")
+                    if line.lower().startswith(b"content-length:")
+                ),
+                None,
+            )
             if length is not None and len(body) >= length:
                 break
         return answer
@@ -163,27 +170,40 @@ async def test_a_request_other_than_get_is_answered_405(tmp_path: Path, request_
 
 
 def _headers(head: bytes) -> dict[str, str]:
-    return {name.lower(): value for name, _, value in (line.decode().partition(": ") for line in head.split(b"\r\n")[1:])}
+    return {
+        name.lower(): value for name, _, value in (line.decode().partition(": ") for line in head.split(b"\r\n")[1:])
+    }
 
 
 async def test_head_answers_as_get_without_the_body_and_options_says_what_is_allowed(tmp_path: Path):
     write_log(tmp_path / "small", ten_hz(3))
     async with running_server(tmp_path) as server:
-        for path, accept in [("/healthz", "*/*"), ("/api/logs", "application/json"), ("/metrics", "*/*"), ("/nowhere", "*/*")]:
+        for path, accept in [
+            ("/healthz", "*/*"),
+            ("/api/logs", "application/json"),
+            ("/metrics", "*/*"),
+            ("/nowhere", "*/*"),
+        ]:
             heads = []
             for method in ("GET", "HEAD"):
-                answer = await http(server.port, f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: {accept}\r\n\r\n".encode())
+                answer = await http(
+                    server.port, f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: {accept}\r\n\r\n".encode()
+                )
                 head, _, body = answer.partition(b"\r\n\r\n")
                 heads.append((head.split(b"\r\n")[0], _headers(head), body))
             (got, got_headers, got_body), (headed, head_headers, head_body) = heads
             assert headed == got and head_body == b"" and len(got_body) == int(head_headers["content-length"]) > 0, path
             assert head_headers["content-type"] == got_headers["content-type"], path
         # A HEAD that asks for a WebSocket handshake is no handshake.
-        handshake = (b"HEAD /small HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                     b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
+        handshake = (
+            b"HEAD /small HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+        )
         head, _, body = (await http(server.port, handshake)).partition(b"\r\n\r\n")
         assert head.startswith(b"HTTP/1.1 405 Method Not Allowed") and body == b""
-        head, _, body = (await http(server.port, b"OPTIONS * HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")).partition(b"\r\n\r\n")
+        head, _, body = (await http(server.port, b"OPTIONS * HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")).partition(
+            b"\r\n\r\n"
+        )
         assert head.startswith(b"HTTP/1.1 204 No Content") and _headers(head)["allow"] == "GET, HEAD" and body == b""
         assert await transform(server, "/small") == [100.0, 100.1, 100.2]
 
@@ -192,8 +212,12 @@ async def test_a_tls_handshake_on_a_plain_port_is_closed_and_logged(tmp_path: Pa
     async with running_server(tmp_path) as server:
         context = ssl.create_default_context()
         with pytest.raises((ssl.SSLError, ConnectionError)):
-            await asyncio.wait_for(asyncio.open_connection("127.0.0.1", server.port, ssl=context, server_hostname="localhost"), 10)
-        assert any("TLS handshake" in record.getMessage() and "--certfile" in record.getMessage() for record in caplog.records)
+            await asyncio.wait_for(
+                asyncio.open_connection("127.0.0.1", server.port, ssl=context, server_hostname="localhost"), 10
+            )
+        assert any(
+            "TLS handshake" in record.getMessage() and "--certfile" in record.getMessage() for record in caplog.records
+        )
         assert await get(server.port, "/healthz") == (200, b"ok\n")
         head, _, body = (await http(server.port, b"\x00\x01\x02\x03 garbage\r\n\r\n")).partition(b"\r\n\r\n")
         assert head.startswith(b"HTTP/1.1 400 Bad Request") and b"not an HTTP request" in body

@@ -53,14 +53,22 @@ async def assert_usable(c, log_start: float = 100.0) -> None:
         ("{not json", "malformed message: invalid JSON at line 1 column 2"),
         ('["a list"]', "must be a JSON object"),
         ('{"type": "xviz/flush", "data": {}}', "unknown message type 'xviz/flush'"),
-        ('{"type": "xviz/transform_log", "data": {"id": "t1", "start_timestamp": "yesterday"}}',
-         "xviz/transform_log (id 't1'): 'start_timestamp' must be a number, not 'yesterday' (log 'small')"),
-        ('{"type": "xviz/transform_log", "data": {"id": "t2", "start_timestamp": 5, "end_timestamp": 1}}',
-         "xviz/transform_log (id 't2'): start_timestamp 5.0 is after end_timestamp 1.0 (log 'small')"),
-        ('{"type": "xviz/transform_point_in_time", "data": {"id": "t3"}}',
-         "xviz/transform_point_in_time (id 't3'): 'query_timestamp' is required"),
-        ('{"type": "xviz/reconfigure", "data": {"update_type": "PARTIAL", "config_update": {}}}',
-         "'update_type' must be one of 'FULL' or 'DELTA'"),
+        (
+            '{"type": "xviz/transform_log", "data": {"id": "t1", "start_timestamp": "yesterday"}}',
+            "xviz/transform_log (id 't1'): 'start_timestamp' must be a number, not 'yesterday' (log 'small')",
+        ),
+        (
+            '{"type": "xviz/transform_log", "data": {"id": "t2", "start_timestamp": 5, "end_timestamp": 1}}',
+            "xviz/transform_log (id 't2'): start_timestamp 5.0 is after end_timestamp 1.0 (log 'small')",
+        ),
+        (
+            '{"type": "xviz/transform_point_in_time", "data": {"id": "t3"}}',
+            "xviz/transform_point_in_time (id 't3'): 'query_timestamp' is required",
+        ),
+        (
+            '{"type": "xviz/reconfigure", "data": {"update_type": "PARTIAL", "config_update": {}}}',
+            "'update_type' must be one of 'FULL' or 'DELTA'",
+        ),
         (b"\x00\x01binary junk", "malformed message"),
     ],
 )
@@ -126,6 +134,7 @@ async def test_corrupt_frame_is_reported_and_the_rest_is_served(root: Path, log:
 
 async def test_other_sessions_are_unaffected_by_a_bad_one(root: Path):
     async with running_server(root) as server:
+
         async def bad() -> None:
             async with client(server, "/small") as c:
                 await c.recv()
@@ -262,7 +271,14 @@ async def test_dead_peer_is_closed_after_idle_timeout(root: Path):
 
 async def test_sigterm_closes_sessions_with_1001_and_exits(root: Path):
     process = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(root), "--port", "0",
+        sys.executable,
+        "-m",
+        "xviz_server",
+        "serve",
+        "--data-dir",
+        str(root),
+        "--port",
+        "0",
         stderr=asyncio.subprocess.PIPE,
     )
     port = None

@@ -10,27 +10,37 @@ import math
 import re
 import shutil
 import struct
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import pytest
 from PIL import Image
 
 from devkit.rosbag_kitti import (
-    CLOUD_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC, FIX_TOPIC, GRAY_TOPIC, IMU_TOPIC, RAW, Messages, kitti_messages,
-    viz_messages, write_bag,
+    CLOUD_TOPIC,
+    COLOR_TOPIC,
+    COMPRESSED_TOPIC,
+    FIX_TOPIC,
+    GRAY_TOPIC,
+    IMU_TOPIC,
+    RAW,
+    Messages,
+    kitti_messages,
+    viz_messages,
+    write_bag,
 )
 from helpers import client, run_xviz_session_async, running_server, sha, timestamps, xviz_decode
 from xviz_server.cli import main
 from xviz_server.convert import convert
 from xviz_server.datasets import detect, open_dataset
 from xviz_server.datasets.kitti import KittiDrive
-from xviz_server.datasets.shared import EARTH_RADIUS
 from xviz_server.datasets.ros import RosBag, is_rosbag
 from xviz_server.datasets.ros.bag import ROS1_MAGIC
 from xviz_server.datasets.ros.inspect import inspect_bag
 from xviz_server.datasets.ros.sensors import cloud_points, compressed_image_bytes, image_bytes
+from xviz_server.datasets.shared import EARTH_RADIUS
 from xviz_server.exceptions import DatasetError
 from xviz_server.server import parse_dataset
 
@@ -109,8 +119,14 @@ def test_frames_match_the_kitti_converter(container: str, bags: dict[str, Path],
     np.testing.assert_allclose(transform[:3, :3], calibration["R"].T, atol=1e-9)
     np.testing.assert_allclose(transform[:3, 3], -calibration["R"].T @ calibration["T"], atol=1e-9)
     assert streams[CLOUD_TOPIC]["coordinate"] == "VEHICLE_RELATIVE"
-    assert {GRAY_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC} <= {s for s, e in streams.items() if e.get("primitive_type") == "IMAGE"}
-    assert metadata["ui_config"]["Camera"]["config"]["children"][0]["cameras"] == [COLOR_TOPIC, COMPRESSED_TOPIC, GRAY_TOPIC]
+    assert {GRAY_TOPIC, COLOR_TOPIC, COMPRESSED_TOPIC} <= {
+        s for s, e in streams.items() if e.get("primitive_type") == "IMAGE"
+    }
+    assert metadata["ui_config"]["Camera"]["config"]["children"][0]["cameras"] == [
+        COLOR_TOPIC,
+        COMPRESSED_TOPIC,
+        GRAY_TOPIC,
+    ]
     for frame in range(FRAMES):
         ours = bag.convert(frame, metadata)["updates"][0]
         theirs = drive.convert(frame, kitti_metadata)["updates"][0]
@@ -118,7 +134,9 @@ def test_frames_match_the_kitti_converter(container: str, bags: dict[str, Path],
         # Points exactly, colours bit for bit (intensity coloured like KITTI's reflectance).
         cloud = ours["primitives"][CLOUD_TOPIC]["points"][0]
         kitti_cloud = theirs["primitives"]["/lidar/points"]["points"][0]
-        assert np.array_equal(cloud["points"], kitti_cloud["points"]) and np.array_equal(cloud["colors"], kitti_cloud["colors"])
+        assert np.array_equal(cloud["points"], kitti_cloud["points"]) and np.array_equal(
+            cloud["colors"], kitti_cloud["colors"]
+        )
         # The pose: orientation and where on earth, to 1e-6 (radians, degrees).
         pose, kitti_pose = ours["poses"]["/vehicle_pose"], theirs["poses"]["/vehicle_pose"]
         np.testing.assert_allclose(pose["orientation"], kitti_pose["orientation"], atol=1e-6)
@@ -142,7 +160,9 @@ def test_frames_match_the_kitti_converter(container: str, bags: dict[str, Path],
         boxes = ours["primitives"]["/markers/polygons"]["polygons"]
         assert [b["base"]["object_id"] for b in boxes] == [f"boxes/{frame}"]
         vertices = np.asarray(boxes[0]["vertices"])
-        np.testing.assert_allclose(vertices, [[frame + 2, 1, 0], [frame - 2, 1, 0], [frame - 2, -1, 0], [frame + 2, -1, 0]], atol=1e-6)
+        np.testing.assert_allclose(
+            vertices, [[frame + 2, 1, 0], [frame - 2, 1, 0], [frame - 2, -1, 0], [frame + 2, -1, 0]], atol=1e-6
+        )
         assert boxes[0]["base"]["style"] == {"fill_color": [255, 128, 0, 255], "height": 1.5}
         assert [t["text"] for t in ours["primitives"]["/markers/texts"]["texts"]] == [f"box {frame}"]
 
@@ -150,8 +170,9 @@ def test_frames_match_the_kitti_converter(container: str, bags: dict[str, Path],
 @pytest.mark.parametrize("container", ["ros1", "mcap"])
 def test_fixes_and_imu_alone_give_the_pose(container: str, drive: KittiDrive, tmp_path: Path):
     """No /tf and no odometry: east-north-up metres from the first fix, heading from the Imu."""
-    path = write_bag(tmp_path / CONTAINERS[container], container,
-                     kitti_only(drive, container, {CLOUD_TOPIC, FIX_TOPIC, IMU_TOPIC}))
+    path = write_bag(
+        tmp_path / CONTAINERS[container], container, kitti_only(drive, container, {CLOUD_TOPIC, FIX_TOPIC, IMU_TOPIC})
+    )
     bag = RosBag(path)
     assert bag.pose_source.kind == "fix" and bag.pose_source.imu_topic == IMU_TOPIC
     metadata = bag.metadata()
@@ -160,7 +181,9 @@ def test_fixes_and_imu_alone_give_the_pose(container: str, drive: KittiDrive, tm
         pose = bag.convert(frame, metadata)["updates"][0]["poses"]["/vehicle_pose"]
         kitti = drive.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]
         np.testing.assert_allclose(pose["orientation"], kitti["orientation"], atol=1e-6)
-        np.testing.assert_allclose(geographic(pose), (kitti["map_origin"]["longitude"], kitti["map_origin"]["latitude"]), atol=1e-6)
+        np.testing.assert_allclose(
+            geographic(pose), (kitti["map_origin"]["longitude"], kitti["map_origin"]["latitude"]), atol=1e-6
+        )
 
 
 def test_pose_is_interpolated_between_messages(drive: KittiDrive, tmp_path: Path):
@@ -204,34 +227,56 @@ def test_markers_paths_numbers_in_the_map_frame(tmp_path: Path):
     metadata = bag.metadata()
     frames = [bag.convert(i, metadata)["updates"][0] for i in range(5)]
     first, third = frames[0]["primitives"], frames[2]["primitives"]
-    assert first["/viz/circles"]["circles"][0]["center"] == [10.0, 0.0, 0.75] and first["/viz/circles"]["circles"][0]["radius"] == 1.0
+    assert (
+        first["/viz/circles"]["circles"][0]["center"] == [10.0, 0.0, 0.75]
+        and first["/viz/circles"]["circles"][0]["radius"] == 1.0
+    )
     assert third["/viz/circles"]["circles"][0]["center"] == [8.0, 0.0, 0.75]  # the vehicle moved 2 m along x
-    assert [p["base"]["object_id"] for p in first["/viz/polylines"]["polylines"]] == ["boxes/2", "boxes/4", "boxes/5", "boxes/5"]
-    assert [p["base"]["object_id"] for p in third["/viz/polylines"]["polylines"]] == ["boxes/5", "boxes/5"]  # deleted, expired
+    assert [p["base"]["object_id"] for p in first["/viz/polylines"]["polylines"]] == [
+        "boxes/2",
+        "boxes/4",
+        "boxes/5",
+        "boxes/5",
+    ]
+    assert [p["base"]["object_id"] for p in third["/viz/polylines"]["polylines"]] == [
+        "boxes/5",
+        "boxes/5",
+    ]  # deleted, expired
     np.testing.assert_allclose(third["/viz/points"]["points"][0]["points"], [[-2, 0, 0.75], [-2, 5, 0.75]])
     assert third["/viz/points"]["points"][0]["colors"].tolist() == [[255, 128, 0, 255]] * 2
     assert len(third["/viz/polygons"]["polygons"]) == 2
     np.testing.assert_allclose(third["/plan"]["polylines"][0]["vertices"], [[-2, 0, 0], [3, 0, 0], [8, 0, 0]])
-    speeds = [entry["values"]["doubles"][0] for f in frames for entry in f["time_series"] if entry["streams"] == ["/speed"]]
+    speeds = [
+        entry["values"]["doubles"][0] for f in frames for entry in f["time_series"] if entry["streams"] == ["/speed"]
+    ]
     assert speeds == [0.0, 1.5, 3.0, 4.5, 6.0]
 
 
 # -- point clouds of any layout -------------------------------------------------
 
 
-def _cloud(m: Messages, fields: list[tuple[str, int, int]], step: int, data: bytes, count: int, bigendian: bool = False) -> Any:
+def _cloud(
+    m: Messages, fields: list[tuple[str, int, int]], step: int, data: bytes, count: int, bigendian: bool = False
+) -> Any:
     return m.sensor_msgs__PointCloud2(
-        header=m.header(0, "lidar"), height=1, width=count, is_bigendian=bigendian, point_step=step, row_step=step * count,
+        header=m.header(0, "lidar"),
+        height=1,
+        width=count,
+        is_bigendian=bigendian,
+        point_step=step,
+        row_step=step * count,
         fields=[m.sensor_msgs__PointField(name=n, offset=o, datatype=d, count=1) for n, o, d in fields],
-        data=np.frombuffer(data, np.uint8), is_dense=False,
+        data=np.frombuffer(data, np.uint8),
+        is_dense=False,
     )
 
 
 def test_messages_before_the_first_and_after_the_last_frame_are_shown(tmp_path: Path):
     """Frames are the cloud's two messages; a marker 1 ms after the last, a string 5 s before the first (older than
     the staleness) and an image between the frames only once: none is lost."""
-    from devkit.rosbag_kitti import marker
     from rosbags.typesys import Stores
+
+    from devkit.rosbag_kitti import marker
 
     m = Messages(Stores.ROS2_HUMBLE)
     t0 = 1_700_000_000 * 10**9
@@ -241,12 +286,19 @@ def test_messages_before_the_first_and_after_the_last_frame_are_shown(tmp_path: 
         ("/early", "std_msgs/msg/String", t0 - 5 * 10**9, m.std_msgs__String(data="before the first frame")),
         ("/points", "sensor_msgs/msg/PointCloud2", t0, cloud),
         ("/points", "sensor_msgs/msg/PointCloud2", t0 + 10**8, cloud),
-        ("/late", "visualization_msgs/msg/Marker", t0 + 10**8 + 10**6, marker(m, t0, action=0, kind=1, id=1, x=3.0, frame="lidar")),
+        (
+            "/late",
+            "visualization_msgs/msg/Marker",
+            t0 + 10**8 + 10**6,
+            marker(m, t0, action=0, kind=1, id=1, x=3.0, frame="lidar"),
+        ),
     ]
     bag = RosBag(write_bag(tmp_path / "edges.mcap", "mcap", iter(messages)))
     assert bag.clock.tolist() == [t0, t0 + 10**8]
     first, last = (bag.convert(i)["updates"][0] for i in range(2))
-    assert [row["column_values"][3] for row in first["ui_primitives"]["/early"]["treetable"]["nodes"]] == ["before the first frame"]
+    assert [row["column_values"][3] for row in first["ui_primitives"]["/early"]["treetable"]["nodes"]] == [
+        "before the first frame"
+    ]
     assert "/late/polygons" not in first.get("primitives", {})
     assert [p["base"]["object_id"] for p in last["primitives"]["/late/polygons"]["polygons"]] == ["boxes/1"]
 
@@ -254,7 +306,7 @@ def test_messages_before_the_first_and_after_the_last_frame_are_shown(tmp_path: 
 def test_a_ros1_tf_tree_of_two_turtles_gives_the_detected_or_chosen_pose(tmp_path: Path):
     """Legacy tf/tfMessage on /tf: world -> turtle1 and world -> turtle2 moving; one turtle is the vehicle."""
     from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC)
     store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf/msg/tfMessage"))
@@ -262,9 +314,13 @@ def test_a_ros1_tf_tree_of_two_turtles_gives_the_detected_or_chosen_pose(tmp_pat
     t0 = 1_700_000_000 * 10**9
 
     def edge(t: int, child: str, x: float) -> Any:
-        header = types["std_msgs/msg/Header"](seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9), frame_id="world")
-        transform = types["geometry_msgs/msg/Transform"](translation=types["geometry_msgs/msg/Vector3"](x=x, y=0.0, z=0.0),
-                                                         rotation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+        header = types["std_msgs/msg/Header"](
+            seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9), frame_id="world"
+        )
+        transform = types["geometry_msgs/msg/Transform"](
+            translation=types["geometry_msgs/msg/Vector3"](x=x, y=0.0, z=0.0),
+            rotation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        )
         return types["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform)
 
     path = tmp_path / "turtles.bag"
@@ -276,12 +332,24 @@ def test_a_ros1_tf_tree_of_two_turtles_gives_the_detected_or_chosen_pose(tmp_pat
             writer.write(connection, t, store.serialize_ros1(message, "tf/msg/tfMessage"))
     detected = RosBag(path)
     assert detected.pose_source.describe() == "/tf: world -> turtle1"
-    assert [detected.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(5)] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert [detected.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(5)] == [
+        0.0,
+        1.0,
+        2.0,
+        3.0,
+        4.0,
+    ]
     config = tmp_path / "turtle2.toml"
     config.write_text('vehicle_frame = "turtle2"\nfixed_frame = "turtle1"\n')
     chosen = RosBag(path, config=str(config))
     assert chosen.pose_source.describe() == "/tf: turtle1 -> turtle2"
-    assert [chosen.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(5)] == [10.0, 8.0, 6.0, 4.0, 2.0]
+    assert [chosen.convert(i)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(5)] == [
+        10.0,
+        8.0,
+        6.0,
+        4.0,
+        2.0,
+    ]
     config.write_text('fixed_frame = "sea"\n')
     with pytest.raises(DatasetError, match="fixed_frame: the transform tree has no frame sea"):
         _ = RosBag(path, config=str(config)).pose_source
@@ -296,8 +364,17 @@ def test_several_pose_topics_the_earliest_is_the_pose_the_others_trajectories(tm
     for topic, start, y in (("/late", 9_500_000_000, 5.0), ("/first", 0, 0.0), ("/second", 1_000_000_000, -5.0)):
         for i in range(3):
             t = t0 + start + i * 10**9
-            pose = m.geometry_msgs__Pose(position=m.geometry_msgs__Point(x=float(i), y=y, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0)))
-            messages.append((topic, "geometry_msgs/msg/PoseStamped", t, m.geometry_msgs__PoseStamped(header=m.header(t, "map"), pose=pose)))
+            pose = m.geometry_msgs__Pose(
+                position=m.geometry_msgs__Point(x=float(i), y=y, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0))
+            )
+            messages.append(
+                (
+                    topic,
+                    "geometry_msgs/msg/PoseStamped",
+                    t,
+                    m.geometry_msgs__PoseStamped(header=m.header(t, "map"), pose=pose),
+                )
+            )
     path = write_bag(tmp_path / "poses.mcap", "mcap", iter(sorted(messages, key=lambda e: e[2])))
     bag = RosBag(path)
     assert bag.pose_source.topic == "/first"
@@ -306,7 +383,9 @@ def test_several_pose_topics_the_earliest_is_the_pose_the_others_trajectories(tm
     assert last["poses"]["/vehicle_pose"]["position"][:2] == [2.0, 0.0]
     for topic, y in (("/second", -5.0), ("/late", 5.0)):  # each drawn so far, in the vehicle frame (at x=2, y=0)
         (line,) = last["primitives"][topic]["polylines"]
-        np.testing.assert_allclose(np.asarray(line["vertices"]).reshape(-1, 3)[:, :2], [[-2.0, y], [-1.0, y], [0.0, y]], atol=1e-6)
+        np.testing.assert_allclose(
+            np.asarray(line["vertices"]).reshape(-1, 3)[:, :2], [[-2.0, y], [-1.0, y], [0.0, y]], atol=1e-6
+        )
     config = tmp_path / "late.toml"
     config.write_text('pose = "/late"\n')
     assert RosBag(path, config=str(config)).pose_source.topic == "/late"
@@ -314,14 +393,22 @@ def test_several_pose_topics_the_earliest_is_the_pose_the_others_trajectories(tm
 
 def test_velodyne_driver_packets_are_named_as_such(tmp_path: Path):
     from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC)
-    store.register({**get_types_from_msg("time stamp\nuint8[1206] data", "velodyne_msgs/msg/VelodynePacket"),
-                    **get_types_from_msg("std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets", "velodyne_msgs/msg/VelodyneScan")})
+    store.register(
+        {
+            **get_types_from_msg("time stamp\nuint8[1206] data", "velodyne_msgs/msg/VelodynePacket"),
+            **get_types_from_msg(
+                "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets", "velodyne_msgs/msg/VelodyneScan"
+            ),
+        }
+    )
     types = store.types
     t0 = 1_700_000_000 * 10**9
-    header = types["std_msgs/msg/Header"](seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=t0 // 10**9, nanosec=0), frame_id="velodyne")
+    header = types["std_msgs/msg/Header"](
+        seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=t0 // 10**9, nanosec=0), frame_id="velodyne"
+    )
     packet = types["velodyne_msgs/msg/VelodynePacket"](stamp=header.stamp, data=np.zeros(1206, np.uint8))
     path = tmp_path / "packets.bag"
     with Writer(path) as writer:
@@ -330,8 +417,10 @@ def test_velodyne_driver_packets_are_named_as_such(tmp_path: Path):
             scan = types["velodyne_msgs/msg/VelodyneScan"](header=header, packets=[packet] * 2)
             writer.write(connection, t0 + i * 10**8, store.serialize_ros1(scan, "velodyne_msgs/msg/VelodyneScan"))
     bag = RosBag(path)
-    assert bag.bag.problems == {"/velodyne_packets": "velodyne_msgs/msg/VelodyneScan holds the raw packets of a sensor's driver, "
-                                "not points: record the driver's point cloud topic, or replay the bag through the driver"}
+    assert bag.bag.problems == {
+        "/velodyne_packets": "velodyne_msgs/msg/VelodyneScan holds the raw packets of a sensor's driver, "
+        "not points: record the driver's point cloud topic, or replay the bag through the driver"
+    }
     assert [m.role for m in bag.mappings] == ["unknown"] and len(bag) == 3
     assert [t["note"] for t in inspect_bag(path)["topics"]] == [bag.bag.problems["/velodyne_packets"]]
 
@@ -346,13 +435,21 @@ def test_cloud_layouts_endianness_nan_and_colours():
     xyz[[5, 20]] = 0.0  # beams without a return, as drivers write them: left out
     xyz[30, :2] = 0.0  # a real point on the z axis: kept
     # Big-endian float64 x, y, z after a ring field, rgb packed in a float32, and a trailing time field.
-    dtype = np.dtype([("ring", ">u2"), ("pad", "V6"), ("x", ">f8"), ("y", ">f8"), ("z", ">f8"), ("rgb", ">f4"), ("t", ">f4")])
+    dtype = np.dtype(
+        [("ring", ">u2"), ("pad", "V6"), ("x", ">f8"), ("y", ">f8"), ("z", ">f8"), ("rgb", ">f4"), ("t", ">f4")]
+    )
     records = np.zeros(50, dtype)
     records["x"], records["y"], records["z"] = xyz.T
     packed = rng.integers(0, 2**24, 50, dtype=np.uint32)
     records["rgb"] = packed.view(np.float32).astype(">f4")
-    message = _cloud(m, [("ring", 0, 4), ("x", 8, 8), ("y", 16, 8), ("z", 24, 8), ("rgb", 32, 7), ("t", 36, 7)],
-                     dtype.itemsize, records.tobytes(), 50, bigendian=True)
+    message = _cloud(
+        m,
+        [("ring", 0, 4), ("x", 8, 8), ("y", 16, 8), ("z", 24, 8), ("rgb", 32, 7), ("t", 36, 7)],
+        dtype.itemsize,
+        records.tobytes(),
+        50,
+        bigendian=True,
+    )
     points, colors = cloud_points(message, "test")
     keep = np.isfinite(xyz).all(axis=1) & (xyz != 0).any(axis=1)
     assert keep.sum() == 46 and np.array_equal(points, xyz[keep].astype(np.float32))
@@ -361,7 +458,9 @@ def test_cloud_layouts_endianness_nan_and_colours():
     small = np.zeros(4, [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")])
     small["intensity"] = [0, 85, 170, 255]
     small["x"] = 1.0
-    message = _cloud(m, [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 2)], small.itemsize, small.tobytes(), 4)
+    message = _cloud(
+        m, [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 2)], small.itemsize, small.tobytes(), 4
+    )
     _, colors = cloud_points(message, "test")
     assert colors is not None and colors[:, 0].tolist() == [80, 106, 133, 160]
     assert cloud_points(message, "test", color="none")[1] is None
@@ -385,8 +484,15 @@ def test_image_encodings_and_compressed_passthrough(drive: KittiDrive):
         rows = array.reshape(height, -1).view(np.uint8)
         padded = np.zeros((height, rows.shape[1] + pad), np.uint8)
         padded[:, : rows.shape[1]] = rows
-        return m.sensor_msgs__Image(header=m.header(0, "camera"), height=height, width=width, encoding=encoding,
-                                    is_bigendian=bigendian, step=padded.shape[1], data=padded.reshape(-1))
+        return m.sensor_msgs__Image(
+            header=m.header(0, "camera"),
+            height=height,
+            width=width,
+            encoding=encoding,
+            is_bigendian=bigendian,
+            step=padded.shape[1],
+            data=padded.reshape(-1),
+        )
 
     def decoded(message: Any) -> np.ndarray:
         return pixels(image_bytes(message, 400, "test"))
@@ -407,11 +513,16 @@ def test_image_encodings_and_compressed_passthrough(drive: KittiDrive):
     assert np.array_equal(half, np.dstack([mosaic[0:h:2, 0:w:2], greens, mosaic[1:h:2, 1:w:2]]))
     with pytest.raises(DatasetError, match="test: image encoding '32FC1' is not one of"):
         image_bytes(image("32FC1", gray), 400, "test")
-    compressed = m.sensor_msgs__CompressedImage(header=m.header(0, "camera"), format="png", data=np.frombuffer(png, np.uint8))
+    compressed = m.sensor_msgs__CompressedImage(
+        header=m.header(0, "camera"), format="png", data=np.frombuffer(png, np.uint8)
+    )
     assert compressed_image_bytes(compressed, 400, "test") == png  # fits: the recorded bytes, not re-encoded
     # Scaled down: height rounded down, close to the KITTI converter's scaling (box reduce first, then bilinear).
     kitti = pixels(KittiDrive(drive.path, image_max_width=200).image("image_02", 0)).astype(int)
-    for scaled in (pixels(compressed_image_bytes(compressed, 200, "test")), pixels(image_bytes(image("rgb8", rgb), 200, "test"))):
+    for scaled in (
+        pixels(compressed_image_bytes(compressed, 200, "test")),
+        pixels(image_bytes(image("rgb8", rgb), 200, "test")),
+    ):
         assert scaled.shape == (60, 200, 3) and np.abs(scaled - kitti).mean() < 4
 
 
@@ -467,7 +578,9 @@ def test_truncated_bag_is_an_error_naming_the_file(bags: dict[str, Path], tmp_pa
         RosBag(cut)
 
 
-def test_an_mcap_file_cut_short_serves_its_whole_records(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
+def test_an_mcap_file_cut_short_serves_its_whole_records(
+    bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+):
     whole = RosBag(bags["mcap"])
     cut = tmp_path / "drive.mcap"
     cut.write_bytes(bags["mcap"].read_bytes()[: bags["mcap"].stat().st_size // 2])
@@ -494,8 +607,10 @@ def cut_recording(bag: Path, to: Path, keep: int | None = None) -> Path:
 
 def frame_digests(bag: RosBag, frames: int) -> list[str]:
     metadata = bag.metadata()
-    return [sha(json.dumps(bag.convert(frame, metadata), sort_keys=True, default=lambda a: sha(np.asarray(a))).encode())
-            for frame in range(frames)]
+    return [
+        sha(json.dumps(bag.convert(frame, metadata), sort_keys=True, default=lambda a: sha(np.asarray(a))).encode())
+        for frame in range(frames)
+    ]
 
 
 def ros1_profile_mcap(bag: Path, to: Path) -> Path:
@@ -508,7 +623,9 @@ def ros1_profile_mcap(bag: Path, to: Path) -> Path:
         writer.start(profile="ros1", library="tests")
         channels = {}
         for connection in reader.connections:
-            schema = writer.register_schema(connection.msgtype.replace("/msg/", "/"), "ros1msg", connection.msgdef.data.encode())
+            schema = writer.register_schema(
+                connection.msgtype.replace("/msg/", "/"), "ros1msg", connection.msgdef.data.encode()
+            )
             channels[connection.id] = writer.register_channel(connection.topic, "ros1", schema)
         for connection, time, data in reader.messages():
             writer.add_message(channels[connection.id], time, data, time)
@@ -522,7 +639,9 @@ def test_an_mcap_file_of_the_ros1_profile_serves_the_same_frames_as_its_bag(bags
     assert frame_digests(converted, FRAMES) == frame_digests(RosBag(bags["ros1"]), FRAMES)
 
 
-def test_unindexed_ros1_bag_is_indexed_in_memory(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
+def test_unindexed_ros1_bag_is_indexed_in_memory(
+    bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+):
     """A recording killed before it wrote its index: every message read, the frames those of the indexed bag."""
     unindexed = cut_recording(bags["ros1"], tmp_path / "unindexed.bag")
     with caplog.at_level(logging.WARNING):
@@ -530,7 +649,9 @@ def test_unindexed_ros1_bag_is_indexed_in_memory(bags: dict[str, Path], tmp_path
     assert f"{unindexed} has no readable index (its recording was cut short): indexed in memory" in caplog.text
     indexed = RosBag(bags["ros1"])
     assert bag.times.tolist() == indexed.times.tolist() and len(bag) == FRAMES
-    assert {name: len(topic) for name, topic in bag.bag.topics.items()} == {name: len(topic) for name, topic in indexed.bag.topics.items()}
+    assert {name: len(topic) for name, topic in bag.bag.topics.items()} == {
+        name: len(topic) for name, topic in indexed.bag.topics.items()
+    }
     assert frame_digests(bag, FRAMES) == frame_digests(indexed, FRAMES)
 
 
@@ -552,7 +673,9 @@ def test_unindexed_ros1_bag_with_a_garbled_chunk_is_an_error_naming_the_file(bag
         RosBag(garbled)
 
 
-def test_ros1_bag_cut_inside_a_chunk_serves_the_whole_chunks(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
+def test_ros1_bag_cut_inside_a_chunk_serves_the_whole_chunks(
+    bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+):
     """A bag cut at half its size (its index gone, its last chunk cut short): what the whole chunks hold, and a warning."""
     size = bags["ros1"].stat().st_size
     half = tmp_path / "half.bag"
@@ -563,7 +686,9 @@ def test_ros1_bag_cut_inside_a_chunk_serves_the_whole_chunks(bags: dict[str, Pat
         caplog.clear()
         with caplog.at_level(logging.WARNING):
             bag = RosBag(path)
-        assert re.search(rf"{path} has no readable index .* the last \d+ bytes, a record cut short, are left out", caplog.text)
+        assert re.search(
+            rf"{path} has no readable index .* the last \d+ bytes, a record cut short, are left out", caplog.text
+        )
         clouds = len(bag.bag.topics[CLOUD_TOPIC])
         assert 1 < clouds < FRAMES
         assert len(bag) == clouds and bag.times.tolist() == indexed.times[:clouds].tolist()
@@ -573,15 +698,23 @@ def test_ros1_bag_cut_inside_a_chunk_serves_the_whole_chunks(bags: dict[str, Pat
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("container", "compression"), [("ros1", "bz2"), ("ros1", "lz4"), ("mcap", "zstd")])
-def test_compressed_chunks_read_the_same(container: str, compression: str, bags: dict[str, Path], drive: KittiDrive, tmp_path: Path):
-    path = write_bag(tmp_path / CONTAINERS[container], container, kitti_only(drive, container, {CLOUD_TOPIC, "/tf", "/tf_static"}),
-                     compression=compression)
+def test_compressed_chunks_read_the_same(
+    container: str, compression: str, bags: dict[str, Path], drive: KittiDrive, tmp_path: Path
+):
+    path = write_bag(
+        tmp_path / CONTAINERS[container],
+        container,
+        kitti_only(drive, container, {CLOUD_TOPIC, "/tf", "/tf_static"}),
+        compression=compression,
+    )
     plain, packed = RosBag(bags[container]), RosBag(path)
     ours = packed.convert(4)["updates"][0]["primitives"][CLOUD_TOPIC]["points"][0]["points"]
     assert np.array_equal(ours, plain.convert(4)["updates"][0]["primitives"][CLOUD_TOPIC]["points"][0]["points"])
 
 
-def test_a_topic_that_does_not_decode_is_left_out_with_a_warning(drive: KittiDrive, tmp_path: Path, caplog: pytest.LogCaptureFixture):
+def test_a_topic_that_does_not_decode_is_left_out_with_a_warning(
+    drive: KittiDrive, tmp_path: Path, caplog: pytest.LogCaptureFixture
+):
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     m = Messages(_store("mcap"))
@@ -625,7 +758,9 @@ def test_converted_log_reads_in_the_published_client(bags: dict[str, Path], driv
         assert parsed["type"] == "TIMESLICE" and parsed["timestamp"] == drive.times[frame]
         sweep = drive.velodyne(frame)
         cloud = parsed["streams"][CLOUD_TOPIC]["pointCloud"]
-        assert cloud["numInstances"] == len(sweep) and cloud["positions"]["sha256"] == sha(np.ascontiguousarray(sweep[:, :3]))
+        assert cloud["numInstances"] == len(sweep) and cloud["positions"]["sha256"] == sha(
+            np.ascontiguousarray(sweep[:, :3])
+        )
         oxts = drive.oxts(frame)
         pose = parsed["poses"]["/vehicle_pose"]
         assert pose["yaw"] == pytest.approx(oxts.yaw, abs=1e-6) and pose["roll"] == pytest.approx(oxts.roll, abs=1e-6)
@@ -635,7 +770,9 @@ def test_converted_log_reads_in_the_published_client(bags: dict[str, Path], driv
         assert parsed["streams"]["/odom/speed"] == [{"time": drive.times[frame], "variable": pytest.approx(oxts.vf)}]
 
 
-async def test_served_over_a_socket_beside_a_broken_bag(bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture):
+async def test_served_over_a_socket_beside_a_broken_bag(
+    bags: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+):
     root = tmp_path / "data"
     root.mkdir()
     (root / "good.mcap").write_bytes(bags["mcap"].read_bytes())
@@ -645,9 +782,15 @@ async def test_served_over_a_socket_beside_a_broken_bag(bags: dict[str, Path], t
         for _ in range(2):  # the client is told the log's name and the cause, never where the file is
             async with client(server, "/?log=cut") as c:
                 error = await c.recv()
-                assert error["type"] == "xviz/error" and error["data"]["message"] == "log 'cut': the bag holds no message"
+                assert (
+                    error["type"] == "xviz/error" and error["data"]["message"] == "log 'cut': the bag holds no message"
+                )
         # The server's log has one warning for this version of the file, with its path.
-        warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING and "cannot be opened" in r.getMessage()]
+        warnings = [
+            r.getMessage()
+            for r in caplog.records
+            if r.levelno == logging.WARNING and "cannot be opened" in r.getMessage()
+        ]
         assert warnings == [f"log 'cut' ({root / 'cut.bag'}) cannot be opened: log 'cut': the bag holds no message"]
         for name in ("good", "drive"):
             async with client(server, f"/?log={name}") as c:
@@ -684,7 +827,9 @@ async def test_streetscape_session_against_a_served_bag(bags: dict[str, Path], d
 # -- inspect --------------------------------------------------------------------------
 
 
-def test_inspect_lists_topics_rates_and_mapping(bags: dict[str, Path], drive: KittiDrive, capsys: pytest.CaptureFixture[str]):
+def test_inspect_lists_topics_rates_and_mapping(
+    bags: dict[str, Path], drive: KittiDrive, capsys: pytest.CaptureFixture[str]
+):
     assert main(["inspect", str(bags["ros1"]), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     topics = {t["topic"]: t for t in report["topics"]}
@@ -702,8 +847,9 @@ def test_inspect_lists_topics_rates_and_mapping(bags: dict[str, Path], drive: Ki
     assert "nope.bag" in capsys.readouterr().err
 
 
-def test_inspect_points_out_topics_on_another_clock(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                   caplog: pytest.LogCaptureFixture):
+def test_inspect_points_out_topics_on_another_clock(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+):
     """Header stamps in simulation time beside a wall-clock recording: reported, and served on record time."""
     from rosbags.typesys import Stores
 
@@ -713,15 +859,32 @@ def test_inspect_points_out_topics_on_another_clock(tmp_path: Path, capsys: pyte
     for i in range(3):
         t = wall + i * 100_000_000
         simulated = m.std_msgs__Header(stamp=m.builtin_interfaces__Time(sec=100 + i, nanosec=0), frame_id="base_link")
-        messages.append(("/sim/odom", "nav_msgs/msg/Odometry", t, m.nav_msgs__Odometry(
-            header=simulated, child_frame_id="base_link",
-            pose=m.geometry_msgs__PoseWithCovariance(pose=m.geometry_msgs__Pose(
-                position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0))),
-                covariance=np.zeros(36)),
-            twist=m.geometry_msgs__TwistWithCovariance(twist=m.geometry_msgs__Twist(
-                linear=m.vector(1.0, 0.0, 0.0), angular=m.vector(0.0, 0.0, 0.0)), covariance=np.zeros(36)))))
+        messages.append(
+            (
+                "/sim/odom",
+                "nav_msgs/msg/Odometry",
+                t,
+                m.nav_msgs__Odometry(
+                    header=simulated,
+                    child_frame_id="base_link",
+                    pose=m.geometry_msgs__PoseWithCovariance(
+                        pose=m.geometry_msgs__Pose(
+                            position=m.geometry_msgs__Point(x=float(i), y=0.0, z=0.0),
+                            orientation=m.rotation((0.0, 0.0, 0.0, 1.0)),
+                        ),
+                        covariance=np.zeros(36),
+                    ),
+                    twist=m.geometry_msgs__TwistWithCovariance(
+                        twist=m.geometry_msgs__Twist(linear=m.vector(1.0, 0.0, 0.0), angular=m.vector(0.0, 0.0, 0.0)),
+                        covariance=np.zeros(36),
+                    ),
+                ),
+            )
+        )
         messages.append(("/wall/speed", "std_msgs/msg/Float32", t, m.std_msgs__Float32(data=float(i))))
-        messages.append(("/diagnostics_blob", "std_msgs/msg/ColorRGBA", t, m.std_msgs__ColorRGBA(r=0.0, g=0.0, b=0.0, a=1.0)))
+        messages.append(
+            ("/diagnostics_blob", "std_msgs/msg/ColorRGBA", t, m.std_msgs__ColorRGBA(r=0.0, g=0.0, b=0.0, a=1.0))
+        )
     path = write_bag(tmp_path / "clocks.mcap", "mcap", iter(messages))
     bag = RosBag(path)
     with caplog.at_level(logging.INFO, logger="xviz_server.datasets.ros.dataset"):
@@ -735,7 +898,9 @@ def test_inspect_points_out_topics_on_another_clock(tmp_path: Path, capsys: pyte
     assert topics["/wall/speed"]["note"] == ""  # no header
     assert topics["/diagnostics_blob"]["maps_to"] == "unknown type, not served"
     metadata = bag.metadata()
-    positions = [bag.convert(i, metadata)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(len(bag))]
+    positions = [
+        bag.convert(i, metadata)["updates"][0]["poses"]["/vehicle_pose"]["position"][0] for i in range(len(bag))
+    ]
     assert positions == [0.0, 1.0, 2.0]
     config = tmp_path / "tf.toml"
     config.write_text("pose = '/tf'\n")

@@ -58,9 +58,7 @@ def validator() -> XVIZValidator:
 # Schema files
 
 
-SCHEMA_FILES = {
-    path.relative_to(SCHEMA_DIR).with_suffix("").as_posix(): path for path in SCHEMA_DIR.rglob("*.json")
-}
+SCHEMA_FILES = {path.relative_to(SCHEMA_DIR).with_suffix("").as_posix(): path for path in SCHEMA_DIR.rglob("*.json")}
 
 
 @pytest.mark.parametrize("name", sorted(SCHEMA_FILES))
@@ -123,16 +121,37 @@ AGREEMENT = [
     ("style/class", {"name": "Car", "style": {"height": 2.0}}),
     ("style/class", {"name": "Car", "style": {"stroke_color": "#50B3FF", "height": 2.0}}),
     ("primitives/polygon", {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"classes": []}}),
-    ("primitives/polygon", {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"classes": ["Car"], "style": {"height": 2.0}}}),
+    (
+        "primitives/polygon",
+        {"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]], "base": {"classes": ["Car"], "style": {"height": 2.0}}},
+    ),
     ("primitives/polyline", {"vertices": [[0, 0, 0], [1, 1, 1]], "colors": [[255, 0, 0], [0, 255, 0]]}),
     ("primitives/polyline", {"vertices": [[0, 0, 0], [1, 1, 1]]}),
-    ("core/pose", {"timestamp": 1.0, "map_origin": {"latitude": 49.0, "altitude": 0.0}, "position": [0, 0, 0], "orientation": [0, 0, 0]}),
-    ("core/pose", {"timestamp": 1.0, "map_origin": {"longitude": 0.0, "latitude": 49.0, "altitude": 0.0},
-                   "position": [0, 0, 0], "orientation": [0, 0, 0]}),
+    (
+        "core/pose",
+        {
+            "timestamp": 1.0,
+            "map_origin": {"latitude": 49.0, "altitude": 0.0},
+            "position": [0, 0, 0],
+            "orientation": [0, 0, 0],
+        },
+    ),
+    (
+        "core/pose",
+        {
+            "timestamp": 1.0,
+            "map_origin": {"longitude": 0.0, "latitude": 49.0, "altitude": 0.0},
+            "position": [0, 0, 0],
+            "orientation": [0, 0, 0],
+        },
+    ),
     ("core/annotation_visual", {"base": {"object_id": "car-1"}, "inline_style": {"height": 2.0}}),
     ("core/pose", {"timestamp": -1.0, "position": [0, 0, 0], "orientation": [0, 0, 0]}),
     ("core/timeseries_state", {"timestamp": -1.0, "streams": ["/speed"], "values": {"doubles": [1.0]}}),
-    ("core/future_instances", {"timestamps": [-1.0], "primitives": [{"polygons": [{"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]]}]}]}),
+    (
+        "core/future_instances",
+        {"timestamps": [-1.0], "primitives": [{"polygons": [{"vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0]]}]}]},
+    ),
     ("core/stream_set", {"timestamp": 1.0, "no_data_streams": ["/points"]}),
     ("core/stream_set", {"timestamp": 1.0, "links": {"/points": {"target_pose": "/vehicle_pose"}}}),
     ("core/stream_set", {"timestamp": 1.0, "time_series": []}),
@@ -170,9 +189,7 @@ def test_our_validator_agrees_with_the_published_one(validator: XVIZValidator, t
     ],
 )
 @needs_data
-def test_invalid_panel_is_rejected_for_its_own_defect(
-    validator: XVIZValidator, case: str, expected: str
-) -> None:
+def test_invalid_panel_is_rejected_for_its_own_defect(validator: XVIZValidator, case: str, expected: str) -> None:
     # These examples also spell the element types in lower case, which is
     # wrong on its own; upper-case them to see the defect each one is named for.
     def upper_types(element: dict[str, Any]) -> dict[str, Any]:
@@ -196,19 +213,32 @@ def test_invalid_panel_is_rejected_for_its_own_defect(
         ("style/object_value", {"fill_color": [255, 0]}, "$.fill_color: [255, 0] is too short"),
         ("style/object_value", {"fill_color": "#12"}, "$.fill_color: '#12' is not a valid hex string"),
         ("style/object_value", {"fill_color": "red"}, "$.fill_color: 'red' is not a valid hex string"),
-        ("style/object_value", {"height": 1.5}, "$: needs one of 'fill_color', 'stroke_color', 'stroke_width', 'radius',"),
-        ("style/stream_value", {"height": 1.5}, "$: needs one of 'fill_color', 'stroke_color', 'stroke_width', 'radius',"),
-        ("style/stream_value", {"fill_color": "#fff", "font_weight": "bold"}, "$.font_weight: 'bold' is not of type 'number'"),
-        ("primitives/polyline", {"vertices": [[0, 0, 0], [1, 1, 1]], "colors": [[255, 0, 0], [0, 255, 0]]},
-         "$: Additional properties are not allowed ('colors' was unexpected)"),
+        (
+            "style/object_value",
+            {"height": 1.5},
+            "$: needs one of 'fill_color', 'stroke_color', 'stroke_width', 'radius',",
+        ),
+        (
+            "style/stream_value",
+            {"height": 1.5},
+            "$: needs one of 'fill_color', 'stroke_color', 'stroke_width', 'radius',",
+        ),
+        (
+            "style/stream_value",
+            {"fill_color": "#fff", "font_weight": "bold"},
+            "$.font_weight: 'bold' is not of type 'number'",
+        ),
+        (
+            "primitives/polyline",
+            {"vertices": [[0, 0, 0], [1, 1, 1]], "colors": [[255, 0, 0], [0, 255, 0]]},
+            "$: Additional properties are not allowed ('colors' was unexpected)",
+        ),
         ("primitives/point", {"points": [[1, 2, 3], [1, 2]]}, "$.points[1]: [1, 2] is too short"),
         ("primitives/polygon", {"vertices": [0, 0, 0, 1, 1, 1]}, "$.vertices: [0, 0, 0, 1, 1, 1] is too"),
         ("math/matrix3x3", [[1, 0, 0], [0, 1, 0, 0], [0, 0, 1]], "$[1]: [0, 1, 0, 0] is too long"),
     ],
 )
-def test_problem_names_the_offending_value(
-    validator: XVIZValidator, name: str, instance: Any, expected: str
-) -> None:
+def test_problem_names_the_offending_value(validator: XVIZValidator, name: str, instance: Any, expected: str) -> None:
     problems = validator.errors(name, instance)
     assert any(line.startswith(expected) for line in problems), problems
 
@@ -409,9 +439,7 @@ def test_validate_message_accepts(validator: XVIZValidator, envelope: dict[str, 
     ],
     ids=["unknown-xviz-type", "bad-data", "extra-key", "no-type"],
 )
-def test_validate_message_rejects(
-    validator: XVIZValidator, envelope: dict[str, Any], problems: list[str]
-) -> None:
+def test_validate_message_rejects(validator: XVIZValidator, envelope: dict[str, Any], problems: list[str]) -> None:
     with pytest.raises(SchemaValidationError) as caught:
         validator.validate_message(envelope)
     assert caught.value.schema == "envelope"

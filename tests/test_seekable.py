@@ -16,10 +16,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from helpers import INTEROP, http_get, metric, running_server, update, write_log
 from xviz_server.foxglove.convert import plan
 from xviz_server.ranges import Representation, decide
-
-from helpers import INTEROP, http_get, metric, running_server, update, write_log
 
 FILE = "/api/logs/{}/file.mcap"
 REPO = Path(__file__).parent.parent
@@ -68,10 +67,16 @@ SIZE = 1000
         ({"If-Match": '"old"', "Range": "bytes=1-1"}, 412, None),
     ],
 )
-def test_an_answer_follows_the_ranges_and_conditions_of_the_request(headers: dict[str, str], status: int, span: Any) -> None:
+def test_an_answer_follows_the_ranges_and_conditions_of_the_request(
+    headers: dict[str, str], status: int, span: Any
+) -> None:
     answer = decide(headers, Representation(SIZE, ETAG, WHEN))
     assert answer.status == status
-    assert (answer.headers["Accept-Ranges"], answer.headers["ETag"], answer.headers["Last-Modified"]) == ("bytes", ETAG, DATE)
+    assert (answer.headers["Accept-Ranges"], answer.headers["ETag"], answer.headers["Last-Modified"]) == (
+        "bytes",
+        ETAG,
+        DATE,
+    )
     if span is not None:
         assert (answer.offset, answer.length) == span
     if status == 206:
@@ -116,12 +121,17 @@ class RangeFile(io.RawIOBase):
         start = self._position - self._buffered_at
         if start < 0 or start + wanted > len(self._buffer):
             last = min(self.size, self._position + max(wanted, self._block)) - 1
-            status, headers, body = http_get(self._port, self._path, Range=f"bytes={self._position}-{last}", **{"If-Range": self.etag})
-            assert status == 206 and headers["Content-Range"] == f"bytes {self._position}-{last}/{self.size}", (status, headers)
+            status, headers, body = http_get(
+                self._port, self._path, Range=f"bytes={self._position}-{last}", **{"If-Range": self.etag}
+            )
+            assert status == 206 and headers["Content-Range"] == f"bytes {self._position}-{last}/{self.size}", (
+                status,
+                headers,
+            )
             self.requests += 1
             self.received += len(body)
             self._buffer, self._buffered_at, start = body, self._position, 0
-        target[:wanted] = self._buffer[start:start + wanted]
+        target[:wanted] = self._buffer[start : start + wanted]
         self._position += wanted
         return wanted
 
@@ -134,8 +144,10 @@ def middle_seek(file: RangeFile) -> tuple[Any, int, list[tuple[str, int, bytes]]
     assert summary is not None and summary.chunk_indexes
     times = sorted({chunk.message_start_time for chunk in summary.chunk_indexes})
     middle = times[len(times) // 2]
-    messages = [(channel.topic, message.log_time, message.data)
-                for _, channel, message in reader.iter_messages(starting_at=middle, ending_at=middle)]
+    messages = [
+        (channel.topic, message.log_time, message.data)
+        for _, channel, message in reader.iter_messages(starting_at=middle, ending_at=middle)
+    ]
     return summary, middle, messages
 
 
@@ -154,14 +166,18 @@ def mcap_ranges(url: str, start: int, end: int) -> dict[str, Any]:
     node = shutil.which("node")
     assert node, "node is required for the interop tests"
     assert (INTEROP / "node_modules" / "@mcap" / "core").is_dir(), "run `npm ci --prefix tests/interop`"
-    done = subprocess.run([node, str(INTEROP / "mcap-ranges.js"), url, str(start), str(end)], capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [node, str(INTEROP / "mcap-ranges.js"), url, str(start), str(end)], capture_output=True, text=True, timeout=120
+    )
     assert done.returncode == 0, done.stdout + done.stderr
     result: dict[str, Any] = json.loads(done.stdout)
     return result
 
 
 @pytest.mark.slow
-async def test_a_seek_to_the_middle_reads_the_summary_and_a_few_chunks_with_the_published_readers(kitti_root: Path) -> None:
+async def test_a_seek_to_the_middle_reads_the_summary_and_a_few_chunks_with_the_published_readers(
+    kitti_root: Path,
+) -> None:
     async with running_server(kitti_root) as server:
         log = await server.catalog.open("kitti")
         topics = sorted(channel.topic for channel in plan(log.metadata, log.originals).channels)
@@ -171,7 +187,9 @@ async def test_a_seek_to_the_middle_reads_the_summary_and_a_few_chunks_with_the_
         before = await sent_bytes(server)
         summary, middle, messages = await asyncio.to_thread(middle_seek, file)
         sent = await sent_bytes(server) - before
-        node = await asyncio.to_thread(mcap_ranges, f"http://127.0.0.1:{server.port}{FILE.format('kitti')}", middle, middle)
+        node = await asyncio.to_thread(
+            mcap_ranges, f"http://127.0.0.1:{server.port}{FILE.format('kitti')}", middle, middle
+        )
     # The file: the Foxglove face's channels, an index, every frame of the log.
     assert sorted(channel.topic for channel in summary.channels.values()) == topics
     expected = [message for message in all_messages(whole) if message[1] == middle]
@@ -181,7 +199,11 @@ async def test_a_seek_to_the_middle_reads_the_summary_and_a_few_chunks_with_the_
     # A seek costs the summary and the chunks of that time, not the file.
     chunk_bytes = [chunk.chunk_length + chunk.message_index_length for chunk in summary.chunk_indexes]
     summary_bytes = len(whole) - summary.chunk_indexes[-1].chunk_start_offset - chunk_bytes[-1]
-    assert file.received <= summary_bytes + 3 * max(chunk_bytes) + 2 * 64 * 1024, (file.received, summary_bytes, chunk_bytes)
+    assert file.received <= summary_bytes + 3 * max(chunk_bytes) + 2 * 64 * 1024, (
+        file.received,
+        summary_bytes,
+        chunk_bytes,
+    )
     assert file.received < len(whole) / 5 and sent == file.received  # what the server sent, all received
     # The TypeScript reader, the apps' own, reads the same messages by ranges, as little.
     assert "error" not in node, node["error"]
@@ -198,7 +220,9 @@ def random_updates(count: int, points: int = 20_000) -> list[dict[str, Any]]:
     updates = []
     for i in range(count):
         data = update(round(100 + i / 10, 3))
-        data["updates"][0]["primitives"]["/points"]["points"][0]["points"] = generator.random((points, 3), dtype=np.float32)
+        data["updates"][0]["primitives"]["/points"]["points"][0]["points"] = generator.random(
+            (points, 3), dtype=np.float32
+        )
         updates.append(data)
     return updates
 
@@ -221,7 +245,12 @@ async def test_the_file_is_answered_with_ranges_and_conditions_and_readable_by_o
         status, headers, body = await get("HEAD")
         assert (status, headers["Content-Length"], headers["ETag"], body) == (200, str(len(whole)), etag, b"")
         status, headers, body = await get(Range="bytes=100-199")
-        assert (status, headers["Content-Range"], headers["Content-Length"], body) == (206, f"bytes 100-199/{len(whole)}", "100", whole[100:200])
+        assert (status, headers["Content-Range"], headers["Content-Length"], body) == (
+            206,
+            f"bytes 100-199/{len(whole)}",
+            "100",
+            whole[100:200],
+        )
         assert headers["Access-Control-Allow-Origin"] == "*"
         status, headers, body = await get(Range="bytes=-16")
         assert (status, body) == (206, whole[-16:])
@@ -246,7 +275,9 @@ async def test_the_file_is_answered_with_ranges_and_conditions_and_readable_by_o
 
 
 @pytest.mark.skipif(
-    not (REPO / "viewer" / "node_modules" / "playwright-core").is_dir() or not CHROMIUM.is_file() or shutil.which("node") is None,
+    not (REPO / "viewer" / "node_modules" / "playwright-core").is_dir()
+    or not CHROMIUM.is_file()
+    or shutil.which("node") is None,
     reason="needs playwright-core and chromium: run scripts/test.sh",
 )
 async def test_a_page_of_another_origin_reads_the_file_by_ranges_in_chromium(tmp_path: Path) -> None:
@@ -256,12 +287,21 @@ async def test_a_page_of_another_origin_reads_the_file_by_ranges_in_chromium(tmp
         size = int((await asyncio.to_thread(http_get, server.port, FILE.format("drive"), "HEAD"))[1]["Content-Length"])
         options = {"url": url, "ranges": [[0, 99], [size - 10, size + 100]]}
         done = await asyncio.to_thread(
-            subprocess.run, ["node", str(REPO / "tests" / "cross-origin.mjs"), json.dumps(options)], capture_output=True, text=True, timeout=120
+            subprocess.run,
+            ["node", str(REPO / "tests" / "cross-origin.mjs"), json.dumps(options)],
+            capture_output=True,
+            text=True,
+            timeout=120,
         )
         assert done.returncode == 0, done.stderr
         report = json.loads(done.stdout)
     # What the apps' remote-file reader does: a GET cut short for the size, the ETag and Accept-Ranges, then ranges.
-    assert report["open"] == {"status": 200, "acceptRanges": "bytes", "contentLength": str(size), "etag": report["open"]["etag"]}
+    assert report["open"] == {
+        "status": 200,
+        "acceptRanges": "bytes",
+        "contentLength": str(size),
+        "etag": report["open"]["etag"],
+    }
     assert report["open"]["etag"].startswith('"')
     assert report["ranges"] == [
         {"status": 206, "contentRange": f"bytes 0-99/{size}", "bytes": 100},
@@ -324,7 +364,9 @@ async def test_the_file_is_made_once_per_version_kept_across_restarts_and_made_a
         assert not [record for record in caplog.records if record.getMessage().startswith("made the file")]
         # The log changes (a frame more, its index written again): a new file, the old one removed.
         write_log(logs / "drive", random_updates(21))
-        status, headers, body = await asyncio.to_thread(http_get, server.port, path, Range="bytes=0-7", **{"If-Range": etag})
+        status, headers, body = await asyncio.to_thread(
+            http_get, server.port, path, Range="bytes=0-7", **{"If-Range": etag}
+        )
         assert status == 200 and headers["ETag"] != etag  # the range was of the old file: the whole new one is answered
         assert len({time for _, time, _ in all_messages(body)}) == 21
         (kept,) = (state / "files").iterdir()
@@ -346,7 +388,9 @@ async def test_an_unreadable_frame_fails_the_file_and_the_next_request_tries_aga
         assert status == 200 and len({time for _, time, _ in all_messages(body)}) == 4
 
 
-async def test_a_request_waits_for_the_file_past_the_handshake_limit(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+async def test_a_request_waits_for_the_file_past_the_handshake_limit(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     import xviz_server.framing
     import xviz_server.server
 

@@ -20,13 +20,21 @@ STAMPS = REPO / ".venv" / "serve-stamps"
 
 def stamps() -> dict[str, tuple[int, str]]:
     """Each stamp's modification time and content: an install rewrites its stamp."""
-    return {path.name: (path.stat().st_mtime_ns, path.read_text()) for path in STAMPS.glob("*")} if STAMPS.is_dir() else {}
+    return (
+        {path.name: (path.stat().st_mtime_ns, path.read_text()) for path in STAMPS.glob("*")} if STAMPS.is_dir() else {}
+    )
 
 
 def start(*args: str) -> tuple[subprocess.Popen[str], str]:
     """serve.sh ARGS until the server listens: the process and what it printed so far."""
-    process = subprocess.Popen([str(SCRIPT), *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                               env=clean_env(), start_new_session=True)
+    process = subprocess.Popen(
+        [str(SCRIPT), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=clean_env(),
+        start_new_session=True,
+    )
     assert process.stdout is not None
     output = []
     for line in process.stdout:  # ends when the process does; the test's timeout bounds the installs
@@ -45,10 +53,14 @@ def test_a_port_in_use_is_said_before_anything_is_installed():
     before = stamps()
     with socket.create_server(("127.0.0.1", 0)) as taken:
         port = taken.getsockname()[1]
-        result = subprocess.run([str(SCRIPT), "--port", str(port)], capture_output=True, text=True, timeout=60, env=clean_env())
+        result = subprocess.run(
+            [str(SCRIPT), "--port", str(port)], capture_output=True, text=True, timeout=60, env=clean_env()
+        )
     assert result.returncode == 2 and result.stdout == ""
-    assert result.stderr == (f"serve.sh: cannot listen on 127.0.0.1:{port}: address already in use; another process "
-                             "listens there: choose a free port with --port (XVIZ_PORT)\n")
+    assert result.stderr == (
+        f"serve.sh: cannot listen on 127.0.0.1:{port}: address already in use; another process "
+        "listens there: choose a free port with --port (XVIZ_PORT)\n"
+    )
     assert stamps() == before
 
 

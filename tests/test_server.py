@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from websockets.asyncio.client import connect
 
 from helpers import assert_same_message, client, metric, running_server, ten_hz, timestamps, update, write_log
@@ -190,7 +189,10 @@ async def test_point_in_time_gives_complete_state(root: Path):
         state = data["updates"][0]
         assert state["timestamp"] == 1317042147.004  # the last frame at or before the query
         assert state["primitives"]["/lidar/points"]["points"][0]["points"].shape[1] == 3
-        await c.send("transform_point_in_time", {"id": "q2", "query_timestamp": 1317042147.05, "desired_streams": ["/vehicle_pose"]})
+        await c.send(
+            "transform_point_in_time",
+            {"id": "q2", "query_timestamp": 1317042147.05, "desired_streams": ["/vehicle_pose"]},
+        )
         only_pose = (await c.recv())["data"]["updates"][0]
         assert set(only_pose) == {"timestamp", "poses"}
         await c.send("transform_point_in_time", {"id": "early", "query_timestamp": 10.0})
@@ -200,7 +202,9 @@ async def test_point_in_time_gives_complete_state(root: Path):
 
 
 async def test_point_in_time_merges_incremental_updates(tmp_path: Path):
-    updates = [update(100.0)] + [update(100.0 + i / 10, update_type="INCREMENTAL", streams=("/vehicle_pose",)) for i in range(1, 5)]
+    updates = [update(100.0)] + [
+        update(100.0 + i / 10, update_type="INCREMENTAL", streams=("/vehicle_pose",)) for i in range(1, 5)
+    ]
     write_log(tmp_path / "inc", updates)
     async with running_server(tmp_path) as server, client(server, "/inc") as c:
         await c.recv()
@@ -244,7 +248,9 @@ async def test_point_in_time_of_a_frame_that_is_a_whole_state(root: Path, kitti_
     async with running_server(tmp_path / "complete") as server:
         websocket = await connect(f"ws://127.0.0.1:{server.port}/log", max_size=None)
         await websocket.recv()
-        await websocket.send(json.dumps({"type": "xviz/transform_point_in_time", "data": {"id": "q", "query_timestamp": 100.25}}))
+        await websocket.send(
+            json.dumps({"type": "xviz/transform_point_in_time", "data": {"id": "q", "query_timestamp": 100.25}})
+        )
         assert await websocket.recv() == (stored / "4-frame.glb").read_bytes()  # the frame at 100.2
         await websocket.close()
 
@@ -255,7 +261,10 @@ async def test_point_in_time_of_a_frame_that_is_a_whole_state(root: Path, kitti_
 async def test_reconfigure_full_and_delta(root: Path):
     async with running_server(root) as server, client(server, "/?log=kitti") as c:
         await c.recv()
-        await c.send("reconfigure", {"update_type": "DELTA", "config_update": {"desired_streams": ["/vehicle_pose"], "message_format": "JSON"}})
+        await c.send(
+            "reconfigure",
+            {"update_type": "DELTA", "config_update": {"desired_streams": ["/vehicle_pose"], "message_format": "JSON"}},
+        )
         await c.send("transform_log", {"id": "a", "end_timestamp": 1317042146.0})
         messages = await c.until("transform_log_done", "a")
         assert all(m["_text"] for m in messages)
@@ -271,9 +280,15 @@ async def test_reconfigure_full_and_delta(root: Path):
         messages = await c.until("transform_log_done", "c")
         assert not messages[0]["_text"]  # back to the log's own format
 
-        await c.send("reconfigure", {"update_type": "DELTA", "config_update": {"message_format": "JSON", "frame_skip": 2}})
+        await c.send(
+            "reconfigure", {"update_type": "DELTA", "config_update": {"message_format": "JSON", "frame_skip": 2}}
+        )
         error = await c.recv()
-        assert error["type"] == "xviz/error" and "'frame_skip'" in error["data"]["message"] and "unchanged" in error["data"]["message"]
+        assert (
+            error["type"] == "xviz/error"
+            and "'frame_skip'" in error["data"]["message"]
+            and "unchanged" in error["data"]["message"]
+        )
         await c.send("transform_log", {"id": "d", "end_timestamp": 1317042146.0})
         messages = await c.until("transform_log_done", "d")
         assert not messages[0]["_text"]  # the rejected update changed nothing

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from xviz_server.codec import Format, decode, encode
+from xviz_server.events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
 from xviz_server.exceptions import FrameError, LogNotFound
 from xviz_server.index import TimeIndex
 from xviz_server.messages import envelope
-from xviz_server.events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
 from xviz_server.session import (
     CancelStream,
     ConfigureLive,
@@ -31,7 +31,9 @@ class Log:
 
     name: str = "drive"
     format: Format = Format.BINARY
-    index: TimeIndex = field(default_factory=lambda: TimeIndex.from_spans((100 + i / 10, 100 + i / 10, i) for i in range(20)))
+    index: TimeIndex = field(
+        default_factory=lambda: TimeIndex.from_spans((100 + i / 10, 100 + i / 10, i) for i in range(20))
+    )
 
     def metadata_message(self, fmt: Format) -> bytes:
         return encode(envelope("metadata", {"version": "2.0.0", "log": self.name}), fmt)
@@ -91,7 +93,9 @@ def test_bad_url_parameter_is_reported_and_the_log_still_opens():
 
 def test_transform_log_streams_the_range_then_done():
     session = opened()
-    [stream] = session.receive(message("transform_log", {"id": "r", "start_timestamp": 100.25, "end_timestamp": 100.55}))
+    [stream] = session.receive(
+        message("transform_log", {"id": "r", "start_timestamp": 100.25, "end_timestamp": 100.55})
+    )
     assert isinstance(stream, StreamFrames) and stream.log == "drive"
     assert stream.frames.tolist() == [3, 4, 5] and np.allclose(stream.times, [100.3, 100.4, 100.5])
     assert stream.fmt is Format.BINARY and stream.streams is None and stream.speed is None
@@ -126,14 +130,21 @@ def test_filters_of_config_and_request_intersect():
 
 def test_point_in_time_becomes_a_query():
     session = opened()
-    [query] = session.receive(message("transform_point_in_time", {"id": "q", "query_timestamp": 100.5, "desired_streams": ["/a"]}))
+    [query] = session.receive(
+        message("transform_point_in_time", {"id": "q", "query_timestamp": 100.5, "desired_streams": ["/a"]})
+    )
     assert isinstance(query, QueryInstant)
     assert (query.request_id, query.instant, query.streams) == ("q", 100.5, frozenset({"/a"}))
 
 
 def test_reconfigure_delta_full_and_refused():
     session = opened()
-    assert session.receive(message("reconfigure", {"update_type": "DELTA", "config_update": {"message_format": "json", "speed": 2}})) == []
+    assert (
+        session.receive(
+            message("reconfigure", {"update_type": "DELTA", "config_update": {"message_format": "json", "speed": 2}})
+        )
+        == []
+    )
     assert session.format is Format.JSON and session.config.speed == 2
     assert session.receive(message("reconfigure", {"update_type": "DELTA", "config_update": {"speed": None}})) == []
     assert session.config.speed is None and session.format is Format.JSON
@@ -193,7 +204,10 @@ def live_session(**query: str) -> Session:
 def test_live_viewer_gets_metadata_then_state_then_what_the_state_does_not_hold():
     session = live_session()
     variant = Variant(Format.BINARY)
-    assert session.live_joined("car", state=7, started=True) == [SendLiveMetadata(Format.BINARY), SendLiveUpdate(7, variant)]
+    assert session.live_joined("car", state=7, started=True) == [
+        SendLiveMetadata(Format.BINARY),
+        SendLiveUpdate(7, variant),
+    ]
     assert session.live_update(6, dropped=0, behind=False) == []  # queued before the state was taken: in it
     assert session.live_update(7, dropped=0, behind=False) == []
     assert session.live_update(8, dropped=0, behind=False) == [SendLiveUpdate(8, variant)]
@@ -202,7 +216,9 @@ def test_live_viewer_gets_metadata_then_state_then_what_the_state_does_not_hold(
 def test_live_viewer_waits_for_a_feed_not_started_and_is_told_when_it_goes_and_comes_back():
     session = live_session()
     [waiting] = session.live_joined("car", state=None, started=False)
-    assert waiting.notice == "waiting" and waiting.error is None and "has not started" in sent(waiting)["data"]["message"]
+    assert (
+        waiting.notice == "waiting" and waiting.error is None and "has not started" in sent(waiting)["data"]["message"]
+    )
     assert session.live_started(None) == [SendLiveMetadata(Format.BINARY)]
     assert session.live_update(0, dropped=0, behind=False) == [SendLiveUpdate(0, Variant(Format.BINARY))]
     [gone] = session.live_gone()
@@ -217,7 +233,9 @@ def test_live_viewer_behind_is_told_once_per_run_then_closed_after_the_lag_timeo
     notice, update = session.live_update(10, dropped=3, behind=True)
     assert notice.notice == "behind" and "3 updates were dropped" in sent(notice)["data"]["message"]
     assert update == SendLiveUpdate(10, Variant(Format.BINARY))
-    assert session.live_update(14, dropped=3, behind=True) == [SendLiveUpdate(14, Variant(Format.BINARY))]  # told already
+    assert session.live_update(14, dropped=3, behind=True) == [
+        SendLiveUpdate(14, Variant(Format.BINARY))
+    ]  # told already
     assert session.live_update(15, dropped=0, behind=False) == [SendLiveUpdate(15, Variant(Format.BINARY))]
     [again, _] = session.live_update(20, dropped=4, behind=True)  # a new run of drops: told again
     assert "4 updates" in sent(again)["data"]["message"]
@@ -243,14 +261,18 @@ def test_a_live_viewer_whose_level_went_down_skips_what_queued_up_for_the_latest
     session.receive(message("reconfigure", {"update_type": "DELTA", "config_update": {"profile": "low"}}))
     low = Variant(Format.BINARY, level=session.level)
     assert session.level.name == "low"
-    assert session.live_update(2, dropped=0, behind=False, queued=5) == [SkipToState()]  # 0.5 s of updates meant for full
+    assert session.live_update(2, dropped=0, behind=False, queued=5) == [
+        SkipToState()
+    ]  # 0.5 s of updates meant for full
     assert session.live_skipped(7) == [SendLiveUpdate(7, low)]  # the latest complete state, up to update 7
     assert [session.live_update(n, dropped=0, behind=False, queued=7 - n) for n in range(3, 8)] == [[]] * 5
     assert session.live_update(8, dropped=0, behind=False, queued=4) == [SendLiveUpdate(8, low)]  # once only
     assert session.live_skipped(None) == []
 
 
-def facts(exists: bool = False, started: bool = False, running: tuple[str, ...] = (), allowed: bool = True) -> LiveFacts:
+def facts(
+    exists: bool = False, started: bool = False, running: tuple[str, ...] = (), allowed: bool = True
+) -> LiveFacts:
     return LiveFacts(allowed=allowed, exists=exists, started=started, running=running)
 
 

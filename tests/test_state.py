@@ -22,8 +22,13 @@ def test_filter_keeps_wanted_streams_and_splits_time_series():
     cloud = np.zeros((5, 3), np.float32)
     original = message(
         "SNAPSHOT",
-        stream_set(1.0, poses={"/pose": {"position": [0, 0, 0]}}, primitives={"/pts": {"points": [{"points": cloud}]}, "/img": {}},
-                   time_series=SERIES, no_data_streams=["/gone", "/b"]),
+        stream_set(
+            1.0,
+            poses={"/pose": {"position": [0, 0, 0]}},
+            primitives={"/pts": {"points": [{"points": cloud}]}, "/img": {}},
+            time_series=SERIES,
+            no_data_streams=["/gone", "/b"],
+        ),
     )
     filtered = filter_streams(original, {"/pose", "/b", "/pts"})
     update = filtered["data"]["updates"][0]
@@ -36,7 +41,9 @@ def test_filter_keeps_wanted_streams_and_splits_time_series():
 
 
 def test_filter_drops_emptied_containers():
-    filtered = filter_streams(message("SNAPSHOT", stream_set(1.0, primitives={"/x": {}}, time_series=SERIES)), {"/pose"})
+    filtered = filter_streams(
+        message("SNAPSHOT", stream_set(1.0, primitives={"/x": {}}, time_series=SERIES)), {"/pose"}
+    )
     assert filtered["data"]["updates"] == [{"timestamp": 1.0}]
 
 
@@ -44,8 +51,12 @@ def test_complete_state_takes_each_stream_from_the_newest_and_stops_at_a_snapsho
     newest_first = [
         message("INCREMENTAL", stream_set(3.0, poses={"/pose": {"v": 3}})),
         message("INCREMENTAL", stream_set(2.0, poses={"/pose": {"v": 2}}, primitives={"/obj": {"v": 2}})),
-        message("SNAPSHOT", stream_set(1.0, poses={"/pose": {"v": 1}}, primitives={"/obj": {"v": 1}, "/pts": {"v": 1}},
-                                       time_series=SERIES)),
+        message(
+            "SNAPSHOT",
+            stream_set(
+                1.0, poses={"/pose": {"v": 1}}, primitives={"/obj": {"v": 1}, "/pts": {"v": 1}}, time_series=SERIES
+            ),
+        ),
         message("SNAPSHOT", stream_set(0.0, primitives={"/old": {"v": 0}})),
     ]
     state, reached = complete_state(newest_first)
@@ -61,7 +72,10 @@ def test_complete_state_takes_each_stream_from_the_newest_and_stops_at_a_snapsho
 
 def test_complete_state_with_a_filter_and_without_a_snapshot():
     newest_first = [
-        message("INCREMENTAL", stream_set(2.0, time_series=[{"timestamp": 2.0, "streams": ["/a"], "values": {"doubles": [20.0]}}])),
+        message(
+            "INCREMENTAL",
+            stream_set(2.0, time_series=[{"timestamp": 2.0, "streams": ["/a"], "values": {"doubles": [20.0]}}]),
+        ),
         message("INCREMENTAL", stream_set(1.0, time_series=SERIES)),
     ]
     state, reached = complete_state(newest_first, {"/a", "/c"})

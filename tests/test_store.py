@@ -15,9 +15,22 @@ from typing import Any
 
 import pytest
 
-from helpers import GROWTH, Client, client, run_cli, run_xviz_session_async, running_server, served, start_serving, stop_serving, ten_hz, write_log, xviz_decode
 from devkit.s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, proxied, store_env
 from devkit.tcpproxy import Proxy
+from helpers import (
+    GROWTH,
+    Client,
+    client,
+    run_cli,
+    run_xviz_session_async,
+    running_server,
+    served,
+    start_serving,
+    stop_serving,
+    ten_hz,
+    write_log,
+    xviz_decode,
+)
 from xviz_server.codec import Format
 
 BUCKET = "xviz-logs"
@@ -88,7 +101,12 @@ async def test_the_published_client_reads_a_log_in_the_store(proxy: Proxy, kitti
         {"wait": "metadata"},
         {"send_transform_log": {"id": "0", "from_start": -1}},
         {"wait": "done", "id": "0"},
-        {"send": {"type": "xviz/transform_point_in_time", "data": {"id": "p", "query_timestamp": {"$timestamp": 1.05}}}},
+        {
+            "send": {
+                "type": "xviz/transform_point_in_time",
+                "data": {"id": "p", "query_timestamp": {"$timestamp": 1.05}},
+            }
+        },
         {"wait": "state_updates", "count": 26},
         {"close": True},
     ]
@@ -169,7 +187,9 @@ FAULTS = {  # what the proxy does to every GET of one frame, what the error says
 
 
 @pytest.mark.parametrize("fault", FAULTS.values(), ids=FAULTS.keys())
-async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(proxy: Proxy, fault: tuple[dict[str, Any], str, int, float]):
+async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(
+    proxy: Proxy, fault: tuple[dict[str, Any], str, int, float]
+):
     what, cause, tries, timeout = fault
     async with running_server([ROOT], store_retries=2, store_timeout=timeout) as server:
         await server.catalog.open(KITTI)
@@ -183,7 +203,9 @@ async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(prox
     assert injected.hits == tries, (injected.hits, message)
 
 
-@pytest.mark.parametrize("what", [{"status": 503}, {"status": 500}, {"cut_after": 1000}], ids=["503", "500", "body cut"])
+@pytest.mark.parametrize(
+    "what", [{"status": 503}, {"status": 500}, {"cut_after": 1000}], ids=["503", "500", "body cut"]
+)
 async def test_a_failure_that_passes_is_retried(proxy: Proxy, what: dict[str, Any]):
     async with running_server([ROOT], store_retries=2) as server:
         await server.catalog.open(KITTI)
@@ -193,7 +215,9 @@ async def test_a_failure_that_passes_is_retried(proxy: Proxy, what: dict[str, An
     assert injected.hits == 2 and len(proxy.gets(f"{KITTI}/5-frame.glb")) == 3
 
 
-async def test_an_object_deleted_from_the_store_is_an_error_and_the_rest_is_served(proxy: Proxy, s3: MotoS3, tmp_path: Path):
+async def test_an_object_deleted_from_the_store_is_an_error_and_the_rest_is_served(
+    proxy: Proxy, s3: MotoS3, tmp_path: Path
+):
     s3.upload(write_log(tmp_path / "gone", ten_hz(4), fmt=Format.JSON), BUCKET, "gone/drive")
     async with running_server([f"s3://{BUCKET}/gone"]) as server:
         await server.catalog.open("drive")
@@ -204,7 +228,9 @@ async def test_an_object_deleted_from_the_store_is_an_error_and_the_rest_is_serv
     assert len(updates(messages)) == 3
 
 
-async def test_a_store_that_refuses_the_listing_serves_nothing_and_says_so(proxy: Proxy, caplog: pytest.LogCaptureFixture):
+async def test_a_store_that_refuses_the_listing_serves_nothing_and_says_so(
+    proxy: Proxy, caplog: pytest.LogCaptureFixture
+):
     proxy.fault("list-type", status=403)
     async with running_server([ROOT]) as server:
         assert server.catalog.names() == []
@@ -214,10 +240,14 @@ async def test_a_store_that_refuses_the_listing_serves_nothing_and_says_so(proxy
     assert f"cannot list {ROOT}: {ROOT}/: access denied (403)" in caplog.text
 
 
-async def test_credentials_and_endpoint_come_from_the_shared_aws_files(proxy: Proxy, tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+async def test_credentials_and_endpoint_come_from_the_shared_aws_files(
+    proxy: Proxy, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
     for name in store_env(""):
         monkeypatch.delenv(name)
-    (tmp_path / "credentials").write_text("[fleet]\naws_access_key_id = AKIAFROMTHEFILE00001\naws_secret_access_key = x\n")
+    (tmp_path / "credentials").write_text(
+        "[fleet]\naws_access_key_id = AKIAFROMTHEFILE00001\naws_secret_access_key = x\n"
+    )
     (tmp_path / "config").write_text(f"[profile fleet]\nregion = eu-west-1\nendpoint_url = {proxy.url}\n")
     monkeypatch.setenv("AWS_SHARED_CREDENTIALS_FILE", str(tmp_path / "credentials"))
     monkeypatch.setenv("AWS_CONFIG_FILE", str(tmp_path / "config"))
@@ -290,7 +320,9 @@ async def test_the_catalog_lists_logs_in_the_store_and_forgets_removed_ones(prox
             assert (await viewer.recv())["type"] == "xviz/error"
 
 
-async def test_a_store_that_went_away_ends_the_stream_with_errors_and_the_server_serves_on(proxy: Proxy, tmp_path: Path):
+async def test_a_store_that_went_away_ends_the_stream_with_errors_and_the_server_serves_on(
+    proxy: Proxy, tmp_path: Path
+):
     write_log(tmp_path / "local" / "drive", ten_hz(3))
     async with running_server([ROOT, tmp_path / "local"], store_retries=1) as server:
         await server.catalog.open(KITTI)

@@ -22,11 +22,11 @@ from urllib.parse import quote
 
 import pytest
 
-from helpers import client, run_xviz_session_async, running_server
 from devkit.rosbag_kitti import CLOUD_TOPIC, RAW, write_bag
 from devkit.s3 import SECRET_KEY, MotoS3, moto_process, proxied, store_env
 from devkit.tcpproxy import Proxy
 from devkit.waymo_scene import write_scene
+from helpers import client, run_xviz_session_async, running_server
 from xviz_server.codec import Format
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.exceptions import StoreError
@@ -115,7 +115,11 @@ async def test_datasets_in_the_store_are_listed_beside_logs_and_a_sqlite3_bag_is
     async with running_server([ROOT]) as server:
         assert server.catalog.names() == sorted(name for _, name, _ in DATASETS.values())
     refused = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING and "drive.db3" in r.getMessage()]
-    assert len(refused) == 1 and "SQLite" in refused[0] and f"s3://{BUCKET}/fleet/bags/sqlite3/drive/drive.db3" in refused[0]
+    assert (
+        len(refused) == 1
+        and "SQLite" in refused[0]
+        and f"s3://{BUCKET}/fleet/bags/sqlite3/drive/drive.db3" in refused[0]
+    )
 
 
 @pytest.mark.parametrize("container", DATASETS)
@@ -156,7 +160,9 @@ async def test_the_published_client_reads_a_bag_from_the_store(proxy: Proxy, sha
 
 
 @pytest.mark.parametrize("container", ["ros1", "waymo", "kitti"])
-async def test_a_404_mid_stream_is_an_error_naming_log_frame_and_key_and_the_rest_is_served(container: str, proxy: Proxy):
+async def test_a_404_mid_stream_is_an_error_naming_log_frame_and_key_and_the_rest_is_served(
+    container: str, proxy: Proxy
+):
     key, name, count = DATASETS[container]
     if container == "kitti":
         key += "/velodyne_points/data/0000000003.bin"
@@ -167,7 +173,9 @@ async def test_a_404_mid_stream_is_an_error_naming_log_frame_and_key_and_the_res
         again = await stream(server, name)
     errors = [m["data"]["message"] for m in first if m["type"] == "xviz/error"]
     assert len(errors) == 1 and len(updates(first)) == count - 1, errors
-    assert f"of log {name!r}" in errors[0] and f"s3://{BUCKET}/fleet/{key}: no such object (404)" in errors[0], errors[0]
+    assert f"of log {name!r}" in errors[0] and f"s3://{BUCKET}/fleet/{key}: no such object (404)" in errors[0], errors[
+        0
+    ]
     assert injected.hits == 1 and re.search(rf"frame \d+ of log {re.escape(repr(name))}: s3://", errors[0]), errors[0]
     assert len(updates(again)) == count and not [m for m in again if m["type"] == "xviz/error"]  # the failed frame too
 
@@ -216,7 +224,9 @@ async def test_a_kitti_drive_uploaded_while_serving_is_found_on_first_request_as
     local = on_disk("kitti", files, shared_dir, tmp_path / "local")
     async with running_server([f"s3://{BUCKET}/late-kitti"]) as from_store, running_server([local]) as from_disk:
         assert from_store.catalog.names() == []
-        await asyncio.to_thread(s3.upload, shared_dir / "data" / RAW / "2011_09_26", BUCKET, "late-kitti/kitti-raw/2011_09_26")
+        await asyncio.to_thread(
+            s3.upload, shared_dir / "data" / RAW / "2011_09_26", BUCKET, "late-kitti/kitti-raw/2011_09_26"
+        )
         started = len(proxy.requests)
         messages = await stream(from_store, name)  # the first request that names it
         lookup = [r for r in proxy.requests[started:] if "list-type" in r]
@@ -230,22 +240,30 @@ async def test_a_kitti_drive_uploaded_while_serving_is_found_on_first_request_as
     assert len(lookup) == 3 and all("prefix=late-kitti%2Fkitti-raw%2F2011_09_26%2F" in r for r in lookup), lookup
 
 
-@pytest.mark.parametrize(("unknown", "listings"), [("kitti-raw/2011_09_26/drive_9", 2), ("kitti-raw/2011_09_26", 3), ("nothing", 2)])
+@pytest.mark.parametrize(
+    ("unknown", "listings"), [("kitti-raw/2011_09_26/drive_9", 2), ("kitti-raw/2011_09_26", 3), ("nothing", 2)]
+)
 async def test_an_unknown_name_is_not_found_after_at_most_one_listing_of_the_named_folder(
     unknown: str, listings: int, proxy: Proxy, s3: MotoS3, shared_dir: Path
 ):
     async with running_server([f"s3://{BUCKET}/unknown"]) as server:
-        await asyncio.to_thread(s3.upload, shared_dir / "data" / RAW / "2011_09_26", BUCKET, "unknown/kitti-raw/2011_09_26")
+        await asyncio.to_thread(
+            s3.upload, shared_dir / "data" / RAW / "2011_09_26", BUCKET, "unknown/kitti-raw/2011_09_26"
+        )
         started = len(proxy.requests)
         async with client(server, f"/?log={unknown}") as viewer:
             error = await viewer.recv()
         lookup = [r for r in proxy.requests[started:] if "list-type" in r]
     assert error["type"] == "xviz/error" and f"no log named {unknown!r}" in error["data"]["message"], error
     whole = [r for r in lookup if "delimiter=" not in r]  # listings of everything below a folder
-    assert len(lookup) == listings and all(r.endswith(f"prefix={quote(f'unknown/{unknown}/', safe='')}") for r in whole), lookup
+    assert len(lookup) == listings and all(
+        r.endswith(f"prefix={quote(f'unknown/{unknown}/', safe='')}") for r in whole
+    ), lookup
 
 
-async def test_a_store_path_pickles_shows_no_credential_and_reads_ranges_through_a_bounded_cache(proxy: Proxy, files: Path):
+async def test_a_store_path_pickles_shows_no_credential_and_reads_ranges_through_a_bounded_cache(
+    proxy: Proxy, files: Path
+):
     key = DATASETS["ros1"][0]
     data = (files / key).read_bytes()
     path = StorePath(store_config(BUCKET, timeout=10, retries=0), f"fleet/{key}", len(data))
@@ -266,7 +284,9 @@ async def test_a_store_path_pickles_shows_no_credential_and_reads_ranges_through
 
     got = await asyncio.to_thread(reads)
     assert got == [data[:13], data[13:113], data[-37:], b"", data[middle : middle + 2 * CACHE_BYTES]]
-    assert len(data) > 2 * MIN_FETCH and len(proxy.gets(key)) == 3  # the start (the 100 bytes held), the end, the middle
+    assert (
+        len(data) > 2 * MIN_FETCH and len(proxy.gets(key)) == 3
+    )  # the start (the 100 bytes held), the end, the middle
     proxy.fault(key, status=403)
     with pytest.raises(StoreError, match=f"s3://{BUCKET}/fleet/{key}: access denied \\(403\\)"):
         await asyncio.to_thread(lambda: copy.open().read(10))

@@ -6,8 +6,8 @@ import json
 from pathlib import Path
 
 from helpers import ten_hz, update, write_log
-from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
+from xviz_server.validate import check_paths
 
 
 def by_name(report) -> dict[str, object]:
@@ -41,8 +41,12 @@ def test_layout_problems_are_named(tmp_path: Path):
 
 
 def test_undeclared_streams_and_missing_index_are_warnings(tmp_path: Path):
-    log = write_log(tmp_path / "log", [update(1.0, streams=("/vehicle_pose", "/points"))], index=False,
-                    meta={"version": "2.0.0", "streams": {"/vehicle_pose": {"category": "POSE"}}})
+    log = write_log(
+        tmp_path / "log",
+        [update(1.0, streams=("/vehicle_pose", "/points"))],
+        index=False,
+        meta={"version": "2.0.0", "streams": {"/vehicle_pose": {"category": "POSE"}}},
+    )
     report = check_paths([log])
     assert report.ok
     files = by_name(report)
@@ -52,7 +56,14 @@ def test_undeclared_streams_and_missing_index_are_warnings(tmp_path: Path):
 
 def test_schema_violations_and_missing_paths(tmp_path: Path):
     bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps({"type": "xviz/state_update", "data": {"update_type": "SNAPSHOT", "updates": [{"timestamp": "now", "poses": {}}]}}))
+    bad.write_text(
+        json.dumps(
+            {
+                "type": "xviz/state_update",
+                "data": {"update_type": "SNAPSHOT", "updates": [{"timestamp": "now", "poses": {}}]},
+            }
+        )
+    )
     report = check_paths([bad, tmp_path / "missing.glb", tmp_path])
     files = report.files
     assert files[0].problems == ["$.data.updates[0].timestamp: 'now' is not of type 'number'"]
@@ -60,7 +71,9 @@ def test_schema_violations_and_missing_paths(tmp_path: Path):
     assert "no XVIZ log" in files[2].problems[0]
     assert not report.ok
     text = report.render()
-    assert "bad.json  INVALID  xviz/state_update" in text and text.endswith("3 files checked: 0 ok, 3 invalid, 0 warnings")
+    assert "bad.json  INVALID  xviz/state_update" in text and text.endswith(
+        "3 files checked: 0 ok, 3 invalid, 0 warnings"
+    )
 
 
 def test_validate_command_exit_status_and_json(kitti_log: Path, shared_dir: Path, capsys):

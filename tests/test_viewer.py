@@ -27,8 +27,8 @@ import pytest
 from PIL import Image
 
 from devkit.fleet import write_fleet
-from devkit.tcpproxy import shaped_link
 from devkit.tclink import can_shape_links, tc_link
+from devkit.tcpproxy import shaped_link
 from helpers import foxglove_client, http_get, metadata, metric, running_server, ten_hz, write_demo, write_log
 from xviz_server.catalog import parse_query
 from xviz_server.codec import Format
@@ -67,8 +67,12 @@ def bundle(tmp_path: Path) -> Path:
 async def test_a_browser_gets_the_page_and_other_clients_the_catalog(tmp_path: Path, bundle: Path):
     async with running_server(tmp_path) as server:
         server.viewer = ViewerPage(bundle, server.workers)
-        status, headers, body = await asyncio.to_thread(get, server, "/", Accept="text/html,application/xhtml+xml,*/*;q=0.8")
-        assert status == 200 and body == (bundle / "index.html").read_bytes().replace(SETTINGS_SLOT, SETTINGS_ELEMENT % b"{}")
+        status, headers, body = await asyncio.to_thread(
+            get, server, "/", Accept="text/html,application/xhtml+xml,*/*;q=0.8"
+        )
+        assert status == 200 and body == (bundle / "index.html").read_bytes().replace(
+            SETTINGS_SLOT, SETTINGS_ELEMENT % b"{}"
+        )
         assert headers["Content-Type"] == "text/html; charset=utf-8"
         assert headers["Cache-Control"] == "no-cache" and headers["Vary"] == "Accept"
         for path, accept in [("/", "application/json"), ("/", "*/*"), ("/api/logs", "text/html"), ("/logs", "")]:
@@ -79,7 +83,9 @@ async def test_a_browser_gets_the_page_and_other_clients_the_catalog(tmp_path: P
 
 def policy(headers: dict[str, str]) -> dict[str, list[str]]:
     """A Content-Security-Policy header's directives and their sources."""
-    return {name: sources for name, *sources in (part.split() for part in headers["Content-Security-Policy"].split(";"))}
+    return {
+        name: sources for name, *sources in (part.split() for part in headers["Content-Security-Policy"].split(";"))
+    }
 
 
 async def test_the_page_and_every_answer_carry_the_security_headers(tmp_path: Path, bundle: Path):
@@ -91,9 +97,17 @@ async def test_the_page_and_every_answer_carry_the_security_headers(tmp_path: Pa
         assert directives["style-src"] == ["'self'", *STYLE_HASHES] and directives["frame-ancestors"] == ["'none'"]
         assert "https://api.mapbox.com" in directives["connect-src"] and "'self'" in directives["connect-src"]
         assert not [source for sources in directives.values() for source in sources if "unsafe" in source]
-        for path, accept in [("/", "text/html"), (f"/{ASSET}", "*/*"), ("/api/logs", "*/*"), ("/healthz", "*/*"), ("/nowhere", "*/*")]:
+        for path, accept in [
+            ("/", "text/html"),
+            (f"/{ASSET}", "*/*"),
+            ("/api/logs", "*/*"),
+            ("/healthz", "*/*"),
+            ("/nowhere", "*/*"),
+        ]:
             _, headers, _ = await asyncio.to_thread(get, server, path, Accept=accept)
-            assert headers["X-Content-Type-Options"] == "nosniff" and headers["Referrer-Policy"] == "strict-origin", path
+            assert headers["X-Content-Type-Options"] == "nosniff" and headers["Referrer-Policy"] == "strict-origin", (
+                path
+            )
         # HEAD of the page: its headers, no body.
         status, headers, body = await asyncio.to_thread(get, server, "/", method="HEAD", Accept="text/html")
         assert status == 200 and body == b"" and policy(headers) == directives and int(headers["Content-Length"]) > 0
@@ -103,7 +117,9 @@ async def test_the_page_and_every_answer_carry_the_security_headers(tmp_path: Pa
             assert policy(headers)["frame-ancestors"] == ["https://ops.example", "'self'"]
 
 
-@pytest.mark.parametrize("origin", ["https://ops.example; script-src *", "https://a.example https://b.example", "*", "javascript:"])
+@pytest.mark.parametrize(
+    "origin", ["https://ops.example; script-src *", "https://a.example https://b.example", "*", "javascript:"]
+)
 def test_frame_ancestors_take_origins_only(origin: str):
     from pydantic import ValidationError
 
@@ -125,14 +141,19 @@ async def test_the_page_is_given_the_map_token_when_it_may_have_it(tmp_path: Pat
     assert json.loads(settings) == {"mapToken": token} and b"</script><b>" not in body
     async with running_server(tmp_path, map_token=token, viewer_token="s3cret") as server:
         server.viewer = ViewerPage(bundle, server.workers, server.settings.map_token, server.settings.viewer_token)
-        pages = [await asyncio.to_thread(get, server, path, Accept="text/html") for path in ["/", "/?token=wrong", "/?token=s3cret"]]
+        pages = [
+            await asyncio.to_thread(get, server, path, Accept="text/html")
+            for path in ["/", "/?token=wrong", "/?token=s3cret"]
+        ]
     assert [page[2].count(b"pk.") for page in pages] == [0, 0, 1]
 
 
 def test_config_does_not_show_the_map_token():
     environment = {**os.environ, "XVIZ_MAP_TOKEN": "pk.from-the-environment"}
     for arguments, env in [(["--map-token", "pk.from-a-flag"], None), ([], environment)]:
-        result = subprocess.run([sys.executable, "-m", "xviz_server", "config", *arguments], capture_output=True, text=True, env=env)
+        result = subprocess.run(
+            [sys.executable, "-m", "xviz_server", "config", *arguments], capture_output=True, text=True, env=env
+        )
         assert result.returncode == 0, result.stderr
         assert "# map_token is set (not shown)" in result.stdout and "pk." not in result.stdout
 
@@ -140,14 +161,18 @@ def test_config_does_not_show_the_map_token():
 async def test_assets_are_immutable_and_compressed_as_the_client_accepts(tmp_path: Path, bundle: Path):
     async with running_server(tmp_path) as server:
         server.viewer = ViewerPage(bundle, server.workers)
-        status, headers, body = await asyncio.to_thread(get, server, f"/{ASSET}", **{"Accept-Encoding": "gzip, deflate"})
+        status, headers, body = await asyncio.to_thread(
+            get, server, f"/{ASSET}", **{"Accept-Encoding": "gzip, deflate"}
+        )
         assert status == 200 and headers["Content-Encoding"] == "gzip" and gzip.decompress(body) == SCRIPT
         assert headers["Content-Type"] == "text/javascript; charset=utf-8"
         assert headers["Cache-Control"] == "public, max-age=31536000, immutable"
         assert headers["Vary"] == "Accept-Encoding"
         status, headers, body = await asyncio.to_thread(get, server, f"/{ASSET}", **{"Accept-Encoding": "gzip, br"})
         assert headers["Content-Encoding"] == "br" and body == (bundle / f"{ASSET}.br").read_bytes()
-        status, headers, body = await asyncio.to_thread(get, server, f"/{ASSET}", **{"Accept-Encoding": "br;q=0, identity"})
+        status, headers, body = await asyncio.to_thread(
+            get, server, f"/{ASSET}", **{"Accept-Encoding": "br;q=0, identity"}
+        )
         assert "Content-Encoding" not in headers and body == SCRIPT
         (bundle / f"{ASSET}.gz").unlink()
         status, headers, body = await asyncio.to_thread(get, server, f"/{ASSET}", **{"Accept-Encoding": "gzip"})
@@ -191,7 +216,12 @@ browser = pytest.mark.skipif(
 
 
 async def open_page(
-    server: XVIZServer, path: str, screenshot: str, port: int | None = None, namespace: str | None = None, **options: Any
+    server: XVIZServer,
+    path: str,
+    screenshot: str,
+    port: int | None = None,
+    namespace: str | None = None,
+    **options: Any,
 ) -> dict[str, Any]:
     """Open ``path`` of the server in headless Chromium with tests/browser.mjs; its report.
 
@@ -202,12 +232,18 @@ async def open_page(
     shot = ARTIFACTS / f"viewer-{screenshot}.png"
     host = server.settings.host if namespace else "127.0.0.1"
     arguments = {
-        "url": f"http://{host}:{port or server.port}{path}", "screenshot": str(shot), "timeout": BROWSER_TIMEOUT_MS,
+        "url": f"http://{host}:{port or server.port}{path}",
+        "screenshot": str(shot),
+        "timeout": BROWSER_TIMEOUT_MS,
         "hosts": [host],
     }
     prefix = ["ip", "netns", "exec", namespace] if namespace else []
     process = await asyncio.create_subprocess_exec(
-        *prefix, "node", str(DRIVER), json.dumps({**arguments, **options}), stdout=asyncio.subprocess.PIPE,
+        *prefix,
+        "node",
+        str(DRIVER),
+        json.dumps({**arguments, **options}),
+        stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE,
     )
     stdout, stderr = await process.communicate()
@@ -224,7 +260,9 @@ def assert_drawn_cleanly(report: dict[str, Any]) -> None:
     assert report["pageErrors"] == [] and report["consoleErrors"] == [] and report["alerts"] == []
     assert report["failedRequests"] == [] and report["externalRequests"] == []
     assert report["cspViolations"] == []
-    assert report["socketUrls"] and not any("[object" in url or "bufferAfter" in url for url in report["socketUrls"]), report["socketUrls"]
+    assert report["socketUrls"] and not any("[object" in url or "bufferAfter" in url for url in report["socketUrls"]), (
+        report["socketUrls"]
+    )
     assert report["frames"] >= 3 and report["drawn"]
     box = report["canvasBox"]
     image = np.asarray(Image.open(report["screenshot"]).convert("L"), dtype=np.float32)
@@ -270,7 +308,10 @@ async def test_the_kitti_log_opens_directly(tmp_path: Path, kitti_log: Path):
     # (A seek before the buffer reaches the current time may ask once more: one at a time.)
     assert queries in (1, 2) and report["frames"] >= 1 + queries + 25
     marks = report["marks"]
-    assert marks["bundle"] <= marks["script"] <= marks["catalog"] and marks["metadata"] <= marks["first-frame"] <= report["firstDrawnMs"]
+    assert (
+        marks["bundle"] <= marks["script"] <= marks["catalog"]
+        and marks["metadata"] <= marks["first-frame"] <= report["firstDrawnMs"]
+    )
     # The GPU drew the first frame (a fence after it signalled) before the panels came.
     assert marks["first-frame"] <= marks["first-draw"]
 
@@ -290,7 +331,9 @@ def assert_on_screen(report: dict[str, Any], panels: list[str]) -> None:
     def inside(box: dict[str, float] | None, what: str) -> None:
         assert box is not None and box["width"] > 0 and box["height"] > 0, (what, box)
         assert box["x"] >= 0 and box["y"] >= 0, (what, box)
-        assert box["x"] + box["width"] <= window["width"] + 0.5 and box["y"] + box["height"] <= window["height"] + 0.5, (what, box, window)
+        assert (
+            box["x"] + box["width"] <= window["width"] + 0.5 and box["y"] + box["height"] <= window["height"] + 0.5
+        ), (what, box, window)
 
     for part in ("header", "canvas", "playback"):
         inside(layout[part], part)
@@ -326,7 +369,12 @@ async def test_every_panel_is_on_screen_with_content(tmp_path: Path, window: dic
     # The export: an MCAP file of the log from the time shown to its end.
     query = urllib.parse.parse_qs(urllib.parse.urlsplit(report["exportLink"]).query)
     assert urllib.parse.urlsplit(report["exportLink"]).path == "/api/logs/demo/export"
-    assert summary["start_time"] <= float(query["start"][0]) < float(query["end"][0]) == pytest.approx(summary["end_time"], abs=1e-3)
+    assert (
+        summary["start_time"]
+        <= float(query["start"][0])
+        < float(query["end"][0])
+        == pytest.approx(summary["end_time"], abs=1e-3)
+    )
     assert status == 200 and body[:8] == b"\x89MCAP0\r\n"
 
 
@@ -335,7 +383,9 @@ async def test_every_panel_is_on_screen_with_content(tmp_path: Path, window: dic
 async def test_every_panel_of_the_kitti_log_is_on_screen(tmp_path: Path, kitti_log: Path, window: dict[str, int]):
     (tmp_path / kitti_log.name).symlink_to(kitti_log)
     async with running_server(tmp_path) as server:
-        report = await open_page(server, f"/?log={kitti_log.name}", f"kitti-{window['width']}", viewport=window, frames=27, settle=3000)
+        report = await open_page(
+            server, f"/?log={kitti_log.name}", f"kitti-{window['width']}", viewport=window, frames=27, settle=3000
+        )
     assert_drawn_cleanly(report)
     assert_on_screen(report, ["Metrics", "Camera"])
     assert_ticks_readable(report)
@@ -374,7 +424,10 @@ async def test_a_seek_beyond_the_buffer_asks_for_that_point_in_time(tmp_path: Pa
     # One for the first frame, one (or, while the frames around it arrive, a few) for the seek.
     assert queries >= 2
     seek = report["seek"]
-    shown = [datetime.strptime(re.findall(r"\d\d:\d\d:\d\d\.\d{3}", text)[-1], "%H:%M:%S.%f") for text in (seek["shownBefore"], seek["shownAfter"])]
+    shown = [
+        datetime.strptime(re.findall(r"\d\d:\d\d:\d\d\.\d{3}", text)[-1], "%H:%M:%S.%f")
+        for text in (seek["shownBefore"], seek["shownAfter"])
+    ]
     assert 15 < (shown[1] - shown[0]).total_seconds() < summary["end_time"] - summary["start_time"]
     assert seek["pictureChange"] >= 2
 
@@ -403,7 +456,9 @@ async def test_with_a_map_token_the_page_asks_for_the_base_map(tmp_path: Path, k
     assert report["cspViolations"] == []  # the map's origins are the policy's
     # With a viewer token, a reloaded page (its address holds the token no more) still draws the base map.
     async with running_server(tmp_path, map_token="pk.test-token", viewer_token="s3cret") as server:
-        reloaded = await open_page(server, f"/?log={kitti_log.name}&token=s3cret", "map-reloaded", reload=True, settle=3000)
+        reloaded = await open_page(
+            server, f"/?log={kitti_log.name}&token=s3cret", "map-reloaded", reload=True, settle=3000
+        )
     assert reloaded["drawn"] and reloaded["pageErrors"] == [] and reloaded["cspViolations"] == []
     assert any("access_token=pk.test-token" in url for url in reloaded["externalRequests"])
 
@@ -430,7 +485,13 @@ async def test_a_click_in_the_catalog_opens_the_log(tmp_path: Path):
         (summary,) = await listed(server)
     rows = [line.split("\t") for line in report["catalogText"].split("\n")]
     assert rows[0] == ["name", "format", "frames", "duration", "streams", "Foxglove / Lichtblick"]
-    assert rows[1][:5] == ["demo", summary["format"], str(summary["frames"]), f"{summary['end_time'] - summary['start_time']:.1f} s", str(len(summary["streams"]))]
+    assert rows[1][:5] == [
+        "demo",
+        summary["format"],
+        str(summary["frames"]),
+        f"{summary['end_time'] - summary['start_time']:.1f} s",
+        str(len(summary["streams"])),
+    ]
     assert report["url"].endswith("/?log=demo")
     assert_drawn_cleanly(report)
     assert_stream_list_shows(report, summary["streams"])
@@ -451,12 +512,18 @@ async def test_the_catalog_gives_each_log_the_url_that_opens_it_in_foxglove(tmp_
             assert url == report["foxgloveUrl"] == f"ws://127.0.0.1:{server.port}/?log=drives/kitti{token}"
             # The same log as a file to seek in: its URL (which serves it), and the app opening it as a remote file.
             file = report["foxgloveFileLink"]
-            assert file == f"http://127.0.0.1:{server.port}/api/logs/drives%2Fkitti/file.mcap" + ("?token=s3cret" if settings else "")
+            assert file == f"http://127.0.0.1:{server.port}/api/logs/drives%2Fkitti/file.mcap" + (
+                "?token=s3cret" if settings else ""
+            )
             target = urllib.parse.urlsplit(file)
             status, headers, _ = await asyncio.to_thread(http_get, server.port, f"{target.path}?{target.query}", "HEAD")
             assert (status, headers["Accept-Ranges"]) == (200, "bytes")
-        assert report["foxgloveAppLink"] == "https://app.foxglove.dev/?ds=foxglove-websocket&ds.url=" + urllib.parse.quote(url, safe="")
-        assert report["foxgloveFileAppLink"] == "https://app.foxglove.dev/?ds=remote-file&ds.url=" + urllib.parse.quote(file, safe="")
+        assert report[
+            "foxgloveAppLink"
+        ] == "https://app.foxglove.dev/?ds=foxglove-websocket&ds.url=" + urllib.parse.quote(url, safe="")
+        assert report["foxgloveFileAppLink"] == "https://app.foxglove.dev/?ds=remote-file&ds.url=" + urllib.parse.quote(
+            file, safe=""
+        )
         assert report["pageErrors"] == [] and report["failedRequests"] == [] and report["externalRequests"] == []
         assert out["errors"] == [] and out["statuses"] == [] and out["serverInfo"]["metadata"]["log"] == "drives/kitti"
         assert out["topics"]["/lidar/points"]["count"] == 25
@@ -471,7 +538,10 @@ async def test_the_catalog_searches_and_pages(tmp_path: Path):
         searched = await open_page(server, "/", "catalog-search", draw=False, settle=0, search="SEG-00012")
     assert paged["catalogRows"] == sorted([*fleet, "demo"]) and not paged["moreOffered"]
     assert paged["catalogCount"] == "231 logs" and paged["pageErrors"] == [] and paged["failedRequests"] == []
-    assert searched["catalogRows"] == [name for name in fleet if "seg-00012" in name] and len(searched["catalogRows"]) == 10
+    assert (
+        searched["catalogRows"] == [name for name in fleet if "seg-00012" in name]
+        and len(searched["catalogRows"]) == 10
+    )
     assert searched["catalogCount"] == "10 of 231 logs match"  # the count follows the search
 
 
@@ -562,10 +632,15 @@ async def test_the_drive_plays_behind_a_20_mbps_link_at_the_level_it_carries(tmp
     (tmp_path / kitti_log.name).symlink_to(kitti_log)
     with tc_link(20) as link:
         async with XVIZServer(Settings(host=link.host, port=0, data_dir=tmp_path)) as server:
-            report = await open_page(server, f"/?log={kitti_log.name}", "tc-20mbps", namespace=link.namespace,
-                                     frames=27, detail="low")
-            text = await asyncio.to_thread(lambda: urllib.request.urlopen(f"http://{link.host}:{server.port}/metrics").read())
+            report = await open_page(
+                server, f"/?log={kitti_log.name}", "tc-20mbps", namespace=link.namespace, frames=27, detail="low"
+            )
+            text = await asyncio.to_thread(
+                lambda: urllib.request.urlopen(f"http://{link.host}:{server.port}/metrics").read()
+            )
     assert_drawn_cleanly(report)
-    assert report["detailBefore"].split()[0] in ("medium", "low", "minimal"), report["detailBefore"]  # chosen for the link
+    assert report["detailBefore"].split()[0] in ("medium", "low", "minimal"), report[
+        "detailBefore"
+    ]  # chosen for the link
     assert report["detailAfter"].startswith("low (link ")
     assert b'xviz_sessions_by_detail{level="full"} 0.0' in text

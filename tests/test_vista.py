@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps
-from xviz_server.validate import check_paths
 from xviz_server.convert import convert
 from xviz_server.datasets import detect, require
 from xviz_server.datasets.vista import VistaTrace, integrate_pose, linear_function
 from xviz_server.exceptions import DatasetError
+from xviz_server.validate import check_paths
 
 SPEED, YAW_RATE = 5.0, 0.5  # a circle of radius 10 m
 START = 1_600_000_000.0
@@ -42,14 +42,18 @@ def write_trace(directory: Path) -> Path:
             container.mux(packet)
     rows = [(number, START + 0.1 * number) for number in range(FRAMES)]
     order = [3, 0, 1, 2, *range(4, FRAMES)]
-    (directory / "camera_front.csv").write_text("frame_num,ros_timestamp\n" + "".join(f"{rows[i][0]},{rows[i][1]:.3f}\n" for i in order))
+    (directory / "camera_front.csv").write_text(
+        "frame_num,ros_timestamp\n" + "".join(f"{rows[i][0]},{rows[i][1]:.3f}\n" for i in order)
+    )
     with h5py.File(directory / "lidar_3d.h5", "w") as file:
         xyz = np.full((FRAMES, 6, 3), np.nan, np.float32)
         for sweep in range(FRAMES):
             xyz[sweep, : 3 + sweep % 3] = sweep  # sweeps of 3 to 5 points, NaN-padded
         file["xyz"] = xyz
         file["intensity"] = np.full((FRAMES, 6), 0.5, np.float32)
-    (directory / "lidar_3d.csv").write_text("frame_num,ros_timestamp\n" + "".join(f"{n},{START + 0.1 * n + 0.01:.3f}\n" for n in range(FRAMES)))
+    (directory / "lidar_3d.csv").write_text(
+        "frame_num,ros_timestamp\n" + "".join(f"{n},{START + 0.1 * n + 0.01:.3f}\n" for n in range(FRAMES))
+    )
     t = START + np.arange(-10, 30) * 0.05
     (directory / "speed.csv").write_text("".join(f"{x:.3f},{SPEED}\n" for x in t))
     (directory / "imu.csv").write_text("".join(f"{x:.3f},0,0,0,0,0,{YAW_RATE},0\n" for x in t))
@@ -70,7 +74,11 @@ def test_constant_speed_and_yaw_rate_drive_a_circle(trace: Path):
     elapsed = vista.times - vista.times[0]
     assert np.allclose(heading, YAW_RATE * elapsed, atol=1e-6)
     # a longer run: half a turn comes back at (0, 2r)
-    half_turn = integrate_pose(np.array([0.0, math.pi / YAW_RATE]), lambda t: np.full_like(t, SPEED), lambda t: np.full_like(t, YAW_RATE / SPEED))
+    half_turn = integrate_pose(
+        np.array([0.0, math.pi / YAW_RATE]),
+        lambda t: np.full_like(t, SPEED),
+        lambda t: np.full_like(t, YAW_RATE / SPEED),
+    )
     assert half_turn[-1, :2] == pytest.approx([0.0, 2 * radius], abs=1e-3)
 
 

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from helpers import client, running_server, timestamps, xviz_decode
-from xviz_server.validate import check_paths
 from xviz_server.codec import Format, encode
 from xviz_server.convert import convert
 from xviz_server.datasets import detect, open_dataset
@@ -18,6 +17,7 @@ from xviz_server.datasets.shared import pose_angles
 from xviz_server.datasets.waymo import WaymoSegment
 from xviz_server.exceptions import DatasetError
 from xviz_server.messages import envelope
+from xviz_server.validate import check_paths
 from xviz_server.validation import get_validator
 
 HEADING = math.radians(30)
@@ -79,7 +79,11 @@ def test_points_come_from_the_xyz_channels_where_range_is_positive(segment: Path
     assert waymo.times.tolist() == [1557000000.0, 1557000000.1, 1557000000.2]
     update = waymo.convert(0)["updates"][0]
     with np.load(segment / "1557000000000000.npz") as data:
-        top, nlz, front = data["TOP_RANGE_IMAGE_FIRST_RETURN"], data["TOP_IN_NLZ"], data["FRONT_RANGE_IMAGE_FIRST_RETURN"]
+        top, nlz, front = (
+            data["TOP_RANGE_IMAGE_FIRST_RETURN"],
+            data["TOP_IN_NLZ"],
+            data["FRONT_RANGE_IMAGE_FIRST_RETURN"],
+        )
     valid = top[..., 0] > 0
     outside = valid & (nlz <= 0)
     expected = np.concatenate([top[outside][:, 3:6], front.reshape(-1, 6)[:, 3:6]])
@@ -94,7 +98,10 @@ def test_box_footprints_are_rotated_by_their_heading(segment: Path):
     update = WaymoSegment(segment).convert(1)["updates"][0]
     car, pedestrian = update["primitives"]["/objects/boxes"]["polygons"]
     assert car["base"]["object_id"] == "car-a" and car["base"]["classes"] == ["Vehicle"]
-    assert pedestrian["base"]["classes"] == ["Pedestrian"] and car["base"]["style"] == {"stroke_color": "#50B3FF", "height": 1.6}
+    assert pedestrian["base"]["classes"] == ["Pedestrian"] and car["base"]["style"] == {
+        "stroke_color": "#50B3FF",
+        "height": 1.6,
+    }
     corners = car["vertices"].astype(np.float64)
     assert np.allclose(corners.mean(axis=0)[:2], [10.0, 5.0], atol=1e-5)
     assert np.allclose(corners[:, 2], 1.0 - 0.8, atol=1e-5)  # the box bottom
@@ -131,7 +138,9 @@ def test_everything_validates_and_the_client_reads_it(segment: Path, tmp_path: P
     assert "error" not in state
     streams = state["parsed"]["streams"]
     assert [f["id"] for f in streams["/objects/boxes"]["features"]] == ["car-a", "ped-b"]
-    assert streams["/lidar/points"]["pointCloud"]["numInstances"] == 3 * 8 - 2 + 2 * 4  # TOP rows with returns, outside the zone, and FRONT
+    assert (
+        streams["/lidar/points"]["pointCloud"]["numInstances"] == 3 * 8 - 2 + 2 * 4
+    )  # TOP rows with returns, outside the zone, and FRONT
 
 
 def test_corrupt_frame_is_named(segment: Path):

@@ -12,18 +12,19 @@ from typing import Any
 import numpy as np
 import pytest
 
-from helpers import client, running_server, timestamps, xviz_decode
 from devkit.waymo_frames import calibration, frame, jpeg_image, write_segment
 from devkit.waymo_scene import LABELS, T0, write_scene
-from xviz_server.validate import check_paths
+from helpers import client, running_server, timestamps, xviz_decode
 from xviz_server.codec import Format, encode
 from xviz_server.datasets import detect, open_dataset
-from xviz_server.datasets.waymo.tfrecord import RecordFile, masked_crc, write_records
-from xviz_server.datasets.waymo import WaymoSegment
 from xviz_server.datasets.images import scale_jpegs
+from xviz_server.datasets.waymo import WaymoSegment
 from xviz_server.datasets.waymo.segment import WaymoRecordSegment
+from xviz_server.datasets.waymo.tfrecord import RecordFile, masked_crc, write_records
 from xviz_server.exceptions import DatasetError
 from xviz_server.messages import envelope
+from xviz_server.validate import check_paths
+
 
 @pytest.fixture
 def scene(tmp_path: Path) -> tuple[Path, Path, list]:
@@ -43,14 +44,27 @@ def test_matrix_data_as_bytes_reads_waymos_packed_floats():
     # Waymo's own definition: proto2, `repeated float data = 1 [packed = true]; optional MatrixShape shape = 2;`
     file = descriptor_pb2.FileDescriptorProto(name="waymo_test.proto", package="waymo_test", syntax="proto2")
     shape = file.message_type.add(name="MatrixShape")
-    shape.field.add(name="dims", number=1, type=descriptor_pb2.FieldDescriptorProto.TYPE_INT32,
-                    label=descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED)
+    shape.field.add(
+        name="dims",
+        number=1,
+        type=descriptor_pb2.FieldDescriptorProto.TYPE_INT32,
+        label=descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED,
+    )
     matrix = file.message_type.add(name="MatrixFloat")
-    data = matrix.field.add(name="data", number=1, type=descriptor_pb2.FieldDescriptorProto.TYPE_FLOAT,
-                            label=descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED)
+    data = matrix.field.add(
+        name="data",
+        number=1,
+        type=descriptor_pb2.FieldDescriptorProto.TYPE_FLOAT,
+        label=descriptor_pb2.FieldDescriptorProto.LABEL_REPEATED,
+    )
     data.options.packed = True
-    matrix.field.add(name="shape", number=2, type=descriptor_pb2.FieldDescriptorProto.TYPE_MESSAGE,
-                     label=descriptor_pb2.FieldDescriptorProto.LABEL_OPTIONAL, type_name=".waymo_test.MatrixShape")
+    matrix.field.add(
+        name="shape",
+        number=2,
+        type=descriptor_pb2.FieldDescriptorProto.TYPE_MESSAGE,
+        label=descriptor_pb2.FieldDescriptorProto.LABEL_OPTIONAL,
+        type_name=".waymo_test.MatrixShape",
+    )
     pool = descriptor_pool.DescriptorPool()
     pool.Add(file)
     theirs = message_factory.GetMessageClass(pool.FindMessageTypeByName("waymo_test.MatrixFloat"))()
@@ -77,10 +91,16 @@ def test_hand_computed_pixels(tmp_path: Path):
     record = frame(T0, np.eye(4), [calibration("FRONT", np.eye(4), (), -0.2, 0.2)], {"FRONT": (image, None, None)})
     segment = WaymoRecordSegment(write_segment(tmp_path / "s.tfrecord", [record]))
     points = segment.read(0).points
-    assert points == pytest.approx(np.array([
-        [-1.4071485, -1.4071485, 0.19966683],  # 2 (cos -3/4 pi cos 0.1, sin -3/4 pi cos 0.1, sin 0.1)
-        [7.0357425, 7.0357425, -0.99833417],  # 10 (cos 1/4 pi cos -0.1, sin 1/4 pi cos -0.1, sin -0.1)
-    ], np.float32), abs=1e-5)
+    assert points == pytest.approx(
+        np.array(
+            [
+                [-1.4071485, -1.4071485, 0.19966683],  # 2 (cos -3/4 pi cos 0.1, sin -3/4 pi cos 0.1, sin 0.1)
+                [7.0357425, 7.0357425, -0.99833417],  # 10 (cos 1/4 pi cos -0.1, sin 1/4 pi cos -0.1, sin -0.1)
+            ],
+            np.float32,
+        ),
+        abs=1e-5,
+    )
 
 
 @pytest.mark.parametrize("rows_move", [False, True], ids=["pose-per-column", "pose-per-pixel"])
@@ -110,7 +130,9 @@ def test_npz_and_tfrecord_give_the_same_log(scene):
         a, b = record_log.convert(index)["updates"][0], dict_log.convert(index)["updates"][0]
         assert a["timestamp"] == b["timestamp"]
         assert a["poses"]["/vehicle_pose"]["position"] == pytest.approx(b["poses"]["/vehicle_pose"]["position"])
-        assert a["poses"]["/vehicle_pose"]["orientation"] == pytest.approx(b["poses"]["/vehicle_pose"]["orientation"], abs=1e-6)
+        assert a["poses"]["/vehicle_pose"]["orientation"] == pytest.approx(
+            b["poses"]["/vehicle_pose"]["orientation"], abs=1e-6
+        )
         assert a["primitives"].keys() == b["primitives"].keys()
         for stream in ("/lidar/points", "/lidar/no_label_zone"):
             ours, theirs = a["primitives"][stream]["points"][0], b["primitives"][stream]["points"][0]
@@ -151,7 +173,9 @@ def test_a_corrupt_record_is_named_and_the_rest_is_served(scene):
     tfrecord.write_bytes(bytes(data))
     segment = WaymoRecordSegment(tfrecord)
     assert len(segment) == 3
-    with pytest.raises(DatasetError, match=rf"segment-15.tfrecord: record 1 at offset {records[1].offset}: data CRC mismatch"):
+    with pytest.raises(
+        DatasetError, match=rf"segment-15.tfrecord: record 1 at offset {records[1].offset}: data CRC mismatch"
+    ):
         segment.convert(1)
     assert len(segment.convert(0)["updates"][0]["primitives"]["/lidar/points"]["points"][0]["points"]) > 100
     assert segment.convert(2)["updates"][0]["timestamp"] == 1557000000.2
@@ -163,7 +187,10 @@ def test_a_truncated_segment_serves_the_whole_records(scene):
     tfrecord.write_bytes(tfrecord.read_bytes()[: records[2].offset + 1012])
     segment = WaymoRecordSegment(tfrecord)
     assert len(segment) == 3  # the last record's time is in its first 1000 bytes, after the context
-    with pytest.raises(DatasetError, match=rf"record 2 at offset {records[2].offset}: truncated: the record needs \d+ bytes, the file has 1012"):
+    with pytest.raises(
+        DatasetError,
+        match=rf"record 2 at offset {records[2].offset}: truncated: the record needs \d+ bytes, the file has 1012",
+    ):
         segment.read(2)
     assert segment.read(1).time == 1557000000.1
 
@@ -197,21 +224,34 @@ def test_a_camera_image_that_is_not_a_jpeg_is_named(tmp_path: Path):
     calibrations = [calibration("FRONT", np.eye(4), (), -0.2, 0.2)]
     cameras = {"FRONT": jpeg_image(900, 600, (10, 20, 30)), "SIDE_LEFT": jpeg_image(64, 48, (1, 2, 3))}
     good = frame(T0, np.eye(4), calibrations, lasers, cameras, LABELS)
-    bad = frame(T0 + 100_000, np.eye(4), calibrations, lasers, {"FRONT": jpeg_image(64, 48, (1, 2, 3)), "SIDE_LEFT": b"\xff\xd8 not a JPEG"}, LABELS)
+    bad = frame(
+        T0 + 100_000,
+        np.eye(4),
+        calibrations,
+        lasers,
+        {"FRONT": jpeg_image(64, 48, (1, 2, 3)), "SIDE_LEFT": b"\xff\xd8 not a JPEG"},
+        LABELS,
+    )
     segment = WaymoRecordSegment(write_segment(tmp_path / "cams.tfrecord", [good, bad]))
     metadata = segment.metadata()
     assert segment.convert(0, metadata)["updates"][0]["primitives"]["/camera/front"]["images"][0]["width_px"] == 400
-    with pytest.raises(DatasetError, match=r"cams.tfrecord: record 1 at offset \d+: camera SIDE_LEFT: not a JPEG image"):
+    with pytest.raises(
+        DatasetError, match=r"cams.tfrecord: record 1 at offset \d+: camera SIDE_LEFT: not a JPEG image"
+    ):
         segment.convert(1, metadata)
 
 
 def test_a_bad_frame_or_range_image_is_named(tmp_path: Path, monkeypatch):
     image = np.full((2, 4, 4), 5.0, np.float32)
     good = frame(T0, np.eye(4), [calibration("FRONT", np.eye(4), (), -0.2, 0.2)], {"FRONT": (image, None, None)})
-    bad = frame(T0 + 100_000, np.eye(4), [calibration("FRONT", np.eye(4), (0.1,), 0, 0)], {"FRONT": (image, None, None)})
+    bad = frame(
+        T0 + 100_000, np.eye(4), [calibration("FRONT", np.eye(4), (0.1,), 0, 0)], {"FRONT": (image, None, None)}
+    )
     no_zlib = frame(T0 + 200_000, np.eye(4), [], None)
     no_zlib.lasers.add(name="FRONT").ri_return1.range_image_compressed = b"not zlib"
-    cut = frame(T0 + 300_000, np.eye(4), [calibration("FRONT", np.eye(4), (), -0.2, 0.2)], {"FRONT": (image, None, None)})
+    cut = frame(
+        T0 + 300_000, np.eye(4), [calibration("FRONT", np.eye(4), (), -0.2, 0.2)], {"FRONT": (image, None, None)}
+    )
     cut.lasers[0].ri_return1.range_image_compressed = cut.lasers[0].ri_return1.range_image_compressed[:-8]
     records = [f.SerializeToString() for f in (good, bad, no_zlib, cut)]
     records.append(b"\x10\x80\x80\x80\x80\x80\x80\x80\x80\x01\xff")  # timestamp_micros, then a field cut short
@@ -228,13 +268,25 @@ def test_a_bad_frame_or_range_image_is_named(tmp_path: Path, monkeypatch):
     with pytest.raises(DatasetError, match="record 4 at offset .*: not a Waymo Frame"):
         segment.read(4)
     monkeypatch.setattr("xviz_server.datasets.waymo.segment.MAX_MATRIX_BYTES", 100)  # a 2 x 4 x 4 matrix is 140 bytes
-    with pytest.raises(DatasetError, match="record 0 at offset 0: laser FRONT return 1: more than 100 bytes decompressed"):
+    with pytest.raises(
+        DatasetError, match="record 0 at offset 0: laser FRONT return 1: more than 100 bytes decompressed"
+    ):
         segment.read(0)
 
 
 def test_convert_command_and_the_client_reads_it(scene, tmp_path: Path):
     tfrecord, _, _ = scene
-    command = [sys.executable, "-m", "xviz_server", "convert", "waymo", str(tfrecord), str(tmp_path / "log"), "--frames", "1:3"]
+    command = [
+        sys.executable,
+        "-m",
+        "xviz_server",
+        "convert",
+        "waymo",
+        str(tfrecord),
+        str(tmp_path / "log"),
+        "--frames",
+        "1:3",
+    ]
     done = subprocess.run(command, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "converting 2 of 2 frames of segment-15 to" in done.stderr
@@ -271,7 +323,10 @@ async def test_a_corrupt_record_is_an_error_and_the_rest_is_served(scene):
         errors = [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
         assert timestamps(messages) == [1557000000.0, 1557000000.2]
         # The log's name and the cause; not where the file is.
-        assert len(errors) == 1 and f"of log 'segment-15': record 1 at offset {record.offset}: data CRC mismatch" in errors[0]
+        assert (
+            len(errors) == 1
+            and f"of log 'segment-15': record 1 at offset {record.offset}: data CRC mismatch" in errors[0]
+        )
         assert str(tfrecord.parent) not in errors[0]
 
 
@@ -304,7 +359,9 @@ def test_images_are_scaled_in_a_process_forked_after_the_parent_scaled_some():
     import multiprocessing
 
     data = jpeg_image(1920, 1280, (90, 120, 150))
-    assert scale_jpegs({"FRONT": data}, 400)["FRONT"].result(timeout=30)[:2] == b"\xff\xd8"  # the parent's threads start
+    assert (
+        scale_jpegs({"FRONT": data}, 400)["FRONT"].result(timeout=30)[:2] == b"\xff\xd8"
+    )  # the parent's threads start
     context = multiprocessing.get_context("fork")
     queue = context.Queue()
     child = context.Process(target=_scale_in_child, args=(data, queue))

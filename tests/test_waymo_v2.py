@@ -71,7 +71,9 @@ async def test_every_segment_of_a_data_dir_is_served(tmp_path: Path):
         assert names == [f"training/vehicle_pose/{SEGMENT}", "training/vehicle_pose/16_000_020_000"]
         async with client(server, f"/?log=training/vehicle_pose/{SEGMENT}") as c:
             metadata = await c.recv()
-            assert {"/vehicle_pose", "/lidar/points", "/objects/boxes", "/camera/front"} <= set(metadata["data"]["streams"])
+            assert {"/vehicle_pose", "/lidar/points", "/objects/boxes", "/camera/front"} <= set(
+                metadata["data"]["streams"]
+            )
             await c.send("transform_log", {"id": "w"})
             assert timestamps(await c.until("transform_log_done", "w")) == [T0 / 1e6, T0 / 1e6 + 0.1, T0 / 1e6 + 0.2]
 
@@ -92,9 +94,14 @@ def test_a_range_image_that_lies_about_its_shape_is_named_and_the_rest_is_served
     shapes = table["[LiDARComponent].range_image_return1.shape"].to_pylist()
     shapes[2] = [6, 25, 4]  # frame 1's TOP laser: one column more than its values hold
     column = table.schema.get_field_index("[LiDARComponent].range_image_return1.shape")
-    pq.write_table(table.set_column(column, "[LiDARComponent].range_image_return1.shape", pa.array(shapes, pa.list_(pa.int32()))), lidar)
+    pq.write_table(
+        table.set_column(column, "[LiDARComponent].range_image_return1.shape", pa.array(shapes, pa.list_(pa.int32()))),
+        lidar,
+    )
     segment = open_dataset("waymo", v2)
-    with pytest.raises(DatasetError, match=rf"segment {SEGMENT}, frame {T0 + 100_000}: laser TOP .*576 values for shape \[6, 25, 4\]"):
+    with pytest.raises(
+        DatasetError, match=rf"segment {SEGMENT}, frame {T0 + 100_000}: laser TOP .*576 values for shape \[6, 25, 4\]"
+    ):
         segment.convert(1)
     assert segment.convert(0) and segment.convert(2)
 
@@ -115,20 +122,27 @@ def test_a_file_that_is_not_parquet_is_named(v2: Path):
 
 
 def test_without_pyarrow_the_error_names_the_extra(v2: Path):
-    script = ("import sys; sys.modules['pyarrow'] = None\n"  # as if pyarrow were not installed
-              "from xviz_server.datasets import open_dataset\n"
-              "from xviz_server.exceptions import DatasetError\n"
-              f"try:\n    open_dataset('waymo', {str(v2)!r})\nexcept DatasetError as exc:\n    print(exc)\n")
+    script = (
+        "import sys; sys.modules['pyarrow'] = None\n"  # as if pyarrow were not installed
+        "from xviz_server.datasets import open_dataset\n"
+        "from xviz_server.exceptions import DatasetError\n"
+        f"try:\n    open_dataset('waymo', {str(v2)!r})\nexcept DatasetError as exc:\n    print(exc)\n"
+    )
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
-    assert out.stdout.strip() == "reading Waymo v2 segments needs the package 'pyarrow': pip install 'xviz-server[parquet]'", out.stderr
+    assert (
+        out.stdout.strip()
+        == "reading Waymo v2 segments needs the package 'pyarrow': pip install 'xviz-server[parquet]'"
+    ), out.stderr
 
 
 def test_a_frame_whose_row_groups_declare_more_than_the_frame_budget_is_refused_unread(v2: Path, monkeypatch):
     from xviz_server import unpack
 
     root = v2.parent.parent
-    declared = sum(pq.ParquetFile(root / part / f"{SEGMENT}.parquet").metadata.row_group(0).total_byte_size
-                   for part in parquet.COMPONENTS[1:])
+    declared = sum(
+        pq.ParquetFile(root / part / f"{SEGMENT}.parquet").metadata.row_group(0).total_byte_size
+        for part in parquet.COMPONENTS[1:]
+    )
     monkeypatch.setattr(unpack, "MAX_FRAME_BYTES", declared - 1)
     with pytest.raises(FrameSizeError, match=rf"segment {SEGMENT}: frame \d: its messages and images would unpack"):
         open_dataset("waymo", v2).convert(1)

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-
 from redis_replies import capture, have_redis_server
+
 from xviz_server.codec import encode_glb
 
 hiredis = pytest.importorskip("hiredis", reason="needs the broker extra: pip install -e '.[broker]'")
@@ -32,8 +32,15 @@ needs_server = pytest.mark.skipif(not have_redis_server(), reason="needs redis-s
 def large_frame() -> bytes:
     """A 2.4 MB GLB state update of a random point cloud: a bulk string whose bytes hold CRLF and RESP type bytes."""
     points = np.random.default_rng(7).uniform(-80, 80, (200_000, 3)).astype(np.float32)
-    return encode_glb({"type": "xviz/state_update", "data": {"update_type": "SNAPSHOT", "updates": [
-        {"timestamp": 1.5, "primitives": {"/lidar": {"points": [{"points": points}]}}}]}})
+    return encode_glb(
+        {
+            "type": "xviz/state_update",
+            "data": {
+                "update_type": "SNAPSHOT",
+                "updates": [{"timestamp": 1.5, "primitives": {"/lidar": {"points": [{"points": points}]}}}],
+            },
+        }
+    )
 
 
 @pytest.fixture(scope="module")
@@ -111,10 +118,19 @@ def test_replies_come_out_whole_however_the_socket_splits_them():
         + b":-7\r\n$%d\r\n%s\r\n" % (len(shorter), shorter)
     )
     rng = random.Random(21)
-    for sizes in [itertools.repeat(len(stream)), itertools.repeat(1), itertools.cycle([2, 3, 5, 7]), itertools.repeat(65_536),
-                  iter(lambda: rng.randint(1, 300_000), None)]:
+    for sizes in [
+        itertools.repeat(len(stream)),
+        itertools.repeat(1),
+        itertools.cycle([2, 3, 5, 7]),
+        itertools.repeat(65_536),
+        iter(lambda: rng.randint(1, 300_000), None),
+    ]:
         replies = parse(stream, sizes)
-        assert replies[0] == b"OK" and isinstance(replies[1], ResponseError) and str(replies[1]) == "ERR wrong number of arguments"
+        assert (
+            replies[0] == b"OK"
+            and isinstance(replies[1], ResponseError)
+            and str(replies[1]) == "ERR wrong number of arguments"
+        )
         assert replies[2:7] == [42, None, None, [], b""]
         assert replies[7] == [[b"s", [[b"1-0", [b"d", frame]], [b"2-0", [b"d", small]]]]] and replies[8] == -7
         assert replies[9] == shorter and len(replies) == 10

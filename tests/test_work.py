@@ -62,7 +62,9 @@ def test_frames_run_in_the_loop_when_small_and_in_a_process_only_when_large_json
     assert frames.placement(large, Format.BINARY, Format.JSON) is Place.PROCESS
 
 
-def test_the_fork_server_preloads_only_where_the_working_directory_holds_no_other_copy(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+def test_the_fork_server_preloads_only_where_the_working_directory_holds_no_other_copy(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
     # It imports with the working directory first on sys.path (see work.py): another xviz_server/ there would win.
     monkeypatch.chdir(tmp_path)
     assert _fork_server_finds_this_package()

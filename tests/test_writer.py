@@ -14,9 +14,9 @@ import pytest
 
 from helpers import client, metadata, running_server, ten_hz, timestamps, xviz_decode
 from xviz_server.builder import FrameBuilder, MetadataBuilder
-from xviz_server.validate import check_paths
 from xviz_server.codec import Format, decode, encode
 from xviz_server.exceptions import LogWriteError
+from xviz_server.validate import check_paths
 from xviz_server.writer import LogWriter, write_atomically
 
 
@@ -61,8 +61,11 @@ def test_writes_the_reference_layout_with_the_index_last(tmp_path: Path, fmt: Fo
     written = files(log)
     assert written["0-frame.json"][1] >= max(mtime for _, mtime in written.values())
     index = json.loads((log / "0-frame.json").read_text())
-    assert index == {"startTime": 100.0, "endTime": 100.2,
-                     "timing": [[100.0, 100.0, 0, "2-frame"], [100.1, 100.1, 1, "3-frame"], [100.2, 100.2, 2, "4-frame"]]}
+    assert index == {
+        "startTime": 100.0,
+        "endTime": 100.2,
+        "timing": [[100.0, 100.0, 0, "2-frame"], [100.1, 100.1, 1, "3-frame"], [100.2, 100.2, 2, "4-frame"]],
+    }
     assert decode((log / f"3-frame{fmt.suffix}").read_bytes())["data"]["updates"][0]["timestamp"] == 100.1
     assert check_paths([log]).ok
 
@@ -154,7 +157,10 @@ def test_a_killed_conversion_resumes_where_it_stopped(tmp_path: Path):
     writer = LogWriter(log)
     assert [writer.done(i) for i in range(len(complete) + 2)] == [True] * len(complete) + [False, False]
     assert not list(log.glob(".*"))  # leftovers removed
-    update = {"timestamp": 100 + len(complete) / 10, "poses": {"/vehicle_pose": {"position": [0, 0, 0], "orientation": [0, 0, 0]}}}
+    update = {
+        "timestamp": 100 + len(complete) / 10,
+        "poses": {"/vehicle_pose": {"position": [0, 0, 0], "orientation": [0, 0, 0]}},
+    }
     writer.write_frame(len(complete), {"update_type": "SNAPSHOT", "updates": [update]})
     writer.close()
     after = files(log)
@@ -185,7 +191,9 @@ def test_close_refuses_a_gap_and_writes_no_index(tmp_path: Path):
     writer.write_metadata(metadata())
     for i in (0, 3, 4):
         writer.write_frame(i, updates[i])
-    with pytest.raises(LogWriteError, match=r"cannot write the index: missing 3-frame \(frame 1\), 4-frame \(frame 2\)$") as error:
+    with pytest.raises(
+        LogWriteError, match=r"cannot write the index: missing 3-frame \(frame 1\), 4-frame \(frame 2\)$"
+    ) as error:
         writer.close()
     assert error.value.directory == tmp_path
     assert not (tmp_path / "0-frame.json").exists()
@@ -245,7 +253,10 @@ def test_encoded_messages_are_kept_or_converted(tmp_path: Path):
         ({"update_type": "SNAPSHOT", "updates": [{"poses": {}}]}, "frame 5: every update needs a numeric 'timestamp'"),
         ({"update_type": "SNAPSHOT", "updates": []}, "frame 5: every update needs a numeric 'timestamp'"),
         ({"updates": [{"timestamp": 1.0}]}, "frame 5: needs an 'update_type'"),
-        (encode({"type": "xviz/metadata", "data": {"version": "2.0.0"}}, Format.BINARY), "frame 5 holds 'xviz/metadata', not xviz/state_update"),
+        (
+            encode({"type": "xviz/metadata", "data": {"version": "2.0.0"}}, Format.BINARY),
+            "frame 5 holds 'xviz/metadata', not xviz/state_update",
+        ),
         (b"glTF\x02\x00\x00\x00", "frame 5: "),
     ],
     ids=["no timestamp", "no updates", "no update_type", "metadata", "truncated GLB"],
@@ -270,5 +281,8 @@ async def test_a_written_log_is_served(tmp_path: Path, fmt: Format):
         await c.send("transform_log", {"id": "w"})
         received = await c.until("transform_log_done", "w")
         assert timestamps(received) == [100.0, 100.1, 100.2]
-        assert [len(m["data"]["updates"][0]["primitives"]["/lidar/points"]["points"][0]["points"])
-                for m in received if m["type"] == "xviz/state_update"] == [100, 101, 102]
+        assert [
+            len(m["data"]["updates"][0]["primitives"]["/lidar/points"]["points"][0]["points"])
+            for m in received
+            if m["type"] == "xviz/state_update"
+        ] == [100, 101, 102]

@@ -75,7 +75,12 @@ def check(kind: str, content: Any, max_bytes: int, *, from_glb: bool = True) -> 
     GLB, so its arrays may be referenced more than once."""
     if kind == "xviz/metadata":
         _require(isinstance(content, Mapping), "metadata", "must be an object", content)
-        _require(isinstance(content.get("streams", {}), Mapping), "metadata.streams", "must be an object", content.get("streams"))
+        _require(
+            isinstance(content.get("streams", {}), Mapping),
+            "metadata.streams",
+            "must be an object",
+            content.get("streams"),
+        )
     elif kind == "xviz/state_update":
         _check_update(content)
         size = expanded_size(content) if from_glb else 0
@@ -99,14 +104,21 @@ def _check_update(data: Any) -> None:
     update_type = data.get("update_type", "INCREMENTAL")
     _require(
         isinstance(update_type, str) and update_type.upper() in UPDATE_TYPES,
-        "update_type", f"must be one of {', '.join(sorted(UPDATE_TYPES))}", update_type,
+        "update_type",
+        f"must be one of {', '.join(sorted(UPDATE_TYPES))}",
+        update_type,
     )
     updates = data.get("updates")
     _require(isinstance(updates, list) and len(updates) > 0, "updates", "must be a non-empty list", updates)
     for i, stream_set in enumerate(updates):
         where = f"updates[{i}]"
         _require(isinstance(stream_set, Mapping), where, "must be an object", stream_set)
-        _require(is_number(stream_set.get("timestamp")), f"{where}.timestamp", "must be a finite number", stream_set.get("timestamp"))
+        _require(
+            is_number(stream_set.get("timestamp")),
+            f"{where}.timestamp",
+            "must be a finite number",
+            stream_set.get("timestamp"),
+        )
         for key in STREAM_MAPS:
             streams = stream_set.get(key)
             if streams is None:
@@ -121,8 +133,12 @@ def _check_update(data: Any) -> None:
             _require(isinstance(series, list), f"{where}.time_series", "must be a list", series)
             for j, entry in enumerate(series):
                 _require(
-                    isinstance(entry, Mapping) and isinstance(entry.get("streams"), list) and isinstance(entry.get("values"), Mapping),
-                    f"{where}.time_series[{j}]", "must be an object with 'streams' and 'values'", entry,
+                    isinstance(entry, Mapping)
+                    and isinstance(entry.get("streams"), list)
+                    and isinstance(entry.get("values"), Mapping),
+                    f"{where}.time_series[{j}]",
+                    "must be an object with 'streams' and 'values'",
+                    entry,
                 )
 
 
@@ -134,7 +150,9 @@ def _check_primitives(where: str, state: Mapping[str, Any]) -> None:
             for key in ("points", "vertices"):
                 if key in primitive:
                     value = primitive[key]
-                    _require(isinstance(value, (np.ndarray, list)), f"{where}.{kind}[{k}].{key}", "must be an array", value)
+                    _require(
+                        isinstance(value, (np.ndarray, list)), f"{where}.{kind}[{k}].{key}", "must be an array", value
+                    )
 
 
 _CONTAINERS = (Mapping, list, np.ndarray, bytes, bytearray, memoryview)

@@ -47,7 +47,7 @@ INGEST_PREFIX = "/ingest/"
 def feed_name(path: str) -> str | None:
     """The feed named by an ingest URL path, or ``None`` if it is not one."""
     route = unquote(urlsplit(path).path)
-    return route[len(INGEST_PREFIX):] if route.startswith(INGEST_PREFIX) else None
+    return route[len(INGEST_PREFIX) :] if route.startswith(INGEST_PREFIX) else None
 
 
 def ingest_refusal(request: Request, remote: Any, token: str | None, origins: Sequence[str] = ()) -> str | None:

@@ -10,16 +10,17 @@ import subprocess
 import sys
 import types
 import typing
+from collections.abc import Callable, Coroutine, Sequence
 from pathlib import Path
-from typing import Any, Callable, Coroutine, Sequence
+from typing import Any
 
 import orjson
 import pydantic
 
-from .version import __version__
 from .exceptions import ConfigError
 from .logfmt import configure_logging, redact_password
 from .settings import SECRETS, Settings, load_settings
+from .version import __version__
 
 __all__ = ["main"]
 
@@ -52,10 +53,14 @@ def _add_settings_options(parser: argparse.ArgumentParser) -> None:
             )
         elif typing.get_origin(field.annotation) is typing.Literal:
             choices = typing.get_args(field.annotation)
-            parser.add_argument(flag, choices=choices, default=None, help=f"{field.description} (env {env}; default {field.default})")
+            parser.add_argument(
+                flag, choices=choices, default=None, help=f"{field.description} (env {env}; default {field.default})"
+            )
         elif typing.get_origin(field.annotation) is list:
             metavar = "KIND:PATH" if name == "dataset" else name.split("_")[-1].upper().removesuffix("S")
-            parser.add_argument(flag, action="append", default=None, metavar=metavar, help=f"{field.description} (env {env})")
+            parser.add_argument(
+                flag, action="append", default=None, metavar=metavar, help=f"{field.description} (env {env})"
+            )
         else:
             default = "" if field.default is None else f"; default {field.default}"
             parser.add_argument(
@@ -115,7 +120,15 @@ def _healthcheck(args: argparse.Namespace) -> int:
         except ConfigError as exc:
             print(f"xviz-server healthcheck: {exc}", file=sys.stderr)
             return 1
-        command = [sys.executable, "-m", "xviz_server", "healthcheck", "--timeout", str(args.timeout), *process.arguments]
+        command = [
+            sys.executable,
+            "-m",
+            "xviz_server",
+            "healthcheck",
+            "--timeout",
+            str(args.timeout),
+            *process.arguments,
+        ]
         try:
             status = subprocess.run(command, env=process.environ, cwd=process.cwd, timeout=args.timeout + 30).returncode
             return 0 if status == 0 else 1
@@ -158,8 +171,10 @@ def _serve(args: argparse.Namespace) -> int:
         logging.getLogger("xviz_server").info("no --data-dir: serving the built-in demo log as 'demo'")
     for directory in settings.data_dir:
         if not is_store_url(directory) and not Path(directory).is_dir():
-            print(f"xviz-server serve: --data-dir {directory} is not a directory{_serve_file_hint(directory)}",
-                  file=sys.stderr)
+            print(
+                f"xviz-server serve: --data-dir {directory} is not a directory{_serve_file_hint(directory)}",
+                file=sys.stderr,
+            )
             return 2
     try:
         _run_async(run(settings))
@@ -218,9 +233,8 @@ def _probe(args: argparse.Namespace) -> int:
 def _convert(args: argparse.Namespace) -> int:
     from .codec import Format
     from .convert import convert
-    from .exceptions import XVIZError
-
     from .datasets import dataset_options
+    from .exceptions import XVIZError
 
     options: dict[str, Any] = {"image_max_width": args.image_max_width}
     if args.config is not None:
@@ -296,9 +310,13 @@ def build_parser() -> argparse.ArgumentParser:
         "variables, --config), over https when --certfile is set. Exit status 0 when it answers 200, 1 otherwise.",
     )
     _add_settings_options(healthcheck)
-    healthcheck.add_argument("--timeout", type=float, default=3.0, metavar="S", help="give up after S seconds (default 3)")
     healthcheck.add_argument(
-        "--pid", type=int, metavar="PID",
+        "--timeout", type=float, default=3.0, metavar="S", help="give up after S seconds (default 3)"
+    )
+    healthcheck.add_argument(
+        "--pid",
+        type=int,
+        metavar="PID",
         help="check the `xviz-server serve` running as process PID, with its own command line and environment "
         "(read from /proc); in the Docker image, --pid 1",
     )
@@ -310,7 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Check message files (GLB or JSON) and log directories against the XVIZ v2 schema and the "
         "reference log layout (metadata, frames, index). Exit status 0 when everything is valid, 1 otherwise.",
     )
-    validate.add_argument("paths", nargs="+", type=Path, metavar="PATH", help="a file, a log directory, or a directory of logs")
+    validate.add_argument(
+        "paths", nargs="+", type=Path, metavar="PATH", help="a file, a log directory, or a directory of logs"
+    )
     validate.add_argument("--json", action="store_true", help="print the report as JSON")
     validate.set_defaults(run=_validate)
 
@@ -344,14 +364,21 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("kind", choices=sorted(KINDS), help="dataset kind")
     convert.add_argument("source", type=Path, help="the dataset (e.g. a KITTI drive folder)")
     convert.add_argument("output", type=Path, help="the log directory to write")
-    convert.add_argument("--format", choices=["glb", "json"], type=str.lower, default="glb", help="frame format (default glb)")
+    convert.add_argument(
+        "--format", choices=["glb", "json"], type=str.lower, default="glb", help="frame format (default glb)"
+    )
     convert.add_argument("--frames", metavar="A:B", help="convert frames A to B-1 only (either may be left out)")
     convert.add_argument(
-        "--image-max-width", type=int, default=DEFAULT_IMAGE_WIDTH, metavar="W",
+        "--image-max-width",
+        type=int,
+        default=DEFAULT_IMAGE_WIDTH,
+        metavar="W",
         help=f"scale camera images down to W pixels (default {DEFAULT_IMAGE_WIDTH})",
     )
     convert.add_argument("--processes", type=int, metavar="N", help="worker processes (default: one per core)")
-    convert.add_argument("--config", type=Path, metavar="FILE", help="rosbag: TOML file of the mapping (see docs/bags.md)")
+    convert.add_argument(
+        "--config", type=Path, metavar="FILE", help="rosbag: TOML file of the mapping (see docs/bags.md)"
+    )
     convert.set_defaults(run=_convert)
 
     inspect = commands.add_parser(

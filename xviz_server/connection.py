@@ -39,8 +39,17 @@ from .logfmt import log_event, peer
 from .logs import Log
 from .params import repeated
 from .readahead import ReadAhead, Window
-from .session import CancelStream, ConfigureLive, DetailChanged, QueryInstant, SendLiveMetadata, SendLiveUpdate, Session
-from .session import SkipToState, StreamFrames
+from .session import (
+    CancelStream,
+    ConfigureLive,
+    DetailChanged,
+    QueryInstant,
+    SendLiveMetadata,
+    SendLiveUpdate,
+    Session,
+    SkipToState,
+    StreamFrames,
+)
 
 __all__ = ["Connection"]
 
@@ -226,7 +235,9 @@ class Connection(FaceConnection[Session]):
             number = self._hold(item)
             assert number is not None
             behind = subscription.lagging_since is not None
-            await self._execute(self.session.live_update(number, subscription.take_drops(), behind, subscription.queued))
+            await self._execute(
+                self.session.live_update(number, subscription.take_drops(), behind, subscription.queued)
+            )
 
     def _deliver(self, update: LiveUpdate) -> bool:
         """Send ``update`` now, from the feed's publish, if nothing stands in the way; whether it was sent.
@@ -285,20 +296,34 @@ class Connection(FaceConnection[Session]):
         """Sample the connection's delivery for the session, which chooses the level of detail from it, while
         the level depends on it."""
         try:
-            await sample_link(self.websocket.transport, lambda: self.bytes_written, self._sampled, lambda: self.session.chooser.measures)
+            await sample_link(
+                self.websocket.transport,
+                lambda: self.bytes_written,
+                self._sampled,
+                lambda: self.session.chooser.measures,
+            )
         finally:
             self._measuring = False
 
     async def _sampled(self, sample: Sample) -> None:
         offered = None if self._subscription is None else self._subscription.offered
-        await self._execute(self.session.link_sampled(sample.time, sample.written, sample.backlog, sample.reader, offered, sample.busy))
+        await self._execute(
+            self.session.link_sampled(sample.time, sample.written, sample.backlog, sample.reader, offered, sample.busy)
+        )
 
     def _detail_changed(self, event: DetailChanged) -> None:
         self.metrics.sessions_by_detail.labels(event.previous.name).dec()
         self.metrics.sessions_by_detail.labels(event.level.name).inc()
         mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
-        log_event(logger, "detail changed", remote=peer(self.websocket), detail=event.level.name,
-                  previous=event.previous.name, auto=event.auto, link_mbps=mbps)
+        log_event(
+            logger,
+            "detail changed",
+            remote=peer(self.websocket),
+            detail=event.level.name,
+            previous=event.previous.name,
+            auto=event.auto,
+            link_mbps=mbps,
+        )
 
 
 async def _wait(stop: asyncio.Event, seconds: float) -> None:

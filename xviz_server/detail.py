@@ -60,9 +60,28 @@ from dataclasses import dataclass
 from .levels import LEVELS, Level
 
 __all__ = [
-    "Sample", "LinkMeter", "DetailChooser", "SAMPLE_INTERVAL", "WINDOW", "RECENT", "QUEUED", "START", "DOWN", "FIT",
-    "UP", "SEVERE", "DOWN_AFTER", "FIRST_AFTER", "UP_AFTER", "CLIMB_AFTER", "HOLD", "PROBE_BYTES", "PROBE_LONGEST", "BACKOFF",
-    "BACKOFF_MOST", "RATE_WINDOW",
+    "Sample",
+    "LinkMeter",
+    "DetailChooser",
+    "SAMPLE_INTERVAL",
+    "WINDOW",
+    "RECENT",
+    "QUEUED",
+    "START",
+    "DOWN",
+    "FIT",
+    "UP",
+    "SEVERE",
+    "DOWN_AFTER",
+    "FIRST_AFTER",
+    "UP_AFTER",
+    "CLIMB_AFTER",
+    "HOLD",
+    "PROBE_BYTES",
+    "PROBE_LONGEST",
+    "BACKOFF",
+    "BACKOFF_MOST",
+    "RATE_WINDOW",
 ]
 
 #: Seconds between two samples of a connection's delivery.
@@ -364,7 +383,9 @@ class DetailChooser:
         wait = CLIMB_AFTER if self._climbing else UP_AFTER
         if self._up_for < wait or since < (CLIMB_AFTER if self._climbing else HOLD):
             return None
-        if capacity is not None:  # the link had a queue long enough: what it carries is known, the level that fits is taken
+        if (
+            capacity is not None
+        ):  # the link had a queue long enough: what it carries is known, the level that fits is taken
             fitting = self._fitting(UP * min(capacity, self.cap or math.inf))
             return self._change(self.levels[min(self.levels.index(up), self.levels.index(fitting))], now, up=True)
         if self.local or up.share == self.level.share:  # no link to probe, or the same frames more often
@@ -402,7 +423,12 @@ class DetailChooser:
         if known is not None and probe.sent is not None:
             self._probed = known
             return self._pass(now)
-        if probe.sent is not None and self.meter.delivered >= probe.sent and probe.seen is not None and need is not None:
+        if (
+            probe.sent is not None
+            and self.meter.delivered >= probe.sent
+            and probe.seen is not None
+            and need is not None
+        ):
             # delivered without a queue worth measuring: taken if the link carried it no slower than the level
             # needs, over the time it was busy with it (else, over the time it took)
             took = now - probe.seen

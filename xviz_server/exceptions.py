@@ -193,6 +193,7 @@ class ConfigError(XVIZError, ValueError):
     beside the setting's other errors.
     """
 
+
 class DependencyError(XVIZError, ImportError):
     """An installed library is a version that xviz-server was not tested with."""
 

@@ -211,9 +211,13 @@ class FaceConnection(Generic[S]):
         await self._write(event.data, event.text)
         if event.error is not None:
             self.metrics.errors.labels(event.error).inc()
-            self._mistakes.log(logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message)
+            self._mistakes.log(
+                logger, "error sent", remote=peer(self.websocket), kind=event.error, message=event.message
+            )
         elif event.notice is not None:
-            self._mistakes.log(logger, "notice sent", remote=peer(self.websocket), kind=event.notice, message=event.message)
+            self._mistakes.log(
+                logger, "notice sent", remote=peer(self.websocket), kind=event.notice, message=event.message
+            )
 
     async def _quietly(self, awaitable: Awaitable[None]) -> None:
         """Run ``awaitable`` unless the connection is gone."""

@@ -51,7 +51,9 @@ async def watch_progress(
         before, count = waiting, done
         if stalled >= timeout:
             address = websocket.remote_address
-            logger.warning("%s stopped reading: %d bytes unsent for %g s; aborting the connection", address, waiting, timeout)
+            logger.warning(
+                "%s stopped reading: %d bytes unsent for %g s; aborting the connection", address, waiting, timeout
+            )
             transport.abort()
             return
 

@@ -7,7 +7,8 @@ where. A frame's *native* format is the one its source stores it in.
 
 from __future__ import annotations
 
-from typing import Any, Collection, Sequence
+from collections.abc import Collection, Sequence
+from typing import Any
 
 from .admission import expanded_size
 from .codec import Format, decode, detect_format, edit_glb, encode, is_glb
@@ -19,7 +20,18 @@ from .unpack import MAX_FRAME_BYTES, size_text
 from .validation import get_validator
 from .work import Place
 
-__all__ = ["INLINE_BYTES", "HEAVY_JSON_BYTES", "placement", "validate", "check", "span", "render", "render_message", "merge", "relabel_complete"]
+__all__ = [
+    "INLINE_BYTES",
+    "HEAVY_JSON_BYTES",
+    "placement",
+    "validate",
+    "check",
+    "span",
+    "render",
+    "render_message",
+    "merge",
+    "relabel_complete",
+]
 
 
 #: Size up to which a job runs in the event loop (see :func:`placement`).
@@ -27,7 +39,6 @@ INLINE_BYTES = 8 * 1024
 
 #: Size above which a job on JSON runs in a worker process (see :func:`placement`).
 HEAVY_JSON_BYTES = 64 * 1024
-
 
 
 def placement(size: int, *formats: Format) -> Place:
@@ -52,7 +63,7 @@ def placement(size: int, *formats: Format) -> Place:
 def _decode_update(data: bytes) -> dict[str, Any]:
     message = decode(data)
     if not isinstance(message, dict) or not isinstance(message.get("data"), dict):
-        raise DecodeError("frame is not an XVIZ envelope {\"type\": ..., \"data\": {...}}")
+        raise DecodeError('frame is not an XVIZ envelope {"type": ..., "data": {...}}')
     if message.get("type") != "xviz/state_update":
         raise DecodeError(f"frame holds {message.get('type')!r}, not xviz/state_update")
     updates = message["data"].get("updates")
@@ -143,6 +154,7 @@ def relabel_complete(data: bytes) -> bytes:
     :func:`merge` would make of it. For GLB it costs the rewriting of the
     JSON chunk only: the arrays are not decoded or copied one by one.
     """
+
     def edit(message: Any) -> Any:
         return {**message, "data": {**message["data"], "update_type": "COMPLETE_STATE"}}
 

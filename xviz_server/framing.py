@@ -75,9 +75,9 @@ from websockets.asyncio.server import Server, ServerConnection
 from websockets.datastructures import Headers
 from websockets.frames import DATA_OPCODES, Frame
 from websockets.http11 import SERVER, Request, Response
-from websockets.typing import StatusLike
 from websockets.protocol import State
 from websockets.server import ServerProtocol
+from websockets.typing import StatusLike
 from websockets.version import version as websockets_version
 
 from .exceptions import XVIZError
@@ -86,8 +86,16 @@ from .version import require_tested
 from .viewer import HEADERS
 
 __all__ = [
-    "TESTED_WEBSOCKETS", "SEPARATE_PAYLOAD", "OPEN_TIMEOUT", "frame_header", "StreamedResponse", "streamed",
-    "FramingProtocol", "FramingConnection", "ready_to_write", "write_message",
+    "TESTED_WEBSOCKETS",
+    "SEPARATE_PAYLOAD",
+    "OPEN_TIMEOUT",
+    "frame_header",
+    "StreamedResponse",
+    "streamed",
+    "FramingProtocol",
+    "FramingConnection",
+    "ready_to_write",
+    "write_message",
 ]
 
 logger = logging.getLogger(__name__)
@@ -176,7 +184,7 @@ class FramingProtocol(ServerProtocol):
         not that a WebSocket failed to open.
         """
         if status in _UNREAD and text.startswith(_WEBSOCKET_REFUSAL):
-            text = "cannot read this request" + text[len(_WEBSOCKET_REFUSAL):]
+            text = "cannot read this request" + text[len(_WEBSOCKET_REFUSAL) :]
         response = super().reject(status, text)
         response.headers.update(HEADERS)
         return response
@@ -197,7 +205,12 @@ class FramingProtocol(ServerProtocol):
 
     def send_frame(self, frame: Frame) -> None:
         data = frame.data
-        if self.extensions or frame.opcode not in DATA_OPCODES or type(data) is not bytes or len(data) < SEPARATE_PAYLOAD:
+        if (
+            self.extensions
+            or frame.opcode not in DATA_OPCODES
+            or type(data) is not bytes
+            or len(data) < SEPARATE_PAYLOAD
+        ):
             super().send_frame(frame)
             return
         frame.check()
@@ -227,8 +240,10 @@ class FramingConnection(ServerConnection):
 
     async def handshake(
         self,
-        process_request: Callable[[ServerConnection, Request], Awaitable[Response | None] | Response | None] | None = None,
-        process_response: Callable[[ServerConnection, Request, Response], Awaitable[Response | None] | Response | None] | None = None,
+        process_request: Callable[[ServerConnection, Request], Awaitable[Response | None] | Response | None]
+        | None = None,
+        process_response: Callable[[ServerConnection, Request, Response], Awaitable[Response | None] | Response | None]
+        | None = None,
         server_header: str | None = SERVER,
     ) -> None:
         """websockets' opening handshake within :data:`OPEN_TIMEOUT` seconds (or what :meth:`allow` allowed), then a
@@ -245,7 +260,11 @@ class FramingConnection(ServerConnection):
             handshake.cancel()
             raise
         response = self.response
-        if isinstance(response, StreamedResponse) and response.chunks is not None and self.protocol.state is State.CONNECTING:
+        if (
+            isinstance(response, StreamedResponse)
+            and response.chunks is not None
+            and self.protocol.state is State.CONNECTING
+        ):
             await self._send_body(response, response.chunks)
 
     async def _send_body(self, response: StreamedResponse, chunks: AsyncGenerator[bytes, None]) -> None:
@@ -261,7 +280,9 @@ class FramingConnection(ServerConnection):
                 if transport.is_closing():
                     break
                 if not self.server.is_serving():
-                    logger.info("%s: the answer to %s is cut short: the server is stopping", self.remote_address, self._path())
+                    logger.info(
+                        "%s: the answer to %s is cut short: the server is stopping", self.remote_address, self._path()
+                    )
                     break
                 if piece:
                     if left is None:
@@ -279,8 +300,13 @@ class FramingConnection(ServerConnection):
                 complete = not transport.is_closing()
         except Exception as exc:
             if not transport.is_closing():
-                logger.warning("%s: the body of the answer to %s failed: %s", self.remote_address, self._path(), exc,
-                               exc_info=not isinstance(exc, XVIZError))
+                logger.warning(
+                    "%s: the body of the answer to %s failed: %s",
+                    self.remote_address,
+                    self._path(),
+                    exc,
+                    exc_info=not isinstance(exc, XVIZError),
+                )
         finally:
             watchdog.cancel()
             self.server.all_connections.discard(self)

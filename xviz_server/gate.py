@@ -70,7 +70,8 @@ class GatedConnection(ServerConnection):
 
     async def handshake(
         self,
-        process_request: Callable[[ServerConnection, Request], Awaitable[Response | None] | Response | None] | None = None,
+        process_request: Callable[[ServerConnection, Request], Awaitable[Response | None] | Response | None]
+        | None = None,
         process_response: ProcessResponse | None = None,
         server_header: str | None = SERVER,
     ) -> None:
@@ -84,7 +85,9 @@ class GatedConnection(ServerConnection):
                 return response
             if response.status_code == HTTPStatus.SWITCHING_PROTOCOLS:
                 response = self._method_not_allowed("HEAD")
-            return Response(response.status_code, response.reason_phrase, response.headers)  # its head only, whatever its kind
+            return Response(
+                response.status_code, response.reason_phrase, response.headers
+            )  # its head only, whatever its kind
 
         await super().handshake(process_request, respond, server_header)
 
@@ -99,7 +102,8 @@ class GatedConnection(ServerConnection):
         if head[0] == _TLS_HANDSHAKE and self.transport.get_extra_info("sslcontext") is None:
             logger.warning(
                 "a TLS handshake from %s on a port without TLS: connect with ws:// or http://, "
-                "or start the server with --certfile and --keyfile", self.remote_address,
+                "or start the server with --certfile and --keyfile",
+                self.remote_address,
             )
         else:
             method = head.partition(b" ")[0]

@@ -77,6 +77,6 @@ class ServeProcess:
         if "serve" not in argv:
             raise ConfigError(f"--pid {pid}: not an xviz-server serve process: {' '.join(argv)!r}")
         #: The arguments after ``serve``.
-        self.arguments = argv[argv.index("serve") + 1:]
+        self.arguments = argv[argv.index("serve") + 1 :]
         #: Its environment variables.
         self.environ = dict(item.decode(errors="replace").partition("=")[::2] for item in environ)

@@ -140,6 +140,11 @@ def _well_formed(timing: list[Any]) -> np.ndarray | None:
     except OverflowError:  # an integer beyond the float range
         return None
     frames = values[:, 2]
-    if not (np.isfinite(values).all() and (frames >= 0).all() and (frames < _FRAME_LIMIT).all() and (frames == np.floor(frames)).all()):
+    if not (
+        np.isfinite(values).all()
+        and (frames >= 0).all()
+        and (frames < _FRAME_LIMIT).all()
+        and (frames == np.floor(frames)).all()
+    ):
         return None
     return values

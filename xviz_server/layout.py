@@ -19,16 +19,18 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-import stat
 from typing import Any
 
 from .exceptions import LogNotFound
 
 __all__ = [
-    "place_of", "split_place", "found_at",
+    "place_of",
+    "split_place",
+    "found_at",
     "INDEX_FILE",
     "INDEX_NUMBER",
     "METADATA_NUMBER",
@@ -86,7 +88,11 @@ def frame_bytes(directory: str | os.PathLike[str]) -> int:
 def _message_files(directory: str | os.PathLike[str]) -> list[tuple[int, os.DirEntry[str]]]:
     """The message files of a log directory (named as :data:`FRAME_FILE` says) with their file numbers."""
     with os.scandir(directory) as entries:
-        return [(int(match.group(1)), entry) for entry in entries if (match := FRAME_FILE.fullmatch(entry.name)) and entry.is_file()]
+        return [
+            (int(match.group(1)), entry)
+            for entry in entries
+            if (match := FRAME_FILE.fullmatch(entry.name)) and entry.is_file()
+        ]
 
 
 def is_log_directory(directory: str | os.PathLike[str]) -> bool:
@@ -197,7 +203,6 @@ def stamp_from(own: os.stat_result, index: os.stat_result | None) -> tuple[int, 
     return (own.st_mtime_ns, own.st_size, index.st_mtime_ns, index.st_size)
 
 
-
 # ------------------------------------------------------------- discovery
 
 
@@ -237,7 +242,8 @@ def found_at(name: str, place: str, kind: str) -> Found:
 
 
 def discover(
-    root: Path, detect: Callable[[Path], str | None] | None = None,
+    root: Path,
+    detect: Callable[[Path], str | None] | None = None,
     scenes: Callable[[str, Path], list[str]] | None = None,
 ) -> Iterator[Found]:
     """Every log and dataset under ``root``, in name order of the walk.
@@ -272,8 +278,10 @@ def discover(
         if kind is not None:
             subdirectories.clear()
             several = scenes(kind, here) if scenes is not None else []
-            yield from ([Found(f"{name}/{scene}", here, kind, (("scene", scene),)) for scene in several]
-                        or [Found(name, here, kind)])
+            yield from (
+                [Found(f"{name}/{scene}", here, kind, (("scene", scene),)) for scene in several]
+                or [Found(name, here, kind)]
+            )
             continue
         subdirectories[:] = sorted(d for d in subdirectories if not d.startswith("."))
         if detect is not None:

@@ -24,7 +24,16 @@ import numpy as np
 
 from .codec.image import decode_image
 
-__all__ = ["Level", "LEVELS", "FULL", "AUTO_PROFILES", "MAX_IMAGE_PIXELS", "profile_level", "thin_indices", "reduce_message"]
+__all__ = [
+    "Level",
+    "LEVELS",
+    "FULL",
+    "AUTO_PROFILES",
+    "MAX_IMAGE_PIXELS",
+    "profile_level",
+    "thin_indices",
+    "reduce_message",
+]
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,15 @@ if TYPE_CHECKING:
     from websockets.asyncio.server import ServerConnection
 
 __all__ = [
-    "configure_logging", "log_event", "printable", "redact_url", "redact_password", "peer", "ending",
-    "JsonFormatter", "TextFormatter",
+    "configure_logging",
+    "log_event",
+    "printable",
+    "redact_url",
+    "redact_password",
+    "peer",
+    "ending",
+    "JsonFormatter",
+    "TextFormatter",
 ]
 
 _FIELDS = "xviz_fields"
@@ -89,7 +96,10 @@ def ending(websocket: ServerConnection) -> dict[str, Any]:
     first = protocol.close_rcvd if protocol.close_rcvd_then_sent else protocol.close_sent
     if first is None:
         return {"reason": "connection lost"}
-    return {"reason": f"{first.code} {first.reason}".strip(), "closed_by": "client" if protocol.close_rcvd_then_sent else "server"}
+    return {
+        "reason": f"{first.code} {first.reason}".strip(),
+        "closed_by": "client" if protocol.close_rcvd_then_sent else "server",
+    }
 
 
 def log_event(logger: logging.Logger, event: str, level: int = logging.INFO, **fields: Any) -> None:
@@ -104,7 +114,9 @@ class JsonFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         line: dict[str, Any] = {
-            "time": datetime.datetime.fromtimestamp(record.created, datetime.timezone.utc).isoformat(timespec="milliseconds"),
+            "time": datetime.datetime.fromtimestamp(record.created, datetime.timezone.utc).isoformat(
+                timespec="milliseconds"
+            ),
             "level": record.levelname.lower(),
             "logger": record.name,
             "message": printable(record.getMessage()),

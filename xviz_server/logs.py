@@ -13,26 +13,26 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
-import os
 import time
+from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
-from typing import Any, Awaitable, Callable, Protocol, Sequence
+from typing import Any, Protocol
 
 from . import frames
 from .cache import FrameCache
 from .codec import Format, cut_glb, detect_format, encode
+from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store, scenes
 from .exceptions import DecodeError, FrameError, LogError, LogNotFound, SchemaValidationError, XVIZError
 from .index import TimeIndex
+from .layout import LOG, Found, check_log_name, discover, frame_bytes, is_log_directory, stamp_of
 from .levels import FULL, Level
 from .messages import XVIZ_VERSION, envelope, is_number
-from .state import COMPLETE_TYPES
-from .layout import INDEX_FILE, LOG, Found, check_log_name, discover, frame_bytes, is_log_directory, stamp_of
 from .providers import LogSource
 from .providers.datasets import DatasetProvider, explicit_datasets
 from .providers.static_log import StaticLogProvider
-from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store, scenes
 from .readahead import ReadAhead
 from .records import OriginalTopic
+from .state import COMPLETE_TYPES
 from .store import ObjectStore, StoredDataset, StoredLog
 from .work import Place, Workers
 
@@ -72,9 +72,7 @@ class Log:
         #: messages come from :meth:`original_messages`.
         self.originals: tuple[OriginalTopic, ...] = tuple(getattr(source, "originals", ()))
         self._read_originals: Callable[[int], Awaitable[bytes]] | None = getattr(source, "read_originals", None)
-        self._metadata_messages = {
-            fmt: encode(envelope("metadata", self.metadata), fmt) for fmt in Format
-        }
+        self._metadata_messages = {fmt: encode(envelope("metadata", self.metadata), fmt) for fmt in Format}
         # Update type of each frame checked so far, to know where a complete
         # state starts without decoding frames again; and the frames that
         # alone are a complete state (a complete type, one stream set).
@@ -111,7 +109,9 @@ class Log:
         """The ``xviz/metadata`` message, encoded in ``fmt``."""
         return self._metadata_messages[fmt]
 
-    async def frame(self, number: int, fmt: Format, streams: frozenset[str] | None = None, level: Level = FULL) -> bytes:
+    async def frame(
+        self, number: int, fmt: Format, streams: frozenset[str] | None = None, level: Level = FULL
+    ) -> bytes:
         """Frame ``number`` encoded in ``fmt``, with only ``streams`` if given, at ``level`` of detail.
 
         A level below full is made once, by the first request for it, and
@@ -128,7 +128,9 @@ class Log:
                 return data
         return await self._cache.get((self._key, number, fmt, streams), lambda: self._render(number, fmt, streams))
 
-    async def derived(self, number: int, name: str, job: Callable[..., bytes], *args: Any, level: Level = FULL) -> bytes:
+    async def derived(
+        self, number: int, name: str, job: Callable[..., bytes], *args: Any, level: Level = FULL
+    ) -> bytes:
         """Frame ``number`` made into something else by ``job(data, *args)``, made once and kept in the frame cache.
 
         ``name`` tells what ``job`` makes (frames of one log made by the same
@@ -185,7 +187,12 @@ class Log:
         try:
             fmt = detect_format(data)
             if fmt is Format.BINARY and len(cut := cut_glb(data)) < len(data):
-                logger.warning("log %r: frame %d has %d bytes after its GLB end; they are not served", self.name, number, len(data) - len(cut))
+                logger.warning(
+                    "log %r: frame %d has %d bytes after its GLB end; they are not served",
+                    self.name,
+                    number,
+                    len(data) - len(cut),
+                )
                 data = cut
             # Schema checks take long at any size.
             place = Place.THREAD if self._validate else frames.placement(len(data), fmt)
@@ -208,14 +215,14 @@ class Log:
     async def _render_level(self, number: int, fmt: Format, streams: frozenset[str] | None, level: Level) -> bytes:
         data = await self._checked(number)
         try:
-            place = Place.PROCESS if len(data) > frames.HEAVY_JSON_BYTES else Place.THREAD  # numpy and Pillow: CPU-heavy
+            place = (
+                Place.PROCESS if len(data) > frames.HEAVY_JSON_BYTES else Place.THREAD
+            )  # numpy and Pillow: CPU-heavy
             return await self._workers.run(place, frames.render, data, fmt, streams, None, level)
         except DecodeError as exc:
             raise self._corrupt(number, exc) from None
 
-    async def complete_state(
-        self, instant: float, fmt: Format, streams: frozenset[str] | None, lookback: int
-    ) -> bytes:
+    async def complete_state(self, instant: float, fmt: Format, streams: frozenset[str] | None, lookback: int) -> bytes:
         """The latest state of each stream at or before ``instant``, as one message.
 
         Found through the index: the last frame at or before ``instant``, and
@@ -263,7 +270,9 @@ class Log:
 
     def _corrupt(self, number: int, exc: Exception) -> FrameError:
         where = getattr(self._source, "describe_frame", lambda n: f"frame {n}")(number)
-        return FrameError(f"frame {number} ({where}) of log {self.name!r} is corrupt: {exc}", log=self.name, frame=number)
+        return FrameError(
+            f"frame {number} ({where}) of log {self.name!r} is corrupt: {exc}", log=self.name, frame=number
+        )
 
 
 def complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, Any]:
@@ -432,7 +441,9 @@ class Catalog:
             self._open.pop(name, None)
             self._stamps.pop(name, None)
             self._notice(name)
-            raise LogNotFound(f"log {name!r} is gone: {where} was removed", name=name, available=list(self.available()[:20]))
+            raise LogNotFound(
+                f"log {name!r} is gone: {where} was removed", name=name, available=list(self.available()[:20])
+            )
         task = self._open.get(name)
         if task is not None and self._stamps.get(name) != stamp:
             logger.info("log %r changed on disk; reading it again", name)
@@ -450,7 +461,13 @@ class Catalog:
                 self._failed[name] = stamp
                 logger.warning("log %r (%s) cannot be opened: %s", name, getattr(found, "path", found.name), exc)
             raise
-        if preload and name not in self._preloads and isinstance(found, Found) and found.kind == LOG and self._preload_bytes > 0:
+        if (
+            preload
+            and name not in self._preloads
+            and isinstance(found, Found)
+            and found.kind == LOG
+            and self._preload_bytes > 0
+        ):
             self._preloads[name] = asyncio.ensure_future(self._preload(log, found.path))
         return log
 
@@ -474,7 +491,13 @@ class Catalog:
         else:
             source = await self._logs.open(found)
         log = await Log.open(source, self._cache, self._workers, self._validate)
-        logger.info("opened log %r: %d frames, %s, in %.3f s", found.name, len(log.index), log.format.value, time.perf_counter() - started)
+        logger.info(
+            "opened log %r: %d frames, %s, in %.3f s",
+            found.name,
+            len(log.index),
+            log.format.value,
+            time.perf_counter() - started,
+        )
         return log
 
     async def _preload(self, log: Log, directory: Path) -> None:
@@ -493,7 +516,11 @@ class Catalog:
                 return
         logger.info(
             "read log %r into the frame cache: %d of %d frames, %.1f MB, in %.1f s",
-            log.name, loaded, len(log.index), size / 2**20, time.perf_counter() - started,
+            log.name,
+            loaded,
+            len(log.index),
+            size / 2**20,
+            time.perf_counter() - started,
         )
 
     def _stop_preload(self, name: str) -> None:

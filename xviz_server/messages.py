@@ -16,7 +16,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar, Literal, Union
+from typing import Any, ClassVar, Literal
 
 import pydantic
 from pydantic import AliasChoices, ConfigDict, Field, field_validator, model_validator
@@ -81,9 +81,7 @@ class _Message(pydantic.BaseModel):
 
 
 _Timestamp = Field(default=None, allow_inf_nan=False)
-_StreamFilter = Field(
-    default=None, validation_alias=AliasChoices("desired_streams", "requested_streams")
-)
+_StreamFilter = Field(default=None, validation_alias=AliasChoices("desired_streams", "requested_streams"))
 
 
 class Start(_Message):
@@ -214,7 +212,7 @@ def stream_filter(*filters: Sequence[str] | None) -> frozenset[str] | None:
     return result
 
 
-ClientMessage = Union[Start, TransformLog, TransformPointInTime, Reconfigure]
+ClientMessage = Start | TransformLog | TransformPointInTime | Reconfigure
 
 CLIENT_MESSAGES: dict[str, type[_Message]] = {
     model.TYPE: model for model in (Start, TransformLog, TransformPointInTime, Reconfigure)
@@ -235,7 +233,7 @@ def unwrap(message: Any) -> tuple[str, Any]:
     """
     if not isinstance(message, Mapping):
         raise MessageError(
-            f"a message must be a JSON object like {{\"type\": \"xviz/<name>\", \"data\": {{...}}}}, "
+            f'a message must be a JSON object like {{"type": "xviz/<name>", "data": {{...}}}}, '
             f"not {type(message).__name__}"
         )
     if "type" in message and "data" in message:
@@ -248,7 +246,7 @@ def unwrap(message: Any) -> tuple[str, Any]:
     if "update_type" in message and "updates" in message:
         return XVIZ_NAMESPACE + "state_update", message
     raise MessageError(
-        "a message must be an envelope {\"type\": \"xviz/<name>\", \"data\": {...}}; "
+        'a message must be an envelope {"type": "xviz/<name>", "data": {...}}; '
         f"this one has the keys {sorted(message)}"
     )
 
@@ -267,12 +265,15 @@ def parse_client_message(message: Any) -> ClientMessage:
         known = ", ".join(XVIZ_NAMESPACE + n for n in CLIENT_MESSAGES)
         raise MessageError(f"unknown message type {kind!r}; a client may send {known}", message_type=kind)
     request_id = data.get("id") if isinstance(data, Mapping) else None
-    request_id = None if request_id is None else shown(request_id) if not isinstance(request_id, str) else request_id[:SHOWN]
+    request_id = (
+        None if request_id is None else shown(request_id) if not isinstance(request_id, str) else request_id[:SHOWN]
+    )
     subject = kind if request_id is None else f"{kind} (id {request_id!r})"
     if isinstance(data, Mapping) and (crowded := _crowded(data)) is not None:
         raise MessageError(
             f"{subject}: '{crowded}' holds more than the {MAX_ITEMS} items a message may hold: refused whole",
-            message_type=name, request_id=request_id,
+            message_type=name,
+            request_id=request_id,
         )
     try:
         return model.model_validate(data)  # type: ignore[return-value]
@@ -330,5 +331,3 @@ def describe_validation_error(error: Mapping[str, Any]) -> str:
     if expected is None:
         return f"'{field}': {error['msg']} (got {shown(error['input'])})"
     return f"'{field}' must be {expected}, not {shown(error['input'])}"
-
-

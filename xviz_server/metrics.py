@@ -9,7 +9,6 @@ from __future__ import annotations
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
-
 __all__ = ["Metrics", "CONTENT_TYPE"]
 
 CONTENT_TYPE = CONTENT_TYPE_LATEST
@@ -24,7 +23,9 @@ class Metrics:
         self.sessions_open = Gauge("xviz_sessions_open", "Sessions now open.", registry=registry)
         self.sessions = Counter("xviz_sessions", "Sessions opened.", registry=registry)
         self.sessions_by_detail = Gauge(
-            "xviz_sessions_by_detail", "Sessions now open, by the level of detail they are sent.", ["level"],
+            "xviz_sessions_by_detail",
+            "Sessions now open, by the level of detail they are sent.",
+            ["level"],
             registry=registry,
         )
         self.frames_sent = Counter(
@@ -45,13 +46,17 @@ class Metrics:
             "xviz_live_dropped_updates", "Live updates dropped for viewers that fell behind.", registry=registry
         )
         self.record_dropped = Counter(
-            "xviz_record_dropped_updates", "Live updates not recorded because the disk could not keep up.", registry=registry
+            "xviz_record_dropped_updates",
+            "Live updates not recorded because the disk could not keep up.",
+            registry=registry,
         )
         self.record_errors = Counter(
             "xviz_record_errors", "Recordings ended by a write error (or a recorder fault).", registry=registry
         )
         self.file_bytes = Counter(
-            "xviz_file_bytes_sent", "Bytes of the logs' MCAP files (/api/logs/NAME/file.mcap) handed to clients.", registry=registry
+            "xviz_file_bytes_sent",
+            "Bytes of the logs' MCAP files (/api/logs/NAME/file.mcap) handed to clients.",
+            registry=registry,
         )
         self.ingest_refused = Counter(
             "xviz_ingest_refused", "Messages from live sources refused at the door.", registry=registry

@@ -58,5 +58,7 @@ def seconds(name: str, text: str, *, at_least: float | None = None) -> float:
     value = float(text) if _NUMBER.fullmatch(text) else math.nan
     if not math.isfinite(value) or (at_least is not None and value < at_least):
         least = "" if at_least is None else f", at least {at_least:g}"
-        raise QueryError(name, f"give a finite number of seconds ([-]digits[.digits][e±digits]{least}), not {text[:SHOWN]!r}")
+        raise QueryError(
+            name, f"give a finite number of seconds ([-]digits[.digits][e±digits]{least}), not {text[:SHOWN]!r}"
+        )
     return value

@@ -80,10 +80,15 @@ def decide(headers: Mapping[str, str], file: Representation) -> Answer:
         return whole
     span = _span(asked.strip().replace(" ", ""), file.size)
     if span is None:
-        return Answer(HTTPStatus.REQUESTED_RANGE_NOT_SATISFIABLE, headers={**common, "Content-Range": f"bytes */{file.size}"})
+        return Answer(
+            HTTPStatus.REQUESTED_RANGE_NOT_SATISFIABLE, headers={**common, "Content-Range": f"bytes */{file.size}"}
+        )
     first, last = span
     return Answer(
-        HTTPStatus.PARTIAL_CONTENT, first, last - first + 1, {**common, "Content-Range": f"bytes {first}-{last}/{file.size}"}
+        HTTPStatus.PARTIAL_CONTENT,
+        first,
+        last - first + 1,
+        {**common, "Content-Range": f"bytes {first}-{last}/{file.size}"},
     )
 
 

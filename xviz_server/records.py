@@ -48,5 +48,5 @@ def unpack(packed: bytes) -> Iterator[tuple[int, int, memoryview]]:
     while offset < len(view):
         channel, time, size = _RECORD.unpack_from(view, offset)
         offset += _RECORD.size
-        yield channel, time, view[offset:offset + size]
+        yield channel, time, view[offset : offset + size]
         offset += size

@@ -37,14 +37,14 @@ import errno
 import gc
 import importlib
 import ipaddress
-import urllib.parse
 import logging
 import os
 import signal
 import tempfile
+import urllib.parse
+from collections.abc import Sequence
 from http import HTTPStatus
 from pathlib import Path
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
@@ -53,20 +53,20 @@ from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.http11 import Request, Response
 from websockets.typing import Origin, Subprotocol
 
-from .version import __version__
 from .auth import feed_name, ingest_refusal, token_matches
 from .cache import FrameCache
-from .layout import LOG, check_log_name
-from .datasets import GENERATED, KINDS, dataset_options, dataset_problem
 from .catalog import Indexer, parse_query
+from .datasets import GENERATED, KINDS, dataset_options, dataset_problem
 from .exceptions import ConfigError, LogError, LogNotFound, QueryError, XVIZError
 from .foxglove.wire import SUBPROTOCOLS
 from .framing import OPEN_TIMEOUT, FramingConnection, streamed
 from .gate import GatedConnection
+from .layout import LOG, check_log_name
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
 from .store import data_roots
 from .tls import server_context
+from .version import __version__
 from .viewer import STATIC_DIR, ViewerPage
 from .work import Workers
 
@@ -75,9 +75,9 @@ if TYPE_CHECKING:
 
     from .connection import Connection
     from .foxglove.connection import FoxgloveConnection
+    from .foxglove.seekable import LogFiles
     from .live import LiveRegistry
     from .live.broker import Broker
-    from .foxglove.seekable import LogFiles
     from .live.record import Recorder
     from .logs import Catalog
 
@@ -96,7 +96,14 @@ MAX_QUEUE = 2
 #: What sessions need and the listing does not (the codecs, numpy, the providers, Foxglove's schemas):
 #: imported once the server listens (see :meth:`XVIZServer.start`).
 SESSION_MODULES = (
-    "logs", "live", "connection", "foxglove.connection", "foxglove.convert", "foxglove.export", "foxglove.seekable", "live.ingest",
+    "logs",
+    "live",
+    "connection",
+    "foxglove.connection",
+    "foxglove.convert",
+    "foxglove.export",
+    "foxglove.seekable",
+    "live.ingest",
 )
 #: Seconds a request for a log's file may wait for the file to be made (on first request); the making goes on after.
 FILE_WAIT = 600.0
@@ -129,7 +136,10 @@ class XVIZServer:
                 logger.warning("--dataset %s:%s: %s", kind, path, problem)
         #: The persistent catalog: what ``GET /api/logs`` lists, kept current in the background.
         self.indexer = Indexer(
-            self._roots, self.workers, state_dir=settings.state_dir, poll=settings.catalog_poll,
+            self._roots,
+            self.workers,
+            state_dir=settings.state_dir,
+            poll=settings.catalog_poll,
             store_poll=settings.catalog_store_poll,
         )
         self._catalog: Catalog | None = None
@@ -145,7 +155,9 @@ class XVIZServer:
         self.sessions: set[Connection | FoxgloveConnection] = set()
         self._exporting: set[ServerConnection] = set()  # connections of the exports and files admitted, until they end
         #: The built-in viewer's page and assets.
-        self.viewer = ViewerPage(STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors)
+        self.viewer = ViewerPage(
+            STATIC_DIR, self.workers, settings.map_token, settings.viewer_token, settings.frame_ancestors
+        )
 
     @property
     def catalog(self) -> Catalog:
@@ -195,8 +207,13 @@ class XVIZServer:
             from .live.record import Recorder
 
             self._recorder = Recorder(
-                self.settings.record, self._live, self.workers, self.metrics, rotate_mb=self.settings.record_rotate_mb,
-                max_mb=self.settings.record_max_mb, min_free_mb=self.settings.record_min_free_mb,
+                self.settings.record,
+                self._live,
+                self.workers,
+                self.metrics,
+                rotate_mb=self.settings.record_rotate_mb,
+                max_mb=self.settings.record_max_mb,
+                min_free_mb=self.settings.record_min_free_mb,
             )
         if self.settings.broker is not None:
             self.broker = _broker(self.settings, self._live, self.metrics, self.workers)
@@ -213,7 +230,9 @@ class XVIZServer:
         await self._catalog.find_datasets()
         from .foxglove.seekable import LogFiles
 
-        self._files = LogFiles(None if self.settings.state_dir is None else self.settings.state_dir / "files", self.workers)
+        self._files = LogFiles(
+            None if self.settings.state_dir is None else self.settings.state_dir / "files", self.workers
+        )
         await self.indexer.start(self._catalog)
         if self._catalog.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
@@ -268,7 +287,12 @@ class XVIZServer:
         log = await catalog.open(names[0])
         feed = self.live.feed(log.name)
         self._replay = asyncio.ensure_future(replay(log, feed, rate=self.settings.rate, loop=self.settings.loop))
-        logger.info("replaying %r as a live feed at %gx%s", log.name, self.settings.rate, ", looping" if self.settings.loop else "")
+        logger.info(
+            "replaying %r as a live feed at %gx%s",
+            log.name,
+            self.settings.rate,
+            ", looping" if self.settings.loop else "",
+        )
 
     async def close(self) -> None:
         """Stop listening and close every connection with 1001 (going away), in at most :data:`SHUTDOWN_TIMEOUT` s.
@@ -285,7 +309,9 @@ class XVIZServer:
                 await asyncio.wait_for(asyncio.shield(server.wait_closed()), SHUTDOWN_TIMEOUT)
             except asyncio.TimeoutError:
                 stuck = list(server.all_connections)  # closing ones too: .connections has only open ones
-                logger.warning("shutdown: aborting %d connections that did not close in %g s", len(stuck), SHUTDOWN_TIMEOUT)
+                logger.warning(
+                    "shutdown: aborting %d connections that did not close in %g s", len(stuck), SHUTDOWN_TIMEOUT
+                )
                 for connection in stuck:
                     connection.transport.abort()
                 await server.wait_closed()
@@ -343,12 +369,16 @@ class XVIZServer:
             logger.exception("answering GET %s failed", path)
             upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
             what = f"a WebSocket session on {path}" if upgrade else f"GET {path}"
-            return connection.respond(HTTPStatus.INTERNAL_SERVER_ERROR, f"the server failed to answer {what}: see its log\n")
+            return connection.respond(
+                HTTPStatus.INTERNAL_SERVER_ERROR, f"the server failed to answer {what}: see its log\n"
+            )
 
     async def _answer(self, connection: ServerConnection, request: Request) -> Response | None:
         if request.headers.get("Upgrade", "").lower() == "websocket":
             if feed_name(request.path) is not None:
-                reason = ingest_refusal(request, connection.remote_address, self.settings.ingest_token, self.settings.allowed_origins)
+                reason = ingest_refusal(
+                    request, connection.remote_address, self.settings.ingest_token, self.settings.allowed_origins
+                )
                 if reason is not None:
                     logger.warning("refused a live source from %s: %s", connection.remote_address, reason)
                     return connection.respond(HTTPStatus.FORBIDDEN, reason + "\n")
@@ -365,9 +395,13 @@ class XVIZServer:
             await self._ready.wait()  # healthy: ready for sessions
             problems = self.workers.health()
             if problems:
-                return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, "".join(f"{problem}\n" for problem in problems))
+                return connection.respond(
+                    HTTPStatus.SERVICE_UNAVAILABLE, "".join(f"{problem}\n" for problem in problems)
+                )
             # The broker's state is shown, not judged: without it the replica still serves.
-            return connection.respond(HTTPStatus.OK, "ok\n" + ("" if self.broker is None else f"{self.broker.health()}\n"))
+            return connection.respond(
+                HTTPStatus.OK, "ok\n" + ("" if self.broker is None else f"{self.broker.health()}\n")
+            )
         if path == "/metrics":
             if self.settings.protect_metrics and (refused := self._viewer_refusal(connection, request)) is not None:
                 return refused
@@ -424,7 +458,9 @@ class XVIZServer:
         the_plan = await log_plan(log)
         if (error := await first_error(log, the_plan, positions)) is not None:
             logger.warning("refused an export of log %r: its first frame cannot be read: %s", name, error)
-            return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"the clip's first frame cannot be read: {error}\n")
+            return connection.respond(
+                HTTPStatus.UNPROCESSABLE_ENTITY, f"the clip's first frame cannot be read: {error}\n"
+            )
         head = connection.respond(HTTPStatus.OK, "")
         del head.headers["Content-Type"]
         head.headers["Content-Type"] = "application/octet-stream"
@@ -444,7 +480,9 @@ class XVIZServer:
         except XVIZError as exc:
             return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
         layout = app_layout(await log_plan(log))
-        return _response(connection, HTTPStatus.OK, orjson.dumps(layout, option=orjson.OPT_INDENT_2), "application/json")
+        return _response(
+            connection, HTTPStatus.OK, orjson.dumps(layout, option=orjson.OPT_INDENT_2), "application/json"
+        )
 
     async def _file(self, connection: ServerConnection, request: Request, name: str) -> Response:
         """Log ``name`` as a whole MCAP file, or the byte range of it the request asks for (see :mod:`.ranges`)."""
@@ -466,10 +504,16 @@ class XVIZServer:
             return connection.respond(HTTPStatus.UNPROCESSABLE_ENTITY, f"{exc}\n")
         except OSError as exc:
             logger.warning("cannot make the file of log %r: %s", name, exc)
-            return connection.respond(HTTPStatus.SERVICE_UNAVAILABLE, f"cannot make the file of log {name!r}: {exc.strerror or exc}\n")
+            return connection.respond(
+                HTTPStatus.SERVICE_UNAVAILABLE, f"cannot make the file of log {name!r}: {exc.strerror or exc}\n"
+            )
         answer = decide(request.headers, built.representation)
         if answer.status not in (HTTPStatus.OK, HTTPStatus.PARTIAL_CONTENT):
-            text = "" if answer.status == HTTPStatus.NOT_MODIFIED else f"{answer.status.phrase}: the file is {built.representation.size} bytes\n"
+            text = (
+                ""
+                if answer.status == HTTPStatus.NOT_MODIFIED
+                else f"{answer.status.phrase}: the file is {built.representation.size} bytes\n"
+            )
             response = connection.respond(answer.status, text)
             if not text:
                 del response.headers["Content-Type"], response.headers["Content-Length"]
@@ -493,7 +537,11 @@ class XVIZServer:
         if not allowed:
             return {"Access-Control-Allow-Origin": "*", "Access-Control-Expose-Headers": FILE_EXPOSED}
         if origin in allowed:
-            return {"Access-Control-Allow-Origin": origin, "Access-Control-Expose-Headers": FILE_EXPOSED, "Vary": "Origin"}
+            return {
+                "Access-Control-Allow-Origin": origin,
+                "Access-Control-Expose-Headers": FILE_EXPOSED,
+                "Vary": "Origin",
+            }
         return {"Vary": "Origin"}
 
     def _too_many(self, connection: ServerConnection, what: str) -> Response:
@@ -513,7 +561,7 @@ class XVIZServer:
     async def _listing(self, path: str, target: str) -> tuple[HTTPStatus, dict[str, Any]]:
         """The answer to ``GET /api/logs?...`` (a page of the catalog) or ``GET /api/logs/NAME`` (one log)."""
         if path.startswith(LOG_PATH):
-            name = urllib.parse.unquote(path[len(LOG_PATH):])
+            name = urllib.parse.unquote(path[len(LOG_PATH) :])
             try:
                 check_log_name(name)
             except LogNotFound as exc:
@@ -534,9 +582,10 @@ class XVIZServer:
     def _viewer_refusal(self, connection: ServerConnection, request: Request) -> Response | None:
         """HTTP 401 when a viewer token is configured and the request does not give it."""
         if self.settings.viewer_token and not token_matches(request, self.settings.viewer_token):
-            return connection.respond(HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n")
+            return connection.respond(
+                HTTPStatus.UNAUTHORIZED, "this server needs a viewer token: ?token= or Authorization: Bearer\n"
+            )
         return None
-
 
 
 def _check_record_folder(root: Path) -> None:
@@ -591,7 +640,12 @@ def _broker(settings: Settings, live: LiveRegistry, metrics: Metrics, workers: W
     except ImportError as exc:
         raise ConfigError(f"--broker needs the redis package ({exc}): pip install 'xviz-server[broker]'") from None
     return Broker(
-        settings.broker, live, metrics, workers, ttl=settings.broker_ttl, max_bytes=int(settings.broker_max_mb * MB),
+        settings.broker,
+        live,
+        metrics,
+        workers,
+        ttl=settings.broker_ttl,
+        max_bytes=int(settings.broker_max_mb * MB),
         max_update_bytes=int(settings.max_ingest_mb * MB),
     )
 
@@ -614,8 +668,10 @@ def parse_dataset(text: str) -> tuple[str, Path, dict[str, str]]:
         raise ValueError(f"--dataset {text!r}: {path}: no such file or directory")
     options = dict(urllib.parse.parse_qsl(query))
     if unknown := sorted(options.keys() - dataset_options(kind)):
-        raise ValueError(f"--dataset {text!r}: {kind} takes no option {', '.join(unknown)}; it takes: "
-                         f"{', '.join(sorted(dataset_options(kind))) or 'none'}")
+        raise ValueError(
+            f"--dataset {text!r}: {kind} takes no option {', '.join(unknown)}; it takes: "
+            f"{', '.join(sorted(dataset_options(kind))) or 'none'}"
+        )
     return kind, Path(path), options
 
 

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol, Union
+from typing import Any, Protocol
 
 import numpy as np
 import pydantic
@@ -55,14 +55,35 @@ from .codec import Format, decode, encode
 from .detail import DetailChooser, Sample
 from .events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
 from .exceptions import DecodeError, LogNotFound, MessageError, XVIZError
-from .levels import FULL, Level, profile_level
 from .index import TimeIndex
-from .messages import Error, Reconfigure, SessionType, Start, TransformLog, TransformLogDone, TransformPointInTime
-from .messages import SessionConfig, describe_validation_error, merge_patch, parse_client_message, stream_filter
+from .levels import FULL, Level, profile_level
+from .messages import (
+    Error,
+    Reconfigure,
+    SessionConfig,
+    SessionType,
+    Start,
+    TransformLog,
+    TransformLogDone,
+    TransformPointInTime,
+    describe_validation_error,
+    merge_patch,
+    parse_client_message,
+    stream_filter,
+)
 
 __all__ = [
-    "Session", "LogView", "Event", "StreamFrames", "CancelStream", "QueryInstant", "ConfigureLive", "SendLiveMetadata",
-    "SendLiveUpdate", "SkipToState", "DetailChanged",
+    "Session",
+    "LogView",
+    "Event",
+    "StreamFrames",
+    "CancelStream",
+    "QueryInstant",
+    "ConfigureLive",
+    "SendLiveMetadata",
+    "SendLiveUpdate",
+    "SkipToState",
+    "DetailChanged",
 ]
 
 
@@ -160,10 +181,21 @@ class DetailChanged:
     capacity: float | None
 
 
-Event = Union[
-    Send, Close, OpenLog, StreamFrames, CancelStream, QueryInstant, LookUpLive, SubscribeLive, ConfigureLive,
-    SendLiveMetadata, SendLiveUpdate, SkipToState, DetailChanged,
-]
+Event = (
+    Send
+    | Close
+    | OpenLog
+    | StreamFrames
+    | CancelStream
+    | QueryInstant
+    | LookUpLive
+    | SubscribeLive
+    | ConfigureLive
+    | SendLiveMetadata
+    | SendLiveUpdate
+    | SkipToState
+    | DetailChanged
+)
 
 
 # ----------------------------------------------------------------- session
@@ -247,7 +279,9 @@ class Session:
             try:
                 self._url_cap = SessionConfig.model_validate({"max_mbps": cap}).max_mbps
             except pydantic.ValidationError:
-                text = f"bad connection URL parameter 'max_mbps': {cap[:60]!r} is not a positive number of Mbit/s; no cap"
+                text = (
+                    f"bad connection URL parameter 'max_mbps': {cap[:60]!r} is not a positive number of Mbit/s; no cap"
+                )
                 events.append(self._error("start", text))
         events += self._apply_detail()
         return events + self._begin()
@@ -302,7 +336,12 @@ class Session:
         """The log asked for with :class:`OpenLog` is open: send its metadata."""
         self.log = log
         index = log.index
-        if len(index) > 1 and index.end_time is not None and index.start_time is not None and index.end_time > index.start_time:
+        if (
+            len(index) > 1
+            and index.end_time is not None
+            and index.start_time is not None
+            and index.end_time > index.start_time
+        ):
             self.chooser.rate = (len(index) - 1) / (index.end_time - index.start_time) * (self.config.speed or 1.0)
         return [Send(log.metadata_message(self.format), text=self.format is Format.JSON)]
 
@@ -338,7 +377,9 @@ class Session:
     def query_failed(self, request_id: str, error: XVIZError) -> list[Event]:
         """A :class:`QueryInstant` could not be answered."""
         return [
-            self._error("query", f"xviz/transform_point_in_time (id {request_id!r}) on log {self._log_name()!r}: {error}")
+            self._error(
+                "query", f"xviz/transform_point_in_time (id {request_id!r}) on log {self._log_name()!r}: {error}"
+            )
         ]
 
     # -- inputs: live feeds ----------------------------------------------
@@ -475,7 +516,9 @@ class Session:
         name = self.start.log
         if self.is_live:
             if name is None and not self.live:
-                return [self._error("live", "session_type LIVE: this server has no live feeds; name one to wait for it")]
+                return [
+                    self._error("live", "session_type LIVE: this server has no live feeds; name one to wait for it")
+                ]
             return self._go_live(exact=name is not None)
         if name is None:
             if len(self.available) != 1:
@@ -546,12 +589,18 @@ class Session:
 
     def _on_reconfigure(self, request: Reconfigure) -> list[Event]:
         current = self.config.model_dump(mode="json", exclude_none=True)
-        proposed = request.config_update if request.update_type == "FULL" else merge_patch(current, request.config_update)
+        proposed = (
+            request.config_update if request.update_type == "FULL" else merge_patch(current, request.config_update)
+        )
         try:
             self.config = SessionConfig.model_validate(proposed)
         except pydantic.ValidationError as exc:
             problem, known = describe_validation_error(exc.errors()[0]), ", ".join(SessionConfig.model_fields)
-            return [self._error("reconfigure", f"xviz/reconfigure: {problem} (supported keys: {known}); configuration unchanged")]
+            return [
+                self._error(
+                    "reconfigure", f"xviz/reconfigure: {problem} (supported keys: {known}); configuration unchanged"
+                )
+            ]
         events = self._apply_detail()
         if self.is_live:
             forward = {key: value for key, value in request.config_update.items() if key not in DETAIL_KEYS}
@@ -616,7 +665,9 @@ class Session:
         return self.log.name if self.log is not None else self._requested_log
 
     def _done(self, request: StreamFrames) -> Send:
-        return Send(encode(TransformLogDone(id=request.request_id).to_envelope(), request.fmt), text=request.fmt is Format.JSON)
+        return Send(
+            encode(TransformLogDone(id=request.request_id).to_envelope(), request.fmt), text=request.fmt is Format.JSON
+        )
 
     def _error(self, kind: str, message: str, notice: bool = False) -> Send:
         fmt = self.format

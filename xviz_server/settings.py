@@ -9,14 +9,20 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
-from urllib.parse import urlsplit
 from typing import Annotated, Any, Literal
+from urllib.parse import urlsplit
 
 import orjson
 from pydantic import Field, ValidationInfo, field_validator, model_validator
-from .datasets import DEFAULT_IMAGE_WIDTH
-from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
+from pydantic_settings import (
+    BaseSettings,
+    NoDecode,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
 
+from .datasets import DEFAULT_IMAGE_WIDTH
 from .exceptions import ConfigError
 from .logfmt import redact_password
 
@@ -65,16 +71,26 @@ class Settings(BaseSettings):
         "kept in memory and built again at each start, the files in a temporary folder",
     )
     catalog_poll: float = Field(
-        default=2, gt=0, description="seconds between looks for logs added, changed or removed under a --data-dir directory "
+        default=2,
+        gt=0,
+        description="seconds between looks for logs added, changed or removed under a --data-dir directory "
         "(folders whose modification time changed); each look also compares the versions of the next 1000 logs in name order",
     )
-    catalog_store_poll: float = Field(default=60, gt=0, description="seconds between listings of an s3:// --data-dir for logs added, changed or removed")
-    image_max_width: int = Field(default=DEFAULT_IMAGE_WIDTH, ge=16, description="camera images of raw datasets are scaled down to this width")
+    catalog_store_poll: float = Field(
+        default=60,
+        gt=0,
+        description="seconds between listings of an s3:// --data-dir for logs added, changed or removed",
+    )
+    image_max_width: int = Field(
+        default=DEFAULT_IMAGE_WIDTH, ge=16, description="camera images of raw datasets are scaled down to this width"
+    )
     host: str = Field(default="127.0.0.1", description="address to listen on (0.0.0.0 for every interface)")
     port: int = Field(default=3000, ge=0, le=65535, description="TCP port for WebSocket and HTTP")
     cache_mb: float = Field(default=512, gt=0, description="size of the frame cache shared by all sessions, MB")
     preload_mb: float = Field(
-        default=64, ge=0, description="read a log on local disk whose frames take at most this many MB into the frame "
+        default=64,
+        ge=0,
+        description="read a log on local disk whose frames take at most this many MB into the frame "
         "cache when a session first opens it, so that seeking in it does not wait for the disk (0: never; at most half of cache_mb)",
     )
     max_sessions: int = Field(default=256, ge=1, description="connections beyond this are refused with HTTP 503")
@@ -86,10 +102,18 @@ class Settings(BaseSettings):
         default=False, description="offer permessage-deflate (costly for point clouds; for JSON over slow links)"
     )
     read_ahead: int = Field(default=4, ge=1, description="frames a streaming session loads ahead of the socket")
-    store_read_ahead: int = Field(default=8, ge=1, description="GETs a streaming session keeps in flight to an object store")
-    store_read_ahead_mb: float = Field(default=32, gt=0, description="most MB of frames a streaming session has in flight from an object store")
-    store_timeout: float = Field(default=30, gt=0, description="seconds an object store request may take, connecting to last byte")
-    store_retries: int = Field(default=3, ge=0, description="times a failed object store GET (5xx, timeout, lost connection) is tried again")
+    store_read_ahead: int = Field(
+        default=8, ge=1, description="GETs a streaming session keeps in flight to an object store"
+    )
+    store_read_ahead_mb: float = Field(
+        default=32, gt=0, description="most MB of frames a streaming session has in flight from an object store"
+    )
+    store_timeout: float = Field(
+        default=30, gt=0, description="seconds an object store request may take, connecting to last byte"
+    )
+    store_retries: int = Field(
+        default=3, ge=0, description="times a failed object store GET (5xx, timeout, lost connection) is tried again"
+    )
     lookback: int = Field(
         default=100, ge=1, description="most frames a point-in-time query merges to find a complete state"
     )
@@ -112,16 +136,24 @@ class Settings(BaseSettings):
         description="auto: each session gets the level of detail its link carries (thinned point clouds, smaller "
         "images), measured as it goes; off: every session gets every byte",
     )
-    live_queue: int = Field(default=32, ge=1, description="updates a live viewer may fall behind before the oldest are dropped")
+    live_queue: int = Field(
+        default=32, ge=1, description="updates a live viewer may fall behind before the oldest are dropped"
+    )
     live_lag_timeout: float = Field(
         default=30, gt=0, description="disconnect a live viewer that keeps dropping updates for this long, s"
     )
-    live_from: Path | None = Field(default=None, description="replay this static log as a live feed named after its folder")
+    live_from: Path | None = Field(
+        default=None, description="replay this static log as a live feed named after its folder"
+    )
     rate: float = Field(default=1.0, gt=0, description="playback rate of --live-from (1 is real time)")
     loop: bool = Field(default=False, description="replay --live-from over and over")
     record: Path | None = Field(default=None, description="record every live feed as a static log under this directory")
-    record_rotate_mb: float = Field(default=1024, gt=0, description="start a new recording of a feed past this size, MB")
-    record_max_mb: float | None = Field(default=None, gt=0, description="record at most this much in all, MB (default: no cap)")
+    record_rotate_mb: float = Field(
+        default=1024, gt=0, description="start a new recording of a feed past this size, MB"
+    )
+    record_max_mb: float | None = Field(
+        default=None, gt=0, description="record at most this much in all, MB (default: no cap)"
+    )
     record_min_free_mb: float = Field(
         default=1024, ge=0, description="stop recording when the disk has less free space than this, MB"
     )
@@ -164,7 +196,6 @@ class Settings(BaseSettings):
         description="browser origins allowed to connect, e.g. https://viewer.example.com; repeat for more "
         "(default: any; clients that send no Origin, like scripts, are always allowed)",
     )
-
 
     @field_validator("data_dir", mode="before")
     @classmethod

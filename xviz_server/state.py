@@ -10,7 +10,8 @@ arrays: results share them with their inputs.
 
 from __future__ import annotations
 
-from typing import Any, Collection, Iterable
+from collections.abc import Collection, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -154,6 +155,7 @@ def downsample_points(message: dict[str, Any], max_points: int) -> dict[str, Any
     Every k-th point is kept (with its colour), k the smallest stride that
     fits; arrays are sliced, not copied.
     """
+
     def thin(cloud: dict[str, Any]) -> dict[str, Any]:
         points = cloud.get("points")
         count = len(points) if points is not None else 0

@@ -33,7 +33,16 @@ from obstore.exceptions import BaseError
 from .exceptions import ConfigError, StoreError
 from .layout import FRAME_FILE, LOG
 from .readahead import ReadAhead
-from .storeclient import BACKOFF_MAX, CONNECT_TIMEOUT, SCHEME, failure, get_range_async, s3_client, store_config, store_error
+from .storeclient import (
+    BACKOFF_MAX,
+    CONNECT_TIMEOUT,
+    SCHEME,
+    failure,
+    get_range_async,
+    s3_client,
+    store_config,
+    store_error,
+)
 from .storepath import StorePath, StoreTree
 
 if TYPE_CHECKING:
@@ -149,7 +158,11 @@ class ObjectStore:
         return list(await self._guard(obstore.list(self._store, base or None, chunk_size=1000).collect_async(), base))
 
     def found_in(
-        self, objects: list[ObjectMeta], kinds: Mapping[str, str], refused: Mapping[str, str], detect: Callable[[StoreTree], str | None]
+        self,
+        objects: list[ObjectMeta],
+        kinds: Mapping[str, str],
+        refused: Mapping[str, str],
+        detect: Callable[[StoreTree], str | None],
     ) -> list[StoredLog | StoredDataset]:
         """The logs and datasets that the listing ``objects`` of the prefix holds, as :meth:`discover` finds them."""
         base = self._key("")
@@ -157,7 +170,7 @@ class ObjectStore:
         files: list[tuple[str, int]] = []
         sizes: dict[str, int] = {}
         for meta in objects:
-            relative = meta["path"][len(base):]
+            relative = meta["path"][len(base) :]
             if _hidden(relative):
                 continue
             sizes[meta["path"]] = meta["size"]
@@ -171,14 +184,22 @@ class ObjectStore:
                 self._warned.add(meta["path"])
                 logger.warning("%s is not served: %s", self.key_url(meta["path"]), refused[suffix])
         found: list[StoredLog | StoredDataset] = [self._log(folder) for folder in folders]
-        found += [self._dataset(relative, size, kinds) for relative, size in files if relative.rpartition("/")[0] not in folders]
+        found += [
+            self._dataset(relative, size, kinds)
+            for relative, size in files
+            if relative.rpartition("/")[0] not in folders
+        ]
         found += self._folder_datasets(sizes, folders, detect)
         return sorted(found, key=lambda entry: entry.name)
 
-    def _folder_datasets(self, sizes: dict[str, int], logs: set[str], detect: Callable[[StoreTree], str | None]) -> list[StoredDataset]:
+    def _folder_datasets(
+        self, sizes: dict[str, int], logs: set[str], detect: Callable[[StoreTree], str | None]
+    ) -> list[StoredDataset]:
         """The folders of the listing (objects by key: ``sizes``) that ``detect`` finds to be datasets, outside logs."""
         below = len(self._key(""))
-        candidates = {key[below:].rsplit("/", depth)[0] for key in sizes for depth in range(1, key[below:].count("/") + 1)}
+        candidates = {
+            key[below:].rsplit("/", depth)[0] for key in sizes for depth in range(1, key[below:].count("/") + 1)
+        }
         found: list[StoredDataset] = []
         for folder in sorted(candidates):  # a folder before the folders below it
             if folder in logs or any(folder.startswith(f"{taken.name}/") for taken in found):
@@ -188,7 +209,9 @@ class ObjectStore:
                 found.append(dataset)
         return found
 
-    def _folder_dataset(self, name: str, sizes: dict[str, int], detect: Callable[[StoreTree], str | None]) -> StoredDataset | None:
+    def _folder_dataset(
+        self, name: str, sizes: dict[str, int], detect: Callable[[StoreTree], str | None]
+    ) -> StoredDataset | None:
         """The folder ``name`` (below the prefix) as a dataset, if ``detect`` finds it one among the objects ``sizes``.
 
         The dataset holds the objects below the folder and those beside it
@@ -330,7 +353,7 @@ def _hidden(relative: str) -> bool:
 
 def _parse(url: str) -> tuple[str, str]:
     """Bucket and prefix (without slashes at its ends) of ``s3://BUCKET[/PREFIX]``."""
-    rest = url[len(SCHEME):] if is_store_url(url) else ""
+    rest = url[len(SCHEME) :] if is_store_url(url) else ""
     bucket, _, prefix = rest.partition("/")
     if not _BUCKET.fullmatch(bucket):
         shown = bucket if "@" not in bucket and ":" not in bucket else "(hidden: it may hold a credential)"

@@ -48,8 +48,17 @@ if TYPE_CHECKING:
     from obstore.store import ClientConfig, RetryConfig, S3Config
 
 __all__ = [
-    "SCHEME", "CONNECT_TIMEOUT", "BACKOFF_START", "BACKOFF_MAX", "StoreConfig", "store_config", "s3_client", "failure",
-    "store_error", "get_range", "get_range_async",
+    "SCHEME",
+    "CONNECT_TIMEOUT",
+    "BACKOFF_START",
+    "BACKOFF_MAX",
+    "StoreConfig",
+    "store_config",
+    "s3_client",
+    "failure",
+    "store_error",
+    "get_range",
+    "get_range_async",
 ]
 
 SCHEME = "s3://"
@@ -96,7 +105,11 @@ def s3_client(store: StoreConfig) -> S3Store:
     retry: RetryConfig = {
         "max_retries": store.retries,
         "retry_timeout": timedelta(seconds=(store.retries + 1) * store.timeout),
-        "backoff": {"init_backoff": timedelta(seconds=BACKOFF_START), "max_backoff": timedelta(seconds=BACKOFF_MAX), "base": 2},
+        "backoff": {
+            "init_backoff": timedelta(seconds=BACKOFF_START),
+            "max_backoff": timedelta(seconds=BACKOFF_MAX),
+            "base": 2,
+        },
     }
     config: S3Config = dict(store.settings)  # type: ignore[assignment]  # the keys _aws_settings gives
     return S3Store(store.bucket, config=config, client_options=client, retry_config=retry)
@@ -145,7 +158,9 @@ def _aws_settings() -> tuple[S3Config, ClientConfig]:
     """
     profile = os.environ.get("AWS_PROFILE") or "default"
     credentials = _profile(os.environ.get("AWS_SHARED_CREDENTIALS_FILE", "~/.aws/credentials"), profile)
-    settings = _profile(os.environ.get("AWS_CONFIG_FILE", "~/.aws/config"), profile if profile == "default" else f"profile {profile}")
+    settings = _profile(
+        os.environ.get("AWS_CONFIG_FILE", "~/.aws/config"), profile if profile == "default" else f"profile {profile}"
+    )
     from_files = {**settings, **credentials}
     config: dict[str, str] = {}
     for key, variables, option in (
@@ -184,8 +199,12 @@ def _explain(url: str, exc: Exception, timeout: float | None) -> StoreError:
     status = _STATUS.search(text)
     if isinstance(exc, (FileNotFoundError, NotFoundError)) or (status and status.group(1) == "404"):
         return store_error(url, "no such object (404)")
-    if isinstance(exc, (PermissionError, PermissionDeniedError, UnauthenticatedError)) or (status and status.group(1) in ("401", "403")):
-        return store_error(url, f"access denied ({status.group(1) if status else 403}): check the credentials and the bucket policy")
+    if isinstance(exc, (PermissionError, PermissionDeniedError, UnauthenticatedError)) or (
+        status and status.group(1) in ("401", "403")
+    ):
+        return store_error(
+            url, f"access denied ({status.group(1) if status else 403}): check the credentials and the bucket policy"
+        )
     retried = re.search(r"after (\d+) retries", text)
     after = f" after {retried.group(1)} {'retry' if retried.group(1) == '1' else 'retries'}" if retried else ""
     if status:

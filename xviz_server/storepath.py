@@ -41,8 +41,8 @@ import io
 import threading
 import time
 from collections import OrderedDict
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any, BinaryIO, NamedTuple, TypeVar, cast
@@ -217,7 +217,9 @@ class StoreTree:
         """The files and folders below whose path relative to this one matches ``pattern`` (``*``, ``*/*``)."""
         depth, below = pattern.count("/") + 1, f"{self.key}/" if self.key else ""
         found = {
-            "/".join(key[len(below):].split("/")[:depth]) for key in self.files if key.startswith(below) and key[len(below):].count("/") + 1 >= depth
+            "/".join(key[len(below) :].split("/")[:depth])
+            for key in self.files
+            if key.startswith(below) and key[len(below) :].count("/") + 1 >= depth
         }
         return [self / relative for relative in sorted(found) if PurePosixPath(relative).match(pattern)]
 
@@ -285,7 +287,9 @@ class RangedFile(io.RawIOBase):
         Ranges are cut at the end of the object; empty ones, and ones held
         already, are left out.
         """
-        wanted = sorted({(start, min(end, self.path.size)) for start, end in ranges if start < min(end, self.path.size)})
+        wanted = sorted(
+            {(start, min(end, self.path.size)) for start, end in ranges if start < min(end, self.path.size)}
+        )
         wanted = [(start, end) for start, end in wanted if self._held(start, end) is None]
         if wanted:
             for (start, _), data in zip(wanted, self.path.read_ranges(wanted)):
@@ -310,7 +314,10 @@ class RangedFile(io.RawIOBase):
         fetch = min(self.path.size, max(end, start + MIN_FETCH))
         data = self.path.read_range(start, fetch)
         if len(data) < end - start:
-            raise store_error(str(self.path), f"{len(data)} bytes at {start}, not {end - start}: the object is shorter than when listed")
+            raise store_error(
+                str(self.path),
+                f"{len(data)} bytes at {start}, not {end - start}: the object is shorter than when listed",
+            )
         self._keep(start, data)
         return data if len(data) == end - start else data[: end - start]
 

@@ -28,7 +28,9 @@ def server_context(certfile: Path, keyfile: Path | None) -> ssl.SSLContext:
     _check_pem(key, "--keyfile" if keyfile else "--certfile", b"PRIVATE KEY-----", "private key")
 
     def no_passphrase() -> bytes:
-        raise ConfigError(f"--keyfile {key}: the key is encrypted; give it unencrypted (e.g. openssl pkey -in KEY -out KEY.plain)")
+        raise ConfigError(
+            f"--keyfile {key}: the key is encrypted; give it unencrypted (e.g. openssl pkey -in KEY -out KEY.plain)"
+        )
 
     context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
     try:

@@ -32,15 +32,26 @@ from __future__ import annotations
 import bz2
 import io
 import zlib
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from zlib_ng import zlib_ng
 
 from .exceptions import DatasetError, FrameSizeError, OversizeError
 
 __all__ = [
-    "MAX_CHUNK_BYTES", "MAX_FRAME_BYTES", "check_frame", "MAX_RECORD_BYTES", "MAX_FILE_RATIO", "COMPRESSIONS", "unpack", "unpack_unsized", "BoundedReader",
-    "check_declared", "size_text", "zstd_module",
+    "MAX_CHUNK_BYTES",
+    "MAX_FRAME_BYTES",
+    "check_frame",
+    "MAX_RECORD_BYTES",
+    "MAX_FILE_RATIO",
+    "COMPRESSIONS",
+    "unpack",
+    "unpack_unsized",
+    "BoundedReader",
+    "check_declared",
+    "size_text",
+    "zstd_module",
 ]
 
 #: The most bytes one compressed part of a recording (a ROS 1 or MCAP chunk) may declare once unpacked.
@@ -126,7 +137,8 @@ def unpack_unsized(data: bytes | memoryview, compression: str, where: str, limit
         raise OversizeError(
             f"{where} unpacks to more than the limit of {size_text(limit)}: refused after {size_text(len(out))} "
             "(a damaged file or a decompression bomb)",
-            size=len(out), limit=limit,
+            size=len(out),
+            limit=limit,
         )
     return out
 
@@ -150,7 +162,8 @@ class BoundedReader(io.RawIOBase):
             raise OversizeError(
                 f"{self._where} unpacks to more than the limit of {size_text(self._limit)} (a damaged file or a "
                 "decompression bomb): refused",
-                size=self._given, limit=self._limit,
+                size=self._given,
+                limit=self._limit,
             )
         return len(data)
 
@@ -166,7 +179,10 @@ def check_frame(declared: int, frame: int, where: str, path: object = None) -> N
         raise FrameSizeError(
             f"{where}: frame {frame}: its messages and images would unpack {size_text(declared)}, more than the "
             f"limit of {size_text(MAX_FRAME_BYTES)} for one frame: refused unread",
-            size=declared, limit=MAX_FRAME_BYTES, frame=frame, path=path,
+            size=declared,
+            limit=MAX_FRAME_BYTES,
+            frame=frame,
+            path=path,
         )
 
 
@@ -179,11 +195,14 @@ def check_declared(declared: int, where: str, limit: int = MAX_CHUNK_BYTES) -> N
         raise OversizeError(
             f"{where} declares {size_text(declared)} uncompressed, more than the limit of {size_text(limit)}: "
             "refused unread (a damaged file or a decompression bomb)",
-            size=declared, limit=limit,
+            size=declared,
+            limit=limit,
         )
 
 
-def unpack(data: bytes | memoryview, compression: str, declared: int, where: str, limit: int = MAX_CHUNK_BYTES) -> bytes:
+def unpack(
+    data: bytes | memoryview, compression: str, declared: int, where: str, limit: int = MAX_CHUNK_BYTES
+) -> bytes:
     """``data`` decompressed with ``compression`` (``""`` or ``none``: as it is); it must unpack to exactly
     ``declared`` bytes, at most ``limit``.
 
@@ -196,8 +215,11 @@ def unpack(data: bytes | memoryview, compression: str, declared: int, where: str
         raise OversizeError(
             f"{where} unpacks to more than the {size_text(declared)} it declares: refused after "
             f"{size_text(len(out))} (a decompression bomb)",
-            size=len(out), limit=declared,
+            size=len(out),
+            limit=declared,
         )
     if len(out) < declared:
-        raise DatasetError(f"{where} unpacks to {len(out)} bytes, not the {declared} it declares: it is cut short or damaged")
+        raise DatasetError(
+            f"{where} unpacks to {len(out)} bytes, not the {declared} it declares: it is cut short or damaged"
+        )
     return out

@@ -10,18 +10,29 @@ frames carry without the metadata declaring them are reported as warnings.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 import orjson
 
 from .codec import decode
 from .exceptions import DecodeError, MessageError, SchemaValidationError
 from .index import TimeIndex
+from .layout import (
+    INDEX_FILE,
+    INDEX_NUMBER,
+    LOG,
+    METADATA_NUMBER,
+    discover,
+    file_number,
+    frame_files,
+    frame_name,
+    frame_numbers,
+    update_span,
+)
 from .messages import unwrap
-from .layout import INDEX_FILE, INDEX_NUMBER, LOG, METADATA_NUMBER, discover, file_number, frame_files
-from .layout import frame_name, frame_numbers, update_span
 from .state import update_streams
 from .validation import get_validator
 
@@ -84,7 +95,9 @@ def check_paths(paths: Iterable[Path]) -> Report:
         if path.is_dir():
             logs = list(_log_directories(path))
             if not logs:
-                reports.append(FileReport(path, problems=["no XVIZ log (no N-frame.json/.glb/.pbe files) in this directory"]))
+                reports.append(
+                    FileReport(path, problems=["no XVIZ log (no N-frame.json/.glb/.pbe files) in this directory"])
+                )
             for directory in logs:
                 reports += check_log(directory)
         elif path.is_file():
@@ -168,14 +181,22 @@ def _check_log_index(directory: Path, files: dict[int, Path], spans: dict[int, t
     if missing := sorted(named - present):
         report.problems.append(f"names frames with no file: {', '.join(frame_name(n) for n in missing[:10])}")
     unnamed = sorted(present - named)
-    beyond = [n for n in unnamed if n > max(named, default=-1)]  # written after the index, as a recording cut short leaves them
+    beyond = [
+        n for n in unnamed if n > max(named, default=-1)
+    ]  # written after the index, as a recording cut short leaves them
     if beyond:
-        shown = ", ".join(frame_name(n) for n in beyond[:10]) + (f" and {len(beyond) - 10} more" if len(beyond) > 10 else "")
-        report.warnings.append(f"{len(beyond)} frames past the index (a recording cut short?): {shown}; servers read them")
+        shown = ", ".join(frame_name(n) for n in beyond[:10]) + (
+            f" and {len(beyond) - 10} more" if len(beyond) > 10 else ""
+        )
+        report.warnings.append(
+            f"{len(beyond)} frames past the index (a recording cut short?): {shown}; servers read them"
+        )
     if inside := [n for n in unnamed if n not in beyond]:
         report.problems.append(f"does not name frames that exist: {', '.join(frame_name(n) for n in inside[:10])}")
     for start, end, frame in zip(index.start.tolist(), index.end.tolist(), index.frames.tolist()):
         real = spans.get(frame)
         if real is not None and (abs(real[0] - start) > 1e-6 or abs(real[1] - end) > 1e-6):
-            report.problems.append(f"frame {frame} ({frame_name(frame)}) spans {real[0]}-{real[1]}, the index says {start}-{end}")
+            report.problems.append(
+                f"frame {frame} ({frame_name(frame)}) spans {real[0]}-{real[1]}, the index says {start}-{end}"
+            )
     return report

@@ -75,12 +75,13 @@ class XVIZValidator:
 
     def __init__(self) -> None:
         schemas = dict(_read_schemas(resources.files("xviz_server.schema")))
-        registry = Registry().with_resources(
-            (schema["$id"], DRAFT202012.create_resource(schema)) for schema in schemas.values()
-        ).crawl()
+        registry = (
+            Registry()
+            .with_resources((schema["$id"], DRAFT202012.create_resource(schema)) for schema in schemas.values())
+            .crawl()
+        )
         self._validators = {
-            name: Draft202012Validator(schema, registry=registry)
-            for name, schema in sorted(schemas.items())
+            name: Draft202012Validator(schema, registry=registry) for name, schema in sorted(schemas.items())
         }
 
     def names(self) -> list[str]:

@@ -37,7 +37,15 @@ from websockets.http11 import Request, Response
 from .auth import token_matches
 from .work import Workers
 
-__all__ = ["STATIC_DIR", "HEADERS", "MAP_ORIGINS", "STYLE_HASHES", "ViewerPage", "content_security_policy", "wants_html"]
+__all__ = [
+    "STATIC_DIR",
+    "HEADERS",
+    "MAP_ORIGINS",
+    "STYLE_HASHES",
+    "ViewerPage",
+    "content_security_policy",
+    "wants_html",
+]
 
 #: Where ``scripts/build-viewer.sh`` writes the bundle.
 STATIC_DIR = Path(__file__).with_name("viewer_static")
@@ -69,13 +77,18 @@ MAP_ORIGINS = ("https://api.mapbox.com", "https://*.tiles.mapbox.com", "https://
 #: ``<style>`` element emotion fills through the CSSOM (which no policy restricts), and the rules of
 #: react-virtualized's AutoSizer (``detectElementResize``), which sizes the 3D view. A library that changes
 #: them is refused by the browser, and the browser tests say so.
-STYLE_HASHES = ("'sha256-47DEQpj8HBSa+/TImW+5JCeuQeRkm5NMpJWZG3hSuFU='", "'sha256-deDIoPlRijnpfbTDYsK+8JmDfUBmpwpnb0L/SUV8NeU='")
+STYLE_HASHES = (
+    "'sha256-47DEQpj8HBSa+/TImW+5JCeuQeRkm5NMpJWZG3hSuFU='",
+    "'sha256-deDIoPlRijnpfbTDYsK+8JmDfUBmpwpnb0L/SUV8NeU='",
+)
 
 #: Headers of every HTTP answer: no guessing of content types (a JSON catalog is never run as a script),
 #: and no page address (the viewer token, on the page's first load) sent to other origins.
 HEADERS = {"X-Content-Type-Options": "nosniff", "Referrer-Policy": "strict-origin"}
 
-NOT_BUILT = "the viewer is not built: run scripts/build-viewer.sh (needs node and npm), or open /api/logs for the catalog\n"
+NOT_BUILT = (
+    "the viewer is not built: run scripts/build-viewer.sh (needs node and npm), or open /api/logs for the catalog\n"
+)
 
 
 def content_security_policy(frame_ancestors: Sequence[str] = ()) -> str:
@@ -88,19 +101,21 @@ def content_security_policy(frame_ancestors: Sequence[str] = ()) -> str:
     through the DOM, which no policy restricts).
     """
     maps, ancestors = " ".join(MAP_ORIGINS), " ".join(frame_ancestors) or "'none'"
-    return "; ".join([
-        "default-src 'none'",
-        "script-src 'self'",
-        f"style-src 'self' {' '.join(STYLE_HASHES)}",
-        f"img-src 'self' data: blob: {maps}",
-        "font-src 'self' data:",
-        f"connect-src 'self' {maps}",
-        "worker-src blob:",
-        "child-src blob:",
-        "base-uri 'none'",
-        "form-action 'none'",
-        f"frame-ancestors {ancestors}",
-    ])
+    return "; ".join(
+        [
+            "default-src 'none'",
+            "script-src 'self'",
+            f"style-src 'self' {' '.join(STYLE_HASHES)}",
+            f"img-src 'self' data: blob: {maps}",
+            "font-src 'self' data:",
+            f"connect-src 'self' {maps}",
+            "worker-src blob:",
+            "child-src blob:",
+            "base-uri 'none'",
+            "form-action 'none'",
+            f"frame-ancestors {ancestors}",
+        ]
+    )
 
 
 def wants_html(request: Request) -> bool:
@@ -131,7 +146,11 @@ class ViewerPage:
     """
 
     def __init__(
-        self, directory: Path, workers: Workers, map_token: str | None = None, viewer_token: str | None = None,
+        self,
+        directory: Path,
+        workers: Workers,
+        map_token: str | None = None,
+        viewer_token: str | None = None,
         frame_ancestors: Sequence[str] = (),
     ) -> None:
         self.directory = directory

@@ -27,10 +27,11 @@ import multiprocessing
 import os
 import sys
 import threading
+from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.context import BaseContext
-from typing import Any, Callable, TypeVar
+from typing import Any, TypeVar
 
 from .exceptions import WorkerError
 
@@ -42,7 +43,13 @@ logger = logging.getLogger(__name__)
 
 # What jobs sent to the process pool use: imported once by the fork server
 # (or by each worker, where there is no fork server).
-_JOB_MODULES = ["xviz_server.frames", "xviz_server.admission", "xviz_server.live", "xviz_server.builder", "xviz_server.datasets"]
+_JOB_MODULES = [
+    "xviz_server.frames",
+    "xviz_server.admission",
+    "xviz_server.live",
+    "xviz_server.builder",
+    "xviz_server.datasets",
+]
 
 
 class Place(enum.Enum):
@@ -88,7 +95,7 @@ class Workers:
         again.
         """
         loop = asyncio.get_running_loop()
-        for attempt in range(2):
+        for _attempt in range(2):
             started = self._start()
             if isolated:
                 await asyncio.wrap_future(started)
@@ -101,7 +108,9 @@ class Workers:
             except BrokenProcessPool:
                 logger.warning("a worker process died running %s; replacing the process pool", _name(function))
                 self._replace(pool)
-        raise WorkerError(f"a worker process died running {_name(function)}, in the process pool and in its replacement")
+        raise WorkerError(
+            f"a worker process died running {_name(function)}, in the process pool and in its replacement"
+        )
 
     def health(self) -> list[str]:
         """What is wrong with the workers now, one sentence each; empty when nothing is.

@@ -31,7 +31,16 @@ import orjson
 
 from .codec import Format, decode, detect_format, encode
 from .exceptions import DecodeError, LogWriteError
-from .layout import INDEX_FILE, METADATA_NUMBER, file_number, frame_files, frame_name, frame_numbers, index_document, update_span
+from .layout import (
+    INDEX_FILE,
+    METADATA_NUMBER,
+    file_number,
+    frame_files,
+    frame_name,
+    frame_numbers,
+    index_document,
+    update_span,
+)
 
 __all__ = ["write_atomically", "LogWriter"]
 
@@ -87,7 +96,9 @@ class LogWriter:
         foreign = sorted(name for number, name in files.items() if number > 0 and not name.endswith(self.format.suffix))
         if foreign:
             names = ", ".join(foreign[:3])
-            raise self._error(f"holds {names}, not {self.format.value} frames; open it with the format it was written in")
+            raise self._error(
+                f"holds {names}, not {self.format.value} frames; open it with the format it was written in"
+            )
         self._stale_index = 0 in files  # an earlier run's index, dropped before the first change
         self._spans: dict[int, tuple[float, float]] = {}  # frame -> (first, last timestamp)
         self._log_times: tuple[float | None, float | None] | None = None  # read from the metadata when needed
@@ -177,7 +188,9 @@ class LogWriter:
     def _path(self, number: int) -> Path:
         return self.directory / f"{number}-frame{self.format.suffix}"
 
-    def _write(self, number: int, message: Mapping[str, Any], encoded: bytes | bytearray | memoryview | None = None) -> None:
+    def _write(
+        self, number: int, message: Mapping[str, Any], encoded: bytes | bytearray | memoryview | None = None
+    ) -> None:
         """Write file ``number``: ``encoded`` as it is when it is in the log's format, else ``message`` encoded."""
         if self._closed:
             raise self._error("the writer is closed; open a new one to change the log")
@@ -224,9 +237,13 @@ class LogWriter:
         """The metadata's ``log_info`` start and end times, where it has them (non-zero numbers)."""
         if self._log_times is None:
             name = frame_files(self.directory).get(METADATA_NUMBER)
-            metadata = self._decode((self.directory / name).read_bytes(), "metadata")["data"] if name is not None else {}
+            metadata = (
+                self._decode((self.directory / name).read_bytes(), "metadata")["data"] if name is not None else {}
+            )
             info = metadata.get("log_info")
             times = [info.get(key) for key in ("start_time", "end_time")] if isinstance(info, Mapping) else [None, None]
-            start, end = (float(t) if isinstance(t, (int, float)) and not isinstance(t, bool) and t else None for t in times)
+            start, end = (
+                float(t) if isinstance(t, (int, float)) and not isinstance(t, bool) and t else None for t in times
+            )
             self._log_times = start, end
         return self._log_times

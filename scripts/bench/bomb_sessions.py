@@ -23,10 +23,10 @@ import urllib.request
 from pathlib import Path
 
 import websockets
-
 from kit import parse
 from kit.gen import generate_bag
 from kit.proc import Process, descendants, start_server
+
 from xviz_server.codec import decode
 
 _MiB = 1 << 20
@@ -87,12 +87,18 @@ async def run(sessions: int, frames: int) -> None:
             took = time.perf_counter() - started
             grown = {pid: (status_bytes(pid, "VmHWM") - rss) / _MiB for pid, rss in before.items()}
     workers = sorted((g for pid, g in grown.items() if pid != server.pid), reverse=True)
-    print(f"{sessions} sessions on {sessions} different bags of {frames} frames: {sum(u for u, _ in played)} frames "
-          f"played, {sum(e for _, e in played)} errors, in {took:.1f} s")
-    print(f"peak RSS growth over RSS once warm: server {grown[server.pid]:.0f} MiB; other processes (fork server, "
-          f"workers) {', '.join(f'{g:.0f}' for g in workers)} MiB")
-    print(f"GET /healthz median during / idle: {statistics.median(busy) * 1e3:.1f} ms / "
-          f"{statistics.median(idle) * 1e3:.1f} ms = x{statistics.median(busy) / statistics.median(idle):.2f}")
+    print(
+        f"{sessions} sessions on {sessions} different bags of {frames} frames: {sum(u for u, _ in played)} frames "
+        f"played, {sum(e for _, e in played)} errors, in {took:.1f} s"
+    )
+    print(
+        f"peak RSS growth over RSS once warm: server {grown[server.pid]:.0f} MiB; other processes (fork server, "
+        f"workers) {', '.join(f'{g:.0f}' for g in workers)} MiB"
+    )
+    print(
+        f"GET /healthz median during / idle: {statistics.median(busy) * 1e3:.1f} ms / "
+        f"{statistics.median(idle) * 1e3:.1f} ms = x{statistics.median(busy) / statistics.median(idle):.2f}"
+    )
 
 
 def main() -> None:

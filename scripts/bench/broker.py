@@ -38,8 +38,8 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from kit import KITTI_FRAME as FRAME
 from kit import parse, percentile
@@ -69,9 +69,9 @@ def read_stream(broker: str, key: bytes, deliver: Callable[[memoryview], None]) 
             while (at := buffer.find(FIELD, 0, got)) < 0 or (line := buffer.find(b"\r\n", at + len(FIELD), got)) < 0:
                 got += sock.recv_into(view[got:])
             start = line + 2
-            end = start + int(buffer[at + len(FIELD):line])
+            end = start + int(buffer[at + len(FIELD) : line])
             while got < end + 2:
-                got += sock.recv_into(view[got:end + 2])
+                got += sock.recv_into(view[got : end + 2])
             # the entry id is the one part of the reply's head with a "-" that starts with a digit
             last = next(part for part in bytes(buffer[:at]).split(b"\r\n") if b"-" in part and part[:1].isdigit())
             deliver(view[start:end])
@@ -113,14 +113,27 @@ async def relay(kind: str, broker: str, name: str) -> None:
 def replicas_of(pair: str, broker: str, empty: str, count: int, name: str) -> list[Process]:
     """``count`` replicas of ``pair`` (``server`` or ``relay``; a relay pair has 2), the first the source's."""
     if pair == "server":
-        return [start_server(Path(empty), "--broker", broker, "--broker-ttl", "2", "--live-queue", "8")
-                for _ in range(count)]
-    return [Process([sys.executable, __file__, "--role", kind, broker, name], r"listening on ws://127\.0\.0\.1:(\d+)/", kind)
-            for kind in ("owner", "reader")]
+        return [
+            start_server(Path(empty), "--broker", broker, "--broker-ttl", "2", "--live-queue", "8")
+            for _ in range(count)
+        ]
+    return [
+        Process(
+            [sys.executable, __file__, "--role", kind, broker, name], r"listening on ws://127\.0\.0\.1:(\d+)/", kind
+        )
+        for kind in ("owner", "reader")
+    ]
 
 
-def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace, name: str,
-        cpu: list[float] | None = None, pair: str = "server") -> list[list[float]]:
+def run(
+    broker: str,
+    empty: str,
+    viewers_on: list[int],
+    args: argparse.Namespace,
+    name: str,
+    cpu: list[float] | None = None,
+    pair: str = "server",
+) -> list[list[float]]:
     """Start one replica of ``pair`` with the source and one per entry of ``viewers_on`` (its viewer count; the
     first is the source's replica); push; the latencies seen by the viewers of each replica (and, into ``cpu``,
     the CPU seconds each replica used while the source pushed)."""
@@ -131,14 +144,25 @@ def run(broker: str, empty: str, viewers_on: list[int], args: argparse.Namespace
             counts = [(replica, count) for replica, count in zip(replicas, viewers_on) if count]
             outputs = [Path(scratch) / f"viewers-{i}.json" for i in range(len(counts))]
             groups = [
-                subprocess.Popen([*ROLE, "viewers", replica.url(f"?logGuid={name}"), str(count), str(watch), str(output)],
-                                 cwd=BENCH)
+                subprocess.Popen(
+                    [*ROLE, "viewers", replica.url(f"?logGuid={name}"), str(count), str(watch), str(output)], cwd=BENCH
+                )
                 for (replica, count), output in zip(counts, outputs)
             ]
             used = [cpu_seconds(replica.pid) for replica in replicas]
             # The source pushes once every viewer follows its feed (on B: through the broker).
-            subprocess.run([*ROLE, "source", replicas[0].url(f"ingest/{name}"), str(args.rate), str(args.seconds),
-                            *map(str, outputs)], cwd=BENCH, check=True)
+            subprocess.run(
+                [
+                    *ROLE,
+                    "source",
+                    replicas[0].url(f"ingest/{name}"),
+                    str(args.rate),
+                    str(args.seconds),
+                    *map(str, outputs),
+                ],
+                cwd=BENCH,
+                check=True,
+            )
             if cpu is not None:
                 cpu[:] = [cpu_seconds(replica.pid) - before for replica, before in zip(replicas, used)]
             if any(group.wait() for group in groups):
@@ -165,7 +189,9 @@ def main() -> None:
         uvloop.run(relay(*args.role))
         return
     sent = int(args.rate * args.seconds)
-    print(f"{FRAME.stat().st_size / 1e6:.1f} MB KITTI frames at {args.rate:g} Hz for {args.seconds:g} s ({sent} updates)")
+    print(
+        f"{FRAME.stat().st_size / 1e6:.1f} MB KITTI frames at {args.rate:g} Hz for {args.seconds:g} s ({sent} updates)"
+    )
 
     with tempfile.TemporaryDirectory() as empty:
         redis, url = start_redis(empty)
@@ -177,23 +203,36 @@ def main() -> None:
             ratios: dict[str, list[float]] = {pair: [] for pair in PAIRS}
             for number in range(1, args.runs + 1):
                 before = other_cpu(), time.perf_counter()
-                for pair in PAIRS[number % 2:] + PAIRS[:number % 2]:
+                for pair in PAIRS[number % 2 :] + PAIRS[: number % 2]:
                     cpu: list[float] = []
-                    on_a, on_b = run(url, empty, [args.viewers, args.viewers], args, f"latency{number}{pair}", cpu, pair)
+                    on_a, on_b = run(
+                        url, empty, [args.viewers, args.viewers], args, f"latency{number}{pair}", cpu, pair
+                    )
                     for name, latencies, used in (("A", on_a, cpu[0]), ("B", on_b, cpu[1])):
                         if not latencies:
-                            raise SystemExit(f"the viewers on {name} ({pair}) received no update: see the replicas' log lines")
-                        print(f"{number:>4} {pair:>7} {name:>2} {len(latencies):>8} {statistics.median(latencies):8.1f} "
-                              f"{percentile(latencies, 99):8.1f} {used:8.2f}")
+                            raise SystemExit(
+                                f"the viewers on {name} ({pair}) received no update: see the replicas' log lines"
+                            )
+                        print(
+                            f"{number:>4} {pair:>7} {name:>2} {len(latencies):>8} {statistics.median(latencies):8.1f} "
+                            f"{percentile(latencies, 99):8.1f} {used:8.2f}"
+                        )
                     differences[pair].append(statistics.median(on_b) - statistics.median(on_a))
                     ratios[pair].append(percentile(on_b, 99) / percentile(on_a, 99))
-                print(f"{'':>4} B - A: p50 " + ", ".join(f"{differences[pair][-1]:+.1f} ms {pair}" for pair in PAIRS)
-                      + "; B / A: p99 " + ", ".join(f"x{ratios[pair][-1]:.2f} {pair}" for pair in PAIRS)
-                      + f" (other processes used {other_cores(*before):.2f} cores meanwhile)")
+                print(
+                    f"{'':>4} B - A: p50 "
+                    + ", ".join(f"{differences[pair][-1]:+.1f} ms {pair}" for pair in PAIRS)
+                    + "; B / A: p99 "
+                    + ", ".join(f"x{ratios[pair][-1]:.2f} {pair}" for pair in PAIRS)
+                    + f" (other processes used {other_cores(*before):.2f} cores meanwhile)"
+                )
             if args.runs:
-                print(f"median of {args.runs} run(s): B - A p50 " + ", ".join(
-                    f"{statistics.median(differences[pair]):+.1f} ms {pair}" for pair in PAIRS) + "; B / A p99 " + ", ".join(
-                    f"x{statistics.median(ratios[pair]):.2f} {pair}" for pair in PAIRS))
+                print(
+                    f"median of {args.runs} run(s): B - A p50 "
+                    + ", ".join(f"{statistics.median(differences[pair]):+.1f} ms {pair}" for pair in PAIRS)
+                    + "; B / A p99 "
+                    + ", ".join(f"x{statistics.median(ratios[pair]):.2f} {pair}" for pair in PAIRS)
+                )
 
             # 2. broker CPU: the source on A (no viewers there), viewers on 1 replica, then on 3
             if args.no_cpu:
@@ -205,10 +244,12 @@ def main() -> None:
                 groups = run(url, empty, [0, *share], args, f"cpu{readers}")
                 used = cpu_seconds(redis.pid) - cpu_before
                 got = sum(len(group) for group in groups)
-                print(f"  {readers} replica(s) x {share[0]} viewers: redis-server {used:.2f} CPU s "
-                      f"({used / args.seconds * 100:.0f}% of a core), {got}/{sent * args.cpu_viewers} updates delivered, "
-                      f"p99 {percentile([x for group in groups for x in group], 99):.1f} ms; "
-                      f"other processes used {other_cores(others_before, wall):.2f} cores meanwhile")
+                print(
+                    f"  {readers} replica(s) x {share[0]} viewers: redis-server {used:.2f} CPU s "
+                    f"({used / args.seconds * 100:.0f}% of a core), {got}/{sent * args.cpu_viewers} updates delivered, "
+                    f"p99 {percentile([x for group in groups for x in group], 99):.1f} ms; "
+                    f"other processes used {other_cores(others_before, wall):.2f} cores meanwhile"
+                )
         finally:
             redis.terminate()
             redis.wait()

@@ -50,8 +50,9 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-from devkit.fleet import FLEET_START, write_fleet
 from kit.proc import cpu_seconds, descendants, free_port, rss_mib
+
+from devkit.fleet import FLEET_START, write_fleet
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -92,9 +93,23 @@ class Server:
         self.port = free_port()
         self.started = time.perf_counter()
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "xviz_server", "serve", "--data-dir", str(data), "--state-dir", str(state),
-             "--port", str(self.port), "--host", "127.0.0.1"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO,
+            [
+                sys.executable,
+                "-m",
+                "xviz_server",
+                "serve",
+                "--data-dir",
+                str(data),
+                "--state-dir",
+                str(state),
+                "--port",
+                str(self.port),
+                "--host",
+                "127.0.0.1",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            cwd=REPO,
         )
 
     def wait_listening(self) -> float:
@@ -201,8 +216,11 @@ def measure(fleet: Path, logs: int, requests: int, scratch: Path, empty_rss: flo
         time.sleep(0.05)
     build = time.perf_counter() - server.started
     build_cpu = server.cpu_seconds()
-    print(f"{logs} logs; first build: listening after {listening:.2f} s, every log indexed after {build:.1f} s "
-          f"({build_cpu:.1f} s of CPU, the server and its workers)", flush=True)
+    print(
+        f"{logs} logs; first build: listening after {listening:.2f} s, every log indexed after {build:.1f} s "
+        f"({build_cpu:.1f} s of CPU, the server and its workers)",
+        flush=True,
+    )
 
     rng = random.Random(31)
     healthz = timed(server, ["/healthz"] * requests)
@@ -228,17 +246,26 @@ def measure(fleet: Path, logs: int, requests: int, scratch: Path, empty_rss: flo
     again.stop()
 
     print(f"reference GET /healthz: p50 {statistics.median(healthz):.1f} ms, p95 {p95(healthz):.1f} ms")
-    print(f"first page GET /api/logs: p50 {statistics.median(first):.1f} ms, p95 {p95(first):.1f} ms "
-          f"(x{p95(first) / p95(healthz):.1f} the reference at p95)")
-    print(f"search (q + from/to): p50 {statistics.median(searched):.1f} ms, p95 {p95(searched):.1f} ms "
-          f"(x{p95(searched) / p95(healthz):.1f} the reference at p95)")
-    print(f"restart with its catalog: listening after {relisten:.2f} s ({again.cpu:.2f} s of CPU), first page "
-          f"({page['indexed']} of {page['found']} indexed) after {first_page:.2f} s; over an empty data directory: listening after "
-          f"{reference_listening:.2f} s ({reference.cpu:.2f} s of CPU), x{relisten / reference_listening:.2f}; python -c pass: "
-          f"{python:.2f} s, x{relisten / python:.1f}")
+    print(
+        f"first page GET /api/logs: p50 {statistics.median(first):.1f} ms, p95 {p95(first):.1f} ms "
+        f"(x{p95(first) / p95(healthz):.1f} the reference at p95)"
+    )
+    print(
+        f"search (q + from/to): p50 {statistics.median(searched):.1f} ms, p95 {p95(searched):.1f} ms "
+        f"(x{p95(searched) / p95(healthz):.1f} the reference at p95)"
+    )
+    print(
+        f"restart with its catalog: listening after {relisten:.2f} s ({again.cpu:.2f} s of CPU), first page "
+        f"({page['indexed']} of {page['found']} indexed) after {first_page:.2f} s; over an empty data directory: listening after "
+        f"{reference_listening:.2f} s ({reference.cpu:.2f} s of CPU), x{relisten / reference_listening:.2f}; python -c pass: "
+        f"{python:.2f} s, x{relisten / python:.1f}"
+    )
     print(f"a log copied in while serving: listed after {copy:.2f} s")
-    print(f"RSS: {rss:.0f} MB with the catalog (peak {peak:.0f} MB), {empty_rss:.0f} MB over an empty data directory: "
-          f"+{rss - empty_rss:.0f} MB (peak +{peak - empty_rss:.0f} MB; worker processes: {workers_rss:.0f} MB)", flush=True)
+    print(
+        f"RSS: {rss:.0f} MB with the catalog (peak {peak:.0f} MB), {empty_rss:.0f} MB over an empty data directory: "
+        f"+{rss - empty_rss:.0f} MB (peak +{peak - empty_rss:.0f} MB; worker processes: {workers_rss:.0f} MB)",
+        flush=True,
+    )
 
 
 def main() -> None:
@@ -247,8 +274,12 @@ def main() -> None:
     parser.add_argument("--requests", type=int, default=200)
     parser.add_argument("--quick", action="store_true", help="2 000 logs, 50 requests")
     parser.add_argument("--fleet", choices=sorted(FLEETS), action="append", help="the fleet measured (default: both)")
-    parser.add_argument("--fleet-dir", type=Path, default=Path(tempfile.gettempdir()),
-                        help="where the fleets are made and kept, as xviz-bench-fleet-N and xviz-bench-fleet-N-unindexed (default: /tmp)")
+    parser.add_argument(
+        "--fleet-dir",
+        type=Path,
+        default=Path(tempfile.gettempdir()),
+        help="where the fleets are made and kept, as xviz-bench-fleet-N and xviz-bench-fleet-N-unindexed (default: /tmp)",
+    )
     args = parser.parse_args()
     if args.quick:
         args.logs, args.requests = 2000, 50

@@ -20,9 +20,10 @@ from typing import Any
 
 import numpy as np
 import pygltflib
-
 from kit import KITTI_FRAME, median_ms, parse
+
 from xviz_server.codec import decode_glb, decode_json, encode_glb, encode_json
+
 
 def stdlib_json(message: Any) -> str:
     def default(value: Any) -> Any:
@@ -70,8 +71,10 @@ def main() -> None:
     print(f"{'operation':40} {'median ms':>10} {'x copy':>8} {'bytes':>11}")
     for name, ms, size in rows:
         print(f"{name:40} {ms:10.3f} {ms / copy_ms:8.2f} {size if size is not None else '':>11}")
-    print(f"GLB decode is {rows[3][1] / rows[1][1]:.0f}x faster than pygltflib's load; "
-          f"orjson encodes {rows[5][1] / rows[4][1]:.1f}x faster than the standard library")
+    print(
+        f"GLB decode is {rows[3][1] / rows[1][1]:.0f}x faster than pygltflib's load; "
+        f"orjson encodes {rows[5][1] / rows[4][1]:.1f}x faster than the standard library"
+    )
 
 
 if __name__ == "__main__":

@@ -53,17 +53,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-from websockets.asyncio.client import connect
-from websockets.typing import Subprotocol
-
 from kit import KITTI, parse, percentile
 from kit.live import ROLE
 from kit.proc import BENCH, start_foxglove_sdk, start_server
 from kit.ws import RawClient, envelope_of
+from websockets.asyncio.client import connect
+from websockets.typing import Subprotocol
+
 from xviz_server.codec import decode
 from xviz_server.foxglove.convert import convert, nanoseconds, plan
-from xviz_server.records import unpack
 from xviz_server.foxglove.session import MAX_SPEED
+from xviz_server.records import unpack
 
 MB = 1e6
 
@@ -84,7 +84,9 @@ def converting(repeats: int) -> None:
     print("| converting a KITTI frame (2.2 MB GLB) | median ms | p95 ms |")
     print("|---|---|---|")
     print(f"| into Foxglove messages | {statistics.median(converted):.2f} | {percentile(converted, 95):.2f} |")
-    print(f"| decoding it alone (the codec's share) | {statistics.median(decoded):.2f} | {percentile(decoded, 95):.2f} |")
+    print(
+        f"| decoding it alone (the codec's share) | {statistics.median(decoded):.2f} | {percentile(decoded, 95):.2f} |"
+    )
 
 
 async def xviz_log(port: int) -> tuple[int, float]:
@@ -95,7 +97,9 @@ async def xviz_log(port: int) -> tuple[int, float]:
         await websocket.send(json.dumps({"type": "xviz/transform_log", "data": {"id": "all"}}))
         while True:
             message = await websocket.recv()
-            if len(message) < 4096 and b"transform_log_done" in (message.encode() if isinstance(message, str) else message):
+            if len(message) < 4096 and b"transform_log_done" in (
+                message.encode() if isinstance(message, str) else message
+            ):
                 return received, time.perf_counter() - began
             received += len(message)
 
@@ -103,10 +107,14 @@ async def xviz_log(port: int) -> tuple[int, float]:
 async def foxglove_log(port: int, expected: int) -> tuple[int, float]:
     """Bytes of the whole log (``expected`` messages) as a Foxglove client playing it at the fastest speed gets it,
     and the seconds from asking to play to the last message."""
-    async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None) as websocket:
+    async with connect(
+        f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None
+    ) as websocket:
         _, channels = await opened(websocket)
         await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 0, 0, 0))  # take control: paused
-        await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
+        await websocket.send(
+            json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]})
+        )
         began, received, count = time.perf_counter(), 0, 0
         await websocket.send(struct.pack("<BBfBQI", 3, 0, MAX_SPEED, 0, 0, 0))  # play from the start
         while count < expected:
@@ -146,14 +154,18 @@ async def opened(websocket: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
 async def seeker(port: int, seeks: int, seed: int) -> list[float]:
     """Seconds from each seek request to the first message at the frame sought."""
     rng = random.Random(seed)
-    async with connect(f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None) as websocket:
+    async with connect(
+        f"ws://127.0.0.1:{port}/?log=kitti", subprotocols=[Subprotocol("foxglove.sdk.v1")], max_size=None
+    ) as websocket:
         info, channels = await opened(websocket)
         await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 0, 0, 0))  # paused
-        await websocket.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]}))
+        await websocket.send(
+            json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]})
+        )
         start = info["dataStartTime"]["sec"] * 10**9 + info["dataStartTime"]["nsec"]
         end = info["dataEndTime"]["sec"] * 10**9 + info["dataEndTime"]["nsec"]
         waits = []
-        for number in range(seeks):
+        for _number in range(seeks):
             target = rng.randrange(start, end)
             began = time.perf_counter()
             await websocket.send(struct.pack("<BBfBQI", 3, 1, 1.0, 1, target, 1) + b"s")
@@ -189,13 +201,20 @@ async def streaming(repeats: int, clients: int, seeks: int) -> None:
             await foxglove_log(port, expected)
             rates: dict[str, list[float]] = {"xviz": [], "foxglove": [], "sdk": []}
             for _ in range(repeats):
-                for name, run in (("xviz", xviz_log(port)), ("foxglove", foxglove_log(port, expected)),
-                                  ("sdk", foxglove_log(sdk.port, expected))):
+                for name, run in (
+                    ("xviz", xviz_log(port)),
+                    ("foxglove", foxglove_log(port, expected)),
+                    ("sdk", foxglove_log(sdk.port, expected)),
+                ):
                     size, seconds = await run
                     rates[name].append(size / seconds / MB)
             exports = [await http_get(port, "/api/logs/kitti/export") for _ in range(repeats)]
             health = [await http_get(port, "/healthz") for _ in range(repeats)]
-            waits = [wait for each in await asyncio.gather(*(seeker(port, seeks, seed) for seed in range(clients))) for wait in each]
+            waits = [
+                wait
+                for each in await asyncio.gather(*(seeker(port, seeks, seed) for seed in range(clients)))
+                for wait in each
+            ]
     after = os.getloadavg()
     ratios = [f / x for f, x in zip(rates["foxglove"], rates["xviz"])]
     against_sdk = [f / r for f, r in zip(rates["foxglove"], rates["sdk"])]
@@ -213,14 +232,21 @@ async def streaming(repeats: int, clients: int, seeks: int) -> None:
     size = exports[0][2]
     print(f"| GET, {repeats} times | first byte p50 ms | max ms | whole answer p50 ms | MB/s |")
     print("|---|---|---|---|---|")
-    for label, runs in ((f"/api/logs/kitti/export (MCAP, {size / MB:.1f} MB)", exports), ("/healthz (reference)", health)):
+    for label, runs in (
+        (f"/api/logs/kitti/export (MCAP, {size / MB:.1f} MB)", exports),
+        ("/healthz (reference)", health),
+    ):
         firsts, wholes = [run[0] * 1e3 for run in runs], [run[1] for run in runs]
         rate = statistics.median(run[2] / run[1] / MB for run in runs)
-        print(f"| {label} | {statistics.median(firsts):.1f} | {max(firsts):.1f} | {statistics.median(wholes) * 1e3:.0f} | {rate:.1f} |")
+        print(
+            f"| {label} | {statistics.median(firsts):.1f} | {max(firsts):.1f} | {statistics.median(wholes) * 1e3:.0f} | {rate:.1f} |"
+        )
     print()
     print(f"| {clients} Foxglove clients seeking in one log, {len(waits)} seeks | p50 ms | p99 ms |")
     print("|---|---|---|")
-    print(f"| request to the first message at the new time | {statistics.median(waits) * 1e3:.1f} | {percentile(waits, 99) * 1e3:.1f} |")
+    print(
+        f"| request to the first message at the new time | {statistics.median(waits) * 1e3:.1f} | {percentile(waits, 99) * 1e3:.1f} |"
+    )
 
 
 async def live_viewer(url: str, seconds: float, subscribed: asyncio.Event, foxglove: bool) -> dict[int, float]:
@@ -266,7 +292,12 @@ async def live(rate: float, seconds: float, clients: int) -> None:
         watch = seconds + 4
         viewers = [asyncio.ensure_future(live_viewer(url, watch, ready[i], foxglove=i > 0)) for i in range(clients + 1)]
         source = await asyncio.create_subprocess_exec(
-            *ROLE, "source", f"ws://127.0.0.1:{server.port}/ingest/bench", str(rate), str(seconds), cwd=BENCH,
+            *ROLE,
+            "source",
+            f"ws://127.0.0.1:{server.port}/ingest/bench",
+            str(rate),
+            str(seconds),
+            cwd=BENCH,
         )
         await asyncio.wait_for(asyncio.gather(*(event.wait() for event in ready)), 30)  # the source waits 1 s for them
         if await source.wait() != 0:
@@ -275,12 +306,16 @@ async def live(rate: float, seconds: float, clients: int) -> None:
     behind = [(fox[stamp] - arrived) * 1e3 for fox in foxes for stamp, arrived in xviz.items() if stamp in fox]
     sent = int(rate * seconds)
     print()
-    print(f"| a live feed of KITTI frames at {rate:g} Hz, {sent} updates; {clients} Foxglove clients beside one XVIZ viewer "
-          "| p50 ms | p99 ms | updates got (XVIZ; Foxglove min-max) |")
+    print(
+        f"| a live feed of KITTI frames at {rate:g} Hz, {sent} updates; {clients} Foxglove clients beside one XVIZ viewer "
+        "| p50 ms | p99 ms | updates got (XVIZ; Foxglove min-max) |"
+    )
     print("|---|---|---|---|")
     got = [len(fox) for fox in foxes]
-    print(f"| Foxglove client's arrival minus the XVIZ viewer's, per update | {statistics.median(behind):.1f} "
-          f"| {percentile(behind, 99):.1f} | {len(xviz)}; {min(got)}-{max(got)} |")
+    print(
+        f"| Foxglove client's arrival minus the XVIZ viewer's, per update | {statistics.median(behind):.1f} "
+        f"| {percentile(behind, 99):.1f} | {len(xviz)}; {min(got)}-{max(got)} |"
+    )
 
 
 def main() -> None:

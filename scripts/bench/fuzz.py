@@ -25,16 +25,34 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 #: The fuzz tests, by the short name ``--only`` matches.
 TARGETS = {
-    "glb": "test_glb", "json": "test_json", "pbe": "test_pbe", "index": "test_log_index", "session": "test_session_answers_every_client_message",
-    "url": "test_session_answers_every_connection_url", "admission": "test_admission", "waymo": "test_waymo_tfrecord",
-    "bag": "test_ros1_bag", "resp": "test_resp_replies", "hiredis": "test_resp_replies_as_hiredis_reads_them",
+    "glb": "test_glb",
+    "json": "test_json",
+    "pbe": "test_pbe",
+    "index": "test_log_index",
+    "session": "test_session_answers_every_client_message",
+    "url": "test_session_answers_every_connection_url",
+    "admission": "test_admission",
+    "waymo": "test_waymo_tfrecord",
+    "bag": "test_ros1_bag",
+    "resp": "test_resp_replies",
+    "hiredis": "test_resp_replies_as_hiredis_reads_them",
 }
 
 
 def round_of(test: str, examples: int, hang: float) -> tuple[bool, str, float]:
     """One round of ``test`` (one or more, space-separated): whether it passed, the tail of its report, its seconds."""
     env = {**os.environ, "XVIZ_FUZZ": "long", "XVIZ_FUZZ_EXAMPLES": str(examples)}
-    command = [sys.executable, "-m", "pytest", *(f"tests/test_fuzz.py::{name}" for name in test.split()), "-q", "-p", "no:cacheprovider", "-x", "--show-capture=no"]
+    command = [
+        sys.executable,
+        "-m",
+        "pytest",
+        *(f"tests/test_fuzz.py::{name}" for name in test.split()),
+        "-q",
+        "-p",
+        "no:cacheprovider",
+        "-x",
+        "--show-capture=no",
+    ]
     started = time.monotonic()
     try:
         done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=hang)
@@ -47,8 +65,12 @@ def round_of(test: str, examples: int, hang: float) -> tuple[bool, str, float]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, default=10.0, help="how long to fuzz (default 10)")
-    parser.add_argument("--only", action="append", default=[], help="fuzz the parsers whose short name holds this (repeatable): "
-                        + ", ".join(TARGETS))
+    parser.add_argument(
+        "--only",
+        action="append",
+        default=[],
+        help="fuzz the parsers whose short name holds this (repeatable): " + ", ".join(TARGETS),
+    )
     parser.add_argument("--examples", type=int, default=500, help="examples per round (default 500)")
     parser.add_argument("--hang", type=float, default=900.0, help="seconds after which a round is a hang (default 900)")
     parser.add_argument("--quick", action="store_true", help="one round of 5 examples of each parser, in one process")
@@ -65,7 +87,10 @@ def main() -> int:
         for test in tests:
             passed, report, seconds = round_of(test, examples, args.hang)
             runs[test].append(seconds)
-            print(f"{test}: round {len(runs[test])}, {examples} examples, {seconds:.1f} s: {'ok' if passed else 'FAILED'}", flush=True)
+            print(
+                f"{test}: round {len(runs[test])}, {examples} examples, {seconds:.1f} s: {'ok' if passed else 'FAILED'}",
+                flush=True,
+            )
             if not passed:
                 print(report)
                 return 1

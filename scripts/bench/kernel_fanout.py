@@ -138,21 +138,32 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     args = parse(parser, quick={"receivers": 5, "frames": 5, "rounds": 1})
     data = FRAME.read_bytes()
-    print(f"{len(data) / 1e6:.1f} MB frame to {args.receivers} loopback sockets at 10 Hz, "
-          f"{args.frames} frames, {args.rounds} rounds")
-    print(f"{'round':>5} {'way':>9} {'p50 ms':>7} {'p99 ms':>7} {'writer CPU ms/frame':>20} {'reader CPU ms/frame':>20}")
+    print(
+        f"{len(data) / 1e6:.1f} MB frame to {args.receivers} loopback sockets at 10 Hz, "
+        f"{args.frames} frames, {args.rounds} rounds"
+    )
+    print(
+        f"{'round':>5} {'way':>9} {'p50 ms':>7} {'p99 ms':>7} {'writer CPU ms/frame':>20} {'reader CPU ms/frame':>20}"
+    )
     results: dict[str, list[dict[str, float]]] = {way: [] for way in WAYS}
     for number in range(args.rounds):
         for way in WAYS:
             result = fan_out(way, data, args.receivers, args.frames)
             results[way].append(result)
-            print(f"{number + 1:>5} {way:>9} {result['p50']:7.1f} {result['p99']:7.1f} "
-                  f"{result['writer_ms']:20.1f} {result['reader_ms']:20.1f}", flush=True)
+            print(
+                f"{number + 1:>5} {way:>9} {result['p50']:7.1f} {result['p99']:7.1f} "
+                f"{result['writer_ms']:20.1f} {result['reader_ms']:20.1f}",
+                flush=True,
+            )
     print("medians over rounds:")
     for way, runs in results.items():
-        print(f"{'':>5} {way:>9} " + " ".join(
-            f"{statistics.median(r[key] for r in runs):{width}.1f}"
-            for key, width in (("p50", 7), ("p99", 7), ("writer_ms", 20), ("reader_ms", 20))))
+        print(
+            f"{'':>5} {way:>9} "
+            + " ".join(
+                f"{statistics.median(r[key] for r in runs):{width}.1f}"
+                for key, width in (("p50", 7), ("p99", 7), ("writer_ms", 20), ("reader_ms", 20))
+            )
+        )
 
 
 if __name__ == "__main__":

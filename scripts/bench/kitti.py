@@ -26,6 +26,7 @@ from pathlib import Path
 
 from kit import KITTI_RAW, parse
 from kit.gen import served
+
 from xviz_server.codec import Format, encode
 from xviz_server.datasets import convert_frame
 from xviz_server.datasets.kitti import KittiDrive
@@ -54,7 +55,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("raw", nargs="?", type=Path, default=KITTI_RAW)
     parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--settle", type=float, default=3.0, help="seconds after the server listens for the second stream")
+    parser.add_argument(
+        "--settle", type=float, default=3.0, help="seconds after the server listens for the second stream"
+    )
     args = parse(parser, quick={"repeat": 1, "settle": 0.5})
     drive = KittiDrive(args.raw)
     metadata = drive.metadata()
@@ -63,8 +66,10 @@ def main() -> None:
     reading = statistics.median(sum(p.values()) for p in parts) * 1000
     each = ", ".join(f"{name} {statistics.median(p[name] for p in parts) * 1000:.2f}" for name in parts[0])
     print(f"drive {drive.name}: {len(drive)} frames")
-    print(f"1. reading one frame (points with colours, OXTS, {len(drive.cameras)} images), one process: "
-          f"median {reading:.2f} ms ({each} ms)")
+    print(
+        f"1. reading one frame (points with colours, OXTS, {len(drive.cameras)} images), one process: "
+        f"median {reading:.2f} ms ({each} ms)"
+    )
 
     times = []
     for _ in range(args.repeat):
@@ -74,24 +79,47 @@ def main() -> None:
             encode(envelope("state_update", fresh.convert(frame, metadata)), Format.BINARY)
             times.append(time.perf_counter() - started)
     single = statistics.median(times) * 1000
-    print(f"2. one frame (read, build, encode GLB), one process: median {single:.1f} ms "
-          f"(target under 30 ms; the official converter: 150-800 ms)")
+    print(
+        f"2. one frame (read, build, encode GLB), one process: median {single:.1f} ms "
+        f"(target under 30 ms; the official converter: 150-800 ms)"
+    )
 
     processes = os.cpu_count() or 1
     with ProcessPoolExecutor(processes) as pool:
-        list(pool.map(convert_frame, ["kitti"] * processes, [str(drive.path)] * processes, [{}] * processes,
-                      range(processes), [metadata] * processes))  # start the workers
+        list(
+            pool.map(
+                convert_frame,
+                ["kitti"] * processes,
+                [str(drive.path)] * processes,
+                [{}] * processes,
+                range(processes),
+                [metadata] * processes,
+            )
+        )  # start the workers
         started = time.perf_counter()
-        list(pool.map(convert_frame, ["kitti"] * len(drive), [str(drive.path)] * len(drive), [{}] * len(drive),
-                      range(len(drive)), [metadata] * len(drive)))
+        list(
+            pool.map(
+                convert_frame,
+                ["kitti"] * len(drive),
+                [str(drive.path)] * len(drive),
+                [{}] * len(drive),
+                range(len(drive)),
+                [metadata] * len(drive),
+            )
+        )
         pooled = len(drive) / (time.perf_counter() - started)
     print(f"3. whole drive, {processes} processes: {pooled:.0f} frames/s ({1000 / pooled:.1f} ms per frame)")
 
-    for settle, when in ((0.0, "the moment the server listens"), (args.settle, f"{args.settle:g} s after start (worker processes up)")):
+    for settle, when in (
+        (0.0, "the moment the server listens"),
+        (args.settle, f"{args.settle:g} s after start (worker processes up)"),
+    ):
         first, total, frames = asyncio.run(served(f"kitti:{args.raw}", settle))
         rate = frames / total
-        print(f"4. served on demand, asked {when}: first frame after {first * 1000:.0f} ms; "
-              f"{rate:.0f} frames/s over the drive = {rate / 10:.1f}x real time (10 Hz)")
+        print(
+            f"4. served on demand, asked {when}: first frame after {first * 1000:.0f} ms; "
+            f"{rate:.0f} frames/s over the drive = {rate / 10:.1f}x real time (10 Hz)"
+        )
 
 
 if __name__ == "__main__":

@@ -30,8 +30,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from kit import KITTI, parse
+
 from xviz_server import frames
 from xviz_server.codec import Format, decode, encode
 from xviz_server.levels import LEVELS, Level
@@ -96,11 +96,16 @@ def measure(paths: list[Path], repeat: int) -> list[dict[str, Any]]:
             sizes.append(len(made))
             bare.append(cpu_ms(bare_level, data, level, repeat=repeat)[0])
             images.append(cpu_ms(bare_images, decode(data), level, repeat=repeat)[0])
-        rows.append({
-            "level": level.name, "median": statistics.median(ours), "largest": max(ours),
-            "bare": statistics.median(bare), "bare_images": statistics.median(images),
-            "share": statistics.median(sizes) / statistics.median(map(len, datas)),
-        })
+        rows.append(
+            {
+                "level": level.name,
+                "median": statistics.median(ours),
+                "largest": max(ours),
+                "bare": statistics.median(bare),
+                "bare_images": statistics.median(images),
+                "share": statistics.median(sizes) / statistics.median(map(len, datas)),
+            }
+        )
     return rows
 
 
@@ -123,10 +128,14 @@ def main() -> None:
     paths = sorted(updates, key=lambda path: int(path.name.split("-")[0]))[: args.frames]
     rows = asyncio.run(run(paths, args.repeat))
     print(f"{len(paths)} KITTI frames, CPU ms per frame in a worker process, least of {args.repeat} runs")
-    print(f"{'level':8} {'median':>7} {'largest':>8} {'bare libraries':>15} {'x bare':>7} {'bare images':>12} {'bytes':>6}")
+    print(
+        f"{'level':8} {'median':>7} {'largest':>8} {'bare libraries':>15} {'x bare':>7} {'bare images':>12} {'bytes':>6}"
+    )
     for row in rows:
-        print(f"{row['level']:8} {row['median']:7.2f} {row['largest']:8.2f} {row['bare']:15.2f} "
-              f"{row['median'] / row['bare']:7.2f} {row['bare_images']:12.2f} {row['share']:6.1%}")
+        print(
+            f"{row['level']:8} {row['median']:7.2f} {row['largest']:8.2f} {row['bare']:15.2f} "
+            f"{row['median'] / row['bare']:7.2f} {row['bare_images']:12.2f} {row['share']:6.1%}"
+        )
 
 
 if __name__ == "__main__":

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from kit import KITTI  # noqa: E402  (the kit puts the repository on the path)
+
 from devkit.tclink import TcLink, can_shape_links, tc_link
 
 FRAME_SECONDS = 0.1  # the KITTI drive's frames are 10 Hz
@@ -70,7 +71,9 @@ async def viewer(url: str, mode: str, seconds: float, face: str) -> dict[str, ob
                     if isinstance(data, str):
                         message = json.loads(data)
                         if message["op"] == "advertise":
-                            wanted = [{"id": channel["id"], "channelId": channel["id"]} for channel in message["channels"]]
+                            wanted = [
+                                {"id": channel["id"], "channelId": channel["id"]} for channel in message["channels"]
+                            ]
                             await websocket.send(json.dumps({"op": "subscribe", "subscriptions": wanted}))
                     elif data[0] == 0x01:
                         pending += len(data)
@@ -112,7 +115,11 @@ async def viewer(url: str, mode: str, seconds: float, face: str) -> dict[str, ob
                         complete.append(message["type"] != "timeout")
                         break
             later = [speed for speed, done in zip(speeds[1:], complete[1:]) if done]  # one cut short says nothing
-            result = {"first_frame_s": first_frame, "first_x_real_time": speeds[0], "later_x_real_time": later and min(later)}
+            result = {
+                "first_frame_s": first_frame,
+                "first_x_real_time": speeds[0],
+                "later_x_real_time": later and min(later),
+            }
     return result
 
 
@@ -135,7 +142,19 @@ class Spec:
 
 async def run_viewer(link: TcLink, url: str, mode: str, seconds: float, face: str) -> dict[str, object]:
     """Run :func:`viewer` in a process of its own in ``link``'s namespace; what it saw."""
-    command = ["ip", "netns", "exec", link.namespace, sys.executable, __file__, "--viewer", url, mode, str(seconds), face]
+    command = [
+        "ip",
+        "netns",
+        "exec",
+        link.namespace,
+        sys.executable,
+        __file__,
+        "--viewer",
+        url,
+        mode,
+        str(seconds),
+        face,
+    ]
     process = await asyncio.create_subprocess_exec(*command, stdout=subprocess.PIPE)
     stdout, _ = await process.communicate()
     return json.loads(stdout)
@@ -150,7 +169,9 @@ async def reshape(link: TcLink, rates: tuple[tuple[float, float], ...], session:
         link.shape(mbps)
 
 
-async def measure(spec: Spec, face: str, detail: Literal["auto", "off"], seconds: float, log_seconds: float) -> dict[str, object]:
+async def measure(
+    spec: Spec, face: str, detail: Literal["auto", "off"], seconds: float, log_seconds: float
+) -> dict[str, object]:
     import logging
 
     from xviz_server.detail import START
@@ -208,19 +229,26 @@ async def main(arguments: argparse.Namespace) -> None:
         sys.exit("this benchmark shapes a veth pair with tc: run it as root, with ip and tc")
     if arguments.quick:
         arguments.mbps, arguments.seconds, arguments.log_seconds = [20.0], 6.0, 6.0
-    print("link              face      detail  updates/s  first s  gap s  gap+first s  bytes/update  |  log: first s  first x  later x  |  levels")
+    print(
+        "link              face      detail  updates/s  first s  gap s  gap+first s  bytes/update  |  log: first s  first x  later x  |  levels"
+    )
     for spec in specs(arguments):
         for face in arguments.faces:
             for detail in arguments.detail:
-                r = await measure(spec, FOXGLOVE if face == "foxglove" else "xviz", detail, arguments.seconds, arguments.log_seconds)
+                r = await measure(
+                    spec, FOXGLOVE if face == "foxglove" else "xviz", detail, arguments.seconds, arguments.log_seconds
+                )
                 log = "           -        -        -"
                 if "first_x_real_time" in r:
                     later = f"{r['later_x_real_time']:.2f}" if r["later_x_real_time"] else "-"
                     frame = f"{r['first_frame_s']:.2f}" if r["first_frame_s"] is not None else "-"
                     log = f"{frame:>13}  {r['first_x_real_time']:7.2f}  {later:>7}"
-                print(f"{spec.name:16}  {r['face']:8}  {detail:6}  {r['updates_per_s']:9.1f}  {r['first_update_s']:7.2f}  "
-                      f"{r['longest_gap']:5.2f}  {r['longest_gap_counting_first']:11.2f}  {r['bytes_per_update']:12.0f}  |  {log}  |  "
-                      f"{r['levels']}", flush=True)
+                print(
+                    f"{spec.name:16}  {r['face']:8}  {detail:6}  {r['updates_per_s']:9.1f}  {r['first_update_s']:7.2f}  "
+                    f"{r['longest_gap']:5.2f}  {r['longest_gap_counting_first']:11.2f}  {r['bytes_per_update']:12.0f}  |  {log}  |  "
+                    f"{r['levels']}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":
@@ -231,9 +259,15 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="today's 20 Mbit/s and the others, 6 s of each")
     parser.add_argument("--mbps", type=float, nargs="+", default=[100.0, 20.0, 5.0], help="today's link speeds")
-    parser.add_argument("--links", nargs="+", choices=["today", "bucket", "changing"], help="which kinds of link (default: all)")
-    parser.add_argument("--faces", nargs="+", choices=["xviz", "foxglove"], default=["xviz", "foxglove"], help="viewers")
+    parser.add_argument(
+        "--links", nargs="+", choices=["today", "bucket", "changing"], help="which kinds of link (default: all)"
+    )
+    parser.add_argument(
+        "--faces", nargs="+", choices=["xviz", "foxglove"], default=["xviz", "foxglove"], help="viewers"
+    )
     parser.add_argument("--seconds", type=float, default=15.0, help="seconds of live viewing per run")
-    parser.add_argument("--detail", nargs="+", choices=["off", "auto"], default=["auto"], help="--detail settings of the server")
+    parser.add_argument(
+        "--detail", nargs="+", choices=["off", "auto"], default=["auto"], help="--detail settings of the server"
+    )
     parser.add_argument("--log-seconds", type=float, default=12.0, help="seconds of log downloads per run")
     asyncio.run(main(parser.parse_args()))

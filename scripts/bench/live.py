@@ -43,6 +43,7 @@ from kit import REPO, parse, percentile
 from kit.live import ROLE
 from kit.proc import BENCH
 
+
 def run(command: list[str], args: argparse.Namespace) -> dict:
     """Start a server with ``command``, run the source and viewers against it, stop it."""
     server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=BENCH if command[:3] == ROLE else REPO)
@@ -55,12 +56,24 @@ def run(command: list[str], args: argparse.Namespace) -> dict:
         with tempfile.TemporaryDirectory() as scratch:
             outputs = [Path(scratch) / f"viewers-{i}.json" for i in range(len(share))]
             viewer_processes = [
-                subprocess.Popen([*ROLE, "viewers", f"ws://127.0.0.1:{port}/?logGuid=bench",
-                                  str(n), str(watch), str(output)], cwd=BENCH)
+                subprocess.Popen(
+                    [*ROLE, "viewers", f"ws://127.0.0.1:{port}/?logGuid=bench", str(n), str(watch), str(output)],
+                    cwd=BENCH,
+                )
                 for n, output in zip(share, outputs)
             ]
-            subprocess.run([*ROLE, "source", f"ws://127.0.0.1:{port}/ingest/bench", str(args.rate), str(args.seconds),
-                            *map(str, outputs)], cwd=BENCH, check=True)
+            subprocess.run(
+                [
+                    *ROLE,
+                    "source",
+                    f"ws://127.0.0.1:{port}/ingest/bench",
+                    str(args.rate),
+                    str(args.seconds),
+                    *map(str, outputs),
+                ],
+                cwd=BENCH,
+                check=True,
+            )
             for process in viewer_processes:
                 if process.wait() != 0:
                     raise RuntimeError(f"a viewer process failed (exit {process.returncode})")
@@ -85,8 +98,11 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--processes", type=int, default=2, help="viewer processes")
     parser.add_argument("--runs", type=int, default=1, help="runs of the three servers, in rotated order")
-    parser.add_argument("--most", action="store_true",
-                        help="find the most viewers (in steps of 10) each server holds at --rate with p99 under 100 ms")
+    parser.add_argument(
+        "--most",
+        action="store_true",
+        help="find the most viewers (in steps of 10) each server holds at --rate with p99 under 100 ms",
+    )
     args = parse(parser, quick={"viewers": 4, "seconds": 1.0, "processes": 1})
 
     if args.most:
@@ -94,24 +110,37 @@ def main() -> None:
         return
     sent = int(args.rate * args.seconds)
     frame_mb = FRAME.stat().st_size / 1e6
-    print(f"live fan-out: {args.viewers} viewers in {args.processes} processes, "
-          f"{frame_mb:.1f} MB frames at {args.rate:g} Hz for {args.seconds:g} s ({sent} updates), {args.runs} run(s)")
+    print(
+        f"live fan-out: {args.viewers} viewers in {args.processes} processes, "
+        f"{frame_mb:.1f} MB frames at {args.rate:g} Hz for {args.seconds:g} s ({sent} updates), {args.runs} run(s)"
+    )
     ratios: dict[str, list[float]] = {name: [] for name in SERVERS[1:]}
-    limit: list[float] = []  # the machine's limit against the bare library: how far below the broadcast any server can go
+    limit: list[
+        float
+    ] = []  # the machine's limit against the bare library: how far below the broadcast any server can go
     for number in range(args.runs):
         results = run_all(args, number)
-        print(f"run {number + 1}: {'':>10} {'got (min-max)':>14} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'MB/s out':>9}")
+        print(
+            f"run {number + 1}: {'':>10} {'got (min-max)':>14} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'MB/s out':>9}"
+        )
         for name, result in results.items():
-            print(f"{'':>6} {name:>10} {min(result['received']):>6}-{max(result['received']):<7} "
-                  f"{result['p50']:8.1f} {result['p99']:8.1f} {result['max']:8.1f} {result['mb_s']:9.0f}")
+            print(
+                f"{'':>6} {name:>10} {min(result['received']):>6}-{max(result['received']):<7} "
+                f"{result['p50']:8.1f} {result['p99']:8.1f} {result['max']:8.1f} {result['mb_s']:9.0f}"
+            )
         for name in ratios:
             ratios[name].append(results["server"]["p99"] / results[name]["p99"])
         limit.append(results["writes"]["p99"] / results["broadcast"]["p99"])
-        print("       server p99 x" + ", x".join(f"{ratios[name][-1]:.2f} {name}" for name in ratios)
-              + f"; raw writes p99 x{limit[-1]:.2f} broadcast")
-    print("median over runs: server p99 x" + ", x".join(
-        f"{statistics.median(values):.2f} {name}" for name, values in ratios.items())
-        + f"; raw writes p99 x{statistics.median(limit):.2f} broadcast (lowest x{min(limit):.2f})")
+        print(
+            "       server p99 x"
+            + ", x".join(f"{ratios[name][-1]:.2f} {name}" for name in ratios)
+            + f"; raw writes p99 x{limit[-1]:.2f} broadcast"
+        )
+    print(
+        "median over runs: server p99 x"
+        + ", x".join(f"{statistics.median(values):.2f} {name}" for name, values in ratios.items())
+        + f"; raw writes p99 x{statistics.median(limit):.2f} broadcast (lowest x{min(limit):.2f})"
+    )
 
 
 #: The servers compared: this one, then the references (the ``--role`` of each).
@@ -125,8 +154,21 @@ def run_all(args: argparse.Namespace, number: int = 0) -> dict[str, dict]:
     for name in SERVERS[turn:] + SERVERS[:turn]:
         if name == "server":
             with tempfile.TemporaryDirectory() as empty:
-                results[name] = run([sys.executable, "-m", "xviz_server", "serve", "--data-dir", empty, "--port", "0",
-                                     "--live-queue", "8"], args)
+                results[name] = run(
+                    [
+                        sys.executable,
+                        "-m",
+                        "xviz_server",
+                        "serve",
+                        "--data-dir",
+                        empty,
+                        "--port",
+                        "0",
+                        "--live-queue",
+                        "8",
+                    ],
+                    args,
+                )
         else:
             results[name] = run([*ROLE, name, "-"], args)
     return {name: results[name] for name in SERVERS}
@@ -141,15 +183,19 @@ def most(args: argparse.Namespace) -> None:
         kept = False
         for name, result in run_all(args).items():
             ok = min(result["received"]) == sent and result["p99"] < 100
-            print(f"{args.viewers:4} viewers {name:>10}: p99 {result['p99']:7.1f} ms, "
-                  f"got {min(result['received'])}-{max(result['received'])} of {sent}{'' if ok else '  (not held)'}")
+            print(
+                f"{args.viewers:4} viewers {name:>10}: p99 {result['p99']:7.1f} ms, "
+                f"got {min(result['received'])}-{max(result['received'])} of {sent}{'' if ok else '  (not held)'}"
+            )
             if ok and held[name] == args.viewers - 10:
                 held[name], kept = args.viewers, True
         if not kept:
             break
         args.viewers += 10
-    print(f"most viewers held at {args.rate:g} Hz with p99 under 100 ms: "
-          + ", ".join(f"{name} {count}" for name, count in held.items()))
+    print(
+        f"most viewers held at {args.rate:g} Hz with p99 under 100 ms: "
+        + ", ".join(f"{name} {count}" for name, count in held.items())
+    )
 
 
 if __name__ == "__main__":

@@ -30,8 +30,9 @@ import statistics
 import subprocess
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from kit import KITTI as KITTI_LOG
 from kit import REPO as REPOSITORY
@@ -39,7 +40,6 @@ from kit import median_ms, parse
 
 from xviz_server.codec import Format, decode_pbe, encode
 from xviz_server.frames import render
-
 
 
 def faults() -> int:
@@ -122,7 +122,10 @@ def main() -> None:
 
         print(f"\neach frame of the log once, {args.rounds} rounds, GLBs kept as the cache keeps them:")
         print(f"{'frames':40} {'median ms':>10} {'p90 ms':>8} {'faults':>8}")
-        for name, frames in ((f"{log.name}: PBE -> GLB", files), ("KITTI GLB -> GLB (reference)", frames_of(KITTI_LOG, ".glb"))):
+        for name, frames in (
+            (f"{log.name}: PBE -> GLB", files),
+            ("KITTI GLB -> GLB (reference)", frames_of(KITTI_LOG, ".glb")),
+        ):
             median, p90, count = serve_each_frame(frames, args.rounds)
             print(f"{name:40} {median:10.3f} {p90:8.2f} {count:8.0f}")
 

@@ -31,10 +31,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from websockets.asyncio.client import ClientConnection, connect
-
 from kit import parse, percentile, update, write_log
 from kit.proc import Process, start_server
+from websockets.asyncio.client import ClientConnection, connect
+
 from xviz_server import frames
 from xviz_server.codec import Format, encode
 from xviz_server.work import Workers
@@ -43,7 +43,9 @@ from xviz_server.work import Workers
 async def ask(websocket: ClientConnection, request_id: str, instant: float) -> float:
     """Seconds from sending a point-in-time request to receiving its answer."""
     started = time.perf_counter()
-    await websocket.send(json.dumps({"type": "xviz/transform_point_in_time", "data": {"id": request_id, "query_timestamp": instant}}))
+    await websocket.send(
+        json.dumps({"type": "xviz/transform_point_in_time", "data": {"id": request_id, "query_timestamp": instant}})
+    )
     answer = json.loads(await websocket.recv())
     elapsed = time.perf_counter() - started
     if answer["type"] != "xviz/state_update":
@@ -85,7 +87,9 @@ async def preloaded(server: Process, name: str, timeout: float = 120) -> str:
         if said:
             return said[0].strip().split(": ", 1)[-1]
         if time.monotonic() > deadline:
-            raise RuntimeError(f"the server did not read log {name!r} into its cache in {timeout} s:\n{''.join(server.tail)}")
+            raise RuntimeError(
+                f"the server did not read log {name!r} into its cache in {timeout} s:\n{''.join(server.tail)}"
+            )
         await asyncio.sleep(0.05)
 
 
@@ -131,7 +135,9 @@ def main() -> None:
             write_log(root / name, count, fmt=Format.JSON)
             spans[name] = (100.0, round(100.0 + (count - 1) / 10, 3) + 0.1)
         frame_bytes = (root / "long" / "2-frame.json").stat().st_size
-        print(f"generated {args.frames} + 11 JSON frames of {frame_bytes} bytes in {time.perf_counter() - started:.1f} s")
+        print(
+            f"generated {args.frames} + 11 JSON frames of {frame_bytes} bytes in {time.perf_counter() - started:.1f} s"
+        )
         with start_server(root) as server:
             phases, said = asyncio.run(latencies(server, spans, args.rounds, args.seed))
             print("server:", said)
@@ -141,13 +147,21 @@ def main() -> None:
     for phase, measured in zip(("while reading the long log in", "after"), phases):
         for name, label in (("long", f"{args.frames} frames"), ("short", "11 frames")):
             values = measured[name]
-            print(f"{phase + ', ' + label:<40}" + "".join(f"{percentile(values, q):8.2f}" for q in (50, 90, 99)) + f"{values.max():8.2f}")
+            print(
+                f"{phase + ', ' + label:<40}"
+                + "".join(f"{percentile(values, q):8.2f}" for q in (50, 90, 99))
+                + f"{values.max():8.2f}"
+            )
         p99_long = percentile(measured["long"], 99)
         p50_short = percentile(measured["short"], 50)
-        print(f"  p99 of the long log / p50 of the short log: {p99_long / p50_short:.2f} (goal <= 2); p99 {p99_long:.2f} ms (goal <= 5)")
+        print(
+            f"  p99 of the long log / p50 of the short log: {p99_long / p50_short:.2f} (goal <= 2); p99 {p99_long:.2f} ms (goal <= 5)"
+        )
 
-    print(f"\n2. frames.check on a JSON frame: GIL held in this process vs a thread and a worker-process round trip"
-          f" (median ms); INLINE_BYTES = {frames.INLINE_BYTES}, HEAVY_JSON_BYTES = {frames.HEAVY_JSON_BYTES}")
+    print(
+        f"\n2. frames.check on a JSON frame: GIL held in this process vs a thread and a worker-process round trip"
+        f" (median ms); INLINE_BYTES = {frames.INLINE_BYTES}, HEAVY_JSON_BYTES = {frames.HEAVY_JSON_BYTES}"
+    )
     print(f"{'frame bytes':>12}{'GIL held':>10}{'thread':>10}{'process':>10}")
     rows = asyncio.run(job_costs([1, 10, 30, 60, 100, 300, 1000, 3000, 8000]))
     for size, held, thread, hop in rows:

@@ -29,23 +29,29 @@ import shutil
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import websockets
-
 from kit import KITTI_RAW, parse
 from kit.gen import HEIGHT, POINTS, WIDTH, frame_messages, generate_bag, served
 from kit.proc import start_server
+
 from xviz_server.codec import Format, decode, encode
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.ros import RosBag
 from xviz_server.messages import envelope
 
+
 def per_frame(dataset: RosBag | KittiDrive, repeat: int) -> float:
     """Median ms of one frame read, built and encoded as GLB."""
     metadata = dataset.metadata()
-    return median_ms(lambda frame: encode(envelope("state_update", dataset.convert(frame, metadata)), Format.BINARY), len(dataset), repeat)
+    return median_ms(
+        lambda frame: encode(envelope("state_update", dataset.convert(frame, metadata)), Format.BINARY),
+        len(dataset),
+        repeat,
+    )
 
 
 def median_ms(job: Callable[[int], Any], frames: int, repeat: int) -> float:
@@ -89,12 +95,16 @@ def main() -> None:
     try:
         small = RosBag(generate_bag(folder / f"small{suffix}", args.container, 30))
         ours, theirs = per_frame(small, args.repeat), per_frame(KittiDrive(KITTI_RAW), args.repeat)
-        print(f"1. one frame ({POINTS} points + {WIDTH}x{HEIGHT} rgb8 image; read, build, encode GLB), one process, "
-              f"{args.container}: median {ours:.1f} ms (target under 15 ms); the KITTI converter's frame in this run: "
-              f"{theirs:.1f} ms; ratio {ours / theirs:.2f}")
+        print(
+            f"1. one frame ({POINTS} points + {WIDTH}x{HEIGHT} rgb8 image; read, build, encode GLB), one process, "
+            f"{args.container}: median {ours:.1f} ms (target under 15 ms); the KITTI converter's frame in this run: "
+            f"{theirs:.1f} ms; ratio {ours / theirs:.2f}"
+        )
         originals = median_ms(small.original_messages, len(small), args.repeat)
-        print(f"   one frame's original messages (read and packed as a Foxglove client gets them): median {originals:.1f} ms; "
-              f"ratio to the frame above {originals / ours:.2f}")
+        print(
+            f"   one frame's original messages (read and packed as a Foxglove client gets them): median {originals:.1f} ms; "
+            f"ratio to the frame above {originals / ours:.2f}"
+        )
         frame_bytes = len(frame_messages(*_store(args.container))[0]) + WIDTH * HEIGHT * 3
         frames = int(args.gigabytes * 1e9 / frame_bytes)
         started = time.perf_counter()
@@ -104,15 +114,19 @@ def main() -> None:
         started = time.perf_counter()
         bag = RosBag(big)
         encode(envelope("state_update", bag.convert(0, bag.metadata())), Format.BINARY)
-        print(f"2. opening the {size / 1e9:.2f} GB bag to its first encoded frame: {(time.perf_counter() - started) * 1000:.0f} ms "
-              f"(target under 1 s)")
+        print(
+            f"2. opening the {size / 1e9:.2f} GB bag to its first encoded frame: {(time.perf_counter() - started) * 1000:.0f} ms "
+            f"(target under 1 s)"
+        )
         total, count = asyncio.run(streamed(big, 10.0, args.settle))
         rate = count / total
         _, kitti_total, kitti_count = asyncio.run(served(f"kitti:{KITTI_RAW}", args.settle))
         kitti_rate = kitti_count / kitti_total
-        print(f"3. served on demand: {count} frames of 10 s in {total:.1f} s = {rate:.1f} frames/s = "
-              f"{rate / 10:.1f}x real time (10 Hz; target 3x); the KITTI excerpt served in this run: "
-              f"{kitti_rate:.1f} frames/s, ratio {rate / kitti_rate:.2f}")
+        print(
+            f"3. served on demand: {count} frames of 10 s in {total:.1f} s = {rate:.1f} frames/s = "
+            f"{rate / 10:.1f}x real time (10 Hz; target 3x); the KITTI excerpt served in this run: "
+            f"{kitti_rate:.1f} frames/s, ratio {rate / kitti_rate:.2f}"
+        )
     finally:
         shutil.rmtree(folder)
 

@@ -60,7 +60,10 @@ def long_log(source: Path, target: Path, frames: int) -> list[Path]:
 
     def shifted(value: Any, offset: float) -> Any:
         if isinstance(value, dict):
-            return {k: (v + offset if k == "timestamp" and isinstance(v, (int, float)) else shifted(v, offset)) for k, v in value.items()}
+            return {
+                k: (v + offset if k == "timestamp" and isinstance(v, (int, float)) else shifted(v, offset))
+                for k, v in value.items()
+            }
         if isinstance(value, list):
             return [shifted(v, offset) for v in value]
         return value
@@ -76,7 +79,9 @@ def long_log(source: Path, target: Path, frames: int) -> list[Path]:
         start, end, *_ = index["timing"][k % len(originals)]
         timing.append([start + offset, end + offset, k, path.stem])
         paths.append(path)
-    (target / "0-frame.json").write_text(json.dumps({"startTime": timing[0][0], "endTime": timing[-1][1], "timing": timing}))
+    (target / "0-frame.json").write_text(
+        json.dumps({"startTime": timing[0][0], "endTime": timing[-1][1], "timing": timing})
+    )
     return paths
 
 
@@ -157,14 +162,23 @@ def reader_main(kind: str, port: int, repeats: int) -> None:
             reader.skip(length)
             total += length
         else:
-            reader.send_text(json.dumps({"type": "xviz/transform_log", "data": {"id": str(r)}}) if kind == "xviz-server" else "go")
+            reader.send_text(
+                json.dumps({"type": "xviz/transform_log", "data": {"id": str(r)}}) if kind == "xviz-server" else "go"
+            )
             total += reader.websocket_response()
     print(json.dumps({"start": started, "end": time.time(), "bytes": total}), flush=True)
 
 
 def measure(kind: str, server: Process, clients: int, repeats: int) -> dict[str, float]:
-    readers = [subprocess.Popen([sys.executable, __file__, "--role", "reader", kind, str(server.port), str(repeats)],
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) for _ in range(clients)]
+    readers = [
+        subprocess.Popen(
+            [sys.executable, __file__, "--role", "reader", kind, str(server.port), str(repeats)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(clients)
+    ]
     for reader in readers:
         assert reader.stdout is not None and reader.stdout.readline().strip() == "ready", f"{kind}: a reader failed"
     cpu, others, wall = cpu_seconds(server.pid), other_cpu(), time.perf_counter()
@@ -185,7 +199,9 @@ def measure(kind: str, server: Process, clients: int, repeats: int) -> dict[str,
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--frames", type=int, default=154, help="state updates in the log (the 25 KITTI frames repeated)")
+    parser.add_argument(
+        "--frames", type=int, default=154, help="state updates in the log (the 25 KITTI frames repeated)"
+    )
     parser.add_argument("--repeats", type=int, default=4, help="times each reader reads the log per measurement")
     parser.add_argument("--trials", type=int, default=5)
     parser.add_argument("--clients", type=int, nargs="+", default=[1, 4])
@@ -208,7 +224,9 @@ def main() -> None:
             # websockets' own protocol and writes: each frame serialized into one new bytes, as the bare library sends.
             framing.FramingConnection.__init__ = ServerConnection.__init__  # type: ignore[method-assign, assignment]
             framing.FramingConnection.send_data = ServerConnection.send_data  # type: ignore[method-assign]
-            sys.exit(cli.main(["serve", "--data-dir", rest[0], "--cache-mb", rest[1], "--host", "127.0.0.1", "--port", "0"]))
+            sys.exit(
+                cli.main(["serve", "--data-dir", rest[0], "--cache-mb", rest[1], "--host", "127.0.0.1", "--port", "0"])
+            )
         frames = [Path(p).read_bytes() for p in json.loads(Path(rest[0]).read_text())]
         uvloop.run(raw_server(frames) if role == "raw" else websockets_server(frames))
         return
@@ -219,26 +237,48 @@ def main() -> None:
         listing = Path(tmp) / "frames.json"
         listing.write_text(json.dumps([str(p) for p in paths]))
         log_mb = sum(p.stat().st_size for p in paths) / MB
-        print(f"log: {args.frames} frames, {log_mb:.0f} MB; each reader reads it {args.repeats} times per measurement; "
-              f"{args.trials} trials; {os.cpu_count()} cores")
+        print(
+            f"log: {args.frames} frames, {log_mb:.0f} MB; each reader reads it {args.repeats} times per measurement; "
+            f"{args.trials} trials; {os.cpu_count()} cores"
+        )
         cache_mb = str(int(log_mb * 1.2 + 64))
-        with (Process([sys.executable, __file__, "--role", "raw", str(listing)], r"ws://127\.0\.0\.1:(\d+)/", "raw") as raw,
-              Process([sys.executable, __file__, "--role", "websockets", str(listing)], r"ws://127\.0\.0\.1:(\d+)/", "websockets") as bare,
-              start_server(root, "--cache-mb", cache_mb) as ours,
-              Process([sys.executable, __file__, "--role", "unframed", str(root), cache_mb],
-                      r"listening on ws://127\.0\.0\.1:(\d+)/", "framing off") as unframed):
-            servers = {"raw TCP": ("raw", raw), "websockets": ("websockets", bare), "xviz-server": ("xviz-server", ours),
-                       "framing off": ("xviz-server", unframed)}
+        with (
+            Process(
+                [sys.executable, __file__, "--role", "raw", str(listing)], r"ws://127\.0\.0\.1:(\d+)/", "raw"
+            ) as raw,
+            Process(
+                [sys.executable, __file__, "--role", "websockets", str(listing)],
+                r"ws://127\.0\.0\.1:(\d+)/",
+                "websockets",
+            ) as bare,
+            start_server(root, "--cache-mb", cache_mb) as ours,
+            Process(
+                [sys.executable, __file__, "--role", "unframed", str(root), cache_mb],
+                r"listening on ws://127\.0\.0\.1:(\d+)/",
+                "framing off",
+            ) as unframed,
+        ):
+            servers = {
+                "raw TCP": ("raw", raw),
+                "websockets": ("websockets", bare),
+                "xviz-server": ("xviz-server", ours),
+                "framing off": ("xviz-server", unframed),
+            }
             measure("xviz-server", ours, 1, 1)  # warm the caches
             measure("xviz-server", unframed, 1, 1)
-            runs: dict[tuple[str, int], list[dict[str, float]]] = {(name, n): [] for name in servers for n in args.clients}
+            runs: dict[tuple[str, int], list[dict[str, float]]] = {
+                (name, n): [] for name in servers for n in args.clients
+            }
             for trial in range(args.trials):
                 for clients in args.clients:
                     for name, (kind, process) in servers.items():
                         result = measure(kind, process, clients, args.repeats)
                         runs[name, clients].append(result)
-                        print(f"  trial {trial + 1} {name:>12} x{clients}: {result['mb_s']:7.0f} MB/s "
-                              f"{result['cpu_s_per_gb']:.3f} CPU s/GB (others used {result['others']:.2f} cores)", flush=True)
+                        print(
+                            f"  trial {trial + 1} {name:>12} x{clients}: {result['mb_s']:7.0f} MB/s "
+                            f"{result['cpu_s_per_gb']:.3f} CPU s/GB (others used {result['others']:.2f} cores)",
+                            flush=True,
+                        )
     print()
     print(f"{'server':>12} {'readers':>7} {'MB/s':>7} {'x raw':>6} {'CPU s/GB':>9} {'x raw':>6}")
     table = {}
@@ -250,12 +290,15 @@ def main() -> None:
             "speed_ratio": statistics.median(r["mb_s"] / ref["mb_s"] for r, ref in zip(results, reference)),
             # A run too short for the reference's CPU time to register (--quick) has no CPU ratio.
             "cpu_ratio": statistics.median(
-                r["cpu_s_per_gb"] / ref["cpu_s_per_gb"] if ref["cpu_s_per_gb"] else math.nan for r, ref in zip(results, reference)
+                r["cpu_s_per_gb"] / ref["cpu_s_per_gb"] if ref["cpu_s_per_gb"] else math.nan
+                for r, ref in zip(results, reference)
             ),
             "trials": results,
         }
         table[f"{name} x{clients}"] = row
-        print(f"{name:>12} {clients:>7} {row['mb_s']:7.0f} {row['speed_ratio']:6.2f} {row['cpu_s_per_gb']:9.3f} {row['cpu_ratio']:6.2f}")
+        print(
+            f"{name:>12} {clients:>7} {row['mb_s']:7.0f} {row['speed_ratio']:6.2f} {row['cpu_s_per_gb']:9.3f} {row['cpu_ratio']:6.2f}"
+        )
     if args.json:
         args.json.write_text(json.dumps(table, indent=2))
 

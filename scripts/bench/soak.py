@@ -35,12 +35,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from websockets.asyncio.client import connect
-from websockets.exceptions import ConnectionClosed, InvalidHandshake
-
 from kit import KITTI, parse, write_log
 from kit.proc import start_server
 from kit.ws import handshake_request, masked_frame
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
 REQUEST = json.dumps({"type": "xviz/transform_log", "data": {"id": "soak"}}).encode()
 
@@ -54,6 +53,7 @@ def usage(pid: int) -> tuple[float, int]:
 
 async def fresh_client(port: int, log: str) -> int:
     """State updates a new, well-behaved client gets for the whole log (0 when it gets none in 30 s)."""
+
     async def whole_log() -> int:
         async with connect(f"ws://127.0.0.1:{port}/{log}", max_size=None) as websocket:
             await websocket.recv()
@@ -181,12 +181,16 @@ def main() -> None:
             took = time.perf_counter() - started
             time.sleep(1)
             rss, fds = usage(server.pid)
-            print(f"{f'{opened} aborted sessions ({took:.1f} s)':<34}{rss:8.1f}{fds:6d}   {'-':>16}   {asyncio.run(fresh_client(port, log)):>19}")
+            print(
+                f"{f'{opened} aborted sessions ({took:.1f} s)':<34}{rss:8.1f}{fds:6d}   {'-':>16}   {asyncio.run(fresh_client(port, log)):>19}"
+            )
 
             closed, loris = slowloris(port, args.slowloris, args.hold)
             rss, fds = usage(server.pid)
             fresh = asyncio.run(fresh_client(port, log))
-            print(f"{f'{args.slowloris} slowloris, {args.hold:g} s':<34}{rss:8.1f}{fds:6d}   {closed:>8} of {args.slowloris:<5}   {fresh:>19}")
+            print(
+                f"{f'{args.slowloris} slowloris, {args.hold:g} s':<34}{rss:8.1f}{fds:6d}   {closed:>8} of {args.slowloris:<5}   {fresh:>19}"
+            )
             for sock in loris:
                 sock.close()
             time.sleep(2)
@@ -196,7 +200,9 @@ def main() -> None:
             closed, held = stalled(port, log, args.stalled, args.hold)
             rss, fds = usage(server.pid)
             fresh = asyncio.run(fresh_client(port, log))
-            print(f"{f'{args.stalled} stalled readers, {args.hold:g} s':<34}{rss:8.1f}{fds:6d}   {closed:>8} of {args.stalled:<5}   {fresh:>19}")
+            print(
+                f"{f'{args.stalled} stalled readers, {args.hold:g} s':<34}{rss:8.1f}{fds:6d}   {closed:>8} of {args.stalled:<5}   {fresh:>19}"
+            )
             print("(the stalled readers stay connected through SIGTERM)")
         finally:
             started = time.perf_counter()

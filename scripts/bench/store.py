@@ -51,14 +51,14 @@ from typing import Any
 
 import obstore
 import websockets
-from obstore.store import S3Store
-
-from devkit.s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, store_env
-from devkit.tcpproxy import Proxy
 from kit import KITTI, parse
 from kit import KITTI_RAW as RAW
 from kit.gen import generate_bag as generate
 from kit.proc import MB, Process, other_cores, other_cpu, run_clients, start_reference, start_server
+from obstore.store import S3Store
+
+from devkit.s3 import ACCESS_KEY, SECRET_KEY, MotoS3, moto_process, store_env
+from devkit.tcpproxy import Proxy
 from xviz_server.codec import decode
 
 BUCKET = "xviz-logs"
@@ -75,8 +75,12 @@ def sequential_gets(endpoint: str, keys: list[str], trials: int) -> dict[str, fl
 
     async def run() -> list[tuple[float, int]]:
         store = S3Store(
-            BUCKET, endpoint=endpoint, client_options={"allow_http": True}, region="us-east-1",
-            access_key_id=ACCESS_KEY, secret_access_key=SECRET_KEY,
+            BUCKET,
+            endpoint=endpoint,
+            client_options={"allow_http": True},
+            region="us-east-1",
+            access_key_id=ACCESS_KEY,
+            secret_access_key=SECRET_KEY,
         )
         await (await obstore.get_async(store, keys[0])).bytes_async()  # the connection, set up
         times = []
@@ -114,7 +118,11 @@ def cold_stream(endpoint: str, trials: int, extra: tuple[str, ...] = ()) -> dict
     runs = []
     for _ in range(trials):
         with start_server(ROOT, *extra) as server:
-            runs.append(run_clients({"task": "stream", "url": server.url("?log=kitti"), "clients": 1, "repeats": 1}, 1, server.pid))
+            runs.append(
+                run_clients(
+                    {"task": "stream", "url": server.url("?log=kitti"), "clients": 1, "repeats": 1}, 1, server.pid
+                )
+            )
     assert all(run["frames"] == 25 and run["errors"] == 0 for run in runs), runs
     middle = sorted(runs, key=lambda run: run["seconds"])[len(runs) // 2]
     return {**middle, "all_seconds": [run["seconds"] for run in runs]}
@@ -146,8 +154,12 @@ async def timed_stream(url: str) -> dict[str, float]:
 def ranged_get_ms(s3: MotoS3, key: str, trials: int = 10) -> float:
     """Median ms of a 64 KiB ranged GET of ``key`` with obstore: moto's own cost, which grows with the object's size."""
     store = S3Store(
-        BUCKET, endpoint=s3.endpoint, client_options={"allow_http": True}, region="us-east-1",
-        access_key_id=ACCESS_KEY, secret_access_key=SECRET_KEY,
+        BUCKET,
+        endpoint=s3.endpoint,
+        client_options={"allow_http": True},
+        region="us-east-1",
+        access_key_id=ACCESS_KEY,
+        secret_access_key=SECRET_KEY,
     )
     times = []
     for trial in range(trials + 1):
@@ -190,7 +202,14 @@ def datasets(s3: MotoS3, frames: int, delay: float, extra: tuple[str, ...]) -> d
 
 
 def compare(
-    s3: MotoS3, local: Path, prefix: str, name: str, delay: float, extra: tuple[str, ...], probe: str, gets: str | None = None
+    s3: MotoS3,
+    local: Path,
+    prefix: str,
+    name: str,
+    delay: float,
+    extra: tuple[str, ...],
+    probe: str,
+    gets: str | None = None,
 ) -> dict[str, Any]:
     """The log ``name`` from the directory ``local``, from ``s3://BUCKET/prefix``, and from there through the proxy."""
     row: dict[str, Any] = {"ranged_get_ms": ranged_get_ms(s3, probe)}
@@ -202,7 +221,10 @@ def compare(
     with proxy_thread(s3.port, delay) as proxy:
         os.environ.update(store_env(proxy.url))
         with start_server(f"s3://{BUCKET}/{prefix}", *extra) as server:
-            row["delayed"] = {**asyncio.run(timed_stream(server.url(f"?log={name}"))), "gets": len(proxy.gets(gets or probe))}
+            row["delayed"] = {
+                **asyncio.run(timed_stream(server.url(f"?log={name}"))),
+                "gets": len(proxy.gets(gets or probe)),
+            }
     return row
 
 
@@ -212,20 +234,33 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=5, help="fresh servers per cold row (median shown)")
     parser.add_argument("--delay", type=float, default=0.05, help="seconds the proxy waits before each request")
     parser.add_argument("--repeats", type=int, default=20, help="whole-log streams per warm row")
-    parser.add_argument("--read-ahead", type=int, help="--store-read-ahead of the servers (default: the server's default)")
-    parser.add_argument("--read-ahead-mb", type=float, help="--store-read-ahead-mb of the servers (default: the server's default)")
+    parser.add_argument(
+        "--read-ahead", type=int, help="--store-read-ahead of the servers (default: the server's default)"
+    )
+    parser.add_argument(
+        "--read-ahead-mb", type=float, help="--store-read-ahead-mb of the servers (default: the server's default)"
+    )
     parser.add_argument("--bag-frames", type=int, default=30, help="frames of each generated bag of row 4")
     parser.add_argument("--datasets-only", action="store_true", help="only row 4")
     parser.add_argument("--json", type=Path, help="also write the numbers to this file")
     args = parse(parser, quick={"trials": 1, "repeats": 1, "bag_frames": 3, "delay": 0.005})
-    extra = (*(("--store-read-ahead", str(args.read_ahead)) if args.read_ahead else ()),
-             *(("--store-read-ahead-mb", str(args.read_ahead_mb)) if args.read_ahead_mb else ()))
+    extra = (
+        *(("--store-read-ahead", str(args.read_ahead)) if args.read_ahead else ()),
+        *(("--store-read-ahead-mb", str(args.read_ahead_mb)) if args.read_ahead_mb else ()),
+    )
     results: dict[str, Any] = {"load_average_at_start": os.getloadavg(), "server_options": extra}
-    line(f"object store benchmark, {time.strftime('%Y-%m-%d %H:%M:%S')}; load average at start "
-         + " ".join(f"{x:.2f}" for x in os.getloadavg()) + (f"; server options {' '.join(extra)}" if extra else ""))
+    line(
+        f"object store benchmark, {time.strftime('%Y-%m-%d %H:%M:%S')}; load average at start "
+        + " ".join(f"{x:.2f}" for x in os.getloadavg())
+        + (f"; server options {' '.join(extra)}" if extra else "")
+    )
     with moto_process() as s3:
         s3.bucket(BUCKET)
-        keys = [key for key in s3.upload(args.kitti, BUCKET, "fleet/kitti") if key.rsplit("/", 1)[1] not in ("0-frame.json", "1-frame.glb")]
+        keys = [
+            key
+            for key in s3.upload(args.kitti, BUCKET, "fleet/kitti")
+            if key.rsplit("/", 1)[1] not in ("0-frame.json", "1-frame.glb")
+        ]
         keys.sort(key=lambda key: int(key.rsplit("/", 1)[1].split("-")[0]))
         line(f"store: moto {MotoS3.__module__} server at {s3.endpoint}, {len(keys)} frames uploaded")
 
@@ -234,10 +269,17 @@ def main() -> None:
             direct = sequential_gets(s3.endpoint, keys, args.trials)
             cold = cold_stream(s3.endpoint, args.trials, extra)
             ratio = cold["frames_s"] / direct["frames_s"]
-            results["cold"] = {"sequential_gets": direct, "stream": cold, "ratio": ratio, "other_cpu": other_cores(other_before, wall_before)}
-            line(f"1. cold whole-log stream from the store: {cold['frames_s']:.1f} frames/s ({cold['mb_s']:.0f} MB/s), "
-                 f"sequential GETs {direct['frames_s']:.1f} frames/s ({direct['mb_s']:.0f} MB/s): {ratio:.2f}x (target >= 0.8); "
-                 f"other processes {results['cold']['other_cpu']:.2f} cores")
+            results["cold"] = {
+                "sequential_gets": direct,
+                "stream": cold,
+                "ratio": ratio,
+                "other_cpu": other_cores(other_before, wall_before),
+            }
+            line(
+                f"1. cold whole-log stream from the store: {cold['frames_s']:.1f} frames/s ({cold['mb_s']:.0f} MB/s), "
+                f"sequential GETs {direct['frames_s']:.1f} frames/s ({direct['mb_s']:.0f} MB/s): {ratio:.2f}x (target >= 0.8); "
+                f"other processes {results['cold']['other_cpu']:.2f} cores"
+            )
 
             with proxy_thread(s3.port, args.delay) as proxy:
                 other_before, wall_before = other_cpu(), time.perf_counter()
@@ -246,31 +288,45 @@ def main() -> None:
                 slow = cold_stream(proxy.url, args.trials, extra)
                 realtime = DRIVE_SECONDS / slow["seconds"]
                 results["delayed"] = {
-                    "delay_s": args.delay, "sequential_gets": slow_direct, "stream": slow, "real_time": realtime,
-                    "ratio": slow["frames_s"] / slow_direct["frames_s"], "most_in_flight": proxy.most_in_flight,
+                    "delay_s": args.delay,
+                    "sequential_gets": slow_direct,
+                    "stream": slow,
+                    "real_time": realtime,
+                    "ratio": slow["frames_s"] / slow_direct["frames_s"],
+                    "most_in_flight": proxy.most_in_flight,
                     "other_cpu": other_cores(other_before, wall_before),
                 }
-                line(f"2. with {args.delay * 1000:.0f} ms before each request: {slow['frames_s']:.1f} frames/s, "
-                     f"{realtime:.1f}x real time (target >= 5x); sequential GETs {slow_direct['frames_s']:.1f} frames/s "
-                     f"({results['delayed']['ratio']:.1f}x); most GETs in flight {proxy.most_in_flight}; "
-                     f"other processes {results['delayed']['other_cpu']:.2f} cores")
+                line(
+                    f"2. with {args.delay * 1000:.0f} ms before each request: {slow['frames_s']:.1f} frames/s, "
+                    f"{realtime:.1f}x real time (target >= 5x); sequential GETs {slow_direct['frames_s']:.1f} frames/s "
+                    f"({results['delayed']['ratio']:.1f}x); most GETs in flight {proxy.most_in_flight}; "
+                    f"other processes {results['delayed']['other_cpu']:.2f} cores"
+                )
 
             os.environ.update(store_env(s3.endpoint))
-            with start_server(ROOT, *extra) as store_server, start_server(args.kitti.parent) as local_server, \
-                    start_reference({"kitti": args.kitti}) as reference:
+            with (
+                start_server(ROOT, *extra) as store_server,
+                start_server(args.kitti.parent) as local_server,
+                start_reference({"kitti": args.kitti}) as reference,
+            ):
                 other_before, wall_before = other_cpu(), time.perf_counter()
                 bare = warm_stream(reference, "kitti", args.repeats)
                 from_store = warm_stream(store_server, "kitti", args.repeats)
                 local = warm_stream(local_server, args.kitti.name, args.repeats)
                 results["warm"] = {
-                    "bare": bare, "store": from_store, "local": local,
-                    "store_ratio": from_store["mb_s"] / bare["mb_s"], "local_ratio": local["mb_s"] / bare["mb_s"],
+                    "bare": bare,
+                    "store": from_store,
+                    "local": local,
+                    "store_ratio": from_store["mb_s"] / bare["mb_s"],
+                    "local_ratio": local["mb_s"] / bare["mb_s"],
                     "other_cpu": other_cores(other_before, wall_before),
                 }
-                line(f"3. warm whole-log streams, {args.repeats} in a row: store-backed {from_store['mb_s']:.0f} MB/s "
-                     f"({results['warm']['store_ratio']:.2f}x the bare server), local {local['mb_s']:.0f} MB/s "
-                     f"({results['warm']['local_ratio']:.2f}x), bare websockets {bare['mb_s']:.0f} MB/s; "
-                     f"other processes {results['warm']['other_cpu']:.2f} cores")
+                line(
+                    f"3. warm whole-log streams, {args.repeats} in a row: store-backed {from_store['mb_s']:.0f} MB/s "
+                    f"({results['warm']['store_ratio']:.2f}x the bare server), local {local['mb_s']:.0f} MB/s "
+                    f"({results['warm']['local_ratio']:.2f}x), bare websockets {bare['mb_s']:.0f} MB/s; "
+                    f"other processes {results['warm']['other_cpu']:.2f} cores"
+                )
 
         other_before, wall_before = other_cpu(), time.perf_counter()
         results["datasets"] = datasets(s3, args.bag_frames, args.delay, extra)
@@ -278,14 +334,18 @@ def main() -> None:
         for container in ("ros1", "mcap", "kitti"):
             row = results["datasets"][container]
             local, store, delayed = row["local"], row["store"], row["delayed"]
-            what = "KITTI raw drive, 25 frames" if container == "kitti" else f"{container} bag, {args.bag_frames} frames"
-            line(f"4. {what}, {row['megabytes']:.0f} MB, on demand: open "
-                 f"{store['open_s']:.2f} s from the store, {local['open_s']:.2f} s from a directory "
-                 f"({store['open_s'] / local['open_s']:.2f}x); whole-log stream {store['stream_s']:.2f} s against "
-                 f"{local['stream_s']:.2f} s ({store['stream_s'] / local['stream_s']:.2f}x); with {args.delay * 1000:.0f} ms "
-                 f"before each request: open {delayed['open_s']:.2f} s, stream {delayed['stream_s']:.2f} s, {delayed['gets']} GETs "
-                 f"(every process of the server); moto takes {row['ranged_get_ms']:.0f} ms for a 64 KiB ranged GET of "
-                 + ("a sweep" if container == "kitti" else "this object"))
+            what = (
+                "KITTI raw drive, 25 frames" if container == "kitti" else f"{container} bag, {args.bag_frames} frames"
+            )
+            line(
+                f"4. {what}, {row['megabytes']:.0f} MB, on demand: open "
+                f"{store['open_s']:.2f} s from the store, {local['open_s']:.2f} s from a directory "
+                f"({store['open_s'] / local['open_s']:.2f}x); whole-log stream {store['stream_s']:.2f} s against "
+                f"{local['stream_s']:.2f} s ({store['stream_s'] / local['stream_s']:.2f}x); with {args.delay * 1000:.0f} ms "
+                f"before each request: open {delayed['open_s']:.2f} s, stream {delayed['stream_s']:.2f} s, {delayed['gets']} GETs "
+                f"(every process of the server); moto takes {row['ranged_get_ms']:.0f} ms for a 64 KiB ranged GET of "
+                + ("a sweep" if container == "kitti" else "this object")
+            )
         line(f"   other processes {results['datasets']['other_cpu']:.2f} cores")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2, default=str))

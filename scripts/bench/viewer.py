@@ -91,7 +91,13 @@ def main() -> None:
             print(f"reference, the catalog page loaded: median {statistics.median(reference):.0f} ms of {args.runs}")
             for viewport in args.viewport:
                 width, height = (int(n) for n in viewport.split("x"))
-                options = {"url": f"{base}/?log={args.kitti.name}", "viewport": {"width": width, "height": height}, "settle": 0, "timeout": 120_000, "frames": 2}
+                options = {
+                    "url": f"{base}/?log={args.kitti.name}",
+                    "viewport": {"width": width, "height": height},
+                    "settle": 0,
+                    "timeout": 120_000,
+                    "frames": 2,
+                }
                 reports = [drive(options) for _ in range(args.runs)]
                 if not all(report["drawn"] for report in reports):
                     print(f"{viewport}: the 3D view was not drawn in every run: {reports}")
@@ -99,7 +105,9 @@ def main() -> None:
                 drawn = statistics.median(report["firstDrawnMs"] for report in reports)
                 # A page built before a stage had its mark reports the stages it has.
                 known = [stage for stage in STAGES if all(stage in r["marks"] for r in reports)]
-                stages = ", ".join(f"{stage} {statistics.median(r['marks'][stage] for r in reports):.0f}" for stage in known)
+                stages = ", ".join(
+                    f"{stage} {statistics.median(r['marks'][stage] for r in reports):.0f}" for stage in known
+                )
                 print(
                     f"{viewport}: {stages}, shown {drawn:.0f} ms (median of {args.runs}; "
                     f"{drawn / statistics.median(reference):.1f} x the reference)"
@@ -107,7 +115,9 @@ def main() -> None:
                 loaded = [asset["name"] for asset in reports[0]["assets"]]
                 print(f"  the page loaded {len(loaded)} of the bundle's files: {megabytes(bundle_sizes(loaded))}")
             elapsed = time.monotonic() - started
-            print(f"machine load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after; {elapsed:.0f} s in all; {os.cpu_count()} cores")
+            print(
+                f"machine load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after; {elapsed:.0f} s in all; {os.cpu_count()} cores"
+            )
 
 
 if __name__ == "__main__":

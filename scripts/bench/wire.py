@@ -49,7 +49,9 @@ async def write(url: str, frames: int, rate: float) -> None:
     start = time.perf_counter()
     for k in range(frames):
         await asyncio.sleep(max(0.0, start + k / rate - time.perf_counter()))
-        await wire.send(b"XADD", STREAM, b"MAXLEN", b"~", b"10", b"*", b"t", struct.pack("d", time.perf_counter()), b"d", frame)
+        await wire.send(
+            b"XADD", STREAM, b"MAXLEN", b"~", b"10", b"*", b"t", struct.pack("d", time.perf_counter()), b"d", frame
+        )
     wire.close()
 
 
@@ -169,7 +171,9 @@ def main() -> None:
         finally:
             redis.terminate()
             redis.wait()
-    print(f"{len(FRAME.read_bytes())} B frames at {args.rate:g} Hz, {args.frames} frames x {args.rounds} rounds, readers interleaved")
+    print(
+        f"{len(FRAME.read_bytes())} B frames at {args.rate:g} Hz, {args.frames} frames x {args.rounds} rounds, readers interleaved"
+    )
     print(f"{'reader':<12} {'XADD to whole reply p50 / p90 ms':>34} {'first byte to last p50 / p90 ms':>34}")
     for reader, (whole, spread) in times.items():
         ms = [1000 * t for t in whole]

@@ -24,9 +24,9 @@ stream and the field; what the builders return validates against the XVIZ
 schema. :class:`~xviz_server.writer.LogWriter` writes the results as a log.
 """
 
+from ..messages import XVIZ_VERSION
 from . import ui
 from .frame import FrameBuilder
-from ..messages import XVIZ_VERSION
 from .metadata import MetadataBuilder
 
 __all__ = ["MetadataBuilder", "FrameBuilder", "ui", "XVIZ_VERSION"]

@@ -19,8 +19,13 @@ __all__ = ["FrameBuilder"]
 _VALUE_KEYS = {"FLOAT": "doubles", "INT32": "int32s", "STRING": "strings", "BOOL": "bools"}
 #: The key of a primitive state that holds each primitive type.
 _PRIMITIVE_KEYS = {
-    "POINT": "points", "POLYGON": "polygons", "POLYLINE": "polylines", "CIRCLE": "circles",
-    "STADIUM": "stadiums", "TEXT": "texts", "IMAGE": "images",
+    "POINT": "points",
+    "POLYGON": "polygons",
+    "POLYLINE": "polylines",
+    "CIRCLE": "circles",
+    "STADIUM": "stadiums",
+    "TEXT": "texts",
+    "IMAGE": "images",
 }
 #: Future instances are built from vertex arrays: the least count each type needs.
 _FUTURE_LEAST = {"POINT": 1, "POLYLINE": 2, "POLYGON": 3}
@@ -57,7 +62,11 @@ def _point(where: str, value: Any) -> list[float]:
 
 
 def _number(where: str, value: Any) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)) or not math.isfinite(value):
+    if (
+        isinstance(value, (bool, np.bool_))
+        or not isinstance(value, (int, float, np.number))
+        or not math.isfinite(value)
+    ):
         raise BuilderError(f"{where} must be a finite number, not {value!r}")
     return float(value)
 
@@ -128,7 +137,9 @@ class FrameBuilder:
     def __init__(self, metadata: Mapping[str, Any]) -> None:
         streams = metadata.get("streams") if isinstance(metadata, Mapping) else None
         if not isinstance(streams, Mapping):
-            raise BuilderError("FrameBuilder needs the metadata (what MetadataBuilder.build() returns), with its streams")
+            raise BuilderError(
+                "FrameBuilder needs the metadata (what MetadataBuilder.build() returns), with its streams"
+            )
         self._streams: Mapping[str, Mapping[str, Any]] = streams
         self._clear()
 
@@ -228,7 +239,12 @@ class FrameBuilder:
         return self._add(stream, "POINT", primitive, self._base(stream, "POINT", id, classes, style))
 
     def polygon(
-        self, stream: str, vertices: Any, *, id: Any = None, classes: Sequence[str] | None = None,
+        self,
+        stream: str,
+        vertices: Any,
+        *,
+        id: Any = None,
+        classes: Sequence[str] | None = None,
         style: Mapping[str, Any] | None = None,
     ) -> FrameBuilder:
         """A polygon of at least 3 (N, 3) vertices; a stream style with ``extruded`` makes it a prism."""
@@ -237,7 +253,12 @@ class FrameBuilder:
         return self._add(stream, "POLYGON", primitive, self._base(stream, "POLYGON", id, classes, style))
 
     def polyline(
-        self, stream: str, vertices: Any, *, id: Any = None, classes: Sequence[str] | None = None,
+        self,
+        stream: str,
+        vertices: Any,
+        *,
+        id: Any = None,
+        classes: Sequence[str] | None = None,
         style: Mapping[str, Any] | None = None,
     ) -> FrameBuilder:
         """A polyline of at least 2 (N, 3) vertices."""
@@ -246,8 +267,14 @@ class FrameBuilder:
         return self._add(stream, "POLYLINE", primitive, self._base(stream, "POLYLINE", id, classes, style))
 
     def circle(
-        self, stream: str, center: Sequence[float], radius: float, *, id: Any = None,
-        classes: Sequence[str] | None = None, style: Mapping[str, Any] | None = None,
+        self,
+        stream: str,
+        center: Sequence[float],
+        radius: float,
+        *,
+        id: Any = None,
+        classes: Sequence[str] | None = None,
+        style: Mapping[str, Any] | None = None,
     ) -> FrameBuilder:
         """A circle of ``radius`` metres around ``center`` (x, y, z)."""
         self._declared(stream, "PRIMITIVE", "CIRCLE")
@@ -255,8 +282,15 @@ class FrameBuilder:
         return self._add(stream, "CIRCLE", primitive, self._base(stream, "CIRCLE", id, classes, style))
 
     def stadium(
-        self, stream: str, start: Sequence[float], end: Sequence[float], radius: float, *, id: Any = None,
-        classes: Sequence[str] | None = None, style: Mapping[str, Any] | None = None,
+        self,
+        stream: str,
+        start: Sequence[float],
+        end: Sequence[float],
+        radius: float,
+        *,
+        id: Any = None,
+        classes: Sequence[str] | None = None,
+        style: Mapping[str, Any] | None = None,
     ) -> FrameBuilder:
         """A stadium: the segment from ``start`` to ``end`` widened by ``radius`` metres, with round ends."""
         self._declared(stream, "PRIMITIVE", "STADIUM")
@@ -268,8 +302,14 @@ class FrameBuilder:
         return self._add(stream, "STADIUM", primitive, self._base(stream, "STADIUM", id, classes, style))
 
     def text(
-        self, stream: str, position: Sequence[float], text: Any, *, id: Any = None,
-        classes: Sequence[str] | None = None, style: Mapping[str, Any] | None = None,
+        self,
+        stream: str,
+        position: Sequence[float],
+        text: Any,
+        *,
+        id: Any = None,
+        classes: Sequence[str] | None = None,
+        style: Mapping[str, Any] | None = None,
     ) -> FrameBuilder:
         """A label ``text`` (made a string) at ``position`` (x, y, z)."""
         self._declared(stream, "PRIMITIVE", "TEXT")
@@ -277,8 +317,14 @@ class FrameBuilder:
         return self._add(stream, "TEXT", primitive, self._base(stream, "TEXT", id, classes, style))
 
     def image(
-        self, stream: str, data: bytes | bytearray | memoryview, *, width_px: int | None = None,
-        height_px: int | None = None, position: Sequence[float] | None = None, id: Any = None,
+        self,
+        stream: str,
+        data: bytes | bytearray | memoryview,
+        *,
+        width_px: int | None = None,
+        height_px: int | None = None,
+        position: Sequence[float] | None = None,
+        id: Any = None,
     ) -> FrameBuilder:
         """An encoded image (PNG, JPEG, ...); its size is read from its header unless given.
 
@@ -403,7 +449,12 @@ class FrameBuilder:
         return self
 
     def annotation(
-        self, stream: str, object_id: Any, *, classes: Sequence[str] | None = None, style: Mapping[str, Any] | None = None
+        self,
+        stream: str,
+        object_id: Any,
+        *,
+        classes: Sequence[str] | None = None,
+        style: Mapping[str, Any] | None = None,
     ) -> FrameBuilder:
         """Restyle object ``object_id`` of other streams: give it style ``classes``, an inline ``style``, or both."""
         self._declared(stream, "ANNOTATION")
@@ -446,7 +497,12 @@ class FrameBuilder:
         seen: set[int] = set()
         for node_id, parent, values in nodes:
             where = f"{stream}: node {node_id!r}"
-            if isinstance(node_id, bool) or not isinstance(node_id, (int, np.integer)) or node_id < 0 or node_id in seen:
+            if (
+                isinstance(node_id, bool)
+                or not isinstance(node_id, (int, np.integer))
+                or node_id < 0
+                or node_id in seen
+            ):
                 raise BuilderError(f"{where}: node ids are distinct whole numbers >= 0")
             node: dict[str, Any] = {"id": int(node_id)}
             if parent is not None:

@@ -82,10 +82,14 @@ def _transform(where: str, transform: Any) -> list[float]:
     matrix = _finite_matrix(where, transform, [(4, 4), (16,)])
     columns = matrix.T.reshape(-1) if matrix.shape == (4, 4) else matrix
     if columns[[3, 7, 11, 15]].tolist() != [0.0, 0.0, 0.0, 1.0]:
-        layout = "rows with the translation in the last column" if matrix.shape == (4, 4) else (
-            "column-major, the translation at positions 12-14"
+        layout = (
+            "rows with the translation in the last column"
+            if matrix.shape == (4, 4)
+            else ("column-major, the translation at positions 12-14")
         )
-        raise BuilderError(f"{where}: the bottom row must be 0, 0, 0, 1; a {matrix.shape} transform is read as {layout}")
+        raise BuilderError(
+            f"{where}: the bottom row must be 0, 0, 0, 1; a {matrix.shape} transform is read as {layout}"
+        )
     return columns.tolist()
 
 
@@ -164,9 +168,16 @@ class MetadataBuilder:
             raise BuilderError(f"{name}: stream declared twice")
         entry: dict[str, Any] = {"category": _one_of(name, "category", category)}
         given = {
-            "primitive_type": primitive_type, "scalar_type": scalar_type, "ui_primitive_type": ui_primitive_type,
-            "annotation_type": annotation_type, "units": units, "coordinate": coordinate, "transform": transform,
-            "transform_callback": transform_callback, "style": style, "style_classes": style_classes,
+            "primitive_type": primitive_type,
+            "scalar_type": scalar_type,
+            "ui_primitive_type": ui_primitive_type,
+            "annotation_type": annotation_type,
+            "units": units,
+            "coordinate": coordinate,
+            "transform": transform,
+            "transform_callback": transform_callback,
+            "style": style,
+            "style_classes": style_classes,
         }
         for field, value in given.items():
             if value is not None and category not in _FIELD_CATEGORIES[field]:
@@ -175,7 +186,9 @@ class MetadataBuilder:
         type_field = _TYPE_FIELD.get(category)
         if type_field is not None:
             if given[type_field] is None:
-                raise BuilderError(f"{name}: a {category} stream needs {type_field} ({', '.join(_choices(type_field))})")
+                raise BuilderError(
+                    f"{name}: a {category} stream needs {type_field} ({', '.join(_choices(type_field))})"
+                )
             entry[type_field] = _one_of(name, type_field, given[type_field])
         if source is not None:
             entry["source"] = str(source)
@@ -228,7 +241,9 @@ class MetadataBuilder:
 
     # -- the rest of the metadata -----------------------------------------
 
-    def log_info(self, *, start_time: float | None = None, end_time: float | None = None, **fields: Any) -> MetadataBuilder:
+    def log_info(
+        self, *, start_time: float | None = None, end_time: float | None = None, **fields: Any
+    ) -> MetadataBuilder:
         """Set the log's time span, in seconds like the frames' timestamps, and descriptive ``fields``.
 
         streetscape.gl needs both times (it seeks to ``start_time``); a
@@ -236,7 +251,11 @@ class MetadataBuilder:
         """
         for field, value in (("start_time", start_time), ("end_time", end_time)):
             if value is not None:
-                if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not math.isfinite(value):
+                if (
+                    isinstance(value, bool)
+                    or not isinstance(value, (int, float, np.number))
+                    or not math.isfinite(value)
+                ):
                     raise BuilderError(f"log_info: {field} must be a finite number of seconds, not {value!r}")
                 fields[field] = float(value)
         info = {**self._log_info, **fields}
@@ -329,7 +348,9 @@ class MetadataBuilder:
         name: str, primitive_type: str | None, style_classes: Mapping[str, Mapping[str, Any]]
     ) -> Iterator[dict[str, Any]]:
         if not isinstance(style_classes, Mapping):
-            raise BuilderError(f"{name}: style_classes maps class names to styles, like {{'Car': {{'fill_color': '#f00'}}}}")
+            raise BuilderError(
+                f"{name}: style_classes maps class names to styles, like {{'Car': {{'fill_color': '#f00'}}}}"
+            )
         for selector, style in style_classes.items():
             if not isinstance(selector, str) or not selector.split():
                 raise BuilderError(f"{name}: style_classes: {selector!r} is not a class name")

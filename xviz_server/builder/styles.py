@@ -31,21 +31,52 @@ __all__ = ["check_color", "check_style", "PRIMITIVE_STYLES"]
 
 #: The style properties that apply to each primitive type (specification §5.2).
 PRIMITIVE_STYLES: dict[str, frozenset[str]] = {
-    "CIRCLE": frozenset({
-        "radius", "radius_min_pixels", "radius_max_pixels", "filled", "stroked", "fill_color", "stroke_color",
-        "stroke_width", "stroke_width_min_pixels", "stroke_width_max_pixels", "opacity",
-    }),
+    "CIRCLE": frozenset(
+        {
+            "radius",
+            "radius_min_pixels",
+            "radius_max_pixels",
+            "filled",
+            "stroked",
+            "fill_color",
+            "stroke_color",
+            "stroke_width",
+            "stroke_width_min_pixels",
+            "stroke_width_max_pixels",
+            "opacity",
+        }
+    ),
     "POINT": frozenset({"radius_pixels", "fill_color", "point_color_mode", "point_color_domain", "opacity"}),
-    "POLYGON": frozenset({
-        "extruded", "height", "filled", "stroked", "fill_color", "stroke_color", "stroke_width",
-        "stroke_width_min_pixels", "stroke_width_max_pixels", "opacity",
-    }),
-    "POLYLINE": frozenset({"stroke_color", "stroke_width", "stroke_width_min_pixels", "stroke_width_max_pixels", "opacity"}),
+    "POLYGON": frozenset(
+        {
+            "extruded",
+            "height",
+            "filled",
+            "stroked",
+            "fill_color",
+            "stroke_color",
+            "stroke_width",
+            "stroke_width_min_pixels",
+            "stroke_width_max_pixels",
+            "opacity",
+        }
+    ),
+    "POLYLINE": frozenset(
+        {"stroke_color", "stroke_width", "stroke_width_min_pixels", "stroke_width_max_pixels", "opacity"}
+    ),
     "STADIUM": frozenset({"fill_color", "radius", "radius_min_pixels", "radius_max_pixels", "opacity"}),
-    "TEXT": frozenset({
-        "font_family", "font_weight", "fill_color", "text_size", "text_rotation", "text_anchor", "text_baseline",
-        "opacity",
-    }),
+    "TEXT": frozenset(
+        {
+            "font_family",
+            "font_weight",
+            "fill_color",
+            "text_size",
+            "text_rotation",
+            "text_anchor",
+            "text_baseline",
+            "opacity",
+        }
+    ),
     "IMAGE": frozenset(),
 }
 
@@ -89,7 +120,9 @@ def check_color(where: str, value: Any) -> str | list[float]:
     raise BuilderError(f"{where}: {value!r} is not a colour; write {_COLOR_FORMS}")
 
 
-def check_style(where: str, style: Mapping[str, Any], primitive_type: str | None, *, per_object: bool) -> dict[str, Any]:
+def check_style(
+    where: str, style: Mapping[str, Any], primitive_type: str | None, *, per_object: bool
+) -> dict[str, Any]:
     """Return a checked copy of ``style``, or raise :class:`BuilderError` naming ``where`` and the property.
 
     ``primitive_type`` limits the properties to those that apply to it (none
@@ -108,7 +141,9 @@ def check_style(where: str, style: Mapping[str, Any], primitive_type: str | None
     checked: dict[str, Any] = {}
     for name, value in style.items():
         if name not in allowed:
-            raise BuilderError(_unknown_property(where, name, primitive_type, per_object, allowed, properties.per_stream))
+            raise BuilderError(
+                _unknown_property(where, name, primitive_type, per_object, allowed, properties.per_stream)
+            )
         if isinstance(value, np.generic):
             value = value.item()
         if name in _COLOR_PROPERTIES:
@@ -133,7 +168,9 @@ def check_style(where: str, style: Mapping[str, Any], primitive_type: str | None
 
 def _property_problems(name: str, value: Any) -> list[str]:
     """What the schema says of one property's value; only the property's own schema is asked."""
-    return [problem for problem in get_validator().errors("style/stream_value", {name: value}) if problem.startswith("$.")]
+    return [
+        problem for problem in get_validator().errors("style/stream_value", {name: value}) if problem.startswith("$.")
+    ]
 
 
 def _unknown_property(
@@ -146,7 +183,11 @@ def _unknown_property(
 ) -> str:
     if not isinstance(name, str):
         return f"{where}: property names are strings, not {name!r}"
-    if per_object and name in stream_properties and (primitive_type is None or name in PRIMITIVE_STYLES[primitive_type]):
+    if (
+        per_object
+        and name in stream_properties
+        and (primitive_type is None or name in PRIMITIVE_STYLES[primitive_type])
+    ):
         return f"{where}: {name!r} can only be set in the stream's style, not per object or per class"
     if primitive_type is not None and name in stream_properties:
         takes = ", ".join(sorted(allowed)) or "no style properties"
@@ -194,5 +235,9 @@ def _schema_properties() -> _Properties:
         return frozenset(name for alternative in schema["anyOf"] for name in alternative["required"])
 
     return _Properties(
-        per_object, per_object | frozenset(stream_schema["properties"]), needs(object_schema), needs(stream_schema), numbers
+        per_object,
+        per_object | frozenset(stream_schema["properties"]),
+        needs(object_schema),
+        needs(stream_schema),
+        numbers,
     )

@@ -42,8 +42,20 @@ FOUND, WAITING, INDEXED, FAILED = "found", "waiting", "indexed", "failed"
 
 #: The columns of a log's facts, besides its name.
 FACTS = (
-    "kind", "format", "frames", "start_time", "end_time", "duration", "bytes", "modified",
-    "description", "vehicle", "tags", "streams", "error", "detail",
+    "kind",
+    "format",
+    "frames",
+    "start_time",
+    "end_time",
+    "duration",
+    "bytes",
+    "modified",
+    "description",
+    "vehicle",
+    "tags",
+    "streams",
+    "error",
+    "detail",
 )
 _JSON = frozenset({"tags", "streams", "detail"})
 
@@ -70,8 +82,12 @@ PRAGMA user_version = {SCHEMA};
 #: The indexes of the sorts and of time searches. A new file gets them once its first build is done
 #: (:meth:`CatalogDB.sort_indexes`): kept up to date during it, they would slow each of its writes.
 SORT_INDEXES = {
-    "logs_start": "start_time, name", "logs_end": "end_time, name", "logs_duration": "duration, name",
-    "logs_frames": "frames, name", "logs_bytes": "bytes, name", "logs_modified": "modified, name",
+    "logs_start": "start_time, name",
+    "logs_end": "end_time, name",
+    "logs_duration": "duration, name",
+    "logs_frames": "frames, name",
+    "logs_bytes": "bytes, name",
+    "logs_modified": "modified, name",
 }
 
 
@@ -95,7 +111,9 @@ class CatalogDB:
         #: Whether the catalog is in memory although a file was asked for.
         self.fell_back = False
         self._connection = self._open()
-        self._stream_ids: dict[str, int] = dict(self._connection.execute("SELECT name, id FROM stream_names").fetchall())
+        self._stream_ids: dict[str, int] = dict(
+            self._connection.execute("SELECT name, id FROM stream_names").fetchall()
+        )
         self._sorted = self._has_sort_indexes()
 
     # -- opening ------------------------------------------------------------
@@ -123,7 +141,9 @@ class CatalogDB:
                 Path(f"{self.path}{suffix}").unlink(missing_ok=True)
             return self._create(self._tune(sqlite3.connect(self.path, check_same_thread=False)))
         except (OSError, sqlite3.Error) as exc:
-            logger.warning("catalog %s cannot be kept on disk (%s): keeping it in memory until the server stops", self.path, exc)
+            logger.warning(
+                "catalog %s cannot be kept on disk (%s): keeping it in memory until the server stops", self.path, exc
+            )
             self.fell_back = True
             return self._create(sqlite3.connect(":memory:", check_same_thread=False))
 
@@ -142,7 +162,8 @@ class CatalogDB:
         """Move the catalog to memory with what it holds, after ``exc`` refused a write to the file."""
         logger.warning(
             "catalog %s cannot be written (%s): keeping it in memory until the server stops; free space in the state directory",
-            self.path, exc,
+            self.path,
+            exc,
         )
         memory = sqlite3.connect(":memory:", check_same_thread=False)
         try:
@@ -204,9 +225,11 @@ class CatalogDB:
         result: dict[str, tuple[str, str]] = {}
         with self._lock:
             for start in range(0, len(names), 500):
-                chunk = names[start:start + 500]
+                chunk = names[start : start + 500]
                 marks = ",".join("?" * len(chunk))
-                for name, root, version in self._connection.execute(f"SELECT name, root, version FROM logs WHERE name IN ({marks})", chunk):
+                for name, root, version in self._connection.execute(
+                    f"SELECT name, root, version FROM logs WHERE name IN ({marks})", chunk
+                ):
                     result[name] = (root, version)
         return result
 
@@ -214,7 +237,8 @@ class CatalogDB:
         """Name, place, version and state of the logs of ``root``, in name order, from after ``after``."""
         with self._lock:
             return self._connection.execute(
-                "SELECT name, place, version, state FROM logs WHERE root = ? AND name > ? ORDER BY name LIMIT ?", (root, after, limit)
+                "SELECT name, place, version, state FROM logs WHERE root = ? AND name > ? ORDER BY name LIMIT ?",
+                (root, after, limit),
             ).fetchall()
 
     def found(self, rows: Iterable[Row]) -> None:
@@ -250,7 +274,8 @@ class CatalogDB:
         """Remove the logs of ``root`` named ``prefix`` or below ``prefix/`` (a folder that went; all for ``""``); their names."""
         with self._lock:
             names = [
-                name for (name,) in self._connection.execute(
+                name
+                for (name,) in self._connection.execute(
                     "SELECT name FROM logs WHERE root = ? AND (? = '' OR name = ? OR (name > ? AND name < ?))",
                     (root, prefix, prefix, f"{prefix}/", f"{prefix}0"),
                 )
@@ -262,7 +287,12 @@ class CatalogDB:
         """Remove the logs of roots no longer served; how many."""
         with self._lock:
             marks = ",".join("?" * len(roots))
-            names = [name for (name,) in self._connection.execute(f"SELECT name FROM logs WHERE root NOT IN ({marks})", list(roots))]
+            names = [
+                name
+                for (name,) in self._connection.execute(
+                    f"SELECT name FROM logs WHERE root NOT IN ({marks})", list(roots)
+                )
+            ]
         return self.remove(names)
 
     def pending(self, limit: int) -> list[tuple[str, str, str, str, str]]:
@@ -274,12 +304,17 @@ class CatalogDB:
 
     def mark(self, names: Iterable[str], state: str) -> None:
         """Set the state of logs (:data:`WAITING`, or :data:`FOUND` to index them again)."""
-        self._write(lambda connection, rows: connection.executemany("UPDATE logs SET state = ? WHERE name = ?", rows), [(state, name) for name in names])
+        self._write(
+            lambda connection, rows: connection.executemany("UPDATE logs SET state = ? WHERE name = ?", rows),
+            [(state, name) for name in names],
+        )
 
     def waiting(self) -> list[tuple[str, str, str]]:
         """The logs waiting for their index: name, place, version."""
         with self._lock:
-            return self._connection.execute("SELECT name, place, version FROM logs WHERE state = ?", (WAITING,)).fetchall()
+            return self._connection.execute(
+                "SELECT name, place, version FROM logs WHERE state = ?", (WAITING,)
+            ).fetchall()
 
     def place(self, name: str) -> tuple[str, str, str] | None:
         """Root, place and version of the log ``name``, if the catalog holds it."""
@@ -296,7 +331,7 @@ class CatalogDB:
         def store(connection: sqlite3.Connection, results: list[tuple[str, str, dict[str, Any]]]) -> None:
             ids: dict[tuple[str, str], int] = {}
             for start in range(0, len(results), 500):
-                chunk = [name for name, _, _ in results[start:start + 500]]
+                chunk = [name for name, _, _ in results[start : start + 500]]
                 query = f"SELECT name, version, id FROM logs WHERE name IN ({','.join('?' * len(chunk))})"
                 for name, version, log in connection.execute(query, chunk):
                     ids[name, version] = log
@@ -305,15 +340,23 @@ class CatalogDB:
             assignments = ", ".join(f"{key} = ?" for key in FACTS if key != "kind")
             connection.executemany(
                 f"UPDATE logs SET state = ?, {assignments} WHERE id = ?",
-                [(FAILED if facts.get("error") else INDEXED, *(_column(key, facts.get(key)) for key in FACTS if key != "kind"), log)
-                 for log, facts in stored],
+                [
+                    (
+                        FAILED if facts.get("error") else INDEXED,
+                        *(_column(key, facts.get(key)) for key in FACTS if key != "kind"),
+                        log,
+                    )
+                    for log, facts in stored
+                ],
             )
             connection.executemany("DELETE FROM log_streams WHERE log = ?", [(log,) for log, _ in stored])
             names = {stream for _, facts in stored for stream in facts.get("streams") or ()}
             unknown = [stream for stream in names if stream not in self._stream_ids]
-            connection.executemany("INSERT OR IGNORE INTO stream_names (name) VALUES (?)", [(stream,) for stream in unknown])
+            connection.executemany(
+                "INSERT OR IGNORE INTO stream_names (name) VALUES (?)", [(stream,) for stream in unknown]
+            )
             for start in range(0, len(unknown), 500):
-                chunk = unknown[start:start + 500]
+                chunk = unknown[start : start + 500]
                 query = f"SELECT name, id FROM stream_names WHERE name IN ({','.join('?' * len(chunk))})"
                 self._stream_ids.update(connection.execute(query, chunk).fetchall())
             connection.executemany(
@@ -329,14 +372,20 @@ class CatalogDB:
         """How many logs are indexed (or failed), and how many are found in all."""
         with self._lock:
             pending, total = self._connection.execute(
-                "SELECT (SELECT count(*) FROM logs WHERE state IN (?, ?)), (SELECT count(*) FROM logs)", (FOUND, WAITING)
+                "SELECT (SELECT count(*) FROM logs WHERE state IN (?, ?)), (SELECT count(*) FROM logs)",
+                (FOUND, WAITING),
             ).fetchone()
         return total - pending, total
 
     def names(self, offset: int, limit: int) -> list[str]:
         """Names in order, from ``offset``."""
         with self._lock:
-            return [name for (name,) in self._connection.execute("SELECT name FROM logs ORDER BY name LIMIT ? OFFSET ?", (limit, offset))]
+            return [
+                name
+                for (name,) in self._connection.execute(
+                    "SELECT name FROM logs ORDER BY name LIMIT ? OFFSET ?", (limit, offset)
+                )
+            ]
 
     def select(self, where: str, parameters: Sequence[Any], order: str, limit: int) -> list[dict[str, Any]]:
         """The logs ``WHERE where ORDER BY order LIMIT limit``, as dictionaries of their columns."""

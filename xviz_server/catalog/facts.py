@@ -34,7 +34,7 @@ from ..codec import Format
 from ..exceptions import DecodeError, LogError
 from ..frames import span
 from ..index import TimeIndex
-from ..layout import FRAME_FILE, INDEX_FILE, INDEX_NUMBER, METADATA_NUMBER, LOG, file_number, frame_numbers
+from ..layout import FRAME_FILE, INDEX_FILE, INDEX_NUMBER, LOG, METADATA_NUMBER, file_number, frame_numbers
 from ..logs import complete_metadata
 from ..messages import is_number
 from ..providers.static_log import FORMATS, index_problem, read_metadata
@@ -96,7 +96,11 @@ def facts(
         "detail": {
             "log_info": _json_safe(info),
             "streams": {
-                name: {key: value for key in ("category", "primitive_type", "scalar_type", "coordinate") if isinstance(value := (stream or {}).get(key), str)}
+                name: {
+                    key: value
+                    for key in ("category", "primitive_type", "scalar_type", "coordinate")
+                    if isinstance(value := (stream or {}).get(key), str)
+                }
                 for name, stream in streams.items()
                 if isinstance(stream, dict) or stream is None
             },
@@ -141,7 +145,9 @@ def read_local_log(name: str, directory: str, *, unindexed: bool = False) -> dic
             modified = max(modified, status.st_mtime)
     metadata_file = files.get(METADATA_NUMBER)
     if metadata_file is None:
-        raise LogError(f"log {name!r} has no metadata file (1-frame.glb, 1-frame.json or 1-frame.pbe) in {directory}", log=name)
+        raise LogError(
+            f"log {name!r} has no metadata file (1-frame.glb, 1-frame.json or 1-frame.pbe) in {directory}", log=name
+        )
     index = _stored_index(directory, files)
     if index is None and not unindexed:
         return None
@@ -151,7 +157,9 @@ def read_local_log(name: str, directory: str, *, unindexed: bool = False) -> dic
     if index is not None:
         return facts(LOG, fmt, metadata, index, size, modified)
     frames = frame_numbers(files)
-    return facts(LOG, fmt, metadata, _ends(directory, files, sizes, frames, metadata), size, modified, frames=len(frames))
+    return facts(
+        LOG, fmt, metadata, _ends(directory, files, sizes, frames, metadata), size, modified, frames=len(frames)
+    )
 
 
 def _stored_index(directory: str, files: dict[int, str]) -> TimeIndex | None:
@@ -166,10 +174,14 @@ def _stored_index(directory: str, files: dict[int, str]) -> TimeIndex | None:
     return None if index_problem(index, files) is not None else index
 
 
-def _ends(directory: str, files: dict[int, str], sizes: dict[int, int], frames: list[int], metadata: dict[str, Any]) -> TimeIndex:
+def _ends(
+    directory: str, files: dict[int, str], sizes: dict[int, int], frames: list[int], metadata: dict[str, Any]
+) -> TimeIndex:
     """An index of the first and last of ``frames`` (the time range of a log without index), of none when the metadata gives both times."""
     info = metadata.get("log_info")
-    if isinstance(info, dict) and all(is_number(value := info.get(key)) and value != 0 for key in ("start_time", "end_time")):
+    if isinstance(info, dict) and all(
+        is_number(value := info.get(key)) and value != 0 for key in ("start_time", "end_time")
+    ):
         return TimeIndex.from_spans([])  # the metadata's times are the log's (see complete_metadata)
     spans = []
     for frame in dict.fromkeys(frames[:1] + frames[-1:]):

@@ -49,7 +49,9 @@ from .db import FILE_NAME, FOUND, WAITING, CatalogDB, Row
 from .query import Query
 from .scan import LocalScan, source_kind, version_of
 
-if TYPE_CHECKING:  # reading logs (.facts, the providers) is imported once there is one to read: the listing answers without it
+if (
+    TYPE_CHECKING
+):  # reading logs (.facts, the providers) is imported once there is one to read: the listing answers without it
     from ..logs import Catalog
 
 __all__ = ["Indexer", "SETTLE", "CONCURRENCY", "SWEEP_PAGE"]
@@ -123,7 +125,12 @@ class Indexer:
         self._stores = [root for root in roots if isinstance(root, ObjectStore)]
         self._local_roots = {scan.root for scan in self._scans}
         # Where a name is in several roots, the first of these serves it.
-        self._rank = {root: rank for rank, root in enumerate([*(scan.root for scan in self._scans), DATASETS, *(store.url for store in self._stores)])}
+        self._rank = {
+            root: rank
+            for rank, root in enumerate(
+                [*(scan.root for scan in self._scans), DATASETS, *(store.url for store in self._stores)]
+            )
+        }
         self._catalog: Catalog  # given to start()
         self._workers = workers
         self._path = None if state_dir is None else Path(state_dir) / FILE_NAME
@@ -260,7 +267,9 @@ class Indexer:
         except Exception:
             logger.exception("catalog: looking for logs failed")
         indexed, found = await self._counted()
-        logger.info("catalog: %d logs found in %.1f s, %d of them indexed", found, time.perf_counter() - started, indexed)
+        logger.info(
+            "catalog: %d logs found in %.1f s, %d of them indexed", found, time.perf_counter() - started, indexed
+        )
         roots = [*(scan.root for scan in self._scans), *(store.url for store in self._stores)]
         if roots and not found:
             logger.warning(
@@ -294,7 +303,12 @@ class Indexer:
             logger.info("catalog: %d logs of data roots no longer served left the catalog", removed)
         datasets = await self._catalog.find_datasets()
         self._datasets = {found.name: found for found in datasets}
-        rows = [Row(found.name, DATASETS, str(found.path), _dataset_version(found), source_kind(found.kind, str(found.path))) for found in datasets]
+        rows = [
+            Row(
+                found.name, DATASETS, str(found.path), _dataset_version(found), source_kind(found.kind, str(found.path))
+            )
+            for found in datasets
+        ]
         await self._found(rows)
         await self._keep_only(DATASETS, {row.name for row in rows})
         for scan in self._scans:
@@ -391,7 +405,9 @@ class Indexer:
         """A log or dataset a session found in a store before its next listing: indexed now, its version told by that listing."""
         key = entry.folder.prefix if isinstance(entry, StoredLog) else entry.path.key
         store = next((store for store in self._stores if store.key_url(key).startswith(f"{store.url}/")), None)
-        if store is not None and not await self._workers.io(self._db.versions, [entry.name]):  # unknown to the listings so far
+        if store is not None and not await self._workers.io(
+            self._db.versions, [entry.name]
+        ):  # unknown to the listings so far
             self._stored[entry.name] = entry
             await self._found([Row(entry.name, store.url, store.key_url(key), NOTICED, source_kind(entry.kind, key))])
 
@@ -404,10 +420,23 @@ class Indexer:
             if gone:
                 await self._workers.io(self._db.remove, gone)
                 await self._counted()
-            kinds = {row["name"]: row["kind"] for row in await self._workers.io(
-                self._db.select, f"name IN ({','.join('?' * len(changed))})", [name for name, _, _ in changed], "name", len(changed)
-            )} if changed else {}
-            await self._found([Row(name, root, place, version, kinds[name]) for name, place, version in changed if name in kinds])
+            kinds = (
+                {
+                    row["name"]: row["kind"]
+                    for row in await self._workers.io(
+                        self._db.select,
+                        f"name IN ({','.join('?' * len(changed))})",
+                        [name for name, _, _ in changed],
+                        "name",
+                        len(changed),
+                    )
+                }
+                if changed
+                else {}
+            )
+            await self._found(
+                [Row(name, root, place, version, kinds[name]) for name, place, version in changed if name in kinds]
+            )
 
     async def _list_store(self, store: ObjectStore) -> None:
         """List a store's prefix; its logs' versions come from their objects' ETags (or times and sizes)."""
@@ -427,7 +456,11 @@ class Indexer:
                 version = _digest(f"{meta['path']}\0{_etag(meta)}" for meta in by_folder.get(key, ()))
             else:
                 key = entry.path.key
-                version = _digest(f"{meta['path']}\0{_etag(meta)}" for meta in objects if meta["path"] == key or meta["path"].startswith(f"{key}/"))
+                version = _digest(
+                    f"{meta['path']}\0{_etag(meta)}"
+                    for meta in objects
+                    if meta["path"] == key or meta["path"].startswith(f"{key}/")
+                )
             rows.append(Row(entry.name, store.url, store.key_url(key), version, source_kind(entry.kind, key)))
         for entry in entries:
             if isinstance(entry, StoredDataset):
@@ -465,7 +498,9 @@ class Indexer:
 
     async def _index_batch(self, batch: list[tuple[str, str, str, str, str]]) -> None:
         local_roots = self._local_roots
-        on_disk = [(name, place, version) for name, root, place, version, kind in batch if root in local_roots and kind == LOG]
+        on_disk = [
+            (name, place, version) for name, root, place, version, kind in batch if root in local_roots and kind == LOG
+        ]
         others = [row for row in batch if not (row[1] in local_roots and row[4] == LOG)]
         now, reading = time.time(), asyncio.Semaphore(READING)
 
@@ -476,7 +511,7 @@ class Indexer:
                 await self._workers.io(self._db.mark, waiting, WAITING)
             await self._workers.io(self._db.indexed, results)
 
-        await asyncio.gather(*(read_folders(on_disk[start:start + CHUNK]) for start in range(0, len(on_disk), CHUNK)))
+        await asyncio.gather(*(read_folders(on_disk[start : start + CHUNK]) for start in range(0, len(on_disk), CHUNK)))
         gate = asyncio.Semaphore(CONCURRENCY)
         places = {name: (root, place, kind) for name, root, place, version, kind in batch}
 
@@ -521,7 +556,9 @@ class Indexer:
         return facts(kind, opened.format, opened.metadata, opened.index, size, modified)
 
 
-def _read_local(logs: list[tuple[str, str, str]], now: float) -> tuple[list[tuple[str, str, dict[str, Any]]], list[str]]:
+def _read_local(
+    logs: list[tuple[str, str, str]], now: float
+) -> tuple[list[tuple[str, str, dict[str, Any]]], list[str]]:
     """Facts of log folders on disk, at ``now``, for a worker process: those read, and those waiting for their index."""
     from .facts import read_local_log
 
@@ -572,7 +609,20 @@ def _digest(parts: Any) -> str:
 def summary(row: dict[str, Any]) -> dict[str, Any]:
     """A log as a listing shows it: today's fields (name, format, frames, time range, streams) and the new ones."""
     shown: dict[str, Any] = {"name": row["name"], "kind": row["kind"], "indexed": row["state"] not in (FOUND, WAITING)}
-    for key in ("format", "frames", "start_time", "end_time", "duration", "streams", "bytes", "modified", "description", "vehicle", "tags", "error"):
+    for key in (
+        "format",
+        "frames",
+        "start_time",
+        "end_time",
+        "duration",
+        "streams",
+        "bytes",
+        "modified",
+        "description",
+        "vehicle",
+        "tags",
+        "error",
+    ):
         if row.get(key) is not None:
             shown[key] = row[key]
     return shown

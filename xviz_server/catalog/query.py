@@ -130,7 +130,8 @@ def parse_query(parameters: dict[str, list[str]]) -> Query:
             raise QueryError(name, f"give from 1 to {MAX_TEXT} characters")
     numbers = {
         name: seconds(name, values[name], at_least=0.0 if name == "min_duration" else None)
-        for name in _NUMBERS if name in values
+        for name in _NUMBERS
+        if name in values
     }
     if "from" in numbers and "to" in numbers and numbers["from"] > numbers["to"]:
         raise QueryError("from", f"from ({numbers['from']:g}) is after to ({numbers['to']:g})")
@@ -140,7 +141,9 @@ def parse_query(parameters: dict[str, list[str]]) -> Query:
         raise QueryError("kind", f"unknown kind {unknown[0][:50]!r}; kinds are {', '.join(known)}")
     sort = values.get("sort", "name")
     if sort.removeprefix("-") not in SORTS:
-        raise QueryError("sort", f"sort by one of {', '.join(SORTS)} (with '-' first for the reverse), not {sort[:50]!r}")
+        raise QueryError(
+            "sort", f"sort by one of {', '.join(SORTS)} (with '-' first for the reverse), not {sort[:50]!r}"
+        )
     limit = LIMIT
     if "limit" in values:
         text = values["limit"]
@@ -149,9 +152,16 @@ def parse_query(parameters: dict[str, list[str]]) -> Query:
         limit = int(text)
     after = _read_cursor(values["cursor"], sort) if "cursor" in values else None
     return Query(
-        q=values.get("q"), stream=values.get("stream"), kinds=kinds, start=numbers.get("from"), end=numbers.get("to"),
-        min_duration=numbers.get("min_duration"), sort=sort.removeprefix("-"), descending=sort.startswith("-"),
-        limit=limit, after=after,
+        q=values.get("q"),
+        stream=values.get("stream"),
+        kinds=kinds,
+        start=numbers.get("from"),
+        end=numbers.get("to"),
+        min_duration=numbers.get("min_duration"),
+        sort=sort.removeprefix("-"),
+        descending=sort.startswith("-"),
+        limit=limit,
+        after=after,
     )
 
 
@@ -161,14 +171,22 @@ def _read_cursor(text: str, sort: str) -> tuple[Any, str]:
     except (binascii.Error, ValueError):
         decoded = None
     if not (
-        isinstance(decoded, list) and len(decoded) == 3 and isinstance(decoded[2], str)
+        isinstance(decoded, list)
+        and len(decoded) == 3
+        and isinstance(decoded[2], str)
         and (decoded[1] is None or (isinstance(decoded[1], (int, float)) and not isinstance(decoded[1], bool)))
     ):
         raise QueryError("cursor", "not a cursor this server gave: pass the 'next' of the page before, as it was")
     if decoded[0] == "name" and decoded[1] is not None:
         raise QueryError("cursor", "not a cursor this server gave: pass the 'next' of the page before, as it was")
     if isinstance(decoded[1], int) and not _INT64[0] <= decoded[1] <= _INT64[1]:  # SQLite's integers are 64-bit
-        raise QueryError("cursor", f"its sort key {str(decoded[1])[:50]} is out of SQLite's 64-bit range: not a cursor this server gave")
+        raise QueryError(
+            "cursor",
+            f"its sort key {str(decoded[1])[:50]} is out of SQLite's 64-bit range: not a cursor this server gave",
+        )
     if decoded[0] != sort:
-        raise QueryError("cursor", f"this cursor pages a listing sorted by {str(decoded[0])[:50]!r}, not {sort[:50]!r}: give the same sort")
+        raise QueryError(
+            "cursor",
+            f"this cursor pages a listing sorted by {str(decoded[0])[:50]!r}, not {sort[:50]!r}: give the same sort",
+        )
     return decoded[1], decoded[2]

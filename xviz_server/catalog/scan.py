@@ -54,7 +54,9 @@ def source_kind(kind: str, place: str) -> str:
 def listed_kinds() -> tuple[str, ...]:
     """Every kind the catalog lists logs as: static logs, then each dataset kind registered in
     :data:`xviz_server.datasets.KINDS` (ROS recordings as ``bag`` and ``mcap``)."""
-    return tuple(name for kind in (LOG, *KINDS) for name in ([n for _, n in _BY_SUFFIX[kind]] if kind in _BY_SUFFIX else [kind]))
+    return tuple(
+        name for kind in (LOG, *KINDS) for name in ([n for _, n in _BY_SUFFIX[kind]] if kind in _BY_SUFFIX else [kind])
+    )
 
 
 def version_of(path: str) -> str | None:
@@ -81,7 +83,10 @@ class LocalScan:
     """The logs and datasets under ``root``; ``detect`` names a dataset's kind (see :func:`~xviz_server.datasets.detect`)."""
 
     def __init__(
-        self, root: Path, detect: Callable[[Path], str | None], scenes: Callable[[str, Path], list[str]] | None = None,
+        self,
+        root: Path,
+        detect: Callable[[Path], str | None],
+        scenes: Callable[[str, Path], list[str]] | None = None,
     ) -> None:
         self.root = str(root)
         self._name = Path(root).name
@@ -126,7 +131,11 @@ class LocalScan:
             before = {self._join(relative, child) for child in folder.children}
             rows.extend(self._look(relative, known=before))
             now = self._folders.get(relative)
-            after = {self._join(relative, child) for child in now.children} if now is not None and now is not folder else set()
+            after = (
+                {self._join(relative, child) for child in now.children}
+                if now is not None and now is not folder
+                else set()
+            )
             for child in sorted(before - after):
                 self._forget(child)
                 gone.append(child)
@@ -147,7 +156,9 @@ class LocalScan:
             return
         self._looked[path] = version
         problem = file_problem(Path(path))
-        self._warn_once(path, problem and (f"{problem}; listed all the same" if listed else f"left out of the catalog: {problem}"))
+        self._warn_once(
+            path, problem and (f"{problem}; listed all the same" if listed else f"left out of the catalog: {problem}")
+        )
 
     def _warn_once(self, path: str, problem: str | None) -> None:
         """Log ``path: problem`` at WARNING unless it was the last problem logged for ``path``."""
@@ -175,7 +186,9 @@ class LocalScan:
                     continue
                 own = os.stat(path)
                 with os.scandir(path) as listing:
-                    entries = sorted((entry for entry in listing if not entry.name.startswith(".")), key=lambda e: e.name)
+                    entries = sorted(
+                        (entry for entry in listing if not entry.name.startswith(".")), key=lambda e: e.name
+                    )
             except OSError:
                 continue
             name = current or self._name
@@ -197,8 +210,10 @@ class LocalScan:
                     version = version_of(path)
                     if version is not None:
                         several = self._scenes(kind, Path(path)) if self._scenes is not None else []
-                        yield from [Row(self._join(name, scene), self.root, place_of(path, (("scene", scene),)), version, kind)
-                                    for scene in several] or [Row(name, self.root, path, version, source_kind(kind, path))]
+                        yield from [
+                            Row(self._join(name, scene), self.root, place_of(path, (("scene", scene),)), version, kind)
+                            for scene in several
+                        ] or [Row(name, self.root, path, version, source_kind(kind, path))]
                     continue
             folder = _Folder(own.st_mtime_ns)
             self._folders[current] = folder

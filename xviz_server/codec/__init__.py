@@ -9,7 +9,8 @@ arrays may be numpy arrays and whose images may be ``bytes`` or
 from __future__ import annotations
 
 import enum
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from ..exceptions import DecodeError
 from .glb import cut_glb, decode_glb, edit_glb, encode_glb, is_glb
@@ -57,7 +58,9 @@ def detect_format(data: bytes | bytearray | memoryview | str) -> Format:
     if is_glb(head):
         return Format.BINARY
     if is_pbe(head):
-        raise DecodeError("a protobuf (PBE1) XVIZ message has no wire format: decode it and encode it as GLB or JSON", offset=0)
+        raise DecodeError(
+            "a protobuf (PBE1) XVIZ message has no wire format: decode it and encode it as GLB or JSON", offset=0
+        )
     return Format.JSON
 
 

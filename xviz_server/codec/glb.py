@@ -243,8 +243,7 @@ def _as_vertices(array: np.ndarray, key: str) -> np.ndarray:
         array = array.reshape(-1, 3)
     if array.ndim != 2 or array.shape[1] not in (2, 3):
         raise EncodeError(
-            f"{key!r} must be an (N, 3) array of positions or a flat array of "
-            f"x, y, z triples, not shape {array.shape}"
+            f"{key!r} must be an (N, 3) array of positions or a flat array of x, y, z triples, not shape {array.shape}"
         )
     if array.shape[1] == 2:
         array = np.concatenate([array, np.zeros((len(array), 1))], axis=1)
@@ -256,10 +255,7 @@ def _as_colors(array: np.ndarray) -> np.ndarray:
     if array.ndim == 1 and array.size % 3 == 0:
         array = array.reshape(-1, 3)
     if array.ndim != 2 or array.shape[1] not in (3, 4):
-        raise EncodeError(
-            f"'colors' must be an (N, 3) or (N, 4) array of 0-255 values, "
-            f"not shape {array.shape}"
-        )
+        raise EncodeError(f"'colors' must be an (N, 3) or (N, 4) array of 0-255 values, not shape {array.shape}")
     if array.dtype != _UINT8:
         if array.size and (array.min() < 0 or array.max() > 255):
             raise EncodeError("'colors' values must lie in 0-255")
@@ -416,9 +412,7 @@ def _read_document(
     return document, envelope, binary
 
 
-def _read_chunks(
-    buffer: memoryview, total: int
-) -> tuple[tuple[int, memoryview] | None, tuple[int, memoryview] | None]:
+def _read_chunks(buffer: memoryview, total: int) -> tuple[tuple[int, memoryview] | None, tuple[int, memoryview] | None]:
     json_chunk = binary = None
     offset = _HEADER.size
     while offset + _CHUNK.size <= total:
@@ -426,8 +420,7 @@ def _read_chunks(
         start = offset + _CHUNK.size
         if start + length > total:
             raise DecodeError(
-                f"GLB chunk at offset {offset} declares {length} bytes, "
-                f"only {total - start} remain",
+                f"GLB chunk at offset {offset} declares {length} bytes, only {total - start} remain",
                 offset=offset,
             )
         chunk = buffer[start : start + length]
@@ -455,9 +448,7 @@ def _int_field(item: Any, field: str, where: str, default: int | None = None) ->
     return value
 
 
-def _read_views(
-    document: dict[str, Any], binary: tuple[int, memoryview] | None
-) -> list[memoryview]:
+def _read_views(document: dict[str, Any], binary: tuple[int, memoryview] | None) -> list[memoryview]:
     bin_offset, bin_bytes = binary if binary is not None else (0, memoryview(b""))
     views = []
     for i, view in enumerate(_list_field(document, "bufferViews")):
@@ -466,8 +457,7 @@ def _read_views(
         length = _int_field(view, "byteLength", where)
         if start + length > len(bin_bytes):
             raise DecodeError(
-                f"GLB {where} spans bytes {start}-{start + length} of a "
-                f"{len(bin_bytes)}-byte BIN chunk",
+                f"GLB {where} spans bytes {start}-{start + length} of a {len(bin_bytes)}-byte BIN chunk",
                 offset=bin_offset + start,
             )
         views.append(bin_bytes[start : start + length])

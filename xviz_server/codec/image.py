@@ -120,9 +120,9 @@ def _unfiltered_png(view: memoryview, size: tuple[int, int]) -> Picture | None:
     offset = 8
     while offset + 12 <= len(view):
         (length,) = struct.unpack_from(">I", view, offset)
-        kind = bytes(view[offset + 4:offset + 8])
+        kind = bytes(view[offset + 4 : offset + 8])
         if kind == b"IDAT":
-            chunks.append(view[offset + 8:offset + 8 + length])
+            chunks.append(view[offset + 8 : offset + 8 + length])
         elif chunks:
             break
         offset += 12 + length
@@ -134,7 +134,7 @@ def _unfiltered_png(view: memoryview, size: tuple[int, int]) -> Picture | None:
         rest = inflate.decompress(inflate.unconsumed_tail, row * height - 1)
     except zlib_ng.error:  # type: ignore[misc]  # its stub declares error an instance
         return None
-    if len(rest) != row * height - 1 or np.frombuffer(rest, dtype=np.uint8)[row - 1::row].any():  # a filtered row
+    if len(rest) != row * height - 1 or np.frombuffer(rest, dtype=np.uint8)[row - 1 :: row].any():  # a filtered row
         return None
     # Rows of ``row`` bytes from the first pixel on: a filter byte follows each, the last one made up.
     return Image.frombuffer(mode, size, rest + b"\x00", "raw", mode, row, 1)

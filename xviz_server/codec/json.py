@@ -80,7 +80,6 @@ def decode_json(data: bytes | bytearray | memoryview | str) -> Any:
         if not isinstance(data, str) and not _JSON_START.match(data):
             raise DecodeError(f"not a GLB or JSON frame: it starts with {bytes(data[:8])!r}", offset=0) from None
         raise DecodeError(
-            f"invalid JSON at line {exc.lineno} column {exc.colno} "
-            f"(offset {exc.pos}): {exc.msg}",
+            f"invalid JSON at line {exc.lineno} column {exc.colno} (offset {exc.pos}): {exc.msg}",
             offset=exc.pos,
         ) from None

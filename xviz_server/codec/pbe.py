@@ -46,7 +46,8 @@ from __future__ import annotations
 
 import codecs
 import functools
-from typing import Any, Callable, Iterator, cast
+from collections.abc import Callable, Iterator
+from typing import Any, cast
 
 import numpy as np
 from google.protobuf import any_pb2, json_format, struct_pb2  # noqa: F401  (xviz_v2.proto imports any and struct)
@@ -210,7 +211,7 @@ def _field(field: FieldDescriptor, value: Any, owner: str) -> Any:
     return list(value) if repeated else value
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _enum_names(enum: EnumDescriptor) -> dict[int, str]:
     return {value.number: value.name for value in enum.values}
 

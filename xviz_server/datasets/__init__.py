@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import importlib
 import inspect
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ..exceptions import DatasetError
 from ..records import OriginalTopic
@@ -23,9 +24,28 @@ if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, 
     from ..codec import Format
 
 __all__ = [
-    "Dataset", "KINDS", "FILE_KINDS", "SCENE_KINDS", "SCENE", "scenes", "STORE_KINDS", "STORE_FOLDER_KINDS", "STORE_REFUSED", "GENERATED", "DEFAULT_IMAGE_WIDTH",
-    "open_dataset", "require", "detect", "detect_in_store", "file_problem", "dataset_problem",
-    "dataset_options", "describe_dataset", "original_messages", "convert_frame", "OPEN_DATASETS",
+    "Dataset",
+    "KINDS",
+    "FILE_KINDS",
+    "SCENE_KINDS",
+    "SCENE",
+    "scenes",
+    "STORE_KINDS",
+    "STORE_FOLDER_KINDS",
+    "STORE_REFUSED",
+    "GENERATED",
+    "DEFAULT_IMAGE_WIDTH",
+    "open_dataset",
+    "require",
+    "detect",
+    "detect_in_store",
+    "file_problem",
+    "dataset_problem",
+    "dataset_options",
+    "describe_dataset",
+    "original_messages",
+    "convert_frame",
+    "OPEN_DATASETS",
 ]
 
 
@@ -126,8 +146,9 @@ def require(module: str, what: str, extra: str) -> Any:
     try:
         return importlib.import_module(module)
     except ImportError:
-        raise DatasetError(f"reading {what} needs the package {module.partition('.')[0]!r}: "
-                           f"pip install 'xviz-server[{extra}]'") from None
+        raise DatasetError(
+            f"reading {what} needs the package {module.partition('.')[0]!r}: pip install 'xviz-server[{extra}]'"
+        ) from None
 
 
 def dataset_options(kind: str) -> frozenset[str]:
@@ -200,8 +221,10 @@ def file_problem(path: Path) -> str | None:
         from .ros.bag import MCAP_MAGIC
 
         if not tail.endswith(MCAP_MAGIC):
-            return "a truncated MCAP file: it does not end with the MCAP magic (cut short, or still being written), " \
+            return (
+                "a truncated MCAP file: it does not end with the MCAP magic (cut short, or still being written), "
                 "and opens only once complete"
+            )
     return None
 
 
@@ -248,7 +271,9 @@ def _dataset(kind: str, path: str | StorePath | StoreTree, options: dict[str, An
 
 
 def describe_dataset(
-    kind: str, path: str | StorePath | StoreTree, options: dict[str, Any],
+    kind: str,
+    path: str | StorePath | StoreTree,
+    options: dict[str, Any],
 ) -> tuple[dict[str, Any], np.ndarray, tuple[OriginalTopic, ...]]:
     """A dataset's metadata, frame times and original topics (see :func:`original_messages`); for worker
     processes, so that opening it happens there."""
@@ -265,7 +290,11 @@ def original_messages(kind: str, path: str | StorePath | StoreTree, options: dic
 
 
 def convert_frame(
-    kind: str, path: str | StorePath | StoreTree, options: dict[str, Any], frame: int, metadata: dict[str, Any],
+    kind: str,
+    path: str | StorePath | StoreTree,
+    options: dict[str, Any],
+    frame: int,
+    metadata: dict[str, Any],
     fmt: Format | None = None,
 ) -> bytes:
     """Frame ``frame`` of a dataset as a message encoded in ``fmt`` (GLB by default); for worker processes.

@@ -40,10 +40,20 @@ import numpy as np
 
 from ..exceptions import DatasetError
 from ..storepath import StoreTree
+from ..unpack import check_frame
 from . import DEFAULT_IMAGE_WIDTH, require
 from .images import scale_jpegs
-from ..unpack import check_frame
-from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, file_size, frame_clock, quaternion_matrix, to_vehicle, yaw_of
+from .sensors import (
+    SensorFrame,
+    SensorLog,
+    captures_by_frame,
+    check_points,
+    file_size,
+    frame_clock,
+    quaternion_matrix,
+    to_vehicle,
+    yaw_of,
+)
 from .waymo.log import ScaledImages
 
 __all__ = ["Argoverse2Log", "is_argoverse2_log", "MAX_FILE_BYTES", "CAMERAS"]
@@ -51,8 +61,17 @@ __all__ = ["Argoverse2Log", "is_argoverse2_log", "MAX_FILE_BYTES", "CAMERAS"]
 #: The largest file read (a sweep is about 1 MB, a ring camera's image about 1.5 MB).
 MAX_FILE_BYTES = 64 << 20
 #: The cameras, in the order their panel shows them; the first is the frame clock's.
-CAMERAS = ("ring_front_center", "ring_front_left", "ring_front_right", "ring_side_left", "ring_side_right",
-           "ring_rear_left", "ring_rear_right", "stereo_front_left", "stereo_front_right")
+CAMERAS = (
+    "ring_front_center",
+    "ring_front_left",
+    "ring_front_right",
+    "ring_side_left",
+    "ring_side_right",
+    "ring_rear_left",
+    "ring_rear_right",
+    "stereo_front_left",
+    "stereo_front_right",
+)
 _POSE = ("qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
 _BOX = ("tx_m", "ty_m", "tz_m", "length_m", "width_m", "height_m")
 
@@ -68,8 +87,11 @@ def _stamps(folder: Where, suffix: str) -> list[tuple[int, Where]]:
     """The files ``{timestamp_ns}{suffix}`` of a folder, in time order."""
     if not folder.is_dir():
         return []
-    found = [(int(file.name[: -len(suffix)]), file) for file in folder.glob(f"*{suffix}")
-             if file.name.endswith(suffix) and file.name[: -len(suffix)].isdigit()]
+    found = [
+        (int(file.name[: -len(suffix)]), file)
+        for file in folder.glob(f"*{suffix}")
+        if file.name.endswith(suffix) and file.name[: -len(suffix)].isdigit()
+    ]
     return sorted(found, key=lambda item: item[0])
 
 
@@ -84,13 +106,18 @@ class Argoverse2Log(SensorLog):
         self.image_max_width = image_max_width
         self.source = f"Argoverse 2 log {self.name}"
         if not is_argoverse2_log(self.path):
-            raise DatasetError(f"{self.path}: not an Argoverse 2 log (no city_SE3_egovehicle.feather beside sensors/lidar)",
-                               path=self.path)
+            raise DatasetError(
+                f"{self.path}: not an Argoverse 2 log (no city_SE3_egovehicle.feather beside sensors/lidar)",
+                path=self.path,
+            )
         self._sweeps = _stamps(self.path / "sensors" / "lidar", ".feather")
         if not self._sweeps:
             raise DatasetError(f"{self.path}: no lidar sweep in sensors/lidar", path=self.path)
-        self._images = {camera: images for camera in CAMERAS
-                        if (images := _stamps(self.path / "sensors" / "cameras" / camera, ".jpg"))}
+        self._images = {
+            camera: images
+            for camera in CAMERAS
+            if (images := _stamps(self.path / "sensors" / "cameras" / camera, ".jpg"))
+        }
         self.cameras = list(self._images)
 
     def _table(self, file: Where, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -139,7 +166,8 @@ class Argoverse2Log(SensorLog):
         table = self._table(file, ("timestamp_ns", *_POSE))
         order = np.argsort(table["timestamp_ns"], kind="stable")
         return table["timestamp_ns"][order].astype(np.int64), np.stack(
-            [self._transform(row, file) for row in np.column_stack([table[c] for c in _POSE])[order]])
+            [self._transform(row, file) for row in np.column_stack([table[c] for c in _POSE])[order]]
+        )
 
     def _transform(self, row: np.ndarray, file: Where) -> np.ndarray:
         matrix = np.eye(4)
@@ -165,15 +193,28 @@ class Argoverse2Log(SensorLog):
         images = {camera: self._bytes(file) for camera, file in captures.items() if camera != "lidar"}
         scaling = scale_jpegs(images, self.image_max_width)  # beside the lidar work
         pose = self._pose_at(stamp)
-        points, intensity = (self._sweep(captures["lidar"]) if "lidar" in captures
-                             else (np.zeros((0, 3), np.float32), np.zeros(0, np.float32)))
+        points, intensity = (
+            self._sweep(captures["lidar"])
+            if "lidar" in captures
+            else (np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
+        )
         boxes, categories, ids = self._boxes(stamp, pose)
-        return SensorFrame(stamp / 1e9, pose, points, intensity, ScaledImages(scaling, f"{self.path}: frame {stamp}", self.path),
-                           boxes, categories, ids)
+        return SensorFrame(
+            stamp / 1e9,
+            pose,
+            points,
+            intensity,
+            ScaledImages(scaling, f"{self.path}: frame {stamp}", self.path),
+            boxes,
+            categories,
+            ids,
+        )
 
     def _sweep(self, file: Where) -> tuple[np.ndarray, np.ndarray]:
         table = self._table(file, ("x", "y", "z", "intensity"))
-        points = check_points(np.column_stack([table["x"], table["y"], table["z"]]).astype(np.float32), str(file), self.path)
+        points = check_points(
+            np.column_stack([table["x"], table["y"], table["z"]]).astype(np.float32), str(file), self.path
+        )
         return points, table["intensity"].astype(np.float32) / np.float32(255)
 
     @cached_property
@@ -193,8 +234,11 @@ class Argoverse2Log(SensorLog):
                 except ValueError as exc:
                     raise DatasetError(f"{file}: row {row}: {exc}", path=file) from None
             boxes = np.column_stack([np.asarray(table[c][rows], dtype=np.float64) for c in _BOX] + [np.array(yaws)])
-            by_time[int(stamp)] = (boxes, [str(c) for c in table["category"][rows]],
-                                   [str(t)[:8] for t in table["track_uuid"][rows]])
+            by_time[int(stamp)] = (
+                boxes,
+                [str(c) for c in table["category"][rows]],
+                [str(t)[:8] for t in table["track_uuid"][rows]],
+            )
         return sorted(by_time), by_time
 
     def _boxes(self, stamp: int, pose: np.ndarray) -> tuple[np.ndarray, list[str], list[str]]:

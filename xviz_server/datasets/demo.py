@@ -120,9 +120,16 @@ class DemoDrive:
             "POLYGON",
             coordinate="IDENTITY",
             style={"extruded": True, "fill_color": "#FFFFFF40", "stroke_width": 0.1},
-            style_classes={name: {"fill_color": f"{color}80", "stroke_color": color} for name, color in CLASS_COLORS.items()},
+            style_classes={
+                name: {"fill_color": f"{color}80", "stroke_color": color} for name, color in CLASS_COLORS.items()
+            },
         )
-        meta.primitive(OBJECT_LABELS, "TEXT", coordinate="IDENTITY", style={"text_size": 14, "fill_color": "#DCDCCD", "text_anchor": "MIDDLE"})
+        meta.primitive(
+            OBJECT_LABELS,
+            "TEXT",
+            coordinate="IDENTITY",
+            style={"text_size": 14, "fill_color": "#DCDCCD", "text_anchor": "MIDDLE"},
+        )
         meta.primitive(OBJECT_CENTERS, "CIRCLE", coordinate="IDENTITY", style={"radius": 0.2, "fill_color": "#FFC043"})
         meta.ui_primitive(OBJECT_TABLE)
         meta.primitive(
@@ -138,14 +145,22 @@ class DemoDrive:
             ui.panel(
                 "Metrics",
                 ui.metric([VELOCITY], title="Velocity", description="The vehicle's speed"),
-                ui.metric([ACCELERATION], title="Acceleration", description="The acceleration of the vehicle along its heading"),
+                ui.metric(
+                    [ACCELERATION],
+                    title="Acceleration",
+                    description="The acceleration of the vehicle along its heading",
+                ),
             ),
             needed_streams=[VELOCITY, ACCELERATION],
         )
         meta.ui_panel(
             ui.panel(
                 "Road users",
-                ui.table(OBJECT_TABLE, title="Road users", description=f"Every road user within {PERCEPTION_RANGE:.0f} m, nearest first"),
+                ui.table(
+                    OBJECT_TABLE,
+                    title="Road users",
+                    description=f"Every road user within {PERCEPTION_RANGE:.0f} m, nearest first",
+                ),
             ),
             needed_streams=[OBJECT_TABLE],
         )
@@ -337,9 +352,38 @@ LIDAR_HEIGHT = 1.9  # metres above the ground
 # The elevations of the beams of a Velodyne VLP-32C, in degrees: densest
 # near the horizon, where road users are.
 ELEVATIONS = [
-    -25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667, -4.0, -3.667, -3.333,
-    -3.0, -2.667, -2.333, -2.0, -1.667, -1.333, -1.0, -0.667, -0.333, 0.0, 0.333,
-    0.667, 1.0, 1.333, 1.667, 2.333, 3.333, 4.667, 7.0, 10.333, 15.0,
+    -25.0,
+    -15.639,
+    -11.31,
+    -8.843,
+    -7.254,
+    -6.148,
+    -5.333,
+    -4.667,
+    -4.0,
+    -3.667,
+    -3.333,
+    -3.0,
+    -2.667,
+    -2.333,
+    -2.0,
+    -1.667,
+    -1.333,
+    -1.0,
+    -0.667,
+    -0.333,
+    0.0,
+    0.333,
+    0.667,
+    1.0,
+    1.333,
+    1.667,
+    2.333,
+    3.333,
+    4.667,
+    7.0,
+    10.333,
+    15.0,
 ]
 SLOPES = np.tan(np.radians(ELEVATIONS))[:, None].astype(np.float32)  # (beams, 1)
 AZIMUTHS = np.linspace(0.0, 2 * math.pi, 900, endpoint=False)
@@ -517,7 +561,10 @@ def _road_users(frame: FrameBuilder, users: list[_RoadUser], boxes: _Boxes, dist
         frame.text(OBJECT_LABELS, (x, y, height + 0.5), user.object_id, id=user.object_id)
         frame.circle(OBJECT_CENTERS, (x, y, 0.0), 0.2, id=user.object_id)
     columns: list[tuple[str, str] | tuple[str, str, str]] = [
-        ("Object", "STRING"), ("Class", "STRING"), ("Distance", "DOUBLE", "m"), ("Speed", "DOUBLE", "m/s")
+        ("Object", "STRING"),
+        ("Class", "STRING"),
+        ("Distance", "DOUBLE", "m"),
+        ("Speed", "DOUBLE", "m/s"),
     ]
     nodes = [
         (i, None, [user.object_id, user.category, round(float(distance), 1), round(user.speed, 1)])

@@ -35,7 +35,9 @@ def jpeg(image: np.ndarray, max_width: int, quality: int = 85) -> bytes:
 
     picture = Image.fromarray(image)
     if picture.width > max_width:
-        picture = picture.resize((max_width, _height(picture.width, picture.height, max_width)), Image.Resampling.BILINEAR)
+        picture = picture.resize(
+            (max_width, _height(picture.width, picture.height, max_width)), Image.Resampling.BILINEAR
+        )
     return _encode(picture, quality)
 
 

@@ -312,8 +312,10 @@ def read_tracklets(path: Path | StoreTree) -> list[Tracklet]:
                 length=_number(item, "l", path, where),
                 first_frame=int(_number(item, "first_frame", path, where)),
                 poses=np.array(
-                    [[_number(pose, key, path, f"{where}, pose {j}") for key in ("tx", "ty", "tz", "rz")]
-                     for j, pose in enumerate(pose_items)],
+                    [
+                        [_number(pose, key, path, f"{where}, pose {j}") for key in ("tx", "ty", "tz", "rz")]
+                        for j, pose in enumerate(pose_items)
+                    ],
                     dtype=np.float64,
                 ).reshape(-1, 4),
             )
@@ -380,7 +382,9 @@ class KittiDrive:
         path = self.path / "velodyne_points" / "data" / f"{frame:010d}.bin"
         data = _read_bytes(path)
         if len(data) % 16:
-            raise DatasetError(f"{path}: {len(data)} bytes is not a whole number of (x, y, z, r) float32 points", path=path)
+            raise DatasetError(
+                f"{path}: {len(data)} bytes is not a whole number of (x, y, z, r) float32 points", path=path
+            )
         return np.frombuffer(data, dtype="<f4").reshape(-1, 4)
 
     @cached_property
@@ -462,27 +466,56 @@ class KittiDrive:
         meta.time_series("/vehicle/acceleration", "FLOAT", units="m/s^2")
         meta.time_series("/vehicle/velocity", "FLOAT", units="m/s")
         meta.time_series("/vehicle/wheel_angle", "FLOAT", units="deg/s")
-        meta.primitive("/vehicle/trajectory", "POLYLINE", coordinate="VEHICLE_RELATIVE",
-                       style={"stroke_color": "#47B27588", "stroke_width": 1.4, "stroke_width_min_pixels": 1})
+        meta.primitive(
+            "/vehicle/trajectory",
+            "POLYLINE",
+            coordinate="VEHICLE_RELATIVE",
+            style={"stroke_color": "#47B27588", "stroke_width": 1.4, "stroke_width_min_pixels": 1},
+        )
         transform = self.lidar_transform
-        meta.primitive("/lidar/points", "POINT", coordinate="VEHICLE_RELATIVE", transform=transform,
-                       style={"fill_color": "#00a", "radius_pixels": 1})
+        meta.primitive(
+            "/lidar/points",
+            "POINT",
+            coordinate="VEHICLE_RELATIVE",
+            transform=transform,
+            style={"fill_color": "#00a", "radius_pixels": 1},
+        )
         if self.tracklets:
-            classes = {name: {"fill_color": color + "80", "stroke_color": color} for name, color in CLASS_COLORS.items()}
-            meta.primitive("/tracklets/objects", "POLYGON", coordinate="VEHICLE_RELATIVE", transform=transform,
-                           style={"extruded": True, "fill_color": "#00000080"}, style_classes=classes)
-            meta.primitive("/tracklets/tracking_point", "CIRCLE", coordinate="VEHICLE_RELATIVE", transform=transform,
-                           style={"radius": 0.2, "stroke_width": 0, "fill_color": "#FFC043"})
-            meta.primitive("/tracklets/label", "TEXT", coordinate="VEHICLE_RELATIVE", transform=transform,
-                           style={"text_size": 18, "fill_color": "#DCDCCD"})
+            classes = {
+                name: {"fill_color": color + "80", "stroke_color": color} for name, color in CLASS_COLORS.items()
+            }
+            meta.primitive(
+                "/tracklets/objects",
+                "POLYGON",
+                coordinate="VEHICLE_RELATIVE",
+                transform=transform,
+                style={"extruded": True, "fill_color": "#00000080"},
+                style_classes=classes,
+            )
+            meta.primitive(
+                "/tracklets/tracking_point",
+                "CIRCLE",
+                coordinate="VEHICLE_RELATIVE",
+                transform=transform,
+                style={"radius": 0.2, "stroke_width": 0, "fill_color": "#FFC043"},
+            )
+            meta.primitive(
+                "/tracklets/label",
+                "TEXT",
+                coordinate="VEHICLE_RELATIVE",
+                transform=transform,
+                style={"text_size": 18, "fill_color": "#DCDCCD"},
+            )
         for camera in self.cameras:
             meta.primitive(f"/camera/{camera}", "IMAGE")
-        meta.ui_panel(ui.panel(
-            "Metrics",
-            ui.metric(["/vehicle/velocity"], title="Velocity"),
-            ui.metric(["/vehicle/acceleration"], title="Acceleration"),
-            ui.metric(["/vehicle/wheel_angle"], title="Wheel"),
-        ))
+        meta.ui_panel(
+            ui.panel(
+                "Metrics",
+                ui.metric(["/vehicle/velocity"], title="Velocity"),
+                ui.metric(["/vehicle/acceleration"], title="Acceleration"),
+                ui.metric(["/vehicle/wheel_angle"], title="Wheel"),
+            )
+        )
         if self.cameras:
             meta.ui_panel(ui.panel("Camera", ui.video([f"/camera/{c}" for c in self.cameras])))
         return meta.build()
@@ -493,7 +526,9 @@ class KittiDrive:
         builder = FrameBuilder(metadata)
         t = float(self.times[frame])
         oxts = self._oxts_cached(frame)
-        builder.pose("/vehicle_pose", t, map_origin=(oxts.lon, oxts.lat, oxts.alt), orientation=(oxts.roll, oxts.pitch, oxts.yaw))
+        builder.pose(
+            "/vehicle_pose", t, map_origin=(oxts.lon, oxts.lat, oxts.alt), orientation=(oxts.roll, oxts.pitch, oxts.yaw)
+        )
         sweep = self.velodyne(frame)
         builder.points("/lidar/points", np.ascontiguousarray(sweep[:, :3]), reflectance_colors(sweep[:, 3]))
         trajectory = self._trajectory(frame, oxts)
@@ -539,5 +574,6 @@ class KittiDrive:
             style = {"stroke_color": CLASS_COLORS[object_class], "height": height}
             builder.polygon("/tracklets/objects", polygon, id=object_id, classes=[object_class], style=style)
             builder.circle("/tracklets/tracking_point", position, 0.2, id=object_id)
-            builder.text("/tracklets/label", (position[0], position[1], position[2] + height + 0.5), object_id, id=object_id)
-
+            builder.text(
+                "/tracklets/label", (position[0], position[1], position[2] + height + 0.5), object_id, id=object_id
+            )

@@ -48,10 +48,21 @@ import numpy as np
 import orjson
 
 from ..exceptions import DatasetError
+from ..unpack import check_frame
 from . import DEFAULT_IMAGE_WIDTH
 from .images import scale_jpegs
-from ..unpack import check_frame
-from .sensors import SensorFrame, SensorLog, check_points, file_size, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
+from .sensors import (
+    SensorFrame,
+    SensorLog,
+    check_points,
+    file_size,
+    frame_clock,
+    frame_of,
+    moved,
+    quaternion_matrix,
+    to_vehicle,
+    yaw_of,
+)
 from .waymo.log import ScaledImages
 
 __all__ = ["NuScenesScene", "is_nuscenes", "scenes", "MAX_TABLE_BYTES", "MAX_SWEEP_BYTES", "LIDAR"]
@@ -64,7 +75,17 @@ MAX_SWEEP_BYTES = 64 << 20
 LIDAR = "LIDAR_TOP"
 #: The cameras, in the order their panel shows them.
 CAMERAS = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_LEFT", "CAM_BACK", "CAM_BACK_RIGHT")
-_TABLES = ("scene", "sample", "sample_data", "ego_pose", "calibrated_sensor", "sensor", "sample_annotation", "instance", "category")
+_TABLES = (
+    "scene",
+    "sample",
+    "sample_data",
+    "ego_pose",
+    "calibrated_sensor",
+    "sensor",
+    "sample_annotation",
+    "instance",
+    "category",
+)
 
 
 def _versions(root: Path) -> list[Path]:
@@ -73,8 +94,11 @@ def _versions(root: Path) -> list[Path]:
         entries = sorted(os.scandir(root), key=lambda entry: entry.name)
     except OSError:
         return []
-    return [Path(entry.path) for entry in entries
-            if entry.name.startswith("v") and entry.is_dir() and os.path.isfile(os.path.join(entry.path, "scene.json"))]
+    return [
+        Path(entry.path)
+        for entry in entries
+        if entry.name.startswith("v") and entry.is_dir() and os.path.isfile(os.path.join(entry.path, "scene.json"))
+    ]
 
 
 def is_nuscenes(path: Path) -> bool:
@@ -105,7 +129,9 @@ def _tables(folder: Path, stamp: tuple[int, ...]) -> dict[str, dict[str, dict[st
 
 
 def _stamp(folder: Path) -> tuple[int, ...]:
-    return tuple((folder / f"{name}.json").stat().st_mtime_ns if (folder / f"{name}.json").exists() else 0 for name in _TABLES)
+    return tuple(
+        (folder / f"{name}.json").stat().st_mtime_ns if (folder / f"{name}.json").exists() else 0 for name in _TABLES
+    )
 
 
 def scenes(path: Path) -> list[str]:
@@ -117,7 +143,9 @@ def _field(row: dict[str, Any], field: str, table: str, folder: Path) -> Any:
     try:
         return row[field]
     except KeyError:
-        raise DatasetError(f"{folder / table}.json: record {row.get('token')!r} has no {field!r}", path=folder) from None
+        raise DatasetError(
+            f"{folder / table}.json: record {row.get('token')!r} has no {field!r}", path=folder
+        ) from None
 
 
 class NuScenesScene(SensorLog):
@@ -129,12 +157,18 @@ class NuScenesScene(SensorLog):
         versions = _versions(self.root)
         if not versions:
             raise DatasetError(f"{self.root}: not a nuScenes root (no version folder with scene.json)", path=self.root)
-        found = [(folder, row) for folder in versions for row in _table(folder, "scene")
-                 if scene is None or row.get("name") == scene]
+        found = [
+            (folder, row)
+            for folder in versions
+            for row in _table(folder, "scene")
+            if scene is None or row.get("name") == scene
+        ]
         if len(found) != 1:
             names = [str(row.get("name")) for folder in versions for row in _table(folder, "scene")]
             why = f"no scene {scene!r}" if scene is not None else f"{len(names)} scenes"
-            raise DatasetError(f"{self.root}: {why}; name one with ?scene=NAME: {', '.join(names[:20])}", path=self.root)
+            raise DatasetError(
+                f"{self.root}: {why}; name one with ?scene=NAME: {', '.join(names[:20])}", path=self.root
+            )
         self.folder, self._scene = found[0]
         self.name = str(_field(self._scene, "name", "scene", self.folder))
         self.source = f"nuScenes {self.folder.name} {self.name}"
@@ -166,7 +200,9 @@ class NuScenesScene(SensorLog):
         by_channel: dict[str, list[dict[str, Any]]] = defaultdict(list)
         for row in self._db["sample_data"].values():
             if row.get("sample_token") in samples:
-                calibration = self._get("calibrated_sensor", _field(row, "calibrated_sensor_token", "sample_data", self.folder))
+                calibration = self._get(
+                    "calibrated_sensor", _field(row, "calibrated_sensor_token", "sample_data", self.folder)
+                )
                 sensor = self._get("sensor", _field(calibration, "sensor_token", "calibrated_sensor", self.folder))
                 by_channel[str(sensor.get("channel"))].append(row)
         for rows in by_channel.values():
@@ -180,8 +216,10 @@ class NuScenesScene(SensorLog):
         sweeps = self._captures.get(LIDAR, [])
         by_time = {int(row["timestamp"]): row for camera in reversed(self.cameras) for row in self._captures[camera]}
         by_time.update((int(row["timestamp"]), row) for row in sweeps)
-        clock = frame_clock([int(row["timestamp"]) for row in sweeps],
-                            {camera: [int(row["timestamp"]) for row in self._captures[camera]] for camera in self.cameras})
+        clock = frame_clock(
+            [int(row["timestamp"]) for row in sweeps],
+            {camera: [int(row["timestamp"]) for row in self._captures[camera]] for camera in self.cameras},
+        )
         return [by_time[stamp] for stamp in clock]
 
     def _is_sweep(self, row: dict[str, Any]) -> bool:
@@ -217,21 +255,37 @@ class NuScenesScene(SensorLog):
     def pose(self, index: int) -> np.ndarray:
         row = self._frames[index]
         ego = self._get("ego_pose", _field(row, "ego_pose_token", "sample_data", self.folder))
-        return self._transform(ego.get("translation"), ego.get("rotation"), f"{self.folder / 'ego_pose'}.json: {ego.get('token')}")
+        return self._transform(
+            ego.get("translation"), ego.get("rotation"), f"{self.folder / 'ego_pose'}.json: {ego.get('token')}"
+        )
 
     def read(self, index: int) -> SensorFrame:
         row = self._frames[index]
         files = [*self._images[index].values(), *([row] if self._is_sweep(row) else [])]
-        check_frame(sum(file_size(self.root / str(capture.get("filename"))) for capture in files), index,
-                    f"{self.root}: {self.name}", self.root)
+        check_frame(
+            sum(file_size(self.root / str(capture.get("filename"))) for capture in files),
+            index,
+            f"{self.root}: {self.name}",
+            self.root,
+        )
         images = {camera: self._image(capture) for camera, capture in self._images[index].items()}
         scaling = scale_jpegs(images, self.image_max_width)  # beside the lidar work
         pose = self.pose(index)
-        points, intensity = self._sweep(row) if self._is_sweep(row) else (np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
+        points, intensity = (
+            self._sweep(row) if self._is_sweep(row) else (np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
+        )
         boxes, categories, ids = self._boxes(int(row["timestamp"]), pose)
         where = f"{self.root}: {self.name}, sweep {row.get('filename')}"
-        return SensorFrame(int(row["timestamp"]) / 1e6, pose, points, intensity, ScaledImages(scaling, where, self.root),
-                           boxes, categories, ids)
+        return SensorFrame(
+            int(row["timestamp"]) / 1e6,
+            pose,
+            points,
+            intensity,
+            ScaledImages(scaling, where, self.root),
+            boxes,
+            categories,
+            ids,
+        )
 
     def _file(self, row: dict[str, Any], limit: int) -> bytes:
         path = self.root / str(_field(row, "filename", "sample_data", self.folder))
@@ -253,15 +307,20 @@ class NuScenesScene(SensorLog):
             raise DatasetError(f"{where}: {len(data)} bytes, not whole points of 5 float32", path=self.root)
         cloud = check_points(np.frombuffer(data, dtype="<f4").reshape(-1, 5), where, self.root)
         calibration = self._get("calibrated_sensor", row["calibrated_sensor_token"])
-        sensor = self._transform(calibration.get("translation"), calibration.get("rotation"),
-                                 f"{self.folder / 'calibrated_sensor'}.json: {calibration.get('token')}")
+        sensor = self._transform(
+            calibration.get("translation"),
+            calibration.get("rotation"),
+            f"{self.folder / 'calibrated_sensor'}.json: {calibration.get('token')}",
+        )
         points = moved(cloud, sensor[:3, :3], sensor[:3, 3])
         return points, cloud[:, 3] / np.float32(255)  # intensities are 0-255
 
     @cached_property
     def _annotations(self) -> list[tuple[int, dict[str, tuple[np.ndarray, float, np.ndarray, str]]]]:
         """Each key frame's time and boxes: by instance, the world centre, heading, size (w, l, h) and category."""
-        by_sample: dict[str, dict[str, tuple[np.ndarray, float, np.ndarray, str]]] = {row["token"]: {} for row in self._samples}
+        by_sample: dict[str, dict[str, tuple[np.ndarray, float, np.ndarray, str]]] = {
+            row["token"]: {} for row in self._samples
+        }
         for row in self._db["sample_annotation"].values():
             boxes = by_sample.get(row.get("sample_token", ""))
             if boxes is None:
@@ -304,8 +363,9 @@ class NuScenesScene(SensorLog):
         if not boxes:
             return np.zeros((0, 7)), [], []
         instances = sorted(boxes)
-        centers, yaws = to_vehicle(pose, np.array([boxes[i][0] for i in instances]), np.array([boxes[i][1] for i in instances]))
+        centers, yaws = to_vehicle(
+            pose, np.array([boxes[i][0] for i in instances]), np.array([boxes[i][1] for i in instances])
+        )
         sizes = np.array([boxes[i][2] for i in instances])  # width, length, height
         table = np.column_stack([centers, sizes[:, 1], sizes[:, 0], sizes[:, 2], yaws])
         return table, [boxes[i][3] for i in instances], [i[:8] for i in instances]
-

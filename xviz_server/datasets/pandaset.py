@@ -43,10 +43,21 @@ import numpy as np
 import orjson
 
 from ..exceptions import DatasetError
+from ..unpack import MAX_FRAME_BYTES, check_frame, unpack_unsized
 from . import DEFAULT_IMAGE_WIDTH, require
 from .images import scale_jpegs
-from ..unpack import MAX_FRAME_BYTES, check_frame, unpack_unsized
-from .sensors import SensorFrame, SensorLog, captures_by_frame, check_points, file_size, frame_clock, frame_of, moved, quaternion_matrix, to_vehicle, yaw_of
+from .sensors import (
+    SensorFrame,
+    SensorLog,
+    captures_by_frame,
+    check_points,
+    file_size,
+    frame_clock,
+    frame_of,
+    moved,
+    quaternion_matrix,
+    to_vehicle,
+)
 from .waymo.log import ScaledImages
 
 __all__ = ["PandaSetSequence", "FrameUnpickler", "is_pandaset_sequence", "MAX_PICKLE_BYTES", "CAMERAS"]
@@ -63,7 +74,9 @@ ALLOWED: dict[str, frozenset[str]] = {
     "pandas": frozenset({"DataFrame", "Index", "RangeIndex", "StringDtype", "CategoricalDtype", "Categorical"}),
     "pandas.core.frame": frozenset({"DataFrame"}),
     "pandas.core.internals.managers": frozenset({"BlockManager"}),
-    "pandas.core.internals.blocks": frozenset({"new_block", "Block", "ObjectBlock", "FloatBlock", "IntBlock", "BoolBlock"}),
+    "pandas.core.internals.blocks": frozenset(
+        {"new_block", "Block", "ObjectBlock", "FloatBlock", "IntBlock", "BoolBlock"}
+    ),
     "pandas._libs.internals": frozenset({"_unpickle_block"}),
     "pandas.core.indexes.base": frozenset({"_new_Index", "Index"}),
     "pandas.core.indexes.range": frozenset({"RangeIndex"}),
@@ -132,7 +145,11 @@ def unpacked_size(path: Path) -> int:
 
 def is_pandaset_sequence(path: Path) -> bool:
     """Whether ``path`` is a PandaSet sequence: ``lidar/poses.json`` and ``lidar/timestamps.json`` beside ``meta``."""
-    return (path / "lidar" / "poses.json").is_file() and (path / "lidar" / "timestamps.json").is_file() and (path / "meta").is_dir()
+    return (
+        (path / "lidar" / "poses.json").is_file()
+        and (path / "lidar" / "timestamps.json").is_file()
+        and (path / "meta").is_dir()
+    )
 
 
 def _json(path: Path) -> Any:
@@ -155,25 +172,33 @@ class PandaSetSequence(SensorLog):
         self.image_max_width = image_max_width
         self.source = f"PandaSet sequence {self.name}"
         if not is_pandaset_sequence(self.path):
-            raise DatasetError(f"{self.path}: not a PandaSet sequence (no lidar/poses.json and lidar/timestamps.json "
-                               "beside meta/)", path=self.path)
+            raise DatasetError(
+                f"{self.path}: not a PandaSet sequence (no lidar/poses.json and lidar/timestamps.json beside meta/)",
+                path=self.path,
+            )
         stamps = _json(self.path / "lidar" / "timestamps.json")
         poses = _json(self.path / "lidar" / "poses.json")
         if not isinstance(stamps, list) or not isinstance(poses, list) or len(stamps) != len(poses) or not stamps:
-            raise DatasetError(f"{self.path / 'lidar'}: timestamps.json and poses.json are lists of one entry a sweep",
-                               path=self.path)
+            raise DatasetError(
+                f"{self.path / 'lidar'}: timestamps.json and poses.json are lists of one entry a sweep", path=self.path
+            )
         try:
             self._sweep_times = [int(round(float(t) * 1e6)) for t in stamps]
             self._poses = [self._pose(pose) for pose in poses]
         except (TypeError, ValueError, KeyError) as exc:
-            raise DatasetError(f"{self.path / 'lidar'}: a timestamp or pose that is not one: {exc}", path=self.path) from None
+            raise DatasetError(
+                f"{self.path / 'lidar'}: a timestamp or pose that is not one: {exc}", path=self.path
+            ) from None
         self._images = {}
         for camera in CAMERAS:
             folder = self.path / "camera" / camera
             if (folder / "timestamps.json").is_file():
                 times = _json(folder / "timestamps.json")
-                self._images[camera] = [(int(round(float(t) * 1e6)), folder / f"{n:02d}.jpg") for n, t in enumerate(times)
-                                        if (folder / f"{n:02d}.jpg").is_file()]
+                self._images[camera] = [
+                    (int(round(float(t) * 1e6)), folder / f"{n:02d}.jpg")
+                    for n, t in enumerate(times)
+                    if (folder / f"{n:02d}.jpg").is_file()
+                ]
         self.cameras = [camera for camera in CAMERAS if self._images.get(camera)]
 
     @staticmethod
@@ -186,7 +211,9 @@ class PandaSetSequence(SensorLog):
 
     @cached_property
     def _clock(self) -> list[int]:
-        return frame_clock(self._sweep_times, {camera: [t for t, _ in images] for camera, images in self._images.items()})
+        return frame_clock(
+            self._sweep_times, {camera: [t for t, _ in images] for camera, images in self._images.items()}
+        )
 
     @property
     def times(self) -> np.ndarray:
@@ -195,7 +222,9 @@ class PandaSetSequence(SensorLog):
     @cached_property
     def _frames(self) -> list[dict[str, Any]]:
         """Per frame, its sweep's number (``lidar``) if it has one, and the image of each camera served in it."""
-        return captures_by_frame(self._clock, {"lidar": [(t, n) for n, t in enumerate(self._sweep_times)], **self._images})
+        return captures_by_frame(
+            self._clock, {"lidar": [(t, n) for n, t in enumerate(self._sweep_times)], **self._images}
+        )
 
     def _sweep_number(self, index: int) -> int:
         """The sweep of frame ``index``, or the latest before it."""
@@ -221,8 +250,16 @@ class PandaSetSequence(SensorLog):
             points, intensity = np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         boxes, categories, ids = self._boxes(self._sweep_number(index), pose)
         where = f"{self.path}: frame {index}"
-        return SensorFrame(self._clock[index] / 1e6, pose, points, intensity, ScaledImages(scaling, where, self.path),
-                           boxes, categories, ids)
+        return SensorFrame(
+            self._clock[index] / 1e6,
+            pose,
+            points,
+            intensity,
+            ScaledImages(scaling, where, self.path),
+            boxes,
+            categories,
+            ids,
+        )
 
     def _image(self, file: Path) -> bytes:
         try:
@@ -249,7 +286,17 @@ class PandaSetSequence(SensorLog):
         path = self.path / "annotations" / "cuboids" / f"{number:02d}.pkl.gz"
         if not path.is_file():
             return np.zeros((0, 7)), [], []
-        columns = ("uuid", "label", "yaw", "position.x", "position.y", "position.z", "dimensions.x", "dimensions.y", "dimensions.z")
+        columns = (
+            "uuid",
+            "label",
+            "yaw",
+            "position.x",
+            "position.y",
+            "position.z",
+            "dimensions.x",
+            "dimensions.y",
+            "dimensions.z",
+        )
         uuid, label, yaw, *numbers = self._columns(read_frame(path), columns, path)
         px, py, pz, dx, dy, dz = (np.asarray(values, dtype=np.float64) for values in numbers)
         centers, yaws = to_vehicle(pose, np.column_stack([px, py, pz]), np.asarray(yaw, dtype=np.float64))

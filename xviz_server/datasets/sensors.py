@@ -33,15 +33,43 @@ from ..exceptions import DatasetError
 from ..storepath import StorePath, StoreTree
 from .shared import footprints, intensity_colors, pose_angles
 
-__all__ = ["DriveLog", "SensorFrame", "SensorLog", "draw_boxes", "declare_boxes", "frame_clock", "frame_of", "captures_by_frame", "moved", "file_size", "declare_cameras", "posed", "quaternion_matrix", "yaw_of", "TRAJECTORY_FRAMES"]
+__all__ = [
+    "DriveLog",
+    "SensorFrame",
+    "SensorLog",
+    "draw_boxes",
+    "declare_boxes",
+    "frame_clock",
+    "frame_of",
+    "captures_by_frame",
+    "moved",
+    "file_size",
+    "declare_cameras",
+    "posed",
+    "quaternion_matrix",
+    "yaw_of",
+    "TRAJECTORY_FRAMES",
+]
 
 #: How many frames ahead ``/vehicle/trajectory`` reaches.
 TRAJECTORY_FRAMES = 20
 #: Colours of object categories by a word of their name (see :func:`category_style`).
 CATEGORY_COLORS = {
-    "vehicle": "#50B3FF", "car": "#50B3FF", "truck": "#50B3FF", "bus": "#50B3FF", "pedestrian": "#FFC6AF",
-    "human": "#FFC6AF", "cyclist": "#957FCE", "bicycle": "#957FCE", "motorcycle": "#957FCE", "animal": "#7FCE8A",
-    "sign": "#F5D24C", "bicyclist": "#957FCE", "motorcyclist": "#957FCE", "movable_object": "#E2E2E2", "static_object": "#E2E2E2",
+    "vehicle": "#50B3FF",
+    "car": "#50B3FF",
+    "truck": "#50B3FF",
+    "bus": "#50B3FF",
+    "pedestrian": "#FFC6AF",
+    "human": "#FFC6AF",
+    "cyclist": "#957FCE",
+    "bicycle": "#957FCE",
+    "motorcycle": "#957FCE",
+    "animal": "#7FCE8A",
+    "sign": "#F5D24C",
+    "bicyclist": "#957FCE",
+    "motorcyclist": "#957FCE",
+    "movable_object": "#E2E2E2",
+    "static_object": "#E2E2E2",
 }
 _OTHER = "#E2E2E2"
 
@@ -53,11 +81,13 @@ def quaternion_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
     if not np.isfinite(norm) or norm == 0:
         raise ValueError(f"not a rotation: quaternion {q.tolist()}")
     w, x, y, z = q / norm
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def yaw_of(rotation: np.ndarray) -> float:
@@ -139,8 +169,12 @@ class SensorLog(DriveLog[SensorFrame]):
         meta.pose("/vehicle_pose")
         meta.primitive("/lidar/points", "POINT", coordinate="VEHICLE_RELATIVE", style={"radius_pixels": 1})
         declare_boxes(meta, {**CATEGORY_COLORS, "other": _OTHER})
-        meta.primitive("/vehicle/trajectory", "POLYLINE", coordinate="VEHICLE_RELATIVE",
-                       style={"stroke_color": "#47B27588", "stroke_width": 1.4, "stroke_width_min_pixels": 1})
+        meta.primitive(
+            "/vehicle/trajectory",
+            "POLYLINE",
+            coordinate="VEHICLE_RELATIVE",
+            style={"stroke_color": "#47B27588", "stroke_width": 1.4, "stroke_width_min_pixels": 1},
+        )
         declare_cameras(meta, self.cameras)
         return meta.build()
 
@@ -171,16 +205,29 @@ class SensorLog(DriveLog[SensorFrame]):
     @staticmethod
     def _draw_boxes(builder: FrameBuilder, frame: SensorFrame) -> None:
         classes = [category_style(category) for category in frame.categories]
-        draw_boxes(builder, frame.boxes, classes, [CATEGORY_COLORS.get(c, _OTHER) for c in classes],
-                   frame.ids, [f"{category} {object_id}" for category, object_id in zip(frame.categories, frame.ids)])
+        draw_boxes(
+            builder,
+            frame.boxes,
+            classes,
+            [CATEGORY_COLORS.get(c, _OTHER) for c in classes],
+            frame.ids,
+            [f"{category} {object_id}" for category, object_id in zip(frame.categories, frame.ids)],
+        )
 
 
 def declare_boxes(meta: MetadataBuilder, colors: Mapping[str, str]) -> None:
     """The streams :func:`draw_boxes` draws on, with a style class per name of ``colors`` (a colour each)."""
     classes = {name: {"fill_color": color + "80", "stroke_color": color} for name, color in colors.items()}
-    meta.primitive("/objects/boxes", "POLYGON", coordinate="VEHICLE_RELATIVE",
-                   style={"extruded": True, "fill_color": "#00000080"}, style_classes=classes)
-    meta.primitive("/objects/label", "TEXT", coordinate="VEHICLE_RELATIVE", style={"text_size": 14, "fill_color": "#DCDCCD"})
+    meta.primitive(
+        "/objects/boxes",
+        "POLYGON",
+        coordinate="VEHICLE_RELATIVE",
+        style={"extruded": True, "fill_color": "#00000080"},
+        style_classes=classes,
+    )
+    meta.primitive(
+        "/objects/label", "TEXT", coordinate="VEHICLE_RELATIVE", style={"text_size": 14, "fill_color": "#DCDCCD"}
+    )
 
 
 def declare_cameras(meta: MetadataBuilder, cameras: Sequence[str]) -> None:
@@ -199,7 +246,11 @@ def posed(metadata: dict[str, Any], time: float, pose: np.ndarray) -> FrameBuild
 
 
 def draw_boxes(
-    builder: FrameBuilder, boxes: np.ndarray, classes: Sequence[str], colors: Sequence[str], ids: Sequence[str],
+    builder: FrameBuilder,
+    boxes: np.ndarray,
+    classes: Sequence[str],
+    colors: Sequence[str],
+    ids: Sequence[str],
     texts: Sequence[str],
 ) -> None:
     """Boxes (N, 7: centre x, y, z, length, width, height, yaw) on ``/objects/boxes`` as footprints extruded to their
@@ -265,7 +316,12 @@ def moved(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> 
     columns = [np.asarray(points[:, k], dtype=np.float64) for k in range(3)]
     out = np.empty((len(points), 3), np.float32)
     for row in range(3):
-        out[:, row] = columns[0] * rotation[row, 0] + columns[1] * rotation[row, 1] + columns[2] * rotation[row, 2] + translation[row]
+        out[:, row] = (
+            columns[0] * rotation[row, 0]
+            + columns[1] * rotation[row, 1]
+            + columns[2] * rotation[row, 2]
+            + translation[row]
+        )
     return out
 
 

@@ -72,6 +72,8 @@ def reflectance_colors(reflectance: np.ndarray) -> np.ndarray:
     """
     r = np.minimum(reflectance.astype(np.float64), 3.0)
     colors = np.empty((len(r), 3), dtype=np.uint8)
-    for channel, (scale, offset) in enumerate(_COLOR_CHANNELS):  # a channel at a time: faster than broadcasting over all three
+    for channel, (scale, offset) in enumerate(
+        _COLOR_CHANNELS
+    ):  # a channel at a time: faster than broadcasting over all three
         colors[:, channel] = (r * scale + offset).astype(np.int32)  # truncated; uint8 keeps it modulo 256
     return colors

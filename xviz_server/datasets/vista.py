@@ -159,7 +159,9 @@ class VistaTrace:
     def __post_init__(self) -> None:
         self.path = Path(self.path)
         if not is_vista_trace(self.path):
-            raise DatasetError(f"{self.path}: not a VISTA trace (needs <camera>.avi + .csv, speed and imu csv)", path=self.path)
+            raise DatasetError(
+                f"{self.path}: not a VISTA trace (needs <camera>.avi + .csv, speed and imu csv)", path=self.path
+            )
         self.name = self.path.name
 
     # -- sensors ------------------------------------------------------------
@@ -176,7 +178,10 @@ class VistaTrace:
         """(frame number, ROS time) rows of a sensor, in time order."""
         table = _numbers(self.path / f"{sensor}.csv")
         if table.shape[1] < 2:
-            raise DatasetError(f"{self.path / f'{sensor}.csv'}: needs columns frame_num, ros_timestamp", path=self.path / f"{sensor}.csv")
+            raise DatasetError(
+                f"{self.path / f'{sensor}.csv'}: needs columns frame_num, ros_timestamp",
+                path=self.path / f"{sensor}.csv",
+            )
         return table[np.argsort(table[:, 1]), :2]
 
     @cached_property
@@ -254,18 +259,29 @@ class VistaTrace:
 
     def metadata(self) -> dict[str, Any]:
         meta = MetadataBuilder()
-        meta.log_info(start_time=float(self.times[0]), end_time=float(self.times[-1]), source=f"VISTA trace {self.name}")
+        meta.log_info(
+            start_time=float(self.times[0]), end_time=float(self.times[-1]), source=f"VISTA trace {self.name}"
+        )
         meta.pose("/vehicle_pose")
         meta.time_series("/vehicle/speed", "FLOAT", units="m/s")
         meta.time_series("/vehicle/yaw_rate", "FLOAT", units="rad/s")
-        meta.primitive("/vehicle/trajectory", "POLYLINE", coordinate="IDENTITY",
-                       style={"stroke_color": "#47B27588", "stroke_width": 1.4, "stroke_width_min_pixels": 1})
+        meta.primitive(
+            "/vehicle/trajectory",
+            "POLYLINE",
+            coordinate="IDENTITY",
+            style={"stroke_color": "#47B27588", "stroke_width": 1.4, "stroke_width_min_pixels": 1},
+        )
         for lidar in self.lidars:
             meta.primitive(f"/lidar/{lidar}", "POINT", coordinate="VEHICLE_RELATIVE", style={"radius_pixels": 1})
         for camera in self.cameras:
             meta.primitive(f"/camera/{camera}", "IMAGE")
-        meta.ui_panel(ui.panel("Vehicle", ui.metric(["/vehicle/speed"], title="Speed"),
-                               ui.metric(["/vehicle/yaw_rate"], title="Yaw rate")))
+        meta.ui_panel(
+            ui.panel(
+                "Vehicle",
+                ui.metric(["/vehicle/speed"], title="Speed"),
+                ui.metric(["/vehicle/yaw_rate"], title="Yaw rate"),
+            )
+        )
         meta.ui_panel(ui.panel("Cameras", ui.video([f"/camera/{c}" for c in self.cameras])))
         return meta.build()
 
@@ -280,7 +296,9 @@ class VistaTrace:
         builder.time_series("/vehicle/yaw_rate", t, float(speed(t) * curvature(t)))
         ahead = (self.times >= t) & (self.times <= t + TRAJECTORY_SECONDS)
         if ahead.sum() >= 2:
-            builder.polyline("/vehicle/trajectory", np.column_stack([self.poses[ahead, :2], np.zeros(int(ahead.sum()))]))
+            builder.polyline(
+                "/vehicle/trajectory", np.column_stack([self.poses[ahead, :2], np.zeros(int(ahead.sum()))])
+            )
         for lidar in self.lidars:
             points, intensity = self.sweep(lidar, self._nearest(lidar, t))
             if len(points):

@@ -135,17 +135,28 @@ class FoxgloveConnection(FaceConnection[FoxgloveSession]):
             await self._send_live(event)
         elif isinstance(event, DetailChanged):
             mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
-            log_event(logger, "detail changed", remote=peer(self.websocket), detail=event.level.name,
-                      previous=event.previous.name, auto=event.auto, link_mbps=mbps)
+            log_event(
+                logger,
+                "detail changed",
+                remote=peer(self.websocket),
+                detail=event.level.name,
+                previous=event.previous.name,
+                auto=event.auto,
+                link_mbps=mbps,
+            )
 
     def _follow_link(self) -> None:
         """Sample the connection's delivery for the session's level of detail once it depends on it."""
         if self._measure is None and self.session.chooser.measures:
 
             async def sampled(sample: Sample) -> None:
-                await self._execute(self.session.link_sampled(sample, None if self._offered is None else self._offered()))
+                await self._execute(
+                    self.session.link_sampled(sample, None if self._offered is None else self._offered())
+                )
 
-            sampling = sample_link(self.websocket.transport, lambda: self.bytes_written, sampled, lambda: self.session.chooser.measures)
+            sampling = sample_link(
+                self.websocket.transport, lambda: self.bytes_written, sampled, lambda: self.session.chooser.measures
+            )
             self._measure = self._spawn("measuring the link", sampling)
             self._measure.add_done_callback(lambda _: setattr(self, "_measure", None))
 
@@ -190,7 +201,9 @@ class FoxgloveConnection(FaceConnection[FoxgloveSession]):
         """The messages of the frame at ``position``, in time order; with ``report``, a status for a part missing."""
         assert self._log is not None
         level = self.session.level
-        messages, errors = await frame_messages(self._log.log, self._log.plan, int(self._log.log.index.frames[position]), level)
+        messages, errors = await frame_messages(
+            self._log.log, self._log.plan, int(self._log.log.index.frames[position]), level
+        )
         self.session.update_made(level, sum(len(payload) for _, _, payload in messages))
         for error in errors if report else ():
             await self._execute(self.session.frame_failed(error))

@@ -79,7 +79,17 @@ from ..records import OriginalTopic, pack
 from .schemas import Schema, json_schema, protobuf_schema
 
 __all__ = [
-    "CONVERTED", "CONVERTED_PREFIX", "Channel", "Plan", "plan", "Survey", "survey", "read_survey", "first_origin", "convert", "nanoseconds",
+    "CONVERTED",
+    "CONVERTED_PREFIX",
+    "Channel",
+    "Plan",
+    "plan",
+    "Survey",
+    "survey",
+    "read_survey",
+    "first_origin",
+    "convert",
+    "nanoseconds",
     "ROOT_FRAME",
 ]
 
@@ -200,7 +210,13 @@ def plan(metadata: Mapping[str, Any], originals: Sequence[OriginalTopic] = (), f
         add(name, name, "json", json_schema(name, {"type": "object", "description": description}))
     ids = tuple(range(len(channels) + 1, len(channels) + 1 + len(originals)))
     channels += [
-        Channel(id, original.topic, "", "original", Schema(original.encoding, original.schema_name, original.schema_encoding, original.schema))
+        Channel(
+            id,
+            original.topic,
+            "",
+            "original",
+            Schema(original.encoding, original.schema_name, original.schema_encoding, original.schema),
+        )
         for id, original in zip(ids, originals)
     ]
     return Plan(tuple(channels), ids, targets, frames, values, first.origin)
@@ -228,7 +244,9 @@ def survey(data: bytes) -> bytes:
         for stream, content in _streams(update):
             if isinstance(content, dict) and "value" in content and stream not in values:
                 value = content["value"]
-                values[stream] = "boolean" if isinstance(value, bool) else "string" if isinstance(value, str) else "number"
+                values[stream] = (
+                    "boolean" if isinstance(value, bool) else "string" if isinstance(value, str) else "number"
+                )
     return orjson.dumps({"origin": first_origin(updates), "values": values})
 
 
@@ -241,8 +259,11 @@ def first_origin(updates: Sequence[Any]) -> tuple[float, float, float] | None:
             found = _mapping(poses[name]).get("map_origin")
             if isinstance(found, dict):
                 try:
-                    return (float(found.get("longitude") or 0.0), float(found.get("latitude") or 0.0),
-                            float(found.get("altitude") or 0.0))
+                    return (
+                        float(found.get("longitude") or 0.0),
+                        float(found.get("latitude") or 0.0),
+                        float(found.get("altitude") or 0.0),
+                    )
                 except (TypeError, ValueError):
                     return None
     return None
@@ -306,8 +327,11 @@ def _transform(stream: str, pose: Any, time: int, plan: Plan) -> bytes | None:
     if not isinstance(pose, dict):
         return None
     return FrameTransform(
-        timestamp=_stamp(time), parent_frame_id=ROOT_FRAME, child_frame_id=stream,
-        translation=_translation(pose, plan), rotation=_rpy_quaternion(pose.get("orientation")),
+        timestamp=_stamp(time),
+        parent_frame_id=ROOT_FRAME,
+        child_frame_id=stream,
+        translation=_translation(pose, plan),
+        rotation=_rpy_quaternion(pose.get("orientation")),
     ).SerializeToString()
 
 
@@ -326,8 +350,12 @@ def _translation(pose: Mapping[str, Any], plan: Plan) -> Vector3:
     if plan.origin is not None and isinstance(origin, dict):
         longitude, latitude, altitude = plan.origin
         try:
-            east, north, up = enu(float(origin.get("latitude") or 0.0), float(origin.get("longitude") or 0.0),
-                                  float(origin.get("altitude") or 0.0), (latitude, longitude, altitude)).tolist()
+            east, north, up = enu(
+                float(origin.get("latitude") or 0.0),
+                float(origin.get("longitude") or 0.0),
+                float(origin.get("altitude") or 0.0),
+                (latitude, longitude, altitude),
+            ).tolist()
         except (TypeError, ValueError):
             east = north = up = 0.0
         x, y, z = x + east, y + north, z + up
@@ -339,24 +367,37 @@ def _location(stream: str, pose: Any, time: int, plan: Plan) -> bytes | None:
     if not isinstance(origin, dict):
         return None
     return LocationFix(
-        timestamp=_stamp(time), frame_id=stream, latitude=float(origin.get("latitude", 0.0)),
-        longitude=float(origin.get("longitude", 0.0)), altitude=float(origin.get("altitude", 0.0)),
+        timestamp=_stamp(time),
+        frame_id=stream,
+        latitude=float(origin.get("latitude", 0.0)),
+        longitude=float(origin.get("longitude", 0.0)),
+        altitude=float(origin.get("altitude", 0.0)),
     ).SerializeToString()
 
 
 _XYZ = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
 _XYZ_RGBA = [*_XYZ, ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
 _FIELDS = {
-    len(_XYZ): [PackedElementField(name=name, offset=4 * i, type=PackedElementField.FLOAT32) for i, (name, _) in enumerate(_XYZ)],
+    len(_XYZ): [
+        PackedElementField(name=name, offset=4 * i, type=PackedElementField.FLOAT32) for i, (name, _) in enumerate(_XYZ)
+    ],
     len(_XYZ_RGBA): [
-        *(PackedElementField(name=name, offset=4 * i, type=PackedElementField.FLOAT32) for i, (name, _) in enumerate(_XYZ)),
-        *(PackedElementField(name=name, offset=12 + i, type=PackedElementField.UINT8) for i, (name, _) in enumerate(_XYZ_RGBA[3:])),
+        *(
+            PackedElementField(name=name, offset=4 * i, type=PackedElementField.FLOAT32)
+            for i, (name, _) in enumerate(_XYZ)
+        ),
+        *(
+            PackedElementField(name=name, offset=12 + i, type=PackedElementField.UINT8)
+            for i, (name, _) in enumerate(_XYZ_RGBA[3:])
+        ),
     ],
 }
 
 
 def _points(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:
-    objects = [item for item in (content.get("points") or ()) if isinstance(item, dict)] if isinstance(content, dict) else []
+    objects = (
+        [item for item in (content.get("points") or ()) if isinstance(item, dict)] if isinstance(content, dict) else []
+    )
     if not objects:
         return None
     xyz = [np.asarray(item.get("points", ()), dtype=np.float32).reshape(-1, 3) for item in objects]
@@ -377,8 +418,12 @@ def _points(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:
         position += len(part)
     frame, where, rotation = plan.frames[stream]
     return PointCloud(
-        timestamp=_stamp(time), frame_id=frame, pose=_place(where, rotation), point_stride=dtype.itemsize,
-        fields=_FIELDS[len(dtype.names or ())], data=cloud.tobytes(),
+        timestamp=_stamp(time),
+        frame_id=frame,
+        pose=_place(where, rotation),
+        point_stride=dtype.itemsize,
+        fields=_FIELDS[len(dtype.names or ())],
+        data=cloud.tobytes(),
     ).SerializeToString()
 
 
@@ -390,7 +435,10 @@ def _image(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:
         return None
     info = sniff_image(data)
     return CompressedImage(
-        timestamp=_stamp(time), frame_id=stream, data=bytes(data), format="" if info is None else info.mime_type.removeprefix("image/"),
+        timestamp=_stamp(time),
+        frame_id=stream,
+        data=bytes(data),
+        format="" if info is None else info.mime_type.removeprefix("image/"),
     ).SerializeToString()
 
 
@@ -406,7 +454,10 @@ def _scene(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:
                 continue
             base = _mapping(item.get("base"))
             entity = SceneEntity(
-                timestamp=_stamp(time), frame_id=frame, id=str(base.get("object_id") or f"{kind}/{number}"), frame_locked=True,
+                timestamp=_stamp(time),
+                frame_id=frame,
+                id=str(base.get("object_id") or f"{kind}/{number}"),
+                frame_locked=True,
             )
             color = _color(_mapping(base.get("style")))
             if kind in ("polygons", "polylines"):
@@ -417,13 +468,32 @@ def _scene(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:
                 radius = float(item.get("radius", 0.5))
                 center = Vector3(**_xyz(item.get("center")))
                 sphere_pose = Pose(position=center, orientation=Quaternion(w=1.0))
-                entity.spheres.append(SpherePrimitive(pose=sphere_pose, size=Vector3(x=2 * radius, y=2 * radius, z=0.01), color=color))
+                entity.spheres.append(
+                    SpherePrimitive(pose=sphere_pose, size=Vector3(x=2 * radius, y=2 * radius, z=0.01), color=color)
+                )
             elif kind == "texts":
                 text_pose = Pose(position=Vector3(**_xyz(item.get("position"))), orientation=Quaternion(w=1.0))
-                entity.texts.append(TextPrimitive(pose=text_pose, billboard=True, font_size=14, scale_invariant=True, color=color, text=str(item.get("text", ""))))
+                entity.texts.append(
+                    TextPrimitive(
+                        pose=text_pose,
+                        billboard=True,
+                        font_size=14,
+                        scale_invariant=True,
+                        color=color,
+                        text=str(item.get("text", "")),
+                    )
+                )
             elif kind == "stadiums":
                 ends = [Point3(**_xyz(item.get("start"))), Point3(**_xyz(item.get("end")))]
-                entity.lines.append(LinePrimitive(type=LinePrimitive.LINE_STRIP, pose=place, thickness=2 * float(item.get("radius", 0.5)), color=color, points=ends))
+                entity.lines.append(
+                    LinePrimitive(
+                        type=LinePrimitive.LINE_STRIP,
+                        pose=place,
+                        thickness=2 * float(item.get("radius", 0.5)),
+                        color=color,
+                        points=ends,
+                    )
+                )
             else:
                 continue
             update.entities.append(entity)
@@ -460,8 +530,14 @@ def _json(stream: str, content: Any, time: int, plan: Plan) -> bytes | None:
 
 
 _MAKERS = {
-    "transform": _transform, "pose": _pose, "location": _location, "points": _points,
-    "image": _image, "scene": _scene, "time_series": _time_series, "json": _json,
+    "transform": _transform,
+    "pose": _pose,
+    "location": _location,
+    "points": _points,
+    "image": _image,
+    "scene": _scene,
+    "time_series": _time_series,
+    "json": _json,
 }
 
 
@@ -492,8 +568,10 @@ def _rpy_quaternion(value: Any) -> Quaternion:
     roll, pitch, yaw = _xyz(value).values()
     cr, sr, cp, sp, cy, sy = (f(a / 2) for a in (roll, pitch, yaw) for f in (math.cos, math.sin))
     return Quaternion(
-        x=sr * cp * cy - cr * sp * sy, y=cr * sp * cy + sr * cp * sy,
-        z=cr * cp * sy - sr * sp * cy, w=cr * cp * cy + sr * sp * sy,
+        x=sr * cp * cy - cr * sp * sy,
+        y=cr * sp * cy + sr * cp * sy,
+        z=cr * cp * sy - sr * sp * cy,
+        w=cr * cp * cy + sr * sp * sy,
     )
 
 
@@ -522,13 +600,13 @@ def _color(style: Mapping[str, Any]) -> Color:
     if isinstance(value, str) and value.startswith("#") and len(value) in (4, 5, 7, 9):
         digits = value[1:]
         step = 1 if len(digits) <= 4 else 2
-        parts = [digits[i:i + step] * (2 if step == 1 else 1) for i in range(0, len(digits), step)]
+        parts = [digits[i : i + step] * (2 if step == 1 else 1) for i in range(0, len(digits), step)]
         try:
-            rgba[:len(parts)] = [int(part, 16) for part in parts]
+            rgba[: len(parts)] = [int(part, 16) for part in parts]
         except ValueError:
             pass
     elif isinstance(value, list) and all(isinstance(v, (int, float)) for v in value):
-        rgba[:len(value[:4])] = value[:4]
+        rgba[: len(value[:4])] = value[:4]
     return Color(r=rgba[0] / 255, g=rgba[1] / 255, b=rgba[2] / 255, a=rgba[3] / 255)
 
 

@@ -45,7 +45,17 @@ from ..work import Workers
 from .convert import Plan
 from .frame import Message, frame_messages
 
-__all__ = ["FORMATS", "CHUNK_BYTES", "CUT_SHORT", "ExportRange", "export_path", "log_path", "parse_range", "first_error", "export"]
+__all__ = [
+    "FORMATS",
+    "CHUNK_BYTES",
+    "CUT_SHORT",
+    "ExportRange",
+    "export_path",
+    "log_path",
+    "parse_range",
+    "first_error",
+    "export",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -98,14 +108,16 @@ def _span(log: Log, begins: float | None) -> str:
         return "it has no frames"
     first, last = float(log.index.start.min()), float(log.index.start.max())
     after = "" if begins is None else f" ({first - begins:+.6g} to {last - begins:+.6g} s after its start)"
-    return f"its frames start from {first!r} to {last!r} s{after}; give seconds in that span, or +seconds after the start"
+    return (
+        f"its frames start from {first!r} to {last!r} s{after}; give seconds in that span, or +seconds after the start"
+    )
 
 
 def log_path(path: str, suffix: str) -> str | None:
     """The log a URL path ``/api/logs/NAME`` + ``suffix`` (percent-decoded) names, or ``None``."""
     if not (path.startswith(_PREFIX) and path.endswith(suffix)) or len(path) <= len(_PREFIX) + len(suffix):
         return None
-    return unquote(path[len(_PREFIX):-len(suffix)])
+    return unquote(path[len(_PREFIX) : -len(suffix)])
 
 
 def export_path(path: str) -> str | None:
@@ -170,7 +182,9 @@ async def export(
         if errors and strict:
             raise errors[0]
         if errors:
-            logger.warning("the export of log %r ends before frame %d, which cannot be read: %s", log.name, number, errors[0])
+            logger.warning(
+                "the export of log %r ends before frame %d, which cannot be read: %s", log.name, number, errors[0]
+            )
             writer.add_metadata(CUT_SHORT, {"frame": str(number), "error": str(errors[0])})
             break
         sequence = await workers.io(_add, writer, channels, messages, sequence)
@@ -218,6 +232,8 @@ def _register(writer: Writer, plan: Plan) -> dict[int, int]:
 def _add(writer: Writer, channels: Mapping[int, int], messages: list[Message], sequence: int) -> int:
     """Add a frame's messages (see :func:`~xviz_server.foxglove.frame.frame_messages`); the next sequence number."""
     for channel_id, time, payload in messages:
-        writer.add_message(channels[channel_id], log_time=time, data=bytes(payload), publish_time=time, sequence=sequence)
+        writer.add_message(
+            channels[channel_id], log_time=time, data=bytes(payload), publish_time=time, sequence=sequence
+        )
         sequence += 1
     return sequence

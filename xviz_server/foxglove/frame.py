@@ -29,7 +29,9 @@ SURVEY = "foxglove-survey"
 Message = tuple[int, int, memoryview]
 
 
-async def frame_messages(log: Log, plan: Plan, number: int, level: Level = FULL) -> tuple[list[Message], list[XVIZError]]:
+async def frame_messages(
+    log: Log, plan: Plan, number: int, level: Level = FULL
+) -> tuple[list[Message], list[XVIZError]]:
     """The messages of frame ``number`` of ``log`` on the channels of ``plan``, in time order (at one time, the
     converted ones first), the converted ones at ``level`` of detail, and why the part that could not be had is
     missing: a converted frame that cannot be read or converted, original messages that cannot be read (each a

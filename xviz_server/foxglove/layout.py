@@ -54,12 +54,18 @@ def app_layout(plan: Plan) -> dict[str, Any]:
     if images:
         config[_IMAGE] = {"imageMode": {"imageTopic": images[0]}}
         places.append(_IMAGE)
-    numbers = [c.topic for c in plan.channels if c.kind == "time_series" and plan.values.get(c.stream) in ("number", "integer")]
+    numbers = [
+        c.topic for c in plan.channels if c.kind == "time_series" and plan.values.get(c.stream) in ("number", "integer")
+    ]
     if numbers:
         config[_PLOT] = {
             "paths": [{"value": f"{numbers[0]}.value", "enabled": True, "timestampMethod": "receiveTime"}],
-            "showLegend": True, "legendDisplay": "floating", "showXAxisLabels": True, "showYAxisLabels": True,
-            "isSynced": True, "xAxisVal": "timestamp",
+            "showLegend": True,
+            "legendDisplay": "floating",
+            "showXAxisLabels": True,
+            "showYAxisLabels": True,
+            "isSynced": True,
+            "xAxisVal": "timestamp",
         }
         places.append(_PLOT)
     return {

@@ -63,7 +63,9 @@ async def converted(update: LiveUpdate, channels: LivePlan, workers: Workers, le
     Raises :class:`~xviz_server.exceptions.DecodeError` for an update that
     cannot be converted (one of its updates has no timestamp).
     """
-    return await asyncio.shield(update.derived((CONVERTED, channels), convert, channels.plan, workers=workers, level=level))
+    return await asyncio.shield(
+        update.derived((CONVERTED, channels), convert, channels.plan, workers=workers, level=level)
+    )
 
 
 def update_time(update: LiveUpdate) -> int | None:

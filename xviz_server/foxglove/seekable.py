@@ -28,9 +28,9 @@ import logging
 import os
 import shutil
 import tempfile
+from collections.abc import AsyncGenerator, Callable
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import AsyncGenerator, Callable
 from typing import IO
 
 from ..logs import Log
@@ -85,7 +85,10 @@ class LogFiles:
         """
         folder = await self._workers.io(self._ready_folder)
         stem = _stem(log.name)
-        path = folder / f"{stem}-{_digest(version.encode(), log.index.start.tobytes(), __version__.encode(), repr(plan).encode())}.mcap"
+        path = (
+            folder
+            / f"{stem}-{_digest(version.encode(), log.index.start.tobytes(), __version__.encode(), repr(plan).encode())}.mcap"
+        )
         task = self._building.get(path)  # no await from this look to the task's registration: one build a file
         if task is None:
             task = asyncio.ensure_future(self._find_or_build(log, plan, path, stem))
@@ -140,7 +143,9 @@ class LogFiles:
         found = await self._workers.io(_built, path)
         assert found is not None
         logger.info(
-            "made the file of log %r: %.1f MB in %.1f s", log.name, found.representation.size / 2**20,
+            "made the file of log %r: %.1f MB in %.1f s",
+            log.name,
+            found.representation.size / 2**20,
             asyncio.get_running_loop().time() - began,
         )
         return found

@@ -49,19 +49,38 @@ from websockets.frames import CloseCode
 
 from ..budget import MAX_ITEMS, Problems, shown, too_many
 from ..detail import DetailChooser, Sample
-from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
 from ..events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
+from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
 from ..levels import Level, profile_level
 from ..session import DetailChanged
 from .convert import Channel
 from .wire import (
-    CLIENT_MESSAGE_DATA, ENDED, PAUSED, PLAYBACK_CONTROL_REQUEST, PLAYING, SERVICE_CALL_REQUEST, PlaybackControl,
-    parse_playback_control, parse_text, playback_state, text, time_message,
+    CLIENT_MESSAGE_DATA,
+    ENDED,
+    PAUSED,
+    PLAYBACK_CONTROL_REQUEST,
+    PLAYING,
+    SERVICE_CALL_REQUEST,
+    PlaybackControl,
+    parse_playback_control,
+    parse_text,
+    playback_state,
+    text,
+    time_message,
 )
 
 __all__ = [
-    "FoxgloveLog", "Play", "Stop", "SendLatest", "SendLive", "FoxgloveSession", "CAPABILITIES", "LIVE_CAPABILITIES",
-    "MAX_SPEED", "PROFILE_PARAMETER", "LEVEL_PARAMETER",
+    "FoxgloveLog",
+    "Play",
+    "Stop",
+    "SendLatest",
+    "SendLive",
+    "FoxgloveSession",
+    "CAPABILITIES",
+    "LIVE_CAPABILITIES",
+    "MAX_SPEED",
+    "PROFILE_PARAMETER",
+    "LEVEL_PARAMETER",
 ]
 
 #: What ``serverInfo`` says this server does for a recorded log.
@@ -78,7 +97,9 @@ LEVEL_PARAMETER = "/xviz_server/level"
 MAX_SPEED = 100.0
 
 #: Client operations of the protocol that this server does not offer (their capability is not advertised).
-_UNOFFERED = frozenset({"advertise", "unadvertise", "subscribeConnectionGraph", "unsubscribeConnectionGraph", "fetchAsset"})
+_UNOFFERED = frozenset(
+    {"advertise", "unadvertise", "subscribeConnectionGraph", "unsubscribeConnectionGraph", "fetchAsset"}
+)
 
 _UINT32 = 1 << 32
 
@@ -203,7 +224,10 @@ class FoxgloveSession:
         if name is None:
             if len(self.available) != 1:
                 shown = ", ".join(repr(n) for n in self.available[:20]) or "none"
-                return [self._server_info(), self._status(ERROR, f"no log named: add ?log=NAME to the URL; available: {shown}", kind="log")]
+                return [
+                    self._server_info(),
+                    self._status(ERROR, f"no log named: add ?log=NAME to the URL; available: {shown}", kind="log"),
+                ]
             name = self.available[0]
         return [OpenLog(name)]
 
@@ -218,8 +242,12 @@ class FoxgloveSession:
         self._channels = {channel.id: channel for channel in log.channels}
         self._set_rate()
         advertise = text("advertise", channels=[channel.advertisement() for channel in log.channels])
-        return [self._server_info(), *self._take_detail_errors(), Send(time_message(log.start_time), text=False),
-                Send(advertise, text=True)]
+        return [
+            self._server_info(),
+            *self._take_detail_errors(),
+            Send(time_message(log.start_time), text=False),
+            Send(advertise, text=True),
+        ]
 
     def log_failed(self, error: XVIZError) -> list[Event]:
         """The log cannot be served; a name that is no recorded log may be a running live feed's."""
@@ -290,7 +318,10 @@ class FoxgloveSession:
         """No live feed answers to what the client asked for (or too many are waited for)."""
         shown = ", ".join(repr(n) for n in running[:20]) or "none"
         what = f"named {name!r} can be followed" if name is not None else "named: add ?log=NAME to the URL"
-        return [self._server_info(), self._status(ERROR, f"no live feed {what}; running live feeds: {shown}", kind="live")]
+        return [
+            self._server_info(),
+            self._status(ERROR, f"no live feed {what}; running live feeds: {shown}", kind="live"),
+        ]
 
     def live_joined(self, channels: Sequence[Channel] | None) -> list[Event]:
         """The connection follows the feed; ``channels`` are those of its metadata (``None``: it has none yet)."""
@@ -332,8 +363,10 @@ class FoxgloveSession:
         """
         events: list[Event] = []
         if dropped and not self._behind:
-            message = (f"live feed {self.feed!r}: this client is behind; {dropped} updates were dropped "
-                       "(the oldest go first; clients that stay behind are disconnected)")
+            message = (
+                f"live feed {self.feed!r}: this client is behind; {dropped} updates were dropped "
+                "(the oldest go first; clients that stay behind are disconnected)"
+            )
             events.append(self._status(WARNING, message, kind="behind"))
         self._behind = behind
         if time is not None:
@@ -383,7 +416,9 @@ class FoxgloveSession:
             return self._on_playback_control(parse_playback_control(data))
         if opcode in (CLIENT_MESSAGE_DATA, SERVICE_CALL_REQUEST):
             what = "client message data" if opcode == CLIENT_MESSAGE_DATA else "service call request"
-            raise FoxgloveProtocolError(f"{what} is not offered by this server (clientPublish and services are not in serverInfo)")
+            raise FoxgloveProtocolError(
+                f"{what} is not offered by this server (clientPublish and services are not in serverInfo)"
+            )
         raise FoxgloveProtocolError(f"unknown binary opcode 0x{opcode:02x}")
 
     def _on_subscribe(self, subscriptions: Any) -> list[Event]:
@@ -435,21 +470,32 @@ class FoxgloveSession:
     def _on_playback_control(self, request: PlaybackControl) -> list[Event]:
         self._controlled = True
         if self._live:
-            message = (f"playback control request {request.request_id!r}: live feed {self.feed!r} plays as its source "
-                       "sends; it cannot be paused, sought or sped up (playbackControl is not in serverInfo)")
+            message = (
+                f"playback control request {request.request_id!r}: live feed {self.feed!r} plays as its source "
+                "sends; it cannot be paused, sought or sped up (playbackControl is not in serverInfo)"
+            )
             return [self._status(ERROR, message, kind="invalid"), self._state(PLAYING, False, request.request_id)]
         if self.log is None:
             raise FoxgloveProtocolError(f"playback control request {request.request_id!r}: no log is open")
         if not (math.isfinite(request.speed) and 0 < request.speed <= MAX_SPEED):
             return [
-                self._status(ERROR, f"playback control request {request.request_id!r}: speed {request.speed} is not in (0, {MAX_SPEED}]", kind="invalid"),
+                self._status(
+                    ERROR,
+                    f"playback control request {request.request_id!r}: speed {request.speed} is not in (0, {MAX_SPEED}]",
+                    kind="invalid",
+                ),
                 self._state(PLAYING if self.playing else PAUSED, False, request.request_id),
             ]
         seek = request.seek
         if seek is not None and not self.log.start_time <= seek <= self.log.end_time:
-            message = (f"playback control request {request.request_id!r}: seek to {seek} ns is outside the log "
-                       f"{self.log.name!r} ({self.log.start_time} to {self.log.end_time} ns)")
-            return [self._status(ERROR, message, kind="invalid"), self._state(PLAYING if self.playing else PAUSED, False, request.request_id)]
+            message = (
+                f"playback control request {request.request_id!r}: seek to {seek} ns is outside the log "
+                f"{self.log.name!r} ({self.log.start_time} to {self.log.end_time} ns)"
+            )
+            return [
+                self._status(ERROR, message, kind="invalid"),
+                self._state(PLAYING if self.playing else PAUSED, False, request.request_id),
+            ]
         if seek is not None:
             self.position = seek
         changed = seek is not None or request.play != self.playing or request.speed != self.speed
@@ -498,7 +544,9 @@ class FoxgloveSession:
                 fixed = profile_level(profile)
                 self._profile = profile if fixed is not None else "auto"
             except ValueError as exc:
-                errors.append(self._status(ERROR, f"profile: {exc}; the level of detail is chosen from the link", kind="profile"))
+                errors.append(
+                    self._status(ERROR, f"profile: {exc}; the level of detail is chosen from the link", kind="profile")
+                )
         cap: float | None = None
         given = self.query.get("max_mbps")
         if given is not None:
@@ -533,7 +581,9 @@ class FoxgloveSession:
 
     def _on_set_parameters(self, message: dict[str, Any]) -> list[Event]:
         parameters = message.get("parameters")
-        if not isinstance(parameters, list) or not all(isinstance(p, dict) and isinstance(p.get("name"), str) for p in parameters):
+        if not isinstance(parameters, list) or not all(
+            isinstance(p, dict) and isinstance(p.get("name"), str) for p in parameters
+        ):
             raise FoxgloveProtocolError("setParameters: 'parameters' must be a list of {name, value}")
         _check_count("setParameters", parameters)
         events: list[Event] = []
@@ -583,7 +633,10 @@ class FoxgloveSession:
         return self._status(INFO, f"live feed {name!r} has not started yet; waiting for it", kind="waiting")
 
     def _server_info(self) -> Send:
-        info: dict[str, Any] = {"name": self.server_name, "capabilities": list(LIVE_CAPABILITIES if self._live else CAPABILITIES)}
+        info: dict[str, Any] = {
+            "name": self.server_name,
+            "capabilities": list(LIVE_CAPABILITIES if self._live else CAPABILITIES),
+        }
         if self.feed is not None:
             info["metadata"] = {"live": self.feed}
         elif self.log is not None:
@@ -623,7 +676,9 @@ def _names(message: dict[str, Any], op: str) -> list[str]:
 def _check_count(op: str, items: list[Any]) -> None:
     """Refuse a list of more items than a message may hold (see :mod:`xviz_server.budget`), before any is looked at."""
     if too_many(items):
-        raise FoxgloveProtocolError(f"{op}: {len(items)} items, more than the {MAX_ITEMS} one message may hold: refused whole")
+        raise FoxgloveProtocolError(
+            f"{op}: {len(items)} items, more than the {MAX_ITEMS} one message may hold: refused whole"
+        )
 
 
 def _uint32(value: Any) -> TypeGuard[int]:

@@ -17,9 +17,23 @@ import orjson
 from ..exceptions import FoxgloveProtocolError
 
 __all__ = [
-    "SUBPROTOCOLS", "MESSAGE_DATA", "TIME", "PLAYBACK_STATE", "CLIENT_MESSAGE_DATA", "SERVICE_CALL_REQUEST",
-    "PLAYBACK_CONTROL_REQUEST", "PLAYING", "PAUSED", "ENDED", "PlaybackControl", "text", "message_header",
-    "time_message", "playback_state", "parse_playback_control", "parse_text",
+    "SUBPROTOCOLS",
+    "MESSAGE_DATA",
+    "TIME",
+    "PLAYBACK_STATE",
+    "CLIENT_MESSAGE_DATA",
+    "SERVICE_CALL_REQUEST",
+    "PLAYBACK_CONTROL_REQUEST",
+    "PLAYING",
+    "PAUSED",
+    "ENDED",
+    "PlaybackControl",
+    "text",
+    "message_header",
+    "time_message",
+    "playback_state",
+    "parse_playback_control",
+    "parse_text",
 ]
 
 #: The subprotocol names this server speaks Foxglove's protocol under, in no order of preference.
@@ -97,9 +111,11 @@ def parse_playback_control(data: bytes) -> PlaybackControl:
     if command not in (PLAY, PAUSE):
         raise FoxgloveProtocolError(f"playback control request: unknown command {command}")
     if length > MAX_REQUEST_ID or len(data) != 1 + _CONTROL.size + length:
-        raise FoxgloveProtocolError(f"playback control request: request id of {length} bytes in a message of {len(data)}")
+        raise FoxgloveProtocolError(
+            f"playback control request: request id of {length} bytes in a message of {len(data)}"
+        )
     try:
-        request_id = data[1 + _CONTROL.size:].decode()
+        request_id = data[1 + _CONTROL.size :].decode()
     except UnicodeDecodeError:
         raise FoxgloveProtocolError("playback control request: request id is not UTF-8") from None
     return PlaybackControl(command == PLAY, speed, seek if had_seek else None, request_id)

@@ -60,7 +60,14 @@ class Broker:
     """
 
     def __init__(
-        self, url: str, registry: LiveRegistry, metrics: Metrics, workers: Workers, *, ttl: float, max_bytes: int,
+        self,
+        url: str,
+        registry: LiveRegistry,
+        metrics: Metrics,
+        workers: Workers,
+        *,
+        ttl: float,
+        max_bytes: int,
         max_update_bytes: int,
     ) -> None:
         self.link = Link(url, metrics)
@@ -108,7 +115,9 @@ class Broker:
         if outbox is None or outbox.feed is not feed:  # new, or a feed of that name that was dropped
             if outbox is not None:
                 asyncio.ensure_future(outbox.close())
-            outbox = self._outboxes[feed.name] = Outbox(self.link, feed, self.workers, max_bytes=self._max_bytes, ttl=self.ttl)
+            outbox = self._outboxes[feed.name] = Outbox(
+                self.link, feed, self.workers, max_bytes=self._max_bytes, ttl=self.ttl
+            )
         return outbox
 
     def _published(self, feed: LiveFeed, update: LiveUpdate) -> None:
@@ -227,8 +236,12 @@ class Broker:
             return None
         feed = self.registry.get(name)
         if feed is not None and feed.origin is None and (feed.connected or name in self._outboxes):
-            if name not in self._conflicts:  # this replica's source (or one within its grace period), or one claiming it
-                logger.error("live feed %r has a source here and on replica %s: each replica serves its own", name, owner)
+            if (
+                name not in self._conflicts
+            ):  # this replica's source (or one within its grace period), or one claiming it
+                logger.error(
+                    "live feed %r has a source here and on replica %s: each replica serves its own", name, owner
+                )
                 self._conflicts.add(name)
             return None
         if feed is None:

@@ -25,17 +25,17 @@ import logging
 import math
 import time
 from collections import deque
+from collections.abc import Awaitable, Callable, Hashable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, Awaitable, Callable, Hashable, Iterator, Mapping
-
+from typing import Any
 
 from ..codec import Format, decode, detect_format, encode
-from ..exceptions import XVIZError
-from ..messages import XVIZ_VERSION, envelope, unwrap
-from ..layout import check_log_name
 from ..events import LiveFacts, Variant
+from ..exceptions import XVIZError
 from ..frames import placement, render, render_message
+from ..layout import check_log_name
 from ..levels import FULL, Level
+from ..messages import XVIZ_VERSION, envelope, unwrap
 from ..state import COMPLETE_TYPES, complete_state
 from ..work import Workers
 
@@ -45,6 +45,7 @@ logger = logging.getLogger(__name__)
 
 #: Seconds a feed's name and latest state are kept for a source that left.
 GRACE = 30.0
+
 
 class LiveUpdate:
     """One state update of a feed, decoded once and encoded once per variant."""
@@ -255,7 +256,11 @@ class LiveFeed:
             raise XVIZError(f"live feed {self.name!r}: set the metadata before publishing updates")
         original = bytes(frame) if isinstance(frame, (bytes, bytearray, memoryview)) else None
         if original is not None:
-            decoded = decode(original) if detect_format(original) is Format.BINARY else await self.registry.workers.cpu(decode, original)
+            decoded = (
+                decode(original)
+                if detect_format(original) is Format.BINARY
+                else await self.registry.workers.cpu(decode, original)
+            )
         else:
             decoded = frame
         kind, data = unwrap(decoded)
@@ -271,7 +276,9 @@ class LiveFeed:
         for variant in self._latest.variants if self._latest is not None and self._subscribers else ():
             if variant.level is not FULL:
                 update.prepare(variant, self.registry.workers)
-        for name, job, args, level in self._latest.recipes.values() if self._latest is not None and self._subscribers else ():
+        for name, job, args, level in (
+            self._latest.recipes.values() if self._latest is not None and self._subscribers else ()
+        ):
             if level is not FULL:  # and what Foxglove clients made of those levels
                 update.derived(name, job, *args, workers=self.registry.workers, level=level)
         self._latest = update
@@ -483,7 +490,9 @@ class LiveRegistry:
         waited = self._waited.get(name)
         if waited is None:
             if len(self._waited) >= self.MAX_WAITED:
-                raise XVIZError(f"too many live feeds are waited for ({self.MAX_WAITED}); try again when one has started")
+                raise XVIZError(
+                    f"too many live feeds are waited for ({self.MAX_WAITED}); try again when one has started"
+                )
             waited = self._waited[name] = _Waited(asyncio.get_running_loop().create_future())
         waited.viewers += 1
         try:
@@ -494,8 +503,12 @@ class LiveRegistry:
                 del self._waited[name]
 
 
-async def watch_lag(subscription: Subscription, transport: asyncio.BaseTransport, timeout: float,
-                    report: Callable[[float], Awaitable[None]]) -> None:
+async def watch_lag(
+    subscription: Subscription,
+    transport: asyncio.BaseTransport,
+    timeout: float,
+    report: Callable[[float], Awaitable[None]],
+) -> None:
     """Report how long the viewer of ``subscription`` has been dropping updates, while it drops them.
 
     ``report`` is awaited with the seconds, every quarter of ``timeout`` (a

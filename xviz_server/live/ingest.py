@@ -61,6 +61,7 @@ async def run_ingest(
         await close(websocket, CloseCode.POLICY_VIOLATION, str(exc)[:120])
         return
     if dict(parse_qsl(urlsplit(websocket.request.path).query)).get("reconfigure") in ("1", "true"):
+
         async def forward(config_update: dict[str, Any]) -> None:
             reconfigure = envelope("reconfigure", {"update_type": "DELTA", "config_update": config_update})
             await websocket.send(encode_json(reconfigure), text=True)

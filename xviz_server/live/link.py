@@ -45,9 +45,15 @@ class BrokerMetrics:
     def __init__(self, metrics: Metrics) -> None:
         registry = metrics.registry
         self.up = Gauge("xviz_broker_up", "1 while the broker answers, else 0.", registry=registry)
-        self.writes = Counter("xviz_broker_writes", "Entries written to the broker (metadata, updates, keyframes).", registry=registry)
-        self.written_bytes = Counter("xviz_broker_written_bytes", "Bytes of updates written to the broker.", registry=registry)
-        self.reads = Counter("xviz_broker_reads", "Entries read from the broker for feeds held by other replicas.", registry=registry)
+        self.writes = Counter(
+            "xviz_broker_writes", "Entries written to the broker (metadata, updates, keyframes).", registry=registry
+        )
+        self.written_bytes = Counter(
+            "xviz_broker_written_bytes", "Bytes of updates written to the broker.", registry=registry
+        )
+        self.reads = Counter(
+            "xviz_broker_reads", "Entries read from the broker for feeds held by other replicas.", registry=registry
+        )
         self.drops = Counter(
             "xviz_broker_dropped_updates",
             "Updates lost between replicas, by reason: down, full, behind or error (not written by the owner), "
@@ -62,7 +68,8 @@ class BrokerMetrics:
             registry=registry,
         )
         self.readers = Gauge(
-            "xviz_broker_readers", "Feeds of other replicas being read from the broker (while they have viewers here).",
+            "xviz_broker_readers",
+            "Feeds of other replicas being read from the broker (while they have viewers here).",
             registry=registry,
         )
         self.lag = Histogram(
@@ -112,7 +119,8 @@ class Link:
             self._problem = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
             logger.warning(
                 "broker %s: unreachable (%s); serving recorded logs and this replica's feeds, retrying",
-                self.url, self._problem,
+                self.url,
+                self._problem,
             )
             self.up, self._since = False, time.monotonic()
             self.metrics.up.set(0)
@@ -129,7 +137,11 @@ class Link:
     async def read(self, stream: str, last: bytes, count: int) -> list[tuple[bytes, dict[bytes, bytes]]]:
         """The entries of ``stream`` after id ``last``, at most ``count``, waiting up to :data:`BLOCK_MS` for one."""
         answer = await self.blocking.xread({stream: last}, count=count, block=BLOCK_MS)
-        return [entry for _, entries in cast(list[tuple[bytes, list[tuple[bytes, dict[bytes, bytes]]]]], answer or []) for entry in entries]
+        return [
+            entry
+            for _, entries in cast(list[tuple[bytes, list[tuple[bytes, dict[bytes, bytes]]]]], answer or [])
+            for entry in entries
+        ]
 
     async def wire(self, name: str) -> Wire:
         """A connection of its own to the broker, named ``name`` in its ``CLIENT LIST`` (see :mod:`.wire`)."""
@@ -158,4 +170,6 @@ async def cancel(tasks: list[asyncio.Task[None]]) -> None:
 
 
 def _client(url: str, timeout: float) -> Redis:
-    return Redis.from_url(url, socket_timeout=timeout, socket_connect_timeout=CONNECT_TIMEOUT, retry=Retry(NoBackoff(), 0), protocol=2)
+    return Redis.from_url(
+        url, socket_timeout=timeout, socket_connect_timeout=CONNECT_TIMEOUT, retry=Retry(NoBackoff(), 0), protocol=2
+    )

@@ -171,7 +171,9 @@ class Mirror:
         if self._failures == 1:
             logger.error(
                 "live feed %r: reading it from the broker failed (%s); reading it again, with backoff",
-                self.feed.name, self._failure, exc_info=not isinstance(exc, XVIZError),
+                self.feed.name,
+                self._failure,
+                exc_info=not isinstance(exc, XVIZError),
             )
 
     def problem(self) -> str | None:
@@ -191,7 +193,9 @@ class Mirror:
                         wire = await self.link.wire(f"xviz-reader:{_printable(self.feed.name)}")
                     if self._last is None:
                         self._last = await self._start()
-                    reply = wire.send(b"XREAD", b"COUNT", b"1", b"BLOCK", b"%d" % BLOCK_MS, b"STREAMS", stream, self._last)
+                    reply = wire.send(
+                        b"XREAD", b"COUNT", b"1", b"BLOCK", b"%d" % BLOCK_MS, b"STREAMS", stream, self._last
+                    )
                     answer = await asyncio.wait_for(reply, BLOCK_MS / 1000 + COMMAND_TIMEOUT)
                 except FAILURES as exc:
                     if self._closed:
@@ -204,7 +208,11 @@ class Mirror:
                     continue
                 delay = RETRY
                 if self._failures:
-                    logger.info("live feed %r: reading it from the broker again (it failed %d times before)", self.feed.name, self._failures)
+                    logger.info(
+                        "live feed %r: reading it from the broker again (it failed %d times before)",
+                        self.feed.name,
+                        self._failures,
+                    )
                     self._failures = 0
                 for entry_id, fields in _entries(answer):
                     self._last = entry_id  # an entry the reader fails on is not read again
@@ -262,7 +270,12 @@ class Mirror:
     def _skip(self, entry_id: bytes, exc: Exception) -> None:
         self.link.metrics.drops.labels("garbage").inc()
         if not self._garbage:
-            logger.warning("live feed %r: skipped entry %s from the broker: %s", self.feed.name, entry_id.decode(errors="replace"), exc)
+            logger.warning(
+                "live feed %r: skipped entry %s from the broker: %s",
+                self.feed.name,
+                entry_id.decode(errors="replace"),
+                exc,
+            )
             self._garbage = True
 
     async def close(self) -> None:
@@ -279,7 +292,9 @@ class Mirror:
 
 def _entries(answer: Any) -> list[tuple[bytes, dict[bytes, bytes]]]:
     """The entries of an XREAD reply (``None`` when none came)."""
-    return [(entry_id, dict(zip(fields[::2], fields[1::2]))) for _, entries in answer or [] for entry_id, fields in entries]
+    return [
+        (entry_id, dict(zip(fields[::2], fields[1::2]))) for _, entries in answer or [] for entry_id, fields in entries
+    ]
 
 
 def _printable(name: str) -> str:

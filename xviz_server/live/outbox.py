@@ -23,8 +23,8 @@ import orjson
 from redis.exceptions import OutOfMemoryError, ResponseError
 
 from ..codec import Format
-from ..exceptions import BrokerError
 from ..events import Variant
+from ..exceptions import BrokerError
 from ..state import COMPLETE_TYPES
 from ..work import Workers
 from .feed import FeedEvent, LiveFeed, LiveUpdate
@@ -122,7 +122,9 @@ class Outbox:
     async def claim(self) -> str | None:
         """Register the feed as this replica's, or renew it; the replica that holds it instead, if any."""
         name = self.feed.name
-        answer = await self._claim(keys=[registration(name), FEEDS, updates(name)], args=[self.link.id, self._ttl_ms, name])
+        answer = await self._claim(
+            keys=[registration(name), FEEDS, updates(name)], args=[self.link.id, self._ttl_ms, name]
+        )
         if isinstance(answer, bytes):
             holder = answer.decode(errors="replace")
             if self.refused_by != holder:
@@ -253,8 +255,12 @@ class Outbox:
         if isinstance(item, LiveUpdate):
             self.link.metrics.drops.labels("full" if isinstance(exc, OutOfMemoryError) else "error").inc()
         if not self._full:
-            logger.warning("broker %s refuses writes of live feed %r (%s): dropping them, the source goes on",
-                           self.link.url, self.feed.name, exc)
+            logger.warning(
+                "broker %s refuses writes of live feed %r (%s): dropping them, the source goes on",
+                self.link.url,
+                self.feed.name,
+                exc,
+            )
             self._full = True
 
     # -- the other way: viewers elsewhere reconfiguring the source --------------
@@ -278,12 +284,19 @@ class Outbox:
                 try:
                     entry = Entry.parse(fields)
                     if len(entry.data) > MAX_RECONFIGURE_BYTES:
-                        raise BrokerError(f"a reconfigure of {len(entry.data)} bytes, more than {MAX_RECONFIGURE_BYTES}")
+                        raise BrokerError(
+                            f"a reconfigure of {len(entry.data)} bytes, more than {MAX_RECONFIGURE_BYTES}"
+                        )
                     await self.feed.reconfigure(entry.json())
                 except BrokerError as exc:
                     logger.warning("live feed %r: skipped a reconfigure entry %s: %s", self.feed.name, entry_id, exc)
                 except Exception as exc:  # the source went away while it was sent one: that one is lost, not the task
-                    logger.warning("live feed %r: cannot pass reconfigure entry %s to the source: %r", self.feed.name, entry_id, exc)
+                    logger.warning(
+                        "live feed %r: cannot pass reconfigure entry %s to the source: %r",
+                        self.feed.name,
+                        entry_id,
+                        exc,
+                    )
 
     async def close(self) -> None:
         """Stop writing; if this replica holds the feed, tell the others its source left and unregister it."""

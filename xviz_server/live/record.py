@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from ..codec import Format
+from ..events import Variant
 from ..exceptions import LogWriteError
 from ..metrics import Metrics
-from ..events import Variant
 from ..work import Workers
 from ..writer import LogWriter
 from .feed import LiveFeed, LiveRegistry, LiveUpdate

@@ -9,9 +9,9 @@ import numpy as np
 
 from ..codec import Format, decode
 from ..exceptions import XVIZError
+from ..logs import Log
 from ..state import shift_times
 from .feed import LiveFeed
-from ..logs import Log
 
 __all__ = ["replay"]
 

@@ -16,8 +16,9 @@ and the set ``xviz:feeds`` names every feed that may be registered.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import orjson
 

@@ -151,7 +151,9 @@ class Replies:
                 raise InvalidResponse(f"not a RESP2 reply from the broker: {bytes(buffer[start : start + 40])!r}")
             return _MORE
         if buffer.find(b"\r", start, eol) >= 0:  # a CR that is not a line's end, as hiredis refuses it
-            raise InvalidResponse(f"a line from the broker holds a lone CR: {bytes(buffer[start : min(eol, start + 40)])!r}")
+            raise InvalidResponse(
+                f"a line from the broker holds a lone CR: {bytes(buffer[start : min(eol, start + 40)])!r}"
+            )
         kind, line, after = buffer[start], bytes(buffer[start + 1 : eol]), eol + 2
         if kind == ord("$"):
             length = _length(line)
@@ -242,7 +244,9 @@ class Wire(asyncio.BufferedProtocol):
             if options.get("connection_class") is SSLConnection:
                 settings = {key: value for key, value in options.items() if key.startswith("ssl_")}
                 tls = SSLConnection(host=host, port=port, **settings).ssl_context.get()  # type: ignore[arg-type]
-            connecting = loop.create_connection(lambda: wire, host, port, ssl=tls, server_hostname=host if tls else None)
+            connecting = loop.create_connection(
+                lambda: wire, host, port, ssl=tls, server_hostname=host if tls else None
+            )
         await asyncio.wait_for(connecting, timeout)
         try:
             hello: list[asyncio.Future[Any]] = []

@@ -32,7 +32,8 @@ from __future__ import annotations
 import asyncio
 import time
 import uuid
-from typing import Any, NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 from urllib.parse import urlsplit, urlunsplit
 
 from websockets.asyncio.client import ClientConnection, connect
@@ -44,7 +45,7 @@ from ..exceptions import DecodeError, MessageError, SchemaValidationError
 from ..messages import envelope, is_number, unwrap
 from ..state import update_streams
 from ..validation import get_validator
-from .report import Instant, Problem, ProbeReport
+from .report import Instant, ProbeReport, Problem
 
 __all__ = ["POSE_WINDOW", "probe", "with_format"]
 

@@ -23,8 +23,9 @@ import gc
 import math
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -34,8 +35,17 @@ from xviz_server.codec import Format
 from xviz_server.writer import LogWriter
 
 __all__ = [
-    "REPO", "SHARED_DIR", "KITTI", "KITTI_RAW", "KITTI_FRAME",
-    "percentile", "median_ms", "parse", "metadata", "update", "write_log",
+    "REPO",
+    "SHARED_DIR",
+    "KITTI",
+    "KITTI_RAW",
+    "KITTI_FRAME",
+    "percentile",
+    "median_ms",
+    "parse",
+    "metadata",
+    "update",
+    "write_log",
 ]
 
 #: The repository's root.
@@ -73,7 +83,9 @@ def parse(parser: argparse.ArgumentParser, quick: dict[str, Any], argv: list[str
     but every code path runs and the tables are printed (CI runs each
     benchmark so: ``tests/test_benchmarks.py``).
     """
-    parser.add_argument("--quick", action="store_true", help="a run of a few seconds, to check that the benchmark works")
+    parser.add_argument(
+        "--quick", action="store_true", help="a run of a few seconds, to check that the benchmark works"
+    )
     args = parser.parse_args(argv)
     if args.quick:
         for name, value in quick.items():
@@ -99,7 +111,9 @@ def update(t: float, points: int = 10, meta: dict[str, Any] | None = None) -> di
     return frame.build(t)
 
 
-def write_log(directory: Path, count: int, *, points: int = 10, fmt: Format = Format.BINARY, start: float = 100.0) -> Path:
+def write_log(
+    directory: Path, count: int, *, points: int = 10, fmt: Format = Format.BINARY, start: float = 100.0
+) -> Path:
     """A log of ``count`` frames at 10 Hz, written by the product's :class:`LogWriter`."""
     meta = metadata(start, start + (count - 1) / 10)
     with LogWriter(directory, fmt) as writer:

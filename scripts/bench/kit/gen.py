@@ -45,15 +45,26 @@ def frame_messages(store: Any, ros1: bool) -> tuple[bytes, bytes]:
 
     field = types["sensor_msgs/msg/PointField"]
     message = types["sensor_msgs/msg/PointCloud2"](
-        header=header("velodyne"), height=1, width=POINTS, is_bigendian=False, point_step=16, row_step=16 * POINTS,
+        header=header("velodyne"),
+        height=1,
+        width=POINTS,
+        is_bigendian=False,
+        point_step=16,
+        row_step=16 * POINTS,
         fields=[field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate(("x", "y", "z", "intensity"))],
-        data=cloud.view(np.uint8).reshape(-1), is_dense=True,
+        data=cloud.view(np.uint8).reshape(-1),
+        is_dense=True,
     )
     pixels = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
     pixels[..., 0] = np.arange(WIDTH, dtype=np.uint32) * 255 // WIDTH
     pixels[..., 1] = (np.arange(HEIGHT, dtype=np.uint32) * 255 // HEIGHT)[:, None]
     image = types["sensor_msgs/msg/Image"](
-        header=header("camera"), height=HEIGHT, width=WIDTH, encoding="rgb8", is_bigendian=0, step=WIDTH * 3,
+        header=header("camera"),
+        height=HEIGHT,
+        width=WIDTH,
+        encoding="rgb8",
+        is_bigendian=0,
+        step=WIDTH * 3,
         data=pixels.reshape(-1),
     )
     serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
@@ -63,14 +74,19 @@ def frame_messages(store: Any, ros1: bool) -> tuple[bytes, bytes]:
 def generate_bag(path: Path, container: str, frames: int) -> Path:
     """A bag at ``path`` (``container``: ``mcap``, ``ros1`` or ``sqlite3``) of ``frames`` frames at 10 Hz."""
     from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Writer2
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = container == "ros1"
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     cloud, image = frame_messages(store, ros1)
-    writer: Any = Writer1(path) if ros1 else Writer2(
-        path, version=9, storage_plugin=StoragePlugin.SQLITE3 if container == "sqlite3" else StoragePlugin.MCAP
+    writer: Any = (
+        Writer1(path)
+        if ros1
+        else Writer2(
+            path, version=9, storage_plugin=StoragePlugin.SQLITE3 if container == "sqlite3" else StoragePlugin.MCAP
+        )
     )
     with writer:
         clouds = writer.add_connection("/velodyne_points", "sensor_msgs/msg/PointCloud2", typestore=store)
@@ -80,7 +96,6 @@ def generate_bag(path: Path, container: str, frames: int) -> Path:
             writer.write(clouds, t, cloud)
             writer.write(images, t + 1_000_000, image)
     return path
-
 
 
 async def served(dataset: str, settle: float) -> tuple[float, float, int]:
@@ -102,5 +117,3 @@ async def served(dataset: str, settle: float) -> tuple[float, float, int]:
                 frames += 1
                 first = first or time.perf_counter() - started
             return first, time.perf_counter() - started, frames
-
-

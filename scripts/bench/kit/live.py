@@ -72,7 +72,7 @@ async def source(url: str, rate: float, seconds: float, outputs: list[str]) -> N
         for k in range(int(rate * seconds)):
             await asyncio.sleep(max(0.0, start + k / rate - time.perf_counter()))
             # perf_counter is the system's monotonic clock, the same in every process; padded with spaces (valid JSON)
-            frame[at:at + STAMP] = f"{time.perf_counter():>{STAMP}.6f}".encode()
+            frame[at : at + STAMP] = f"{time.perf_counter():>{STAMP}.6f}".encode()
             await websocket.send(bytes(frame))
 
 
@@ -103,7 +103,9 @@ async def viewers(url: str, count: int, seconds: float, output: str) -> dict:
             deadline = time.perf_counter() + seconds
             while time.perf_counter() < deadline:
                 try:
-                    length, head, arrived = await asyncio.wait_for(viewer.recv(), max(0.1, deadline - time.perf_counter()))
+                    length, head, arrived = await asyncio.wait_for(
+                        viewer.recv(), max(0.1, deadline - time.perf_counter())
+                    )
                 except asyncio.TimeoutError:
                     break
                 if length > 100_000:
@@ -130,8 +132,6 @@ async def reference_server(kind: str) -> None:
         await forward(viewers, lambda message: websockets.broadcast(viewers, message))
     else:
         await forward(viewers, lambda message: raw_writes(viewers, message))
-
-
 
 
 def main() -> None:

@@ -38,8 +38,6 @@ def transform_log(request_id: str) -> str:
     return json.dumps({"type": "xviz/transform_log", "data": {"id": request_id}})
 
 
-
-
 def summary(values: list[float]) -> dict[str, float]:
     if not values:
         return {"count": 0}
@@ -159,11 +157,18 @@ async def stream_task(spec: dict[str, Any]) -> dict[str, Any]:
     for session in sessions:
         await session.close()
     return {
-        "bytes": sum(r[0] for r in results), "wire_bytes": wire, "frames": sum(r[1] for r in results),
-        "errors": sum(r[2] for r in results), "started": started, "ended": ended, "seconds": ended - started,
-        "client_cpu_s": cpu, "first_frame_list": [r[3] * 1000 for r in results],
+        "bytes": sum(r[0] for r in results),
+        "wire_bytes": wire,
+        "frames": sum(r[1] for r in results),
+        "errors": sum(r[2] for r in results),
+        "started": started,
+        "ended": ended,
+        "seconds": ended - started,
+        "client_cpu_s": cpu,
+        "first_frame_list": [r[3] * 1000 for r in results],
         "first_frame_ms": statistics.median(r[3] * 1000 for r in results),
-        "frames_per_request": sorted({n for r in results for n in r[4]}), "extensions": extensions,
+        "frames_per_request": sorted({n for r in results for n in r[4]}),
+        "extensions": extensions,
     }
 
 
@@ -205,7 +210,9 @@ class Target:
                 length, head, when = await session.recv()
         else:  # transform_point_in_time at a random instant
             instant = self.rng.uniform(self.start, self.end)
-            request = json.dumps({"type": "xviz/transform_point_in_time", "data": {"id": str(number), "query_timestamp": instant}})
+            request = json.dumps(
+                {"type": "xviz/transform_point_in_time", "data": {"id": str(number), "query_timestamp": instant}}
+            )
             sent = time.perf_counter()
             await session.send(request)
             length, head, when = await session.recv()
@@ -215,15 +222,22 @@ class Target:
             if self.classify:
                 message = envelope_of(head)
                 if message.get("type") != "xviz/state_update":
-                    raise RuntimeError(f"{self.name}: point in time {instant}: got {message.get('type')}: {str(message)[:300]}")
+                    raise RuntimeError(
+                        f"{self.name}: point in time {instant}: got {message.get('type')}: {str(message)[:300]}"
+                    )
                 stamp = message["data"]["updates"][0]["timestamp"]
                 (self.cached if stamp in self.seen else self.uncached).append(elapsed)
                 self.seen.add(stamp)
 
     def result(self) -> dict[str, Any]:
-        return {"to_metadata_ms": self.to_metadata_ms, "all": summary(self.latencies), "values_ms": self.latencies,
-                "uncached": summary(self.uncached), "cached": summary(self.cached),
-                "answer_bytes": statistics.median(self.sizes) if self.sizes else None}
+        return {
+            "to_metadata_ms": self.to_metadata_ms,
+            "all": summary(self.latencies),
+            "values_ms": self.latencies,
+            "uncached": summary(self.uncached),
+            "cached": summary(self.cached),
+            "answer_bytes": statistics.median(self.sizes) if self.sizes else None,
+        }
 
 
 async def latency_task(spec: dict[str, Any]) -> dict[str, Any]:
@@ -258,7 +272,6 @@ def client_main(spec_text: str) -> None:
     print(json.dumps(result), flush=True)
 
 
-
 # ================================================================ the foxglove-sdk server
 
 
@@ -288,12 +301,17 @@ def foxglove_sdk_main(directory: str) -> None:
 
     frames = sorted(Path(directory).glob("*-frame.glb"), key=lambda path: int(path.name.split("-")[0]))
     channels = plan(decode(frames[0].read_bytes())["data"])
-    messages = [(c, t, bytes(data)) for path in frames[1:] for c, t, data in unpack(convert(path.read_bytes(), channels))]
+    messages = [
+        (c, t, bytes(data)) for path in frames[1:] for c, t, data in unpack(convert(path.read_bytes(), channels))
+    ]
     start, end = messages[0][1], messages[-1][1]
     sdk = {
         channel.id: foxglove.Channel(
-            channel.topic, message_encoding=channel.schema.encoding,
-            schema=foxglove.Schema(name=channel.schema.name, encoding=channel.schema.schema_encoding, data=channel.schema.data()),
+            channel.topic,
+            message_encoding=channel.schema.encoding,
+            schema=foxglove.Schema(
+                name=channel.schema.name, encoding=channel.schema.schema_encoding, data=channel.schema.data()
+            ),
         )
         for channel in channels.channels
     }
@@ -311,10 +329,19 @@ def foxglove_sdk_main(directory: str) -> None:
             return PlaybackState(PlaybackStatus.Paused, start, request.playback_speed, False, request.request_id)
 
     server = foxglove.start_server(
-        name="foxglove-sdk reference", host="127.0.0.1", port=0, capabilities=[Capability.Time],
-        server_listener=Listener(), playback_time_range=(start, end), message_backlog_size=len(messages) + 64,
+        name="foxglove-sdk reference",
+        host="127.0.0.1",
+        port=0,
+        capabilities=[Capability.Time],
+        server_listener=Listener(),
+        playback_time_range=(start, end),
+        message_backlog_size=len(messages) + 64,
     )
-    print(f"foxglove-sdk listening on ws://127.0.0.1:{server.port}/ ({len(messages)} messages)", file=sys.stderr, flush=True)
+    print(
+        f"foxglove-sdk listening on ws://127.0.0.1:{server.port}/ ({len(messages)} messages)",
+        file=sys.stderr,
+        flush=True,
+    )
     threading.Event().wait()
 
 

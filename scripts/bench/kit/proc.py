@@ -20,7 +20,6 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
-
 from kit import REPO
 
 #: Where ``python -m kit.peers`` runs: the folder that holds the kit.
@@ -45,8 +44,13 @@ class Process:
         self.name = name
         self.started = time.perf_counter()
         self.popen = subprocess.Popen(
-            args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-            text=True, cwd=cwd, env=_clean_env(),
+            args,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=cwd,
+            env=_clean_env(),
         )
         self.tail: deque[str] = deque(maxlen=30)
         assert self.popen.stderr is not None
@@ -100,12 +104,22 @@ def start_server(root: Path | str | None, *extra: str) -> Process:
 
 def start_reference(logs: dict[str, Path]) -> Process:
     spec = json.dumps({name: str(path) for name, path in logs.items()})
-    return Process([*PEERS, "--role", "reference", spec], r"reference listening on ws://127\.0\.0\.1:(\d+)/", "reference", cwd=BENCH)
+    return Process(
+        [*PEERS, "--role", "reference", spec],
+        r"reference listening on ws://127\.0\.0\.1:(\d+)/",
+        "reference",
+        cwd=BENCH,
+    )
 
 
 def start_foxglove_sdk(log: Path) -> Process:
     """The published foxglove-sdk server playing ``log``'s Foxglove messages (see :func:`kit.peers.foxglove_sdk_main`)."""
-    return Process([*PEERS, "--role", "foxglove-sdk", str(log)], r"foxglove-sdk listening on ws://127\.0\.0\.1:(\d+)/", "foxglove-sdk", cwd=BENCH)
+    return Process(
+        [*PEERS, "--role", "foxglove-sdk", str(log)],
+        r"foxglove-sdk listening on ws://127\.0\.0\.1:(\d+)/",
+        "foxglove-sdk",
+        cwd=BENCH,
+    )
 
 
 def descendants(pid: int) -> list[int]:
@@ -215,7 +229,11 @@ def run_clients(spec: dict[str, Any], procs: int = 1, server_pid: int | None = N
         part = {**spec, "clients": clients, "stalled": stalls}
         child = subprocess.Popen(
             [*PEERS, "--role", "client", "-"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=BENCH, env=_clean_env(),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=BENCH,
+            env=_clean_env(),
         )
         assert child.stdin is not None
         child.stdin.write(json.dumps(part) + "\n")  # the spec, on stdin: a schedule can be long
@@ -252,7 +270,9 @@ def run_clients(spec: dict[str, Any], procs: int = 1, server_pid: int | None = N
     if len(parts) == 1:
         result = parts[0]
     else:
-        result = {key: sum(p[key] for p in parts) for key in ("bytes", "wire_bytes", "frames", "errors", "client_cpu_s")}
+        result = {
+            key: sum(p[key] for p in parts) for key in ("bytes", "wire_bytes", "frames", "errors", "client_cpu_s")
+        }
         result["started"] = min(p["started"] for p in parts)
         result["ended"] = max(p["ended"] for p in parts)
         result["seconds"] = result["ended"] - result["started"]
@@ -287,8 +307,21 @@ def start_redis(directory: str) -> tuple[subprocess.Popen[bytes], str]:
     """Debian's redis-server on a free loopback port, without persistence, in ``directory``; and its URL."""
     port = free_port()
     process = subprocess.Popen(
-        ["redis-server", "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no", "--dir", directory],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        [
+            "redis-server",
+            "--port",
+            str(port),
+            "--bind",
+            "127.0.0.1",
+            "--save",
+            "",
+            "--appendonly",
+            "no",
+            "--dir",
+            directory,
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
     )
     for _ in range(100):
         try:

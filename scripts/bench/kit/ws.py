@@ -24,7 +24,8 @@ import re
 import socket
 import sys
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 from urllib.parse import urlsplit
 
 import websockets
@@ -35,8 +36,15 @@ from websockets.frames import Frame, Opcode
 from xviz_server.framing import frame_header
 
 __all__ = [
-    "handshake_request", "masked_frame", "envelope_of", "WebsocketsClient", "RawClient", "CLIENTS", "Reader",
-    "raw_writes", "forward",
+    "handshake_request",
+    "masked_frame",
+    "envelope_of",
+    "WebsocketsClient",
+    "RawClient",
+    "CLIENTS",
+    "Reader",
+    "raw_writes",
+    "forward",
 ]
 
 
@@ -44,16 +52,23 @@ def handshake_request(target: str, host: str = "127.0.0.1", subprotocol: str | N
     """A client's opening handshake (RFC 6455 4.1) for ``target`` (path and query) on ``host``, offering ``subprotocol``."""
     key = base64.b64encode(os.urandom(16)).decode()
     offer = f"Sec-WebSocket-Protocol: {subprotocol}\r\n" if subprotocol else ""
-    return (f"GET {target} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n{offer}\r\n").encode()
+    return (
+        f"GET {target} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n{offer}\r\n"
+    ).encode()
 
 
 def masked_frame(opcode: int, payload: bytes) -> bytes:
     """A client's final frame (RFC 6455 5.2) of ``opcode`` carrying ``payload``, masked as clients must."""
     n = len(payload)
     header = bytes([0x80 | opcode])
-    header += bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + n.to_bytes(2, "big") if n < 65536 \
+    header += (
+        bytes([0x80 | n])
+        if n < 126
+        else bytes([0x80 | 126]) + n.to_bytes(2, "big")
+        if n < 65536
         else bytes([0x80 | 127]) + n.to_bytes(8, "big")
+    )
     key = os.urandom(4)
     mask = (key * (n // 4 + 1))[:n]
     masked = (int.from_bytes(payload, "big") ^ int.from_bytes(mask, "big")).to_bytes(n, "big") if n else b""
@@ -66,10 +81,9 @@ def envelope_of(head: bytes) -> dict[str, Any]:
         length = int.from_bytes(head[12:16], "little")
         if len(head) < 20 + length:
             raise RuntimeError("kept too little of the message to read its JSON chunk")
-        document = json.loads(head[20:20 + length])
+        document = json.loads(head[20 : 20 + length])
         return document.get("xviz") or document["extensions"]["AVS_xviz"]
     return json.loads(head)
-
 
 
 # ================================================================ clients
@@ -102,9 +116,19 @@ class WebsocketsClient:
         self.extensions = websocket.response.headers.get("Sec-WebSocket-Extensions") if websocket.response else None
 
     @classmethod
-    async def open(cls, url: str, keep: int = 512, compression: str | None = "deflate", max_queue: int = 16) -> WebsocketsClient:
-        websocket = await connect(url, max_size=None, compression=compression, create_connection=CountingConnection,
-                                  ping_interval=None, proxy=None, open_timeout=60, max_queue=max_queue)
+    async def open(
+        cls, url: str, keep: int = 512, compression: str | None = "deflate", max_queue: int = 16
+    ) -> WebsocketsClient:
+        websocket = await connect(
+            url,
+            max_size=None,
+            compression=compression,
+            create_connection=CountingConnection,
+            ping_interval=None,
+            proxy=None,
+            open_timeout=60,
+            max_queue=max_queue,
+        )
         return cls(websocket, keep)
 
     async def recv(self) -> tuple[int, bytes, float]:
@@ -166,7 +190,7 @@ class RawProtocol(asyncio.BufferedProtocol):
             end = self.handshake.find(b"\r\n\r\n")
             if end < 0:
                 return
-            response, rest = bytes(self.handshake[:end]), bytes(self.handshake[end + 4:])
+            response, rest = bytes(self.handshake[:end]), bytes(self.handshake[end + 4 :])
             self.handshake = None
             if not response.startswith(b"HTTP/1.1 101"):
                 self.opened.set_exception(RuntimeError(f"handshake refused: {response[:200]!r}"))
@@ -181,11 +205,11 @@ class RawProtocol(asyncio.BufferedProtocol):
             if self.remaining:
                 take = min(self.remaining, n - pos)
                 if self.control is not None:
-                    self.control_payload += view[pos:pos + take]
+                    self.control_payload += view[pos : pos + take]
                 else:
                     room = self.keep - len(self.head)
                     if room > 0:
-                        self.head += view[pos:pos + min(take, room)]
+                        self.head += view[pos : pos + min(take, room)]
                     self.size += take
                 self.remaining -= take
                 pos += take
@@ -201,7 +225,7 @@ class RawProtocol(asyncio.BufferedProtocol):
                 if len(header) >= need or pos >= n:
                     break
                 take = min(need - len(header), n - pos)
-                header += view[pos:pos + take]
+                header += view[pos : pos + take]
                 pos += take
             if len(header) < need:
                 return
@@ -253,7 +277,12 @@ class RawClient:
 
     @classmethod
     async def open(
-        cls, url: str, keep: int = 512, compression: str | None = None, max_queue: int = 16, subprotocol: str | None = None
+        cls,
+        url: str,
+        keep: int = 512,
+        compression: str | None = None,
+        max_queue: int = 16,
+        subprotocol: str | None = None,
     ) -> RawClient:
         if compression:
             raise ValueError("the raw client does not do compression")
@@ -303,7 +332,6 @@ class RawClient:
 
 
 CLIENTS: dict[str, type[RawClient] | type[WebsocketsClient]] = {"raw": RawClient, "websockets": WebsocketsClient}
-
 
 
 class Reader:
@@ -373,7 +401,6 @@ class Reader:
                 total += length
 
 
-
 def raw_writes(viewers: set, message: bytes | memoryview) -> None:
     """Write a binary frame of ``message`` to each viewer: its header, then the message itself."""
     head = frame_header(Frame(Opcode.BINARY, message))
@@ -401,5 +428,3 @@ async def forward(viewers: set, pushed: Callable[[bytes], None]) -> None:
     async with websockets.serve(handler, "127.0.0.1", 0, max_size=None, compression=None) as server:
         print(f"listening on ws://127.0.0.1:{server.sockets[0].getsockname()[1]}/", file=sys.stderr, flush=True)
         await asyncio.Future()
-
-

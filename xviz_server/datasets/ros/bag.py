@@ -51,14 +51,33 @@ import numpy as np
 from ...exceptions import DatasetError, StoreError
 from ...records import OriginalTopic
 from ...storepath import RangedFile, StorePath, data_path
-from ...unpack import MAX_CHUNK_BYTES, MAX_FILE_RATIO, MAX_FRAME_BYTES, BoundedReader, check_declared, unpack, unpack_unsized, zstd_module
+from ...unpack import (
+    MAX_CHUNK_BYTES,
+    MAX_FILE_RATIO,
+    MAX_FRAME_BYTES,
+    BoundedReader,
+    check_declared,
+    unpack,
+    unpack_unsized,
+    zstd_module,
+)
 
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
 
     from .mcapbag import McapBag
 
-__all__ = ["Bag", "Topic", "open_bag", "reason", "is_rosbag", "ROS1_MAGIC", "MCAP_MAGIC", "ROS2_KEY", "CHUNK_CACHE_BYTES"]
+__all__ = [
+    "Bag",
+    "Topic",
+    "open_bag",
+    "reason",
+    "is_rosbag",
+    "ROS1_MAGIC",
+    "MCAP_MAGIC",
+    "ROS2_KEY",
+    "CHUNK_CACHE_BYTES",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -71,10 +90,17 @@ _MESSAGE_INDEX = 0x07
 _ROS1_MESSAGE = 0x02  # ROS 1 record ops
 _ROS1_CONNECTION = 0x07
 #: Message types of raw sensor packets, which only their driver turns into points.
-DRIVER_PACKETS = frozenset({
-    "velodyne_msgs/msg/VelodyneScan", "velodyne_msgs/msg/VelodynePacket", "ouster_msgs/msg/PacketMsg",
-    "ouster_ros/msg/PacketMsg", "hesai_msgs/msg/PandarScan", "pandar_msgs/msg/PandarScan", "livox_ros_driver/msg/CustomMsg",
-})
+DRIVER_PACKETS = frozenset(
+    {
+        "velodyne_msgs/msg/VelodyneScan",
+        "velodyne_msgs/msg/VelodynePacket",
+        "ouster_msgs/msg/PacketMsg",
+        "ouster_ros/msg/PacketMsg",
+        "hesai_msgs/msg/PandarScan",
+        "pandar_msgs/msg/PandarScan",
+        "livox_ros_driver/msg/CustomMsg",
+    }
+)
 #: The most bytes of unpacked chunks a bag keeps: a frame reads a few neighbouring chunks (the last one read is
 #: always kept, even if larger).
 CHUNK_CACHE_BYTES = 32 << 20
@@ -172,7 +198,9 @@ class Bag:
                 cut = f"; the last {ros1.lost} bytes, a record cut short, are left out" if ros1.lost else ""
                 logger.warning(
                     "%s has no readable index (its recording was cut short): indexed in memory by reading "
-                    "the whole bag once, as rosbag reindex would (the file is not changed)%s", self.path, cut,
+                    "the whole bag once, as rosbag reindex would (the file is not changed)%s",
+                    self.path,
+                    cut,
                 )
         by_topic: dict[str, list[Any]] = {}
         for connection in reader.connections:
@@ -186,17 +214,23 @@ class Bag:
             except DatasetError:
                 raise
             except Exception as exc:  # noqa: BLE001
-                raise DatasetError(f"{self.path}: topic {name}: cannot read its index: {reason(exc)}", path=self.path) from None
+                raise DatasetError(
+                    f"{self.path}: topic {name}: cannot read its index: {reason(exc)}", path=self.path
+                ) from None
             times = np.concatenate([i[0] for i in indexes])
             order = np.argsort(times, kind="stable")
             places = [i[1] for i in indexes if i[1] is not None]
             located = np.concatenate(places)[order] if len(places) == len(indexes) else None
             self.topics[name] = Topic(name, connections[0].msgtype, times[order], tuple(connections), located)
             if connections[0].msgtype in DRIVER_PACKETS:
-                self.problems[name] = (f"{connections[0].msgtype} holds the raw packets of a sensor's driver, not points: "
-                                       "record the driver's point cloud topic, or replay the bag through the driver")
+                self.problems[name] = (
+                    f"{connections[0].msgtype} holds the raw packets of a sensor's driver, not points: "
+                    "record the driver's point cloud topic, or replay the bag through the driver"
+                )
             elif connections[0].msgtype not in reader.typestore.fielddefs:
-                self.problems[name] = f"its type {connections[0].msgtype} has no definition in the bag or rosbags' type store"
+                self.problems[name] = (
+                    f"its type {connections[0].msgtype} has no definition in the bag or rosbags' type store"
+                )
 
     @property
     def container(self) -> str:
@@ -229,8 +263,12 @@ class Bag:
         if kind == "McapReader":
             return self._mcap_index(owner, connection)
         if kind == "DirectoryReader":  # a ROS 2 bag folder: the same topic in each of its storage files
-            parts = [self._index(c) for storage in owner.storages for c in storage.connections
-                     if c.topic == connection.topic and c.msgtype == connection.msgtype]
+            parts = [
+                self._index(c)
+                for storage in owner.storages
+                for c in storage.connections
+                if c.topic == connection.topic and c.msgtype == connection.msgtype
+            ]
             times = np.concatenate([p[0] for p in parts]) if parts else np.empty(0, np.int64)
             places = [p[1] for p in parts if p[1] is not None]
             direct = parts and len(places) == len(parts) and owner.metadata.compression_mode != "message"
@@ -245,7 +283,13 @@ class Bag:
         places: list[np.ndarray] = []
         with owner.path.open("rb") as file:
             if isinstance(file, RangedFile):  # an object in a store: every index of the topic in one call
-                file.prefetch([(o, o + c.message_index_length) for c in owner.chunks if (o := c.message_index_offsets.get(connection.id)) is not None])
+                file.prefetch(
+                    [
+                        (o, o + c.message_index_length)
+                        for c in owner.chunks
+                        if (o := c.message_index_offsets.get(connection.id)) is not None
+                    ]
+                )
             for chunk_number, chunk in enumerate(owner.chunks):
                 offset = chunk.message_index_offsets.get(connection.id)
                 if offset is None:
@@ -287,7 +331,9 @@ class Bag:
         self._chunks[(storage, chunk)] = data
         found = (_ros1_record if isinstance(owner, _ros1_reader()) else _mcap_record)(data, offset)
         if found is None:
-            raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path)
+            raise DatasetError(
+                f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path
+            )
         return found
 
     def declared(self, topic: str, first: int, last: int) -> dict[tuple[Any, ...], int]:
@@ -304,7 +350,11 @@ class Bag:
             parts: dict[tuple[Any, ...], int] = {}
             for storage, chunk in {(int(s), int(c)) for s, c in info.places[first:last, :2].tolist()}:
                 owner = self._storages[storage]
-                size = owner.declared.get(chunk, 0) if isinstance(owner, MemoryIndexedReader) else owner.chunks[chunk].uncompressed_size
+                size = (
+                    owner.declared.get(chunk, 0)
+                    if isinstance(owner, MemoryIndexedReader)
+                    else owner.chunks[chunk].uncompressed_size
+                )
                 parts[(storage, chunk)] = int(size)
             return parts
         owners = [c.owner for c in info.connections]
@@ -312,10 +362,14 @@ class Bag:
             return {}
         start, stop = int(info.times[first]), int(info.times[last - 1]) + 1
         with self._lock:
-            rows = owners[0].dbconn.execute(
-                "SELECT id, length(data) FROM messages WHERE topic_id = ? AND timestamp >= ? AND timestamp < ?",
-                (info.connections[0].id, start, stop),
-            ).fetchall()
+            rows = (
+                owners[0]
+                .dbconn.execute(
+                    "SELECT id, length(data) FROM messages WHERE topic_id = ? AND timestamp >= ? AND timestamp < ?",
+                    (info.connections[0].id, start, stop),
+                )
+                .fetchall()
+            )
         return {(topic, row): int(size) for row, size in rows}
 
     def message(self, topic: str, index: int) -> tuple[int, Any]:
@@ -331,14 +385,18 @@ class Bag:
             if skip == 0:
                 return time, message
             skip -= 1
-        raise DatasetError(f"{self.path}: topic {topic}: message {index} is in the index but not in the bag", path=self.path)
+        raise DatasetError(
+            f"{self.path}: topic {topic}: message {index} is in the index but not in the bag", path=self.path
+        )
 
     def messages(self, topic: str, start: int | None, stop: int | None) -> Iterator[tuple[int, Any]]:
         """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded), decoded, in time order."""
         for time, msgtype, data in self.serialized(topic, start, stop):
             yield time, self._decode(topic, msgtype, time, data)
 
-    def serialized(self, topic: str, start: int | None, stop: int | None) -> Iterator[tuple[int, str, bytes | memoryview]]:
+    def serialized(
+        self, topic: str, start: int | None, stop: int | None
+    ) -> Iterator[tuple[int, str, bytes | memoryview]]:
         """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded) as the file holds them:
         (record time, message type, serialized bytes), in time order."""
         info = self.topics[topic]

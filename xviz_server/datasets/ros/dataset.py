@@ -48,7 +48,17 @@ from .bag import is_rosbag, open_bag
 from .config import RosConfig, load_config
 from .geometry import IDENTITY, apply, enu, from_pose, from_quaternion, interpolate, rpy
 from .mapping import (
-    CLOUD, COMPRESSED_IMAGE, IMU, LASER_SCAN, MARKER_STREAMS, NAV_SAT_FIX, ODOMETRY, POSE_TYPES, SERIES, Mapping, plan,
+    CLOUD,
+    COMPRESSED_IMAGE,
+    IMU,
+    LASER_SCAN,
+    MARKER_STREAMS,
+    NAV_SAT_FIX,
+    ODOMETRY,
+    POSE_TYPES,
+    SERIES,
+    Mapping,
+    plan,
 )
 from .markers import draw_marker, live_markers, path_vertices
 from .sensors import cloud_points, compressed_image_bytes, image_bytes, scan_points
@@ -65,8 +75,24 @@ MAX_FRAME_MESSAGES = 100_000
 _FIXED_FRAMES = ("map", "odom", "world")
 #: The most messages a text table or a trajectory shows in a frame (the latest).
 MAX_SHOWN = 200
-_TEXT_COLUMNS: list[tuple[str, str] | tuple[str, str, str]] = [("time", "DOUBLE", "s"), ("level", "STRING"), ("node", "STRING"), ("text", "STRING")]
-_LEVELS = {1: "DEBUG", 2: "INFO", 4: "WARN", 8: "ERROR", 16: "FATAL", 10: "DEBUG", 20: "INFO", 30: "WARN", 40: "ERROR", 50: "FATAL"}
+_TEXT_COLUMNS: list[tuple[str, str] | tuple[str, str, str]] = [
+    ("time", "DOUBLE", "s"),
+    ("level", "STRING"),
+    ("node", "STRING"),
+    ("text", "STRING"),
+]
+_LEVELS = {
+    1: "DEBUG",
+    2: "INFO",
+    4: "WARN",
+    8: "ERROR",
+    16: "FATAL",
+    10: "DEBUG",
+    20: "INFO",
+    30: "WARN",
+    40: "ERROR",
+    50: "FATAL",
+}
 _FIRST_FIXES = 100  # fixes looked at for the map origin: the first with a position (status >= 0) wins
 _MARKER_STYLES: dict[str, dict[str, Any]] = {
     "polygons": {"extruded": True, "fill_color": "#50B3FF80", "stroke_color": "#50B3FF"},
@@ -118,7 +144,8 @@ class RosBag:
         self.path = data_path(self.path)
         if not is_rosbag(self.path):
             raise DatasetError(
-                f"{self.path}: not a ROS bag (a .bag or .mcap file, or a ROS 2 bag folder with metadata.yaml)", path=self.path
+                f"{self.path}: not a ROS bag (a .bag or .mcap file, or a ROS 2 bag folder with metadata.yaml)",
+                path=self.path,
             )
         self.name = self.path.stem if self.path.is_file() else self.path.name
         self.settings: RosConfig = load_config(self.config)
@@ -144,8 +171,10 @@ class RosBag:
         """Where the vehicle pose comes from (see the module documentation)."""
         choice = self.settings.pose
         frames = self.tree.frames
-        vehicle = frame_name(self.settings.vehicle_frame) if self.settings.vehicle_frame else (
-            "base_link" if "base_link" in frames else None
+        vehicle = (
+            frame_name(self.settings.vehicle_frame)
+            if self.settings.vehicle_frame
+            else ("base_link" if "base_link" in frames else None)
         )
         if choice == "none":
             return PoseSource("none", vehicle or self._first_cloud_frame())
@@ -158,21 +187,33 @@ class RosBag:
         topics = self.bag.topics
         if choice not in (None, TF):
             if choice not in topics or topics[choice].msgtype not in POSE_TYPES:
-                raise DatasetError(f"{self.config}: pose: {choice} is not a topic of {', '.join(POSE_TYPES)}", path=self.config)
+                raise DatasetError(
+                    f"{self.config}: pose: {choice} is not a topic of {', '.join(POSE_TYPES)}", path=self.config
+                )
             candidates = [choice]
         else:
-            candidates = sorted((t for t, info in topics.items() if info.msgtype in POSE_TYPES and len(info) and self.settings.wants(t)),
-                                key=lambda t: (POSE_TYPES.index(topics[t].msgtype), int(topics[t].times[0])))  # the earliest
+            candidates = sorted(
+                (
+                    t
+                    for t, info in topics.items()
+                    if info.msgtype in POSE_TYPES and len(info) and self.settings.wants(t)
+                ),
+                key=lambda t: (POSE_TYPES.index(topics[t].msgtype), int(topics[t].times[0])),
+            )  # the earliest
         if not candidates:
             return PoseSource("none", vehicle or self._first_cloud_frame())
         topic = candidates[0]
         msgtype = topics[topic].msgtype
         if msgtype == NAV_SAT_FIX:
-            imu = next((t for t, info in topics.items() if info.msgtype == IMU and len(info) and self.settings.wants(t)), None)
+            imu = next(
+                (t for t, info in topics.items() if info.msgtype == IMU and len(info) and self.settings.wants(t)), None
+            )
             return PoseSource("fix", vehicle or self._first_cloud_frame(), topic, imu_topic=imu)
         _, first = self.bag.message(topic, 0)
         child = frame_name(first.child_frame_id) if msgtype == ODOMETRY else None
-        return PoseSource("topic", vehicle or child or self._first_cloud_frame(), topic, frame_name(first.header.frame_id))
+        return PoseSource(
+            "topic", vehicle or child or self._first_cloud_frame(), topic, frame_name(first.header.frame_id)
+        )
 
     def _tf_source(self, vehicle: str | None) -> PoseSource | None:
         moving = self.tree.moving
@@ -186,7 +227,10 @@ class RosBag:
         if self.settings.fixed_frame:  # the pair chosen
             fixed = frame_name(self.settings.fixed_frame)
             if fixed not in self.tree.frames or fixed == vehicle:
-                raise DatasetError(f"{self.config}: fixed_frame: the transform tree has no frame {fixed} apart from the vehicle's", path=self.config)
+                raise DatasetError(
+                    f"{self.config}: fixed_frame: the transform tree has no frame {fixed} apart from the vehicle's",
+                    path=self.config,
+                )
             return PoseSource("tf", vehicle, self.tree.dynamic, fixed_frame=fixed)
         chain, frame = set(), vehicle
         while frame in parents and frame != root:
@@ -197,7 +241,9 @@ class RosBag:
         return PoseSource("tf", vehicle, self.tree.dynamic, fixed_frame=root)
 
     def _first_cloud_frame(self) -> str:
-        clouds = [t for t, info in self.bag.topics.items() if info.msgtype == CLOUD and len(info) and self.settings.wants(t)]
+        clouds = [
+            t for t, info in self.bag.topics.items() if info.msgtype == CLOUD and len(info) and self.settings.wants(t)
+        ]
         if not clouds:
             return "base_link"
         return frame_name(self._first(clouds[0]).header.frame_id)
@@ -209,7 +255,10 @@ class RosBag:
             raise FrameSizeError(
                 f"{self.path}: topic {topic}: its first message would unpack {size_text(total)}, more than the limit of "
                 f"{size_text(MAX_FRAME_BYTES)} for one frame: refused unread",
-                size=total, limit=MAX_FRAME_BYTES, frame=0, path=self.path,
+                size=total,
+                limit=MAX_FRAME_BYTES,
+                frame=0,
+                path=self.path,
             )
         return self.bag.message(topic, 0)[1]
 
@@ -221,7 +270,9 @@ class RosBag:
         streams = [s for m in mappings for s in m.streams()]
         if POSE_STREAM in streams or len(set(streams)) != len(streams):
             twice = sorted({s for s in streams if streams.count(s) > 1 or s == POSE_STREAM})
-            raise DatasetError(f"{self.config or self.path}: streams named twice: {', '.join(twice)}", path=self.config or self.path)
+            raise DatasetError(
+                f"{self.config or self.path}: streams named twice: {', '.join(twice)}", path=self.config or self.path
+            )
         return mappings
 
     @cached_property
@@ -231,7 +282,11 @@ class RosBag:
         vehicle = self.pose_source.vehicle_frame
         result: dict[str, np.ndarray | None] = {}
         for mapping in self.mappings:
-            if mapping.role == "points" and len(self.bag.topics[mapping.topic]) and mapping.topic not in self.bag.problems:
+            if (
+                mapping.role == "points"
+                and len(self.bag.topics[mapping.topic])
+                and mapping.topic not in self.bag.problems
+            ):
                 frame = frame_name(self._first(mapping.topic).header.frame_id)
                 result[mapping.topic] = IDENTITY if frame == vehicle else static.lookup(frame, vehicle)
         return result
@@ -247,7 +302,9 @@ class RosBag:
         mapped = [self.bag.topics[m.topic].times for m in self.mappings if m.role != "excluded"]
         every = np.concatenate([t for t in mapped if len(t)] or [t.times for t in self.bag.topics.values() if len(t)])
         step = int(1e9 / (self.settings.rate or DEFAULT_RATE))
-        return np.arange(int(every.min()), int(every.max()) + step, step, dtype=np.int64)  # the last tick at or after the last message
+        return np.arange(
+            int(every.min()), int(every.max()) + step, step, dtype=np.int64
+        )  # the last tick at or after the last message
 
     @cached_property
     def times(self) -> np.ndarray:
@@ -260,7 +317,11 @@ class RosBag:
     @cached_property
     def map_origin(self) -> tuple[float, float, float] | None:
         """Longitude, latitude and altitude of the first fix (with a position) of the first NavSatFix topic, if any."""
-        topics = [t for t, info in self.bag.topics.items() if info.msgtype == NAV_SAT_FIX and len(info) and self.settings.wants(t)]
+        topics = [
+            t
+            for t, info in self.bag.topics.items()
+            if info.msgtype == NAV_SAT_FIX and len(info) and self.settings.wants(t)
+        ]
         if self.pose_source.kind == "fix":
             topics.insert(0, self.pose_source.topic)  # type: ignore[arg-type]
         for topic in topics:
@@ -300,11 +361,15 @@ class RosBag:
                 if size > MAX_FRAME_BYTES:
                     raise OversizeError(
                         f"{self.path}: frame {frame}: its original messages pass {MAX_FRAME_BYTES} bytes (at {original.topic})",
-                        size=size, limit=MAX_FRAME_BYTES, path=self.path,
+                        size=size,
+                        limit=MAX_FRAME_BYTES,
+                        path=self.path,
                     )
                 found.append((number, time, data))
                 if len(found) > MAX_FRAME_MESSAGES:
-                    raise DatasetError(f"{self.path}: frame {frame}: more than {MAX_FRAME_MESSAGES} original messages", path=self.path)
+                    raise DatasetError(
+                        f"{self.path}: frame {frame}: more than {MAX_FRAME_MESSAGES} original messages", path=self.path
+                    )
         found.sort(key=lambda record: (record[1], record[0]))
         return pack(found)
 
@@ -347,7 +412,10 @@ class RosBag:
             raise FrameSizeError(
                 f"{self.path}: frame {frame}: its messages and images would unpack {size_text(total)}, more than the "
                 f"limit of {size_text(MAX_FRAME_BYTES)} for one frame: refused unread",
-                size=total, limit=MAX_FRAME_BYTES, frame=frame, path=self.path,
+                size=total,
+                limit=MAX_FRAME_BYTES,
+                frame=frame,
+                path=self.path,
             )
 
     # -- XVIZ ---------------------------------------------------------------
@@ -355,22 +423,32 @@ class RosBag:
     def metadata(self) -> dict[str, Any]:
         """The log's metadata, from the bag's index and the first message of each cloud topic."""
         problems = self.bag.problems
-        unknown = sorted(f"{m.topic} ({m.msgtype}{': ' + problems[m.topic] if m.topic in problems else ''})"
-                         for m in self.mappings if m.role == "unknown")
+        unknown = sorted(
+            f"{m.topic} ({m.msgtype}{': ' + problems[m.topic] if m.topic in problems else ''})"
+            for m in self.mappings
+            if m.role == "unknown"
+        )
         if unknown:
             logger.info("%s: topics of types the mapping does not know, not served: %s", self.path, ", ".join(unknown))
         meta = MetadataBuilder()
-        meta.log_info(start_time=float(self.times[0]), end_time=float(self.times[-1]),
-                      source=f"{self.bag.container} bag {self.name}")
+        meta.log_info(
+            start_time=float(self.times[0]),
+            end_time=float(self.times[-1]),
+            source=f"{self.bag.container} bag {self.name}",
+        )
         meta.pose(POSE_STREAM)
         images, series, texts = [], [], []
         for mapping in self.mappings:
             style = self.settings.stream(mapping.topic).style
             if mapping.role == "points" and mapping.stream:
                 transform = self.cloud_transforms.get(mapping.topic)
-                meta.primitive(mapping.stream, "POINT", coordinate="VEHICLE_RELATIVE",
-                               transform=None if transform is None or transform is IDENTITY else transform,
-                               style=style or {"fill_color": "#00a", "radius_pixels": 1})
+                meta.primitive(
+                    mapping.stream,
+                    "POINT",
+                    coordinate="VEHICLE_RELATIVE",
+                    transform=None if transform is None or transform is IDENTITY else transform,
+                    style=style or {"fill_color": "#00a", "radius_pixels": 1},
+                )
             elif mapping.role == "image" and mapping.stream:
                 meta.primitive(mapping.stream, "IMAGE")
                 images.append(mapping.stream)
@@ -378,12 +456,20 @@ class RosBag:
                 meta.ui_primitive(mapping.stream, "TREETABLE")
                 texts.append(mapping.stream)
             elif mapping.role in ("path", "trajectory") and mapping.stream:
-                meta.primitive(mapping.stream, "POLYLINE", coordinate="VEHICLE_RELATIVE",
-                               style=style or {"stroke_color": "#47B27588", "stroke_width": 0.3, "stroke_width_min_pixels": 1})
+                meta.primitive(
+                    mapping.stream,
+                    "POLYLINE",
+                    coordinate="VEHICLE_RELATIVE",
+                    style=style or {"stroke_color": "#47B27588", "stroke_width": 0.3, "stroke_width_min_pixels": 1},
+                )
             elif mapping.role == "markers" and mapping.stream:
                 for suffix, primitive_type in MARKER_STREAMS.items():
-                    meta.primitive(f"{mapping.stream}/{suffix}", primitive_type, coordinate="VEHICLE_RELATIVE",
-                                   style=_MARKER_STYLES[suffix])
+                    meta.primitive(
+                        f"{mapping.stream}/{suffix}",
+                        primitive_type,
+                        coordinate="VEHICLE_RELATIVE",
+                        style=_MARKER_STYLES[suffix],
+                    )
             if mapping.msgtype in SERIES and mapping.stream and mapping.role in ("series", "pose", "trajectory"):
                 for suffix, scalar_type, units, _ in SERIES[mapping.msgtype]:
                     meta.time_series(mapping.stream + suffix, scalar_type, units=units)
@@ -405,7 +491,9 @@ class RosBag:
         t = int(self.clock[frame])
         snapshot = self.tree.at(t)
         pose = self._pose_at(t, snapshot)
-        builder.pose(POSE_STREAM, t / 1e9, map_origin=self.map_origin, position=pose[:3, 3].tolist(), orientation=rpy(pose))
+        builder.pose(
+            POSE_STREAM, t / 1e9, map_origin=self.map_origin, position=pose[:3, 3].tolist(), orientation=rpy(pose)
+        )
         for mapping in self.mappings:
             if mapping.stream is None:
                 continue
@@ -415,7 +503,9 @@ class RosBag:
                 self._warn(mapping.topic, str(exc))
         return builder.build(t / 1e9)
 
-    def _add(self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray, frame: int) -> None:
+    def _add(
+        self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray, frame: int
+    ) -> None:
         stream, topic = mapping.stream, mapping.topic
         assert stream is not None
         where = f"{self.path}: topic {topic}"
@@ -428,13 +518,17 @@ class RosBag:
             for marker in live_markers(messages, reach):
                 to_vehicle = self._resolve(marker.header.frame_id, snapshot, pose)
                 if to_vehicle is None:
-                    self._warn(topic, f"{where}: frame {marker.header.frame_id!r} is not connected to the vehicle frame")
+                    self._warn(
+                        topic, f"{where}: frame {marker.header.frame_id!r} is not connected to the vehicle frame"
+                    )
                     continue
                 draw_marker(builder, stream, marker, to_vehicle)
             return
         if mapping.role == "text":
             rows = list(self.bag.messages(topic, max(since, self._after(topic, reach, MAX_SHOWN)), reach + 1))
-            builder.treetable(stream, _TEXT_COLUMNS, [(i, None, _text_row(time, m)) for i, (time, m) in enumerate(reversed(rows))])
+            builder.treetable(
+                stream, _TEXT_COLUMNS, [(i, None, _text_row(time, m)) for i, (time, m) in enumerate(reversed(rows))]
+            )
             return
         if mapping.role == "trajectory":
             self._trajectory(builder, mapping, t, snapshot, pose)
@@ -447,18 +541,24 @@ class RosBag:
             if mapping.msgtype == LASER_SCAN:
                 points, colors = scan_points(message), None
             else:
-                points, colors = cloud_points(message, where, color=config.color, intensity_scale=self.settings.intensity_scale)
+                points, colors = cloud_points(
+                    message, where, color=config.color, intensity_scale=self.settings.intensity_scale
+                )
             if self.cloud_transforms.get(topic) is None:
                 to_vehicle = self._resolve(message.header.frame_id, snapshot, pose)
                 if to_vehicle is None:
-                    self._warn(topic, f"{where}: frame {message.header.frame_id!r} is not connected to the vehicle frame")
+                    self._warn(
+                        topic, f"{where}: frame {message.header.frame_id!r} is not connected to the vehicle frame"
+                    )
                     return
                 points = apply(to_vehicle, points)
             if len(points):  # a cloud of no-return or NaN points alone draws nothing
                 builder.points(stream, points, colors)
         elif mapping.role == "image":
             width = self.settings.image_max_width or self.image_max_width
-            data = (compressed_image_bytes if mapping.msgtype == COMPRESSED_IMAGE else image_bytes)(message, width, where)
+            data = (compressed_image_bytes if mapping.msgtype == COMPRESSED_IMAGE else image_bytes)(
+                message, width, where
+            )
             builder.image(stream, data)
         elif mapping.role == "path":
             vertices = path_vertices(message, lambda frame: self._resolve(frame, snapshot, pose))
@@ -473,7 +573,9 @@ class RosBag:
         info = self.bag.topics[topic]
         return int(info.times[max(info.at_or_before(t) - count + 1, 0)]) if len(info) else t + 1
 
-    def _trajectory(self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray) -> None:
+    def _trajectory(
+        self, builder: FrameBuilder, mapping: Mapping, t: int, snapshot: Snapshot, pose: np.ndarray
+    ) -> None:
         """A pose topic other than the pose source: a polyline of its positions up to ``t`` (at most
         :data:`MAX_SHOWN`, evenly spaced), in the vehicle frame."""
         info = self.bag.topics[mapping.topic]
@@ -484,7 +586,10 @@ class RosBag:
         messages = [self.bag.message(mapping.topic, int(i))[1] for i in indices]
         to_vehicle = self._resolve(messages[-1].header.frame_id, snapshot, pose)
         if to_vehicle is None:
-            self._warn(mapping.topic, f"{self.path}: topic {mapping.topic}: frame {messages[-1].header.frame_id!r} is not connected to the vehicle frame")
+            self._warn(
+                mapping.topic,
+                f"{self.path}: topic {mapping.topic}: frame {messages[-1].header.frame_id!r} is not connected to the vehicle frame",
+            )
             return
         builder.polyline(mapping.stream, apply(to_vehicle, np.array([_message_pose(m)[:3, 3] for m in messages])))  # type: ignore[arg-type]
 
@@ -510,7 +615,9 @@ class RosBag:
         if frame == source.vehicle_frame:
             return IDENTITY
         found = snapshot.lookup(frame, source.vehicle_frame)
-        if found is None and (frame == source.fixed_frame or (source.kind in ("fix", "none") and frame in _FIXED_FRAMES)):
+        if found is None and (
+            frame == source.fixed_frame or (source.kind in ("fix", "none") and frame in _FIXED_FRAMES)
+        ):
             return np.linalg.inv(pose)
         return found
 
@@ -526,7 +633,9 @@ class RosBag:
         if source.kind == "topic":
             return self._interpolated(source.topic, t, _message_pose)
         origin = self.map_origin
-        position = IDENTITY if origin is None else self._interpolated(source.topic, t, lambda fix: _fix_position(fix, origin))
+        position = (
+            IDENTITY if origin is None else self._interpolated(source.topic, t, lambda fix: _fix_position(fix, origin))
+        )
         if source.imu_topic is None:
             return position
         heading = self._interpolated(source.imu_topic, t, _imu_rotation)

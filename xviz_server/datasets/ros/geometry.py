@@ -9,7 +9,18 @@ import numpy as np
 
 from ..shared import EARTH_RADIUS, pose_angles
 
-__all__ = ["IDENTITY", "matrix", "from_quaternion", "from_pose", "from_transform", "interpolate", "rpy", "quaternion", "enu", "apply"]
+__all__ = [
+    "IDENTITY",
+    "matrix",
+    "from_quaternion",
+    "from_pose",
+    "from_transform",
+    "interpolate",
+    "rpy",
+    "quaternion",
+    "enu",
+    "apply",
+]
 
 IDENTITY = np.eye(4)
 
@@ -19,11 +30,13 @@ def _rotation(x: float, y: float, z: float, w: float) -> np.ndarray:
     if not norm or not math.isfinite(norm):
         return np.eye(3)  # an unset quaternion (all zeros) is taken as no rotation, as rviz does
     x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def matrix(translation: Any, rotation: Any) -> np.ndarray:
@@ -101,4 +114,6 @@ def enu(latitude: float, longitude: float, altitude: float, origin: tuple[float,
 
 def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(N, 3) points moved by a 4x4 transform, float32."""
-    return (points @ transform[:3, :3].T.astype(np.float32) + transform[:3, 3].astype(np.float32)).astype(np.float32, copy=False)
+    return (points @ transform[:3, :3].T.astype(np.float32) + transform[:3, 3].astype(np.float32)).astype(
+        np.float32, copy=False
+    )

@@ -44,18 +44,27 @@ def inspect_bag(path: Path, config: str | None = None) -> dict[str, Any]:
         count = len(info)
         first, last = (float(info.times[0]) / 1e9, float(info.times[-1]) / 1e9) if count else (None, None)
         rate = (count - 1) / (last - first) if count > 1 and last and first and last > first else None
-        topics.append({
-            "topic": name,
-            "type": info.msgtype,
-            "count": count,
-            "rate_hz": rate,
-            "first": first,
-            "last": last,
-            "maps_to": mappings[name].describe(),
-            "note": dataset.bag.problems.get(name) or (_stamp_note(dataset, name, int(info.times[0])) if count else "no message"),
-        })
-    clock = dataset.settings.clock or next((m.topic for m in dataset.mappings if m.role == "points"
-                                            and len(dataset.bag.topics[m.topic]) and dataset.settings.rate is None), None)
+        topics.append(
+            {
+                "topic": name,
+                "type": info.msgtype,
+                "count": count,
+                "rate_hz": rate,
+                "first": first,
+                "last": last,
+                "maps_to": mappings[name].describe(),
+                "note": dataset.bag.problems.get(name)
+                or (_stamp_note(dataset, name, int(info.times[0])) if count else "no message"),
+            }
+        )
+    clock = dataset.settings.clock or next(
+        (
+            m.topic
+            for m in dataset.mappings
+            if m.role == "points" and len(dataset.bag.topics[m.topic]) and dataset.settings.rate is None
+        ),
+        None,
+    )
     return {
         "path": str(dataset.path),
         "name": dataset.name,

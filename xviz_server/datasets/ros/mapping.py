@@ -40,7 +40,13 @@ TEXT_TYPES = ("std_msgs/msg/String", "rosgraph_msgs/msg/Log", "rcl_interfaces/ms
 #: Pose sources in the order of preference after /tf.
 POSE_TYPES = (ODOMETRY, POSE_STAMPED, POSE_WITH_COVARIANCE, NAV_SAT_FIX)
 #: The streams of a marker topic, by XVIZ primitive type: ``<stream>/<suffix>``.
-MARKER_STREAMS = {"polygons": "POLYGON", "polylines": "POLYLINE", "points": "POINT", "circles": "CIRCLE", "texts": "TEXT"}
+MARKER_STREAMS = {
+    "polygons": "POLYGON",
+    "polylines": "POLYLINE",
+    "points": "POINT",
+    "circles": "CIRCLE",
+    "texts": "TEXT",
+}
 
 Getter = Callable[[Any], Any]
 
@@ -115,9 +121,18 @@ class Mapping:
     def describe(self) -> str:
         """The mapping in a few words, for ``inspect``: ``POINT /velodyne_points``."""
         words = {
-            "points": "POINT", "image": "IMAGE", "markers": "POLYGON/POLYLINE/POINT/CIRCLE/TEXT", "path": "POLYLINE",
-            "series": "TIME_SERIES", "text": "UI_PRIMITIVE (a table of the recent messages)", "pose": "pose source of /vehicle_pose", "trajectory": "POLYLINE (the trajectory so far)", "origin": "map_origin",
-            "transforms": "transform tree", "unused": "not used", "unknown": "unknown type, not served",
+            "points": "POINT",
+            "image": "IMAGE",
+            "markers": "POLYGON/POLYLINE/POINT/CIRCLE/TEXT",
+            "path": "POLYLINE",
+            "series": "TIME_SERIES",
+            "text": "UI_PRIMITIVE (a table of the recent messages)",
+            "pose": "pose source of /vehicle_pose",
+            "trajectory": "POLYLINE (the trajectory so far)",
+            "origin": "map_origin",
+            "transforms": "transform tree",
+            "unused": "not used",
+            "unknown": "unknown type, not served",
             "excluded": "excluded by the configuration",
         }[self.role]
         made = ", ".join(self.streams())
@@ -164,5 +179,14 @@ def plan(bag: AnyBag, config: RosConfig, pose_topic: str | None) -> list[Mapping
             role = "trajectory"
         else:
             role = "unknown"
-        mappings.append(Mapping(topic, msgtype, role, stream if role in ("points", "image", "markers", "path", "series", "pose", "text", "trajectory") else None))
+        mappings.append(
+            Mapping(
+                topic,
+                msgtype,
+                role,
+                stream
+                if role in ("points", "image", "markers", "path", "series", "pose", "text", "trajectory")
+                else None,
+            )
+        )
     return mappings

@@ -76,12 +76,18 @@ def draw_marker(builder: FrameBuilder, stream: str, marker: Any, to_vehicle: np.
     if kind in (CUBE, CUBE_LIST):
         centers = np.zeros((1, 3)) if kind == CUBE else local
         for corners in _boxes(centers, scale):
-            builder.polygon(f"{stream}/polygons", apply(pose, corners), id=object_id,
-                            style={"fill_color": color, "height": float(scale.z)})
+            builder.polygon(
+                f"{stream}/polygons",
+                apply(pose, corners),
+                id=object_id,
+                style={"fill_color": color, "height": float(scale.z)},
+            )
     elif kind in (SPHERE, CYLINDER, SPHERE_LIST):
         centers = np.zeros((1, 3)) if kind != SPHERE_LIST else local
         for center in apply(pose, centers):
-            builder.circle(f"{stream}/circles", center.tolist(), float(scale.x) / 2, id=object_id, style={"fill_color": color})
+            builder.circle(
+                f"{stream}/circles", center.tolist(), float(scale.x) / 2, id=object_id, style={"fill_color": color}
+            )
     elif kind == ARROW:
         ends = local[:2] if len(local) >= 2 else np.array([[0.0, 0.0, 0.0], [scale.x, 0.0, 0.0]])
         builder.polyline(f"{stream}/polylines", apply(pose, ends), id=object_id, style={"stroke_color": color})
@@ -91,7 +97,9 @@ def draw_marker(builder: FrameBuilder, stream: str, marker: Any, to_vehicle: np.
         for pair in apply(pose, local[: len(local) // 2 * 2]).reshape(-1, 2, 3):
             builder.polyline(f"{stream}/polylines", pair, id=object_id, style={"stroke_color": color})
     elif kind == POINTS and len(local):
-        colors = np.array([_color(c) for c in marker.colors], dtype=np.uint8) if len(marker.colors) == len(local) else None
+        colors = (
+            np.array([_color(c) for c in marker.colors], dtype=np.uint8) if len(marker.colors) == len(local) else None
+        )
         builder.points(f"{stream}/points", apply(pose, local), colors, id=object_id)
     elif kind == TEXT_VIEW_FACING:
         builder.text(f"{stream}/texts", pose[:3, 3].tolist(), marker.text, id=object_id, style={"fill_color": color})
@@ -102,5 +110,7 @@ def path_vertices(message: Any, resolve: Resolver) -> np.ndarray | None:
     to_vehicle = resolve(message.header.frame_id)
     if to_vehicle is None:
         return None
-    positions = np.array([(p.pose.position.x, p.pose.position.y, p.pose.position.z) for p in message.poses]).reshape(-1, 3)
+    positions = np.array([(p.pose.position.x, p.pose.position.y, p.pose.position.z) for p in message.poses]).reshape(
+        -1, 3
+    )
     return apply(to_vehicle, positions)

@@ -152,7 +152,9 @@ class McapBag:
             return channel.topic
         first = same[0]
         schema, other = channel.schema, first.schema
-        if channel.message_encoding == first.message_encoding and (schema.name if schema else None) == (other.name if other else None):
+        if channel.message_encoding == first.message_encoding and (schema.name if schema else None) == (
+            other.name if other else None
+        ):
             return channel.topic
         return f"{channel.topic} (channel {channel.id})"
 
@@ -201,18 +203,28 @@ class McapBag:
             schemas = dict(summary.schemas)
             for schema_channel in summary.channels.values():
                 channels[(storage, schema_channel.id)] = _Channel(
-                    schema_channel.id, schema_channel.topic, schema_channel.message_encoding,
-                    summary.schemas.get(schema_channel.schema_id), storage)
+                    schema_channel.id,
+                    schema_channel.topic,
+                    schema_channel.message_encoding,
+                    summary.schemas.get(schema_channel.schema_id),
+                    storage,
+                )
             entries: list[np.ndarray] = []
             for number, index in enumerate(sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)):
-                chunk = _Chunk(index.chunk_start_offset, index.compression, index.compressed_size, index.uncompressed_size, 0)
+                chunk = _Chunk(
+                    index.chunk_start_offset, index.compression, index.compressed_size, index.uncompressed_size, 0
+                )
                 self._chunks[storage].append(chunk)
                 if index.message_index_offsets:
                     entries.append(self._message_indexes(storage, number, file, index, path))
                 else:
-                    entries.append(self._chunk_entries(storage, number, self._read_chunk(storage, number, file), channels, schemas))
+                    entries.append(
+                        self._chunk_entries(storage, number, self._read_chunk(storage, number, file), channels, schemas)
+                    )
             table = np.concatenate(entries)
-            if set(np.unique(table[:, 1]).tolist()) - {c for s, c in channels if s == storage}:  # channels only in chunks
+            if set(np.unique(table[:, 1]).tolist()) - {
+                c for s, c in channels if s == storage
+            }:  # channels only in chunks
                 for number in range(len(self._chunks[storage])):
                     self._chunk_entries(storage, number, self._read_chunk(storage, number, file), channels, schemas)
             return table
@@ -220,7 +232,10 @@ class McapBag:
     def _message_indexes(self, storage: int, number: int, file: Any, index: Any, path: Any) -> np.ndarray:
         start = min(index.message_index_offsets.values())
         if index.message_index_length > MAX_CHUNK_BYTES:
-            raise DatasetError(f"{path}: the message indexes of the chunk at byte {index.chunk_start_offset} are too large", path=self.path)
+            raise DatasetError(
+                f"{path}: the message indexes of the chunk at byte {index.chunk_start_offset} are too large",
+                path=self.path,
+            )
         file.seek(start)
         data = file.read(index.message_index_length)
         entries: list[np.ndarray] = [_rows([])]
@@ -231,7 +246,13 @@ class McapBag:
                 raise DatasetError(f"{path}: damaged message index at byte {start + position}", path=self.path)
             pairs = np.frombuffer(data, "<u8", count=size // 8, offset=position + 15).reshape(-1, 2).astype(np.int64)
             rows = np.empty((len(pairs), 5), np.int64)
-            rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4] = storage, channel, pairs[:, 0], number, pairs[:, 1]
+            rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4] = (
+                storage,
+                channel,
+                pairs[:, 0],
+                number,
+                pairs[:, 1],
+            )
             entries.append(rows)
             position += 9 + length
         return np.concatenate(entries)
@@ -250,8 +271,12 @@ class McapBag:
             if opcode in (_FOOTER, _DATA_END):
                 break
             if end > size:
-                logger.warning("%s: a record at byte %d is cut off by the end of the file: the %d bytes from there are left out",
-                               self.path, position, size - position)
+                logger.warning(
+                    "%s: a record at byte %d is cut off by the end of the file: the %d bytes from there are left out",
+                    self.path,
+                    position,
+                    size - position,
+                )
                 break
             if opcode in (_SCHEMA, _CHANNEL):
                 self._learn(opcode, file.read(length), storage, schemas, channels)
@@ -270,7 +295,9 @@ class McapBag:
             position = end
         return np.concatenate([*entries, _rows(top)])
 
-    def _learn(self, opcode: int, body: bytes, storage: int, schemas: dict[int, Any], channels: dict[tuple[int, int], _Channel]) -> None:
+    def _learn(
+        self, opcode: int, body: bytes, storage: int, schemas: dict[int, Any], channels: dict[tuple[int, int], _Channel]
+    ) -> None:
         from mcap.data_stream import ReadDataStream
         from mcap.records import Channel, Schema
 
@@ -280,11 +307,19 @@ class McapBag:
             schemas.setdefault(schema.id, schema)
         else:
             record = Channel.read(stream)
-            channels.setdefault((storage, record.id), _Channel(record.id, record.topic, record.message_encoding,
-                                                                 schemas.get(record.schema_id), storage))
+            channels.setdefault(
+                (storage, record.id),
+                _Channel(record.id, record.topic, record.message_encoding, schemas.get(record.schema_id), storage),
+            )
 
-    def _chunk_entries(self, storage: int, number: int, data: bytes, channels: dict[tuple[int, int], _Channel],
-                       schemas: dict[int, Any] | None = None) -> np.ndarray:
+    def _chunk_entries(
+        self,
+        storage: int,
+        number: int,
+        data: bytes,
+        channels: dict[tuple[int, int], _Channel],
+        schemas: dict[int, Any] | None = None,
+    ) -> np.ndarray:
         """The messages of an unpacked chunk, by walking its records."""
         entries = []
         schemas = {} if schemas is None else schemas
@@ -298,7 +333,7 @@ class McapBag:
                 channel, _, time = struct.unpack_from("<HIQ", data, body)
                 entries.append((storage, channel, time, number, position))
             elif opcode in (_SCHEMA, _CHANNEL):
-                self._learn(opcode, data[body:body + length], storage, schemas, channels)
+                self._learn(opcode, data[body : body + length], storage, schemas, channels)
             position = body + length
         return _rows(entries)
 
@@ -320,7 +355,9 @@ class McapBag:
                 file.seek(offset)
                 opcode, length = struct.unpack("<BQ", file.read(9))
                 if opcode != _MESSAGE or length > MAX_CHUNK_BYTES:
-                    raise DatasetError(f"{self.path}: topic {topic}: no message record at byte {offset}", path=self.path)
+                    raise DatasetError(
+                        f"{self.path}: topic {topic}: no message record at byte {offset}", path=self.path
+                    )
                 return memoryview(file.read(length))[22:]
         data = self._cache.pop((storage, chunk), None)
         if data is None:
@@ -331,7 +368,9 @@ class McapBag:
                 kept -= len(self._cache.pop(next(iter(self._cache))))
         self._cache[(storage, chunk)] = data
         if offset + 31 > len(data) or data[offset] != _MESSAGE:
-            raise DatasetError(f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path)
+            raise DatasetError(
+                f"{self.path}: topic {topic}: no message record at offset {offset} of chunk {chunk}", path=self.path
+            )
         (length,) = struct.unpack_from("<Q", data, offset + 1)
         return memoryview(data)[offset + 31 : offset + 9 + length]
 
@@ -358,7 +397,9 @@ class McapBag:
         for time, msgtype, data in self.serialized(topic, start, stop):
             yield time, self._decode(topic, msgtype, time, data)
 
-    def serialized(self, topic: str, start: int | None, stop: int | None) -> Iterator[tuple[int, str, bytes | memoryview]]:
+    def serialized(
+        self, topic: str, start: int | None, stop: int | None
+    ) -> Iterator[tuple[int, str, bytes | memoryview]]:
         """The messages of ``topic`` recorded in ``[start, stop)`` ns as the file holds them, in time order."""
         info = self.topics[topic]
         assert info.places is not None
@@ -406,5 +447,6 @@ class McapBag:
             return adapt(schema.name if schema is not None else "", decoder(bytes(data)))
         except Exception as exc:  # noqa: BLE001 - a message that does not match its schema
             raise DatasetError(
-                f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {reason(exc)}", path=self.path,
+                f"{self.path}: topic {topic}: a {msgtype} message at {time} ns does not decode: {reason(exc)}",
+                path=self.path,
             ) from None

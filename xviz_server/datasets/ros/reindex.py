@@ -35,9 +35,10 @@ from __future__ import annotations
 import io
 import os
 from collections import defaultdict
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from rosbags.interfaces import Connection
 from rosbags.rosbag1 import Reader, ReaderError
@@ -126,7 +127,9 @@ class MemoryIndexedReader(Reader):
         datasize = read_uint32(bio)
         datapos = bio.tell()
         if datapos + datasize > self._size:
-            raise ReaderError(f"the chunk at byte {position} needs {datasize} bytes, the file ends {self._size - datapos} after")
+            raise ReaderError(
+                f"the chunk at byte {position} needs {datasize} bytes, the file ends {self._size - datapos} after"
+            )
         bio.seek(datasize, os.SEEK_CUR)
         return Chunk(datasize, datapos, self._unpacker(header, position))
 
@@ -150,7 +153,9 @@ class MemoryIndexedReader(Reader):
             bio.seek(info.pos)
             chunk = self._chunk_record()
             end = chunk.datapos + chunk.datasize
-            ranges.append((end, end + sum(_INDEX_HEADER + _INDEX_ENTRY * count for count in info.connection_counts.values())))
+            ranges.append(
+                (end, end + sum(_INDEX_HEADER + _INDEX_ENTRY * count for count in info.connection_counts.values()))
+            )
         bio.prefetch(ranges)
         bio.seek(position)
 

@@ -15,11 +15,24 @@ __all__ = ["byte_array", "cloud_points", "scan_points", "image_bytes", "compress
 
 # sensor_msgs/PointField datatypes.
 _FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
-_BAYER = {"rggb": (0, 1, 1, 2), "bggr": (2, 1, 1, 0), "gbrg": (1, 2, 0, 1), "grbg": (1, 0, 2, 1)}  # channel of each 2x2 cell
+_BAYER = {
+    "rggb": (0, 1, 1, 2),
+    "bggr": (2, 1, 1, 0),
+    "gbrg": (1, 2, 0, 1),
+    "grbg": (1, 0, 2, 1),
+}  # channel of each 2x2 cell
 #: Images are first shrunk by a whole factor with a box filter, then resampled (see ``fit_width``).
 _REDUCING_GAP = 1.0
 IMAGE_ENCODINGS = (
-    "rgb8", "bgr8", "rgba8", "bgra8", "mono8", "8uc1", "mono16", "16uc1", "8uc3",
+    "rgb8",
+    "bgr8",
+    "rgba8",
+    "bgra8",
+    "mono8",
+    "8uc1",
+    "mono16",
+    "16uc1",
+    "8uc3",
     *(f"bayer_{pattern}8" for pattern in _BAYER),
 )
 
@@ -32,7 +45,9 @@ def byte_array(data: Any) -> np.ndarray:
     return np.asarray(data, dtype=np.uint8)
 
 
-def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_scale: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+def cloud_points(
+    message: Any, where: str, *, color: str = "auto", intensity_scale: float | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The finite points of a ``PointCloud2``, float32 (N, 3), and their uint8 colours or ``None``; points at
     exactly (0, 0, 0), which drivers write for a beam with no return (an Ouster cloud keeps every beam), are left out.
 
@@ -48,23 +63,31 @@ def cloud_points(message: Any, where: str, *, color: str = "auto", intensity_sca
     fields = {f.name: f for f in message.fields}
     missing = [axis for axis in "xyz" if axis not in fields]
     if missing:
-        raise DatasetError(f"{where}: PointCloud2 has no {', '.join(missing)} field (fields: {', '.join(fields) or 'none'})")
+        raise DatasetError(
+            f"{where}: PointCloud2 has no {', '.join(missing)} field (fields: {', '.join(fields) or 'none'})"
+        )
     order = ">" if message.is_bigendian else "<"
     wanted = [name for name in ("x", "y", "z", "rgb", "rgba", "intensity") if name in fields]
     try:
-        dtype = np.dtype({
-            "names": wanted,
-            "formats": [order + _FIELD_TYPES[fields[name].datatype] for name in wanted],
-            "offsets": [fields[name].offset for name in wanted],
-            "itemsize": message.point_step,
-        })
+        dtype = np.dtype(
+            {
+                "names": wanted,
+                "formats": [order + _FIELD_TYPES[fields[name].datatype] for name in wanted],
+                "offsets": [fields[name].offset for name in wanted],
+                "itemsize": message.point_step,
+            }
+        )
     except (KeyError, ValueError) as exc:
-        raise DatasetError(f"{where}: PointCloud2 field layout does not fit point_step {message.point_step}: {exc}") from None
+        raise DatasetError(
+            f"{where}: PointCloud2 field layout does not fit point_step {message.point_step}: {exc}"
+        ) from None
     count = message.width * message.height
     data = byte_array(message.data)
     row = message.width * message.point_step
     if len(data) < (message.height - 1) * message.row_step + row or (message.height > 1 and message.row_step < row):
-        raise DatasetError(f"{where}: PointCloud2 data holds {len(data)} bytes, too few for {message.width}x{message.height} points")
+        raise DatasetError(
+            f"{where}: PointCloud2 data holds {len(data)} bytes, too few for {message.width}x{message.height} points"
+        )
     if message.height > 1 and message.row_step != row:
         data = data[: message.height * message.row_step].reshape(message.height, message.row_step)[:, :row]
     records = np.frombuffer(np.ascontiguousarray(data[: count * message.point_step]).data, dtype=dtype, count=count)
@@ -101,7 +124,9 @@ def scan_points(message: Any) -> np.ndarray:
     ``[range_min, range_max]`` and not finite are no returns, left out."""
     ranges = np.asarray(message.ranges, dtype=np.float64)
     angles = float(message.angle_min) + float(message.angle_increment) * np.arange(len(ranges))
-    keep = np.isfinite(ranges) & (ranges >= float(message.range_min)) & (ranges <= float(message.range_max)) & (ranges > 0)
+    keep = (
+        np.isfinite(ranges) & (ranges >= float(message.range_min)) & (ranges <= float(message.range_max)) & (ranges > 0)
+    )
     points = np.zeros((int(keep.sum()), 3), dtype=np.float32)
     points[:, 0] = ranges[keep] * np.cos(angles[keep])
     points[:, 1] = ranges[keep] * np.sin(angles[keep])
@@ -116,7 +141,9 @@ def _pixels(message: Any, where: str) -> np.ndarray:
     if encoding not in IMAGE_ENCODINGS:
         raise DatasetError(f"{where}: image encoding {message.encoding!r} is not one of {', '.join(IMAGE_ENCODINGS)}")
     if step < width * channels or len(data) < height * step:
-        raise DatasetError(f"{where}: {encoding} image of {width}x{height} needs {height * step} bytes of rows of {width * channels}, has {len(data)}")
+        raise DatasetError(
+            f"{where}: {encoding} image of {width}x{height} needs {height * step} bytes of rows of {width * channels}, has {len(data)}"
+        )
     rows = data[: height * step].reshape(height, step)[:, : width * channels]
     if channels == 2:  # 16-bit mono: keep the high byte
         order = ">" if message.is_bigendian else "<"

@@ -86,7 +86,9 @@ class TransformTree:
     def __post_init__(self) -> None:
         self.static = {}
         topics = self.bag.topics
-        usable = [t for t, info in topics.items() if info.msgtype in TF_TYPES and len(info) and t not in self.bag.problems]
+        usable = [
+            t for t, info in topics.items() if info.msgtype in TF_TYPES and len(info) and t not in self.bag.problems
+        ]
         for topic in (t for t in usable if t.endswith("tf_static")):
             for _, message in self.bag.messages(topic, None, None):
                 for parent, child, edge in _edges(message):
@@ -96,7 +98,9 @@ class TransformTree:
         self.moving = {}
         if self.dynamic is not None:
             times = topics[self.dynamic].times
-            for _, message in self.bag.messages(self.dynamic, int(times[0]), int(times[min(len(times), _SAMPLE) - 1]) + 1):
+            for _, message in self.bag.messages(
+                self.dynamic, int(times[0]), int(times[min(len(times), _SAMPLE) - 1]) + 1
+            ):
                 for parent, child, _ in _edges(message):
                     self.moving[child] = parent
 
@@ -139,4 +143,3 @@ class TransformTree:
                 if abs(near[0] - t) <= self.staleness:
                     parents[child] = (near[1], near[2])
         return Snapshot(parents)
-

@@ -70,18 +70,24 @@ def _bytes(value: Any) -> bytes:
 
 def _header(message: Any, frame: str = "frame_id") -> SimpleNamespace:
     stamp = nanoseconds(_get(message, "timestamp"))
-    return SimpleNamespace(frame_id=str(_get(message, frame, "")), stamp=SimpleNamespace(sec=stamp // 10**9, nanosec=stamp % 10**9))
+    return SimpleNamespace(
+        frame_id=str(_get(message, frame, "")), stamp=SimpleNamespace(sec=stamp // 10**9, nanosec=stamp % 10**9)
+    )
 
 
 def _vector(value: Any, w: float | None = None) -> SimpleNamespace:
-    result = SimpleNamespace(x=float(_get(value, "x", 0.0)), y=float(_get(value, "y", 0.0)), z=float(_get(value, "z", 0.0)))
+    result = SimpleNamespace(
+        x=float(_get(value, "x", 0.0)), y=float(_get(value, "y", 0.0)), z=float(_get(value, "z", 0.0))
+    )
     if w is not None:
         result.w = float(_get(value, "w", w))
     return result
 
 
 def _pose(value: Any) -> SimpleNamespace:
-    return SimpleNamespace(position=_vector(_get(value, "position")), orientation=_vector(_get(value, "orientation"), 1.0))
+    return SimpleNamespace(
+        position=_vector(_get(value, "position")), orientation=_vector(_get(value, "orientation"), 1.0)
+    )
 
 
 def _color(value: Any) -> SimpleNamespace:
@@ -95,32 +101,75 @@ def _numeric(value: Any) -> int:
 
 def _cloud(m: Any) -> SimpleNamespace:
     data, stride = _bytes(_get(m, "data")), int(_get(m, "point_stride", 0))
-    fields = [SimpleNamespace(name=f.name, offset=int(_get(f, "offset", 0)), datatype=_numeric(_get(f, "type", 0)), count=1)
-              for f in _get(m, "fields", [])]
+    fields = [
+        SimpleNamespace(name=f.name, offset=int(_get(f, "offset", 0)), datatype=_numeric(_get(f, "type", 0)), count=1)
+        for f in _get(m, "fields", [])
+    ]
     width = len(data) // stride if stride else 0
-    return SimpleNamespace(header=_header(m), fields=fields, point_step=stride, width=width, height=1,
-                           row_step=width * stride, is_bigendian=False, is_dense=True, data=data)
+    return SimpleNamespace(
+        header=_header(m),
+        fields=fields,
+        point_step=stride,
+        width=width,
+        height=1,
+        row_step=width * stride,
+        is_bigendian=False,
+        is_dense=True,
+        data=data,
+    )
 
 
 def _transform(t: Any) -> SimpleNamespace:
-    return SimpleNamespace(header=_header(t, "parent_frame_id"), child_frame_id=str(_get(t, "child_frame_id", "")),
-                           transform=SimpleNamespace(translation=_vector(_get(t, "translation")),
-                                                     rotation=_vector(_get(t, "rotation"), 1.0)))
+    return SimpleNamespace(
+        header=_header(t, "parent_frame_id"),
+        child_frame_id=str(_get(t, "child_frame_id", "")),
+        transform=SimpleNamespace(
+            translation=_vector(_get(t, "translation")), rotation=_vector(_get(t, "rotation"), 1.0)
+        ),
+    )
 
 
 def _laser(m: Any) -> SimpleNamespace:
     ranges = list(_get(m, "ranges", []))
     start, end = float(_get(m, "start_angle", 0.0)), float(_get(m, "end_angle", 0.0))
     step = (end - start) / (len(ranges) - 1) if len(ranges) > 1 else 0.0
-    return SimpleNamespace(header=_header(m), angle_min=start, angle_max=end, angle_increment=step, range_min=0.0,
-                           range_max=math.inf, ranges=ranges, intensities=list(_get(m, "intensities", [])))
+    return SimpleNamespace(
+        header=_header(m),
+        angle_min=start,
+        angle_max=end,
+        angle_increment=step,
+        range_min=0.0,
+        range_max=math.inf,
+        ranges=ranges,
+        intensities=list(_get(m, "intensities", [])),
+    )
 
 
-def _marker(entity: Any, frame: SimpleNamespace, number: int, kind: int, pose: Any, scale: Any, color: Any,
-            points: list[Any] | None = None, text: str = "") -> SimpleNamespace:
-    return SimpleNamespace(header=frame, ns=str(_get(entity, "id", "")), id=number, type=kind, action=0,
-                           pose=_pose(pose), scale=scale, color=_color(color), points=points or [], colors=[], text=text,
-                           lifetime=SimpleNamespace(sec=0, nanosec=nanoseconds(_get(entity, "lifetime"))))
+def _marker(
+    entity: Any,
+    frame: SimpleNamespace,
+    number: int,
+    kind: int,
+    pose: Any,
+    scale: Any,
+    color: Any,
+    points: list[Any] | None = None,
+    text: str = "",
+) -> SimpleNamespace:
+    return SimpleNamespace(
+        header=frame,
+        ns=str(_get(entity, "id", "")),
+        id=number,
+        type=kind,
+        action=0,
+        pose=_pose(pose),
+        scale=scale,
+        color=_color(color),
+        points=points or [],
+        colors=[],
+        text=text,
+        lifetime=SimpleNamespace(sec=0, nanosec=nanoseconds(_get(entity, "lifetime"))),
+    )
 
 
 def _scene(m: Any) -> SimpleNamespace:
@@ -132,25 +181,74 @@ def _scene(m: Any) -> SimpleNamespace:
         frame = _header(entity)
         parts: list[SimpleNamespace] = []
         for cube in _get(entity, "cubes", []):
-            parts.append(_marker(entity, frame, len(parts), _CUBE, _get(cube, "pose"), _vector(_get(cube, "size")), _get(cube, "color")))
+            parts.append(
+                _marker(
+                    entity,
+                    frame,
+                    len(parts),
+                    _CUBE,
+                    _get(cube, "pose"),
+                    _vector(_get(cube, "size")),
+                    _get(cube, "color"),
+                )
+            )
         for kind, primitives in ((_SPHERE, "spheres"), (_CYLINDER, "cylinders")):
             for shape in _get(entity, primitives, []):
-                parts.append(_marker(entity, frame, len(parts), kind, _get(shape, "pose"), _vector(_get(shape, "size")), _get(shape, "color")))
+                parts.append(
+                    _marker(
+                        entity,
+                        frame,
+                        len(parts),
+                        kind,
+                        _get(shape, "pose"),
+                        _vector(_get(shape, "size")),
+                        _get(shape, "color"),
+                    )
+                )
         for line in _get(entity, "lines", []):
             kind = _get(line, "type", 0)
             points = [_vector(p) for p in _get(line, "points", [])]
             if kind in (_LINE_LOOP, "LINE_LOOP") and points:
                 points.append(points[0])
             marker_type = _M_LINE_LIST if kind in (_LINE_LIST, "LINE_LIST") else _M_LINE_STRIP
-            parts.append(_marker(entity, frame, len(parts), marker_type, _get(line, "pose"),
-                                 SimpleNamespace(x=float(_get(line, "thickness", 0.0)), y=0.0, z=0.0), _get(line, "color"), points))
+            parts.append(
+                _marker(
+                    entity,
+                    frame,
+                    len(parts),
+                    marker_type,
+                    _get(line, "pose"),
+                    SimpleNamespace(x=float(_get(line, "thickness", 0.0)), y=0.0, z=0.0),
+                    _get(line, "color"),
+                    points,
+                )
+            )
         for arrow in _get(entity, "arrows", []):
             length = float(_get(arrow, "shaft_length", 0.0)) + float(_get(arrow, "head_length", 0.0))
-            parts.append(_marker(entity, frame, len(parts), _ARROW, _get(arrow, "pose"),
-                                 SimpleNamespace(x=length, y=0.0, z=0.0), _get(arrow, "color")))
+            parts.append(
+                _marker(
+                    entity,
+                    frame,
+                    len(parts),
+                    _ARROW,
+                    _get(arrow, "pose"),
+                    SimpleNamespace(x=length, y=0.0, z=0.0),
+                    _get(arrow, "color"),
+                )
+            )
         for text in _get(entity, "texts", []):
-            parts.append(_marker(entity, frame, len(parts), _TEXT, _get(text, "pose"), SimpleNamespace(x=0.0, y=0.0, z=0.0),
-                                 _get(text, "color"), text=str(_get(text, "text", ""))))
+            parts.append(
+                _marker(
+                    entity,
+                    frame,
+                    len(parts),
+                    _TEXT,
+                    _get(text, "pose"),
+                    SimpleNamespace(x=0.0, y=0.0, z=0.0),
+                    _get(text, "color"),
+                    text=str(_get(text, "text", "")),
+                )
+            )
         markers += parts
     return SimpleNamespace(markers=markers)
 
@@ -161,9 +259,15 @@ def _adapt(name: str, m: Any) -> Any:
     if name == "foxglove.CompressedImage":
         return SimpleNamespace(header=_header(m), format=str(_get(m, "format", "")), data=_bytes(_get(m, "data")))
     if name == "foxglove.RawImage":
-        return SimpleNamespace(header=_header(m), width=int(_get(m, "width", 0)), height=int(_get(m, "height", 0)),
-                               encoding=str(_get(m, "encoding", "")), step=int(_get(m, "step", 0)), is_bigendian=False,
-                               data=_bytes(_get(m, "data")))
+        return SimpleNamespace(
+            header=_header(m),
+            width=int(_get(m, "width", 0)),
+            height=int(_get(m, "height", 0)),
+            encoding=str(_get(m, "encoding", "")),
+            step=int(_get(m, "step", 0)),
+            is_bigendian=False,
+            data=_bytes(_get(m, "data")),
+        )
     if name == "foxglove.FrameTransform":
         return SimpleNamespace(transforms=[_transform(m)])
     if name == "foxglove.FrameTransforms":
@@ -171,19 +275,33 @@ def _adapt(name: str, m: Any) -> Any:
     if name == "foxglove.PoseInFrame":
         return SimpleNamespace(header=_header(m), pose=_pose(_get(m, "pose")))
     if name == "foxglove.LocationFix":
-        return SimpleNamespace(header=_header(m), latitude=float(_get(m, "latitude", math.nan)),
-                               longitude=float(_get(m, "longitude", math.nan)), altitude=float(_get(m, "altitude", 0.0)),
-                               status=SimpleNamespace(status=0))
+        return SimpleNamespace(
+            header=_header(m),
+            latitude=float(_get(m, "latitude", math.nan)),
+            longitude=float(_get(m, "longitude", math.nan)),
+            altitude=float(_get(m, "altitude", 0.0)),
+            status=SimpleNamespace(status=0),
+        )
     if name == "foxglove.SceneUpdate":
         return _scene(m)
     if name == "foxglove.LaserScan":
         return _laser(m)
     if name == "foxglove.Log":
         level = _get(m, "level", 0)
-        level = {"DEBUG": 1, "INFO": 2, "WARNING": 3, "ERROR": 4, "FATAL": 5}.get(level, 0) if isinstance(level, str) else int(level)
-        return SimpleNamespace(stamp=_header(m).stamp, level=level * 10, name=str(_get(m, "name", "")),
-                               msg=str(_get(m, "message", "")), file=str(_get(m, "file", "")), function="",
-                               line=int(_get(m, "line", 0)))
+        level = (
+            {"DEBUG": 1, "INFO": 2, "WARNING": 3, "ERROR": 4, "FATAL": 5}.get(level, 0)
+            if isinstance(level, str)
+            else int(level)
+        )
+        return SimpleNamespace(
+            stamp=_header(m).stamp,
+            level=level * 10,
+            name=str(_get(m, "name", "")),
+            msg=str(_get(m, "message", "")),
+            file=str(_get(m, "file", "")),
+            function="",
+            line=int(_get(m, "line", 0)),
+        )
     return m
 
 

@@ -1,8 +1,13 @@
-from google.protobuf.internal import containers as _containers
-from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
+from collections.abc import Iterable as _Iterable
+from collections.abc import Mapping as _Mapping
+from typing import (
+    ClassVar as _ClassVar,
+)
+
 from google.protobuf import descriptor as _descriptor
 from google.protobuf import message as _message
-from typing import ClassVar as _ClassVar, Iterable as _Iterable, Mapping as _Mapping, Optional as _Optional, Union as _Union
+from google.protobuf.internal import containers as _containers
+from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
 
 DESCRIPTOR: _descriptor.FileDescriptor
 
@@ -10,7 +15,7 @@ class MatrixShape(_message.Message):
     __slots__ = ("dims",)
     DIMS_FIELD_NUMBER: _ClassVar[int]
     dims: _containers.RepeatedScalarFieldContainer[int]
-    def __init__(self, dims: _Optional[_Iterable[int]] = ...) -> None: ...
+    def __init__(self, dims: _Iterable[int] | None = ...) -> None: ...
 
 class MatrixFloat(_message.Message):
     __slots__ = ("data", "shape")
@@ -18,7 +23,7 @@ class MatrixFloat(_message.Message):
     SHAPE_FIELD_NUMBER: _ClassVar[int]
     data: bytes
     shape: MatrixShape
-    def __init__(self, data: _Optional[bytes] = ..., shape: _Optional[_Union[MatrixShape, _Mapping]] = ...) -> None: ...
+    def __init__(self, data: bytes | None = ..., shape: MatrixShape | _Mapping | None = ...) -> None: ...
 
 class CameraName(_message.Message):
     __slots__ = ()
@@ -30,6 +35,7 @@ class CameraName(_message.Message):
         FRONT_RIGHT: _ClassVar[CameraName.Name]
         SIDE_LEFT: _ClassVar[CameraName.Name]
         SIDE_RIGHT: _ClassVar[CameraName.Name]
+
     UNKNOWN: CameraName.Name
     FRONT: CameraName.Name
     FRONT_LEFT: CameraName.Name
@@ -48,6 +54,7 @@ class LaserName(_message.Message):
         SIDE_LEFT: _ClassVar[LaserName.Name]
         SIDE_RIGHT: _ClassVar[LaserName.Name]
         REAR: _ClassVar[LaserName.Name]
+
     UNKNOWN: LaserName.Name
     TOP: LaserName.Name
     FRONT: LaserName.Name
@@ -60,7 +67,7 @@ class Transform(_message.Message):
     __slots__ = ("transform",)
     TRANSFORM_FIELD_NUMBER: _ClassVar[int]
     transform: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, transform: _Optional[_Iterable[float]] = ...) -> None: ...
+    def __init__(self, transform: _Iterable[float] | None = ...) -> None: ...
 
 class LaserCalibration(_message.Message):
     __slots__ = ("name", "beam_inclinations", "beam_inclination_min", "beam_inclination_max", "extrinsic")
@@ -74,7 +81,14 @@ class LaserCalibration(_message.Message):
     beam_inclination_min: float
     beam_inclination_max: float
     extrinsic: Transform
-    def __init__(self, name: _Optional[_Union[LaserName.Name, str]] = ..., beam_inclinations: _Optional[_Iterable[float]] = ..., beam_inclination_min: _Optional[float] = ..., beam_inclination_max: _Optional[float] = ..., extrinsic: _Optional[_Union[Transform, _Mapping]] = ...) -> None: ...
+    def __init__(
+        self,
+        name: LaserName.Name | str | None = ...,
+        beam_inclinations: _Iterable[float] | None = ...,
+        beam_inclination_min: float | None = ...,
+        beam_inclination_max: float | None = ...,
+        extrinsic: Transform | _Mapping | None = ...,
+    ) -> None: ...
 
 class Context(_message.Message):
     __slots__ = ("name", "laser_calibrations")
@@ -82,7 +96,11 @@ class Context(_message.Message):
     LASER_CALIBRATIONS_FIELD_NUMBER: _ClassVar[int]
     name: str
     laser_calibrations: _containers.RepeatedCompositeFieldContainer[LaserCalibration]
-    def __init__(self, name: _Optional[str] = ..., laser_calibrations: _Optional[_Iterable[_Union[LaserCalibration, _Mapping]]] = ...) -> None: ...
+    def __init__(
+        self,
+        name: str | None = ...,
+        laser_calibrations: _Iterable[LaserCalibration | _Mapping] | None = ...,
+    ) -> None: ...
 
 class RangeImage(_message.Message):
     __slots__ = ("range_image_compressed", "range_image_pose_compressed")
@@ -90,7 +108,9 @@ class RangeImage(_message.Message):
     RANGE_IMAGE_POSE_COMPRESSED_FIELD_NUMBER: _ClassVar[int]
     range_image_compressed: bytes
     range_image_pose_compressed: bytes
-    def __init__(self, range_image_compressed: _Optional[bytes] = ..., range_image_pose_compressed: _Optional[bytes] = ...) -> None: ...
+    def __init__(
+        self, range_image_compressed: bytes | None = ..., range_image_pose_compressed: bytes | None = ...
+    ) -> None: ...
 
 class CameraImage(_message.Message):
     __slots__ = ("name", "image")
@@ -98,7 +118,7 @@ class CameraImage(_message.Message):
     IMAGE_FIELD_NUMBER: _ClassVar[int]
     name: CameraName.Name
     image: bytes
-    def __init__(self, name: _Optional[_Union[CameraName.Name, str]] = ..., image: _Optional[bytes] = ...) -> None: ...
+    def __init__(self, name: CameraName.Name | str | None = ..., image: bytes | None = ...) -> None: ...
 
 class Laser(_message.Message):
     __slots__ = ("name", "ri_return1", "ri_return2")
@@ -108,7 +128,12 @@ class Laser(_message.Message):
     name: LaserName.Name
     ri_return1: RangeImage
     ri_return2: RangeImage
-    def __init__(self, name: _Optional[_Union[LaserName.Name, str]] = ..., ri_return1: _Optional[_Union[RangeImage, _Mapping]] = ..., ri_return2: _Optional[_Union[RangeImage, _Mapping]] = ...) -> None: ...
+    def __init__(
+        self,
+        name: LaserName.Name | str | None = ...,
+        ri_return1: RangeImage | _Mapping | None = ...,
+        ri_return2: RangeImage | _Mapping | None = ...,
+    ) -> None: ...
 
 class Label(_message.Message):
     __slots__ = ("box", "type", "id")
@@ -119,6 +144,7 @@ class Label(_message.Message):
         TYPE_PEDESTRIAN: _ClassVar[Label.Type]
         TYPE_SIGN: _ClassVar[Label.Type]
         TYPE_CYCLIST: _ClassVar[Label.Type]
+
     TYPE_UNKNOWN: Label.Type
     TYPE_VEHICLE: Label.Type
     TYPE_PEDESTRIAN: Label.Type
@@ -140,14 +166,29 @@ class Label(_message.Message):
         length: float
         height: float
         heading: float
-        def __init__(self, center_x: _Optional[float] = ..., center_y: _Optional[float] = ..., center_z: _Optional[float] = ..., width: _Optional[float] = ..., length: _Optional[float] = ..., height: _Optional[float] = ..., heading: _Optional[float] = ...) -> None: ...
+        def __init__(
+            self,
+            center_x: float | None = ...,
+            center_y: float | None = ...,
+            center_z: float | None = ...,
+            width: float | None = ...,
+            length: float | None = ...,
+            height: float | None = ...,
+            heading: float | None = ...,
+        ) -> None: ...
+
     BOX_FIELD_NUMBER: _ClassVar[int]
     TYPE_FIELD_NUMBER: _ClassVar[int]
     ID_FIELD_NUMBER: _ClassVar[int]
     box: Label.Box
     type: Label.Type
     id: str
-    def __init__(self, box: _Optional[_Union[Label.Box, _Mapping]] = ..., type: _Optional[_Union[Label.Type, str]] = ..., id: _Optional[str] = ...) -> None: ...
+    def __init__(
+        self,
+        box: Label.Box | _Mapping | None = ...,
+        type: Label.Type | str | None = ...,
+        id: str | None = ...,
+    ) -> None: ...
 
 class Frame(_message.Message):
     __slots__ = ("context", "timestamp_micros", "pose", "images", "lasers", "laser_labels")
@@ -163,4 +204,12 @@ class Frame(_message.Message):
     images: _containers.RepeatedCompositeFieldContainer[CameraImage]
     lasers: _containers.RepeatedCompositeFieldContainer[Laser]
     laser_labels: _containers.RepeatedCompositeFieldContainer[Label]
-    def __init__(self, context: _Optional[_Union[Context, _Mapping]] = ..., timestamp_micros: _Optional[int] = ..., pose: _Optional[_Union[Transform, _Mapping]] = ..., images: _Optional[_Iterable[_Union[CameraImage, _Mapping]]] = ..., lasers: _Optional[_Iterable[_Union[Laser, _Mapping]]] = ..., laser_labels: _Optional[_Iterable[_Union[Label, _Mapping]]] = ...) -> None: ...
+    def __init__(
+        self,
+        context: Context | _Mapping | None = ...,
+        timestamp_micros: int | None = ...,
+        pose: Transform | _Mapping | None = ...,
+        images: _Iterable[CameraImage | _Mapping] | None = ...,
+        lasers: _Iterable[Laser | _Mapping] | None = ...,
+        laser_labels: _Iterable[Label | _Mapping] | None = ...,
+    ) -> None: ...

@@ -12,14 +12,12 @@ from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ...builder import FrameBuilder, MetadataBuilder
 from ...exceptions import DatasetError
-from ...storepath import StorePath
 from ..sensors import DriveLog, declare_boxes, declare_cameras, draw_boxes, posed
 from ..shared import intensity_colors
 
@@ -28,9 +26,14 @@ __all__ = ["LIDARS", "CAMERAS", "TYPES", "TYPE_COLORS", "SUFFIX", "WaymoFrame", 
 LIDARS = ("TOP", "FRONT", "SIDE_LEFT", "SIDE_RIGHT", "REAR")
 CAMERAS = ("FRONT", "FRONT_LEFT", "FRONT_RIGHT", "SIDE_LEFT", "SIDE_RIGHT")
 TYPES = {0: "Unknown", 1: "Vehicle", 2: "Pedestrian", 3: "Sign", 4: "Cyclist"}
-TYPE_COLORS = {"Vehicle": "#50B3FF", "Pedestrian": "#FFC6AF", "Sign": "#F5D24C", "Cyclist": "#957FCE", "Unknown": "#E2E2E2"}
+TYPE_COLORS = {
+    "Vehicle": "#50B3FF",
+    "Pedestrian": "#FFC6AF",
+    "Sign": "#F5D24C",
+    "Cyclist": "#957FCE",
+    "Unknown": "#E2E2E2",
+}
 SUFFIX = ".tfrecord"
-
 
 
 @dataclass
@@ -73,11 +76,17 @@ class WaymoLog(DriveLog[WaymoFrame]):
     def metadata(self) -> dict[str, Any]:
         """Metadata from the frame times and the cameras of the first frame."""
         meta = MetadataBuilder()
-        meta.log_info(start_time=float(self.times[0]), end_time=float(self.times[-1]), source=f"Waymo segment {self.name}")
+        meta.log_info(
+            start_time=float(self.times[0]), end_time=float(self.times[-1]), source=f"Waymo segment {self.name}"
+        )
         meta.pose("/vehicle_pose")
         meta.primitive("/lidar/points", "POINT", coordinate="VEHICLE_RELATIVE", style={"radius_pixels": 1})
-        meta.primitive("/lidar/no_label_zone", "POINT", coordinate="VEHICLE_RELATIVE",
-                       style={"radius_pixels": 1, "fill_color": "#80808080"})
+        meta.primitive(
+            "/lidar/no_label_zone",
+            "POINT",
+            coordinate="VEHICLE_RELATIVE",
+            style={"radius_pixels": 1, "fill_color": "#80808080"},
+        )
         declare_boxes(meta, TYPE_COLORS)
         declare_cameras(meta, [c for c in CAMERAS if c in self._first.images])
         return meta.build()
@@ -103,8 +112,14 @@ class WaymoLog(DriveLog[WaymoFrame]):
     @staticmethod
     def _labels(builder: FrameBuilder, frame: WaymoFrame) -> None:
         names = [TYPES.get(int(kind), "Unknown") for kind in frame.types]
-        draw_boxes(builder, frame.boxes, names, [TYPE_COLORS[name] for name in names], frame.ids,
-                   [f"{name} {object_id}" for name, object_id in zip(names, frame.ids)])
+        draw_boxes(
+            builder,
+            frame.boxes,
+            names,
+            [TYPE_COLORS[name] for name in names],
+            frame.ids,
+            [f"{name} {object_id}" for name, object_id in zip(names, frame.ids)],
+        )
 
 
 class ScaledImages(Mapping[str, bytes]):

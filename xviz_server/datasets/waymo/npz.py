@@ -107,8 +107,10 @@ class WaymoSegment(WaymoLog):
         """Returns of every lidar with range > 0: xyz (N, 3), intensities, and in-no-label-zone flags."""
         points, intensity, zones = [], [], []
         for lidar in LIDARS:
-            for key, zone_key in ((f"{lidar}_RANGE_IMAGE_FIRST_RETURN", f"{lidar}_IN_NLZ"),
-                                  (f"{lidar}_RANGE_IMAGE_SECOND_RETURN", f"{lidar}_IN_NLZ_SECOND_RETURN")):
+            for key, zone_key in (
+                (f"{lidar}_RANGE_IMAGE_FIRST_RETURN", f"{lidar}_IN_NLZ"),
+                (f"{lidar}_RANGE_IMAGE_SECOND_RETURN", f"{lidar}_IN_NLZ_SECOND_RETURN"),
+            ):
                 if key not in data:
                     continue
                 image = data[key]
@@ -126,7 +128,9 @@ class WaymoSegment(WaymoLog):
 
     def _jpeg(self, image: np.ndarray, where: Path) -> bytes:
         if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-            raise DatasetError(f"{where}: a camera image must be (H, W, 3) uint8, not {image.shape} {image.dtype}", path=where)
+            raise DatasetError(
+                f"{where}: a camera image must be (H, W, 3) uint8, not {image.shape} {image.dtype}", path=where
+            )
         return jpeg(image, self.image_max_width)
 
     @staticmethod

@@ -76,7 +76,9 @@ _EXTRINSIC = "[LiDARCalibrationComponent].extrinsic.transform"
 _BEAMS = "[LiDARCalibrationComponent].beam_inclination"
 _IMAGE = "[CameraImageComponent].image"
 _BOX = "[LiDARBoxComponent].box"
-_BOX_COLUMNS = tuple(f"{_BOX}.{field}" for field in ("center.x", "center.y", "center.z", "size.x", "size.y", "size.z", "heading"))
+_BOX_COLUMNS = tuple(
+    f"{_BOX}.{field}" for field in ("center.x", "center.y", "center.z", "size.x", "size.y", "size.z", "heading")
+)
 _BOX_TYPE = "[LiDARBoxComponent].type"
 _OBJECT = "key.laser_object_id"
 
@@ -120,8 +122,11 @@ class _Component:
 
     def _groups(self, micros: int | None) -> list[int]:
         """The row groups that may hold frame ``micros`` (all, for ``None``), by their statistics."""
-        return [group for group, span in enumerate(self.spans)
-                if micros is None or span is None or span[0] <= micros <= span[1]]
+        return [
+            group
+            for group, span in enumerate(self.spans)
+            if micros is None or span is None or span[0] <= micros <= span[1]
+        ]
 
     def declared(self, micros: int) -> int:
         """What the row groups holding frame ``micros`` declare they decode to, in all."""
@@ -136,8 +141,11 @@ class _Component:
         for group in self._groups(micros):
             declared = self.file.metadata.row_group(group).total_byte_size
             if declared > MAX_ROW_GROUP_BYTES:
-                raise DatasetError(f"{self.path}: row group {group} declares {declared} bytes decoded, more than "
-                                   f"{MAX_ROW_GROUP_BYTES}", path=self.path)
+                raise DatasetError(
+                    f"{self.path}: row group {group} declares {declared} bytes decoded, more than "
+                    f"{MAX_ROW_GROUP_BYTES}",
+                    path=self.path,
+                )
             try:
                 table = self.file.read_row_group(group, columns=names)
             except (OSError, ValueError) as exc:
@@ -157,8 +165,11 @@ class WaymoParquetSegment(WaymoLog):
     def __init__(self, path: Path, image_max_width: int = DEFAULT_IMAGE_WIDTH) -> None:
         file = segment_file(Path(path))
         if file is None:
-            raise DatasetError(f"{path}: not a Waymo v2 segment (no {POSES}/SEGMENT{SUFFIX}, or several segments: "
-                               f"name one as {POSES}/SEGMENT{SUFFIX})", path=path)
+            raise DatasetError(
+                f"{path}: not a Waymo v2 segment (no {POSES}/SEGMENT{SUFFIX}, or several segments: "
+                f"name one as {POSES}/SEGMENT{SUFFIX})",
+                path=path,
+            )
         self.path, self.root, self.name = file, file.parent.parent, file.stem
         self.image_max_width = image_max_width
         self._geometry: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
@@ -181,8 +192,9 @@ class WaymoParquetSegment(WaymoLog):
         matrices = [np.asarray(values if values is not None else (), dtype=np.float64) for values in rows[_POSE]]
         bad = next((i for i, matrix in enumerate(matrices) if matrix.size != 16), None)
         if bad is not None:
-            raise DatasetError(f"{poses.path}: frame {rows[_TIME][bad]}: a pose of {matrices[bad].size} values, not 16",
-                               path=self.path)
+            raise DatasetError(
+                f"{poses.path}: frame {rows[_TIME][bad]}: a pose of {matrices[bad].size} values, not 16", path=self.path
+            )
         order = np.argsort(micros, kind="stable")
         return micros[order], np.stack(matrices).reshape(-1, 4, 4)[order]
 
@@ -205,8 +217,9 @@ class WaymoParquetSegment(WaymoLog):
         for i, laser in enumerate(rows.get(_LASER, ())):
             extrinsic = np.asarray(rows[_EXTRINSIC][i] or (), dtype=np.float64)
             if extrinsic.size != 16:
-                raise DatasetError(f"{component.path}: laser {laser}: an extrinsic of {extrinsic.size} values, not 16",
-                                   path=self.path)
+                raise DatasetError(
+                    f"{component.path}: laser {laser}: an extrinsic of {extrinsic.size} values, not 16", path=self.path
+                )
             beams = list(rows.get(f"{_BEAMS}.values", [None] * (i + 1))[i] or ())
             low = rows.get(f"{_BEAMS}.min", [None] * (i + 1))[i] or 0.0
             high = rows.get(f"{_BEAMS}.max", [None] * (i + 1))[i] or 0.0
@@ -217,21 +230,30 @@ class WaymoParquetSegment(WaymoLog):
         micros = int(self._poses[0][index])
         pose = self._poses[1][index]
         where = f"{self.root}: segment {self.name}, frame {micros}"
-        check_frame(sum(component.declared(micros) for component in self._files.values() if component is not None),
-                    index, f"{self.root}: segment {self.name}", self.path)
+        check_frame(
+            sum(component.declared(micros) for component in self._files.values() if component is not None),
+            index,
+            f"{self.root}: segment {self.name}",
+            self.path,
+        )
         images = self._images(micros)
         scaling = scale_jpegs(images, self.image_max_width)  # beside the lidar work
         points, intensity, in_zone = self._lidar(micros, pose, where)
         boxes, types, ids = self._boxes(micros)
-        return WaymoFrame(micros / 1e6, pose, points, intensity, in_zone, ScaledImages(scaling, where, self.path), boxes, types, ids)
+        return WaymoFrame(
+            micros / 1e6, pose, points, intensity, in_zone, ScaledImages(scaling, where, self.path), boxes, types, ids
+        )
 
     def _images(self, micros: int) -> dict[str, bytes]:
         component = self._files["camera_image"]
         if component is None:
             return {}
         rows = component.read([_CAMERA, _IMAGE], micros)
-        return {CAMERAS[int(camera) - 1]: image for camera, image in zip(rows.get(_CAMERA, ()), rows.get(_IMAGE, ()))
-                if 1 <= int(camera) <= len(CAMERAS) and image}
+        return {
+            CAMERAS[int(camera) - 1]: image
+            for camera, image in zip(rows.get(_CAMERA, ()), rows.get(_IMAGE, ()))
+            if 1 <= int(camera) <= len(CAMERAS) and image
+        }
 
     def _lidar(self, micros: int, pose: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         component = self._files["lidar"]
@@ -243,8 +265,11 @@ class WaymoParquetSegment(WaymoLog):
         parts = []
         for i, laser in sorted(enumerate(rows.get(_LASER, ())), key=lambda item: int(item[1])):
             name = LIDARS[int(laser) - 1] if 1 <= int(laser) <= len(LIDARS) else str(laser)
-            returns = [image for part in _RETURNS
-                       if (image := _matrix(rows, part, i, 4, f"{where}: laser {name} {part}", self.path)) is not None]
+            returns = [
+                image
+                for part in _RETURNS
+                if (image := _matrix(rows, part, i, 4, f"{where}: laser {name} {part}", self.path)) is not None
+            ]
             if not returns:
                 continue
             height, width = returns[0].shape[:2]
@@ -257,8 +282,10 @@ class WaymoParquetSegment(WaymoLog):
             pixel_pose = pixel_poses.get(int(laser))
             if pixel_pose is not None:
                 if pixel_pose.shape[:2] != (height, width):
-                    raise DatasetError(f"{where}: laser {name}: pixel pose is {pixel_pose.shape[:2]}, range image "
-                                       f"{height, width}", path=self.path)
+                    raise DatasetError(
+                        f"{where}: laser {name}: pixel pose is {pixel_pose.shape[:2]}, range image {height, width}",
+                        path=self.path,
+                    )
                 directions, origins, period = frame_rays(directions, origin, pixel_pose[..., :6], pose)
             parts.append(range_points(directions, origins, period, returns))
         return join_points(parts)
@@ -296,7 +323,9 @@ class WaymoParquetSegment(WaymoLog):
         return boxes, types, ids
 
 
-def _matrix(rows: dict[str, list[Any]], part: str, row: int, channels: int, where: str, path: Path) -> np.ndarray | None:
+def _matrix(
+    rows: dict[str, list[Any]], part: str, row: int, channels: int, where: str, path: Path
+) -> np.ndarray | None:
     """A range image (or pixel pose) of row ``row`` as a float32 (H, W, C) array; ``None`` if the row has none."""
     values, shape = rows.get(f"{part}.values", ()), rows.get(f"{part}.shape", ())
     if row >= len(values) or not values[row]:

@@ -24,11 +24,19 @@ of the vehicle moving during the sweep.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["row_inclinations", "column_azimuths", "ray_directions", "frame_rays", "calibration_rays", "range_points", "join_points"]
+__all__ = [
+    "row_inclinations",
+    "column_azimuths",
+    "ray_directions",
+    "frame_rays",
+    "calibration_rays",
+    "range_points",
+    "join_points",
+]
 
 
 def row_inclinations(beams: Sequence[float], low: float, high: float, height: int) -> np.ndarray:
@@ -47,9 +55,7 @@ def column_azimuths(extrinsic: np.ndarray, width: int) -> np.ndarray:
 def ray_directions(inclinations: np.ndarray, azimuths: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """(H, W, 3) float32 unit direction of every pixel, turned by ``rotation`` (lidar to vehicle)."""
     cos_i, sin_i = np.cos(inclinations)[:, None], np.sin(inclinations)[:, None]
-    rays = np.stack(
-        np.broadcast_arrays(np.cos(azimuths) * cos_i, np.sin(azimuths) * cos_i, sin_i), axis=-1
-    )
+    rays = np.stack(np.broadcast_arrays(np.cos(azimuths) * cos_i, np.sin(azimuths) * cos_i, sin_i), axis=-1)
     return (rays @ rotation.T).astype(np.float32)
 
 
@@ -78,24 +84,35 @@ def frame_rays(
     poses = (pixel_poses[0] if per_column else pixel_poses.reshape(-1, 6)).astype(np.float64)
     roll, pitch, yaw = poses[:, 0], poses[:, 1], poses[:, 2]
     cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
-    pixel_rotations = np.stack([
-        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
-        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
-        np.stack([-sp, cp * sr, cp * cr], axis=-1),
-    ], axis=-2)  # (K, 3, 3)
+    pixel_rotations = np.stack(
+        [
+            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
+            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
+            np.stack([-sp, cp * sr, cp * cr], axis=-1),
+        ],
+        axis=-2,
+    )  # (K, 3, 3)
     to_frame = frame_pose[:3, :3].T
     rotations = (to_frame @ pixel_rotations).astype(np.float32)  # pixel's vehicle frame -> frame's
     shifts = (poses[:, 3:6] - frame_pose[:3, 3]) @ to_frame.T
     origins = (rotations @ origin + shifts).astype(np.float32)
     if per_column:
-        turned = np.einsum("cij,hcj->hci", rotations, directions.reshape(height, width, 3), optimize=True).reshape(-1, 3)
+        turned = np.einsum("cij,hcj->hci", rotations, directions.reshape(height, width, 3), optimize=True).reshape(
+            -1, 3
+        )
     else:
         turned = np.einsum("nij,nj->ni", rotations, directions, optimize=True)
     return turned, origins, len(origins)
 
 
 def calibration_rays(
-    extrinsic: np.ndarray, beams: Sequence[float], low: float, high: float, height: int, width: int, where: str,
+    extrinsic: np.ndarray,
+    beams: Sequence[float],
+    low: float,
+    high: float,
+    height: int,
+    width: int,
+    where: str,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(H * W, 3) pixel directions in the vehicle frame and the lidar's position, from a lidar's calibration.
 
@@ -112,7 +129,10 @@ def calibration_rays(
 
 
 def range_points(
-    directions: np.ndarray, origins: np.ndarray, period: int, returns: Sequence[np.ndarray],
+    directions: np.ndarray,
+    origins: np.ndarray,
+    period: int,
+    returns: Sequence[np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The points of a lidar's returns: (N, 3) float32 in the vehicle frame, (N,) intensities, (N,) no-label-zone flags.
 
@@ -132,7 +152,9 @@ def range_points(
     return join_points(parts)
 
 
-def join_points(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def join_points(
+    parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The points, intensities and flags of several :func:`range_points` as one of each (empty if none)."""
     if not parts:
         return np.zeros((0, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, dtype=bool)

@@ -120,7 +120,10 @@ class WaymoRecordSegment(WaymoLog):
         self.name = self.path.name.removesuffix(SUFFIX)
         try:
             if not is_tfrecord(self.path):
-                raise DatasetError(f"{self.path}: not a TFRecord file (no record header with a matching CRC at its start)", path=self.path)
+                raise DatasetError(
+                    f"{self.path}: not a TFRecord file (no record header with a matching CRC at its start)",
+                    path=self.path,
+                )
         except OSError as exc:  # an object the store fails
             raise DatasetError(f"{self.path}: cannot read: {exc}", path=self.path) from None
         self.records = RecordFile(self.path, peek=_PEEK)
@@ -171,11 +174,15 @@ class WaymoRecordSegment(WaymoLog):
         pose = np.array(frame.pose.transform, dtype=np.float64).reshape(4, 4)
         matrices = self._inflate_all(frame, where)  # first: the lidar work below waits for them
         scaling = scale_jpegs(
-            {pb.CameraName.Name.Name(image.name): image.image for image in frame.images if image.name}, self.image_max_width
+            {pb.CameraName.Name.Name(image.name): image.image for image in frame.images if image.name},
+            self.image_max_width,
         )  # beside the lidar work
         points, intensity, in_zone = self._lidar(frame, pose, matrices, where)
         boxes = np.array(
-            [[b.center_x, b.center_y, b.center_z, b.length, b.width, b.height, b.heading] for b in (label.box for label in frame.laser_labels)],
+            [
+                [b.center_x, b.center_y, b.center_z, b.length, b.width, b.height, b.heading]
+                for b in (label.box for label in frame.laser_labels)
+            ],
             dtype=np.float64,
         ).reshape(-1, 7)
         types = np.array([label.type for label in frame.laser_labels], dtype=int)
@@ -195,19 +202,27 @@ class WaymoRecordSegment(WaymoLog):
             first = matrices[laser.name, "return 1"].result()
             height, width = first.shape[:2]
             if laser.name not in calibrations:
-                raise DatasetError(f"{where}: laser {lidar} has range images but no calibration in the context", path=self.path)
+                raise DatasetError(
+                    f"{where}: laser {lidar} has range images but no calibration in the context", path=self.path
+                )
             directions, translation = self._rays(calibrations[laser.name], height, width, f"laser {lidar}", where)
             returns = [first]
             if laser.ri_return2.range_image_compressed:
                 second = matrices[laser.name, "return 2"].result()
                 if second.shape[:2] != (height, width):
-                    raise DatasetError(f"{where}: laser {lidar}: return 2 is {second.shape[:2]}, return 1 {height, width}", path=self.path)
+                    raise DatasetError(
+                        f"{where}: laser {lidar}: return 2 is {second.shape[:2]}, return 1 {height, width}",
+                        path=self.path,
+                    )
                 returns.append(second)
             origins, period = translation[None], 1
             if laser.ri_return1.range_image_pose_compressed:
                 pixel_pose = matrices[laser.name, "pixel pose"].result()
                 if pixel_pose.shape[:2] != (height, width):
-                    raise DatasetError(f"{where}: laser {lidar}: pixel pose is {pixel_pose.shape[:2]}, range image {height, width}", path=self.path)
+                    raise DatasetError(
+                        f"{where}: laser {lidar}: pixel pose is {pixel_pose.shape[:2]}, range image {height, width}",
+                        path=self.path,
+                    )
                 directions, origins, period = frame_rays(directions, translation, pixel_pose[..., :6], pose)
             lidar_points.append(range_points(directions, origins, period, returns))
         return join_points(lidar_points)
@@ -223,19 +238,33 @@ class WaymoRecordSegment(WaymoLog):
                 ("pixel pose", laser.ri_return1.range_image_pose_compressed, 6),
             ):
                 if compressed:
-                    matrices[laser.name, part] = threads.submit(self._matrix, compressed, channels, f"laser {lidar} {part}", where)
+                    matrices[laser.name, part] = threads.submit(
+                        self._matrix, compressed, channels, f"laser {lidar} {part}", where
+                    )
         return matrices
 
-    def _rays(self, calibration: pb.LaserCalibration, height: int, width: int, what: str, where: str) -> tuple[np.ndarray, np.ndarray]:
+    def _rays(
+        self, calibration: pb.LaserCalibration, height: int, width: int, what: str, where: str
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(H * W, 3) pixel directions in the vehicle frame and the lidar's position; kept per calibration."""
         key = (calibration.name, height, width, calibration.SerializeToString(deterministic=True))
         if key not in self._geometry:
             if len(calibration.extrinsic.transform) != 16:
-                raise DatasetError(f"{where}: {what}: the extrinsic has {len(calibration.extrinsic.transform)} values, not 16", path=self.path)
+                raise DatasetError(
+                    f"{where}: {what}: the extrinsic has {len(calibration.extrinsic.transform)} values, not 16",
+                    path=self.path,
+                )
             extrinsic = np.array(calibration.extrinsic.transform, dtype=np.float64).reshape(4, 4)
             try:
-                rays = calibration_rays(extrinsic, calibration.beam_inclinations, calibration.beam_inclination_min,
-                                        calibration.beam_inclination_max, height, width, f"{where}: {what}")
+                rays = calibration_rays(
+                    extrinsic,
+                    calibration.beam_inclinations,
+                    calibration.beam_inclination_min,
+                    calibration.beam_inclination_max,
+                    height,
+                    width,
+                    f"{where}: {what}",
+                )
             except ValueError as exc:
                 raise DatasetError(str(exc), path=self.path) from None
             if len(self._geometry) >= 2 * len(LIDARS):  # calibrations that change within a segment: keep a few

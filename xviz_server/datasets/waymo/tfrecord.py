@@ -32,9 +32,9 @@ google-crc32c's (C, with the processor's CRC instructions).
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
 import google_crc32c
 
@@ -139,7 +139,9 @@ class RecordFile:
             raise DatasetError(f"{self.where(number)}: cannot read: {exc}", path=self.path) from None
         data, footer = blob[: record.length], blob[record.length :]
         if len(data) < record.length or len(footer) < _FOOTER.size:
-            raise DatasetError(f"{self.where(number)}: truncated: the file is shorter than when it was indexed", path=self.path)
+            raise DatasetError(
+                f"{self.where(number)}: truncated: the file is shorter than when it was indexed", path=self.path
+            )
         if masked_crc(data) != _FOOTER.unpack(footer)[0]:
             raise DatasetError(f"{self.where(number)}: data CRC mismatch: the record is corrupt", path=self.path)
         return data
@@ -176,7 +178,11 @@ class RecordFile:
                     read = file.read(_HEADER.size + self._peek)
                     record = self._header(len(records), offset, read[: _HEADER.size], size)
                     if self._peek:
-                        self._heads[record.number] = read[_HEADER.size :] if record.problem else read[_HEADER.size : _HEADER.size + record.length]
+                        self._heads[record.number] = (
+                            read[_HEADER.size :]
+                            if record.problem
+                            else read[_HEADER.size : _HEADER.size + record.length]
+                        )
                     records.append(record)
                     if record.problem is not None:
                         break
@@ -191,12 +197,24 @@ class RecordFile:
             return Record(number, offset, 0, f"truncated header: {len(header)} of {_HEADER.size} bytes")
         length, crc = _HEADER.unpack(header)
         if masked_crc(header[:8]) != crc:
-            return Record(number, offset, 0, "length CRC mismatch: the header is corrupt; records after it cannot be found")
+            return Record(
+                number, offset, 0, "length CRC mismatch: the header is corrupt; records after it cannot be found"
+            )
         if length > MAX_RECORD_BYTES:
-            return Record(number, offset, length, f"declares {size_text(length)} of data, more than the limit of {size_text(MAX_RECORD_BYTES)}")
+            return Record(
+                number,
+                offset,
+                length,
+                f"declares {size_text(length)} of data, more than the limit of {size_text(MAX_RECORD_BYTES)}",
+            )
         end = offset + _HEADER.size + length + _FOOTER.size
         if end > size:
-            return Record(number, offset, length, f"truncated: the record needs {end - offset} bytes, the file has {size - offset}")
+            return Record(
+                number,
+                offset,
+                length,
+                f"truncated: the record needs {end - offset} bytes, the file has {size - offset}",
+            )
         return Record(number, offset, length)
 
 
