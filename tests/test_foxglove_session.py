@@ -28,7 +28,7 @@ from xviz_server.foxglove.session import (
     SendLive,
     Stop,
 )
-from xviz_server.foxglove.wire import ENDED, PAUSED, PLAYING
+from xviz_server.foxglove.wire import ENDED, PAUSED, PLAYING, time_message
 
 START, END = 1_000_000_000_000, 1_002_400_000_000  # nanoseconds: a log of 2.4 s
 
@@ -80,8 +80,8 @@ def subscribe(*pairs: tuple[int, int]) -> str:
 def opened(query: dict[str, str] | None = None) -> FoxgloveSession:
     session = FoxgloveSession(path="/", query=query or {"log": "drive"}, available=["drive"])
     assert session.connect() == [OpenLog("drive")]
-    info, advertise = session.log_opened(Log())
-    assert op(info)["op"] == "serverInfo" and op(advertise)["op"] == "advertise"
+    info, start, advertise = session.log_opened(Log())
+    assert op(info)["op"] == "serverInfo" and start.data == time_message(START) and op(advertise)["op"] == "advertise"
     return session
 
 
@@ -105,7 +105,9 @@ def test_connect_without_a_name_among_several_lists_them() -> None:
 def test_an_open_log_is_described_and_its_channels_advertised() -> None:
     session = FoxgloveSession(path="/", query={"log": "drive"}, available=["drive"], server_name="test server")
     session.connect()
-    info, advertise = session.log_opened(Log())
+    info, start, advertise = session.log_opened(Log())
+    # The log's start time comes between serverInfo and advertise: the apps start their timeline from it.
+    assert start == Send(time_message(START), text=False)
     assert op(info) == {
         "op": "serverInfo",
         "name": "test server",
