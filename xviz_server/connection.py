@@ -35,7 +35,7 @@ from .framing import ready_to_write, write_message
 from .levels import LEVELS, Level
 from .linkwatch import is_loopback, sample_link
 from .live import FeedEvent, LiveUpdate, Subscription
-from .logfmt import log_event, peer
+from .logfmt import peer
 from .logs import Log
 from .params import repeated
 from .readahead import ReadAhead, Window
@@ -314,16 +314,7 @@ class Connection(FaceConnection[Session]):
     def _detail_changed(self, event: DetailChanged) -> None:
         self.metrics.sessions_by_detail.labels(event.previous.name).dec()
         self.metrics.sessions_by_detail.labels(event.level.name).inc()
-        mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
-        log_event(
-            logger,
-            "detail changed",
-            remote=peer(self.websocket),
-            detail=event.level.name,
-            previous=event.previous.name,
-            auto=event.auto,
-            link_mbps=mbps,
-        )
+        self._log_detail_changed(event)
 
 
 async def _wait(stop: asyncio.Event, seconds: float) -> None:

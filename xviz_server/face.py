@@ -34,7 +34,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Awaitable, Callable, Coroutine, Sequence
-from typing import Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 from urllib.parse import parse_qsl, unquote, urlsplit
 
 from websockets.asyncio.server import ServerConnection
@@ -50,6 +50,9 @@ from .logfmt import ending, log_event, peer, redact_url
 from .logs import Catalog, Log
 from .metrics import Metrics
 from .settings import Settings
+
+if TYPE_CHECKING:
+    from .session import DetailChanged
 
 __all__ = ["FaceConnection", "FaceSession", "request_target"]
 
@@ -183,6 +186,19 @@ class FaceConnection(Generic[S]):
                 await close(self.websocket, event.code, event.reason)
             else:
                 await self._carry_out(event)
+
+    def _log_detail_changed(self, event: DetailChanged) -> None:
+        """Log the session's change of level of detail, with the link's estimate (Mbit/s) it was chosen by."""
+        mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
+        log_event(
+            logger,
+            "detail changed",
+            remote=peer(self.websocket),
+            detail=event.level.name,
+            previous=event.previous.name,
+            auto=event.auto,
+            link_mbps=mbps,
+        )
 
     def _spawn(self, what: str, coroutine: Coroutine[Any, Any, None], fatal: bool = False) -> asyncio.Task[None]:
         """Run ``coroutine`` beside the session; if it fails, the client is told (and, if ``fatal``, closed)."""

@@ -41,7 +41,6 @@ from ..exceptions import XVIZError
 from ..face import FaceConnection
 from ..linkwatch import is_loopback, sample_link
 from ..live import FeedEvent, LiveUpdate
-from ..logfmt import log_event, peer
 from ..logs import Log
 from ..records import unpack
 from ..session import DetailChanged
@@ -134,16 +133,7 @@ class FoxgloveConnection(FaceConnection[FoxgloveSession]):
         elif isinstance(event, SendLive):
             await self._send_live(event)
         elif isinstance(event, DetailChanged):
-            mbps = None if event.capacity is None else round(event.capacity * 8 / 1e6, 2)
-            log_event(
-                logger,
-                "detail changed",
-                remote=peer(self.websocket),
-                detail=event.level.name,
-                previous=event.previous.name,
-                auto=event.auto,
-                link_mbps=mbps,
-            )
+            self._log_detail_changed(event)
 
     def _follow_link(self) -> None:
         """Sample the connection's delivery for the session's level of detail once it depends on it."""
