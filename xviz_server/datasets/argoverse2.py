@@ -48,6 +48,7 @@ from .sensors import (
     SensorLog,
     captures_by_frame,
     check_points,
+    columns_of,
     file_size,
     frame_clock,
     quaternion_matrix,
@@ -128,10 +129,7 @@ class Argoverse2Log(SensorLog):
             table = feather.read_table(io.BytesIO(data))
         except (OSError, ValueError) as exc:  # pyarrow's errors derive from these
             raise DatasetError(f"{file}: not a Feather file: {exc}", path=file) from None
-        missing = [column for column in columns if column not in table.column_names]
-        if missing:
-            raise DatasetError(f"{file}: no column {', '.join(missing)}", path=file)
-        return {column: table[column].to_numpy() for column in columns}
+        return dict(zip(columns, columns_of(table, columns, file)))
 
     def _bytes(self, file: Where) -> bytes:
         try:

@@ -51,6 +51,7 @@ from .sensors import (
     SensorLog,
     captures_by_frame,
     check_points,
+    columns_of,
     file_size,
     frame_clock,
     frame_of,
@@ -269,15 +270,9 @@ class PandaSetSequence(SensorLog):
         except OSError as exc:
             raise DatasetError(f"{file}: cannot read: {exc.strerror or exc}", path=file) from None
 
-    def _columns(self, frame: Any, columns: tuple[str, ...], path: Path) -> list[np.ndarray]:
-        missing = [column for column in columns if column not in frame.columns]
-        if missing:
-            raise DatasetError(f"{path}: no column {', '.join(missing)}", path=path)
-        return [frame[column].to_numpy() for column in columns]
-
     def _sweep(self, number: int, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         path = self.path / "lidar" / f"{number:02d}.pkl.gz"
-        x, y, z, i = self._columns(read_frame(path), ("x", "y", "z", "i"), path)
+        x, y, z, i = columns_of(read_frame(path), ("x", "y", "z", "i"), path)
         world = check_points(np.column_stack([x, y, z]), str(path), self.path)
         points = moved(world, pose[:3, :3].T, -pose[:3, :3].T @ pose[:3, 3])  # world to vehicle: the pose's inverse
         return points, np.asarray(i, dtype=np.float32) / np.float32(255)
@@ -297,7 +292,7 @@ class PandaSetSequence(SensorLog):
             "dimensions.y",
             "dimensions.z",
         )
-        uuid, label, yaw, *numbers = self._columns(read_frame(path), columns, path)
+        uuid, label, yaw, *numbers = columns_of(read_frame(path), columns, path)
         px, py, pz, dx, dy, dz = (np.asarray(values, dtype=np.float64) for values in numbers)
         centers, yaws = to_vehicle(pose, np.column_stack([px, py, pz]), np.asarray(yaw, dtype=np.float64))
         boxes = np.column_stack([centers, dx, dy, dz, yaws])

@@ -340,6 +340,16 @@ def file_size(file: Path | StoreTree) -> int:
         return 0
 
 
+def columns_of(table: Any, names: Sequence[str], where: object) -> list[np.ndarray]:
+    """The columns ``names`` of a table (a pyarrow Table or a pandas DataFrame) as arrays; a
+    :class:`DatasetError` naming ``where`` and every column it lacks."""
+    have = set(table.column_names if hasattr(table, "column_names") else table.columns)
+    missing = [name for name in names if name not in have]
+    if missing:
+        raise DatasetError(f"{where}: no column {', '.join(missing)}", path=where)
+    return [table[name].to_numpy() for name in names]
+
+
 def check_points(data: np.ndarray, where: str, path: object) -> np.ndarray:
     """``data`` if every value is finite; else a :class:`DatasetError` naming ``where``."""
     if not np.isfinite(data).all():
