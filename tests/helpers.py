@@ -393,6 +393,22 @@ class Served:
     def peaks(self) -> dict[int, int]:
         return {pid: _status(pid, "VmHWM") for pid in _family(self.process.pid)}
 
+    def holds(self, peer_port: int) -> bool:
+        """Whether the server still has a socket open to the loopback client on ``peer_port``.
+
+        Read from ``/proc/net/tcp``: a socket the server closed may linger in
+        the kernel, orphaned (its inode 0), until it has told a peer that
+        does not read; the server no longer holds it.
+        """
+        ours, theirs = f":{self.port:04X}", f":{peer_port:04X}"
+        with open("/proc/net/tcp") as table:
+            next(table)
+            for line in table:
+                fields = line.split()
+                if fields[1].endswith(ours) and fields[2].endswith(theirs) and fields[9] != "0":
+                    return True
+        return False
+
 
 @contextlib.asynccontextmanager
 async def served(root: Path | str, *flags: str, **env: str) -> AsyncIterator[Served]:

@@ -394,8 +394,9 @@ async def test_a_request_waits_for_the_file_past_the_handshake_limit(
     import xviz_server.framing
     import xviz_server.server
 
-    for name in ("first", "second"):
-        write_log(tmp_path / "logs" / name, random_updates(15))
+    # Making the first log's file (48 MB of points) takes far longer than 0.05 s, whatever the machine.
+    write_log(tmp_path / "logs" / "first", random_updates(40, points=100_000))
+    write_log(tmp_path / "logs" / "second", random_updates(15))
     monkeypatch.setattr(xviz_server.framing, "OPEN_TIMEOUT", 0.05)  # far less than making a file takes
     async with running_server(tmp_path / "logs") as server:
         # Allowed no longer than the handshake: the connection is dropped before the file is made.
