@@ -172,6 +172,15 @@ def test_a_link_from_20_to_5_and_back_to_20_mbps():
     assert all(b - a >= HOLD for a, b in zip(times, times[1:]))  # at most one change in 5 s
 
 
+def test_a_link_that_got_slower_keeps_every_update_where_the_least_level_that_sends_each_is_not_too_much():
+    """``minimal`` needs 90 % of the slower link: more than a step down chooses, less than too much; not ``sparse``."""
+    chooser = live_chooser()
+    chooser.level = LEVEL["low"]  # taken on a faster link
+    link = Link(chooser, rate=FULL_SIZE * LEVEL["minimal"].share * 10 / 0.9)
+    link.run(30)
+    assert [name for _, name in link.changes] == ["minimal"], link.changes
+
+
 def test_a_session_on_this_host_keeps_full_detail_from_the_first_update():
     chooser = DetailChooser(local=True)
     chooser.rate = 10.0

@@ -24,11 +24,12 @@ or the live feed) fit. A session whose level needs more than :data:`DOWN`
 of the capacity steps down, after :data:`DOWN_AFTER` seconds (:data:`FIRST_AFTER`
 if it needs more than :data:`SEVERE` times it: the link got far slower), to the most
 detailed level that needs at most :data:`FIT` of what the link carried over
-the last :data:`RECENT` seconds. A step up to a level that fits a capacity
+the last :data:`RECENT` seconds (a live session's least level that sends every
+update is kept rather than skipping updates if it is not too much). A step up to a level that fits a capacity
 measured is taken (a log sent faster than real time keeps a queue: its
 link is known); one over a link whose capacity is unknown (never found
 with a queue, as with frames smaller than a bucket) is *probed* first:
-the next level up is sent until :data:`PROBE_BYTES` of it were written, the
+the next level up is sent until :data:`PROBE_BYTES` of it were made (and then written), the
 session's own level meanwhile unchanged, and it is taken only if the link
 delivered those bytes at a rate, or had a queue at a rate, that it fits at
 :data:`UP` of; otherwise the session stays where it is and that level is not
@@ -279,7 +280,7 @@ class DetailChooser:
     def sending(self) -> Level:
         """The level updates are made at now: the session's, or the level up while a probe sends it."""
         probe = self._probe
-        return probe.level if probe is not None and probe.sent is None else self.level
+        return probe.level if probe is not None and probe.sent is None and probe.made < PROBE_BYTES else self.level
 
     @property
     def estimate(self) -> float | None:
@@ -377,7 +378,7 @@ class DetailChooser:
                 self._back_off(self.level, now)  # the step up was too much: undone, and not again for a while
                 return self._change(self._before_up, now)
             recent = None if self.local else self.meter.capacity_over(RECENT)  # what it carries since it got slower
-            return self._change(self._fitting(min(budget, recent or budget) * FIT), now)
+            return self._change(self._down_to(min(budget, recent or budget)), now)
         if up is None or not fits:
             return None
         wait = CLIMB_AFTER if self._climbing else UP_AFTER
@@ -468,6 +469,17 @@ class DetailChooser:
     def _least(self) -> Level:
         """The least detailed level there is for this session (one that skips updates only if it is live)."""
         return self.levels[-1] if self.live else [level for level in self.levels if level.every == 1][-1]
+
+    def _down_to(self, capacity: float) -> Level:
+        """The level a step down on a link of ``capacity`` goes to: the most detailed that needs at most :data:`FIT`
+        of it, but not one that skips updates where the least that sends each one is not too much."""
+        level = self._fitting(capacity * FIT)
+        whole = [each for each in self.levels if each.every == 1][-1]
+        if level.every > 1:
+            need = self.need(whole)
+            if need is not None and need <= DOWN * capacity:
+                return whole
+        return level
 
     def _fitting(self, budget: float) -> Level:
         """The most detailed level that needs at most ``budget`` bytes a second (the least detailed if none)."""
