@@ -172,13 +172,18 @@ def test_a_link_from_20_to_5_and_back_to_20_mbps():
     assert all(b - a >= HOLD for a, b in zip(times, times[1:]))  # at most one change in 5 s
 
 
-def test_a_link_that_got_slower_keeps_every_update_where_the_least_level_that_sends_each_is_not_too_much():
-    """``minimal`` needs 90 % of the slower link: more than a step down chooses, less than too much; not ``sparse``."""
+@pytest.mark.parametrize(
+    "start, share, first", [("low", 0.9, "minimal"), ("minimal", 0.97, None), ("minimal", 1.3, "sparse")]
+)
+def test_a_live_session_skips_updates_only_if_the_link_cannot_carry_each_one(start, share, first):
+    """``minimal`` needs ``share`` of the link: 90 % is more than a step down chooses, less than too much; 97 % is
+    more than too much, but the link carries each update; only a link that falls behind gets ``sparse``."""
     chooser = live_chooser()
-    chooser.level = LEVEL["low"]  # taken on a faster link
-    link = Link(chooser, rate=FULL_SIZE * LEVEL["minimal"].share * 10 / 0.9)
-    link.run(30)
-    assert [name for _, name in link.changes] == ["minimal"], link.changes
+    chooser.level = LEVEL[start]  # taken on a faster link, or measured
+    link = Link(chooser, rate=FULL_SIZE * LEVEL["minimal"].share * 10 / share)
+    link.run(10)
+    assert [name for _, name in link.changes][:1] == ([] if first is None else [first]), link.changes
+    assert "sparse" not in [name for _, name in link.changes] or first == "sparse", link.changes
 
 
 def test_a_session_on_this_host_keeps_full_detail_from_the_first_update():
@@ -198,6 +203,8 @@ def test_a_fixed_profile_is_never_changed():
     assert link.changes == [] and chooser.level is LEVEL["medium"] and not chooser.auto
     assert chooser.choose(None, None, link.time) is None and chooser.auto  # back to auto: chosen from the link
     link.run(3)
+    assert chooser.level is LEVEL["minimal"]  # then skipping updates, a step of its own: the link falls behind
+    link.run(HOLD)
     assert chooser.level is LEVEL["sparse"]
 
 

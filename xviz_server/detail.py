@@ -24,8 +24,12 @@ or the live feed) fit. A session whose level needs more than :data:`DOWN`
 of the capacity steps down, after :data:`DOWN_AFTER` seconds (:data:`FIRST_AFTER`
 if it needs more than :data:`SEVERE` times it: the link got far slower), to the most
 detailed level that needs at most :data:`FIT` of what the link carried over
-the last :data:`RECENT` seconds (a live session's least level that sends every
-update is kept rather than skipping updates if it is not too much). A step up to a level that fits a capacity
+the last :data:`RECENT` seconds, but a live session steps down no further
+than the least level that sends every update: skipping updates is a step of
+its own, taken only if that level is too much and the link stayed behind,
+with a backlog of more than an update, for the last :data:`RECENT` seconds
+(a level that needs nearly all of a link keeps it: a capacity measured a
+few percent low does not halve its updates). A step up to a level that fits a capacity
 measured is taken (a log sent faster than real time keeps a queue: its
 link is known); one over a link whose capacity is unknown (never found
 with a queue, as with frames smaller than a bucket) is *probed* first:
@@ -194,6 +198,13 @@ class LinkMeter:
         first, last = samples[0], samples[-1]
         return max(0, (last.written - last.backlog) - (first.written - first.backlog)) / (last.time - first.time)
 
+    def behind(self, seconds: float, size: float) -> bool:
+        """Whether the backlog stayed above ``size`` bytes for the last ``seconds`` (the link never caught up)."""
+        if not self._samples or self._samples[-1].time - self._samples[0].time < seconds:
+            return False
+        last = self._samples[-1].time
+        return all(sample.backlog > size for sample in self._samples if last - sample.time <= seconds)
+
     @property
     def delivered(self) -> int:
         """Bytes delivered by the last sample."""
@@ -359,6 +370,8 @@ class DetailChooser:
             self._down_for = self._up_for = 0.0
             return None
         too_much = budget is not None and need > DOWN * budget and self.level is not self._least
+        if too_much and self.level is self._whole:  # only skipping updates is less: if the link fell behind
+            too_much = self.meter.behind(RECENT, need / (self.rate or 10.0))
         self._down_for = self._down_for + elapsed if too_much else max(0.0, self._down_for - elapsed)
         up = self._up()
         up_need = None if up is None else self.need(up)
@@ -466,19 +479,21 @@ class DetailChooser:
         self._backoff[level.name] = (now + wait, wait)
 
     @property
+    def _whole(self) -> Level:
+        """The least detailed level that sends every update."""
+        return [level for level in self.levels if level.every == 1][-1]
+
+    @property
     def _least(self) -> Level:
         """The least detailed level there is for this session (one that skips updates only if it is live)."""
-        return self.levels[-1] if self.live else [level for level in self.levels if level.every == 1][-1]
+        return self.levels[-1] if self.live else self._whole
 
     def _down_to(self, capacity: float) -> Level:
         """The level a step down on a link of ``capacity`` goes to: the most detailed that needs at most :data:`FIT`
-        of it, but not one that skips updates where the least that sends each one is not too much."""
+        of it, but no further than :attr:`_whole` from a level above it (skipping updates is a step of its own)."""
         level = self._fitting(capacity * FIT)
-        whole = [each for each in self.levels if each.every == 1][-1]
-        if level.every > 1:
-            need = self.need(whole)
-            if need is not None and need <= DOWN * capacity:
-                return whole
+        if level.every > 1 and self.level is not self._whole:
+            return self._whole
         return level
 
     def _fitting(self, budget: float) -> Level:
