@@ -70,7 +70,7 @@ SIZE = 1000
 def test_an_answer_follows_the_ranges_and_conditions_of_the_request(
     headers: dict[str, str], status: int, span: Any
 ) -> None:
-    answer = decide(headers, Representation(SIZE, ETAG, WHEN))
+    answer = decide(headers.items(), Representation(SIZE, ETAG, WHEN))
     assert answer.status == status
     assert (answer.headers["Accept-Ranges"], answer.headers["ETag"], answer.headers["Last-Modified"]) == (
         "bytes",

@@ -507,7 +507,7 @@ class XVIZServer:
             return connection.respond(
                 HTTPStatus.SERVICE_UNAVAILABLE, f"cannot make the file of log {name!r}: {exc.strerror or exc}\n"
             )
-        answer = decide(request.headers, built.representation)
+        answer = decide(request.headers.raw_items(), built.representation)
         if answer.status not in (HTTPStatus.OK, HTTPStatus.PARTIAL_CONTENT):
             text = (
                 ""
