@@ -426,6 +426,64 @@ async def test_at_most_builds_files_are_made_at_a_time(tmp_path: Path) -> None:
     assert max(seen) <= BUILDS and len(list(files.glob("*.mcap"))) == len(names), seen
 
 
+async def test_the_files_folder_keeps_to_its_cap_removing_the_least_recently_asked_for_never_one_being_read(
+    tmp_path: Path,
+) -> None:
+    import socket
+
+    from helpers import eventually
+    from xviz_server.foxglove.seekable import _stem
+
+    logs, state = tmp_path / "logs", tmp_path / "state"
+    for name in "abcd":
+        write_log(logs / name, random_updates(10))
+    write_log(logs / "big", random_updates(20, points=50_000))  # a file of megabytes, over the cap by itself
+    files = state / "files"
+
+    def kept() -> set[str]:
+        stems = {_stem(name): name for name in [*"abcd", "big"]}
+        return {stems[path.name.rpartition("-")[0]] for path in files.glob("*.mcap")}
+
+    async def head(server: Any, name: str) -> None:
+        status, _, _ = await asyncio.to_thread(http_get, server.port, FILE.format(name), "HEAD")
+        assert status == 200
+
+    async with running_server(logs, state_dir=state) as server:  # the default cap: every file is kept
+        for name in "abcd":
+            await head(server, name)
+        assert kept() == set("abcd")
+    cap = 2.5 * max(path.stat().st_size for path in files.glob("*.mcap"))  # two small files, not three
+    shutil.rmtree(files)
+    async with running_server(logs, state_dir=state, files_gb=cap / 1e9) as server:
+        await head(server, "a")
+        await head(server, "b")
+        await head(server, "a")  # b is now the least recently asked for
+        await head(server, "c")
+        assert kept() == {"a", "c"}
+        # A reader that takes the head and then nothing: its file is being read.
+        reader = socket.socket()
+        reader.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        await asyncio.to_thread(reader.connect, ("127.0.0.1", server.port))
+        reader.sendall(f"GET {FILE.format('big')} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
+        data = b""
+        while b"\r\n\r\n" not in data:
+            data += await asyncio.to_thread(reader.recv, 4096)
+        assert data.startswith(b"HTTP/1.1 200 OK")
+        assert kept() == {"big"}  # made, and alone over the cap: the others are removed
+        await head(server, "d")
+        assert kept() == {"big", "d"}  # big is being read
+        reader.close()
+
+        async def let_go() -> bool:
+            return not server._files._held  # the answer to the reader has ended
+
+        await eventually(let_go)
+        await head(server, "a")
+        assert kept() == {"d", "a"}  # big, the least recently asked for, is removed now
+        status, _, body = await asyncio.to_thread(http_get, server.port, FILE.format("big"), Range="bytes=0-7")
+        assert (status, body) == (206, b"\x89MCAP0\r\n")  # made again on request
+
+
 def test_the_file_url_names_the_log_percent_decoded() -> None:
     from xviz_server.foxglove.seekable import file_path
 

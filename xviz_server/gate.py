@@ -27,6 +27,8 @@ from http import HTTPStatus
 from websockets.asyncio.server import ServerConnection
 from websockets.http11 import SERVER, Request, Response
 
+from .framing import close_body
+
 __all__ = ["GatedConnection"]
 
 logger = logging.getLogger(__name__)
@@ -85,6 +87,7 @@ class GatedConnection(ServerConnection):
                 return response
             if response.status_code == HTTPStatus.SWITCHING_PROTOCOLS:
                 response = self._method_not_allowed("HEAD")
+            await close_body(response)  # a streamed body is not sent
             return Response(
                 response.status_code, response.reason_phrase, response.headers
             )  # its head only, whatever its kind

@@ -59,7 +59,7 @@ from .catalog import Indexer, parse_query
 from .datasets import GENERATED, KINDS, dataset_options, dataset_problem
 from .exceptions import ConfigError, LogError, LogNotFound, QueryError, XVIZError
 from .foxglove.wire import SUBPROTOCOLS
-from .framing import OPEN_TIMEOUT, FramingConnection, streamed
+from .framing import OPEN_TIMEOUT, FramingConnection, StreamedResponse, streamed
 from .gate import GatedConnection
 from .layout import LOG, check_log_name
 from .metrics import CONTENT_TYPE, Metrics
@@ -75,7 +75,7 @@ if TYPE_CHECKING:
 
     from .connection import Connection
     from .foxglove.connection import FoxgloveConnection
-    from .foxglove.seekable import LogFiles
+    from .foxglove.seekable import BuiltFile, LogFiles
     from .live import LiveRegistry
     from .live.broker import Broker
     from .live.record import Recorder
@@ -231,7 +231,9 @@ class XVIZServer:
         from .foxglove.seekable import LogFiles
 
         self._files = LogFiles(
-            None if self.settings.state_dir is None else self.settings.state_dir / "files", self.workers
+            None if self.settings.state_dir is None else self.settings.state_dir / "files",
+            self.workers,
+            int(self.settings.files_gb * 1e9),
         )
         await self.indexer.start(self._catalog)
         if self._catalog.kinds() - {LOG}:
@@ -487,8 +489,6 @@ class XVIZServer:
     async def _file(self, connection: ServerConnection, request: Request, name: str) -> Response:
         """Log ``name`` as a whole MCAP file, or the byte range of it the request asks for (see :mod:`.ranges`)."""
         from .foxglove.frame import log_plan
-        from .foxglove.seekable import read_file
-        from .ranges import decide
 
         assert self._files is not None
         if isinstance(connection, FramingConnection):
@@ -507,6 +507,21 @@ class XVIZServer:
             return connection.respond(
                 HTTPStatus.SERVICE_UNAVAILABLE, f"cannot make the file of log {name!r}: {exc.strerror or exc}\n"
             )
+        try:
+            response = self._file_answer(connection, request, built)
+        except BaseException:
+            self._files.release(built)
+            raise
+        if not isinstance(response, StreamedResponse):  # no body: the file is not read
+            self._files.release(built)
+        return response
+
+    def _file_answer(self, connection: ServerConnection, request: Request, built: BuiltFile) -> Response:
+        """The answer with the file :meth:`LogFiles.get` gave and holds: with a body that releases it once
+        closed, or without one."""
+        from .ranges import decide
+
+        assert self._files is not None
         answer = decide(request.headers.raw_items(), built.representation)
         if answer.status not in (HTTPStatus.OK, HTTPStatus.PARTIAL_CONTENT):
             text = (
@@ -526,7 +541,7 @@ class XVIZServer:
         del head.headers["Content-Type"]
         head.headers["Content-Type"] = "application/octet-stream"
         head.headers.update(answer.headers)
-        body = read_file(built.path, answer.offset, answer.length, self.workers, self.metrics.file_bytes.inc)
+        body = self._files.read(built, answer.offset, answer.length, self.metrics.file_bytes.inc)
         return streamed(head, body, self.settings.idle_timeout, length=answer.length)
 
     def _cors(self, request: Request) -> dict[str, str]:
