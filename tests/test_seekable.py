@@ -307,8 +307,69 @@ async def test_a_page_of_another_origin_reads_the_file_by_ranges_in_chromium(tmp
         {"status": 206, "contentRange": f"bytes 0-99/{size}", "bytes": 100},
         {"status": 206, "contentRange": f"bytes {size - 10}-{size - 1}/{size}", "bytes": 10},
     ]
-    # A header beyond Range makes the browser ask first (OPTIONS), which gets no CORS answer: the apps send none.
-    assert "error" in report["ifRange"]
+    # A header beyond Range makes the browser ask first (OPTIONS): answered, the ranged GET follows.
+    assert report["ifRange"] == {"status": 206, "contentRange": f"bytes 0-99/{size}", "bytes": 100}
+
+
+def options(port: int, path: str, *lines: str) -> tuple[str, dict[str, str]]:
+    """An ``OPTIONS`` request sent on a socket as a browser's preflight is: its status line and headers (names in
+    lower case)."""
+    import socket
+
+    with socket.create_connection(("127.0.0.1", port), timeout=30) as sock:
+        sock.sendall("\r\n".join([f"OPTIONS {path} HTTP/1.1", "Host: 127.0.0.1", *lines, "", ""]).encode())
+        data = b""
+        while b"\r\n\r\n" not in data and (chunk := sock.recv(65536)):
+            data += chunk
+    status, *fields = data.partition(b"\r\n\r\n")[0].decode().split("\r\n")
+    return status, {name.lower(): value for name, _, value in (field.partition(": ") for field in fields)}
+
+
+async def test_a_preflight_for_a_logs_file_is_answered_with_cors_and_nowhere_else(tmp_path: Path) -> None:
+    write_log(tmp_path / "logs" / "drive", random_updates(5))
+    asking = (
+        "Origin: http://app.example",
+        "Access-Control-Request-Method: GET",
+        "Access-Control-Request-Headers: if-none-match,range",
+    )
+    file = FILE.format("drive")
+    async with running_server(tmp_path / "logs") as server:
+        answers = {
+            path: await asyncio.to_thread(options, server.port, path, *asking)
+            for path in (file, "/", "/api/logs", "/api/logs/drive/export", "/nowhere")
+        }
+        handshake = await asyncio.to_thread(
+            options,
+            server.port,
+            file,
+            *asking,
+            "Upgrade: websocket",
+            "Connection: Upgrade",
+            "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+            "Sec-WebSocket-Version: 13",
+        )
+    async with running_server(tmp_path / "logs", allowed_origins=["http://app.example"]) as server:
+        allowed = await asyncio.to_thread(options, server.port, file, *asking)
+        other = await asyncio.to_thread(options, server.port, file, "Origin: http://other.example", *asking[1:])
+    status, headers = answers.pop(file)
+    assert status == "HTTP/1.1 204 No Content" and "content-length" not in headers
+    assert (headers["allow"], headers["access-control-allow-origin"], headers["access-control-allow-methods"]) == (
+        "GET, HEAD",
+        "*",
+        "GET, HEAD",
+    )
+    assert {"Range", "If-Range", "If-None-Match", "If-Match", "If-Modified-Since"} == set(
+        headers["access-control-allow-headers"].split(", ")
+    )
+    assert headers["access-control-max-age"] == "7200" and headers["x-content-type-options"] == "nosniff"
+    assert headers["access-control-expose-headers"] == (
+        "Accept-Ranges, Content-Length, Content-Range, ETag, Last-Modified"
+    )  # as the file's own answers
+    for status, headers in [*answers.values(), handshake]:  # elsewhere: no CORS; and never a WebSocket session
+        assert status == "HTTP/1.1 204 No Content" and headers["allow"] == "GET, HEAD"
+    assert not [name for _, headers in answers.values() for name in headers if name.startswith("access-control")]
+    assert allowed[1]["access-control-allow-origin"] == "http://app.example" and allowed[1]["vary"] == "Origin"
+    assert "access-control-allow-origin" not in other[1] and "access-control-allow-methods" not in other[1]
 
 
 async def test_a_whole_file_get_cut_short_by_the_client_stops_the_sending(tmp_path: Path) -> None:

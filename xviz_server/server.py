@@ -14,7 +14,8 @@ not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer
 * ``GET /api/logs/NAME/file.mcap``: the whole log as an MCAP file served
   with byte ranges, for the Foxglove and Lichtblick apps to seek in (see
   :mod:`xviz_server.foxglove.seekable` and :mod:`xviz_server.ranges`);
-  other origins may read it (CORS, within ``--allowed-origin`` when set);
+  other origins may read it (CORS, within ``--allowed-origin`` when set),
+  and ``OPTIONS`` of it is a CORS preflight's answer;
 * ``GET /healthz``: ``ok`` (then, with ``--broker``, a line on the broker's
   state, and one for each reader of a feed that keeps failing), or HTTP 503
   saying what is broken (a worker process pool that lost a process and is
@@ -60,7 +61,7 @@ from .datasets import GENERATED, KINDS, dataset_options, dataset_problem
 from .exceptions import ConfigError, LogError, LogNotFound, QueryError, XVIZError
 from .foxglove.wire import SUBPROTOCOLS
 from .framing import OPEN_TIMEOUT, FramingConnection, StreamedResponse, streamed
-from .gate import GatedConnection
+from .gate import ALLOW, GatedConnection
 from .layout import LOG, check_log_name
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
@@ -109,6 +110,10 @@ SESSION_MODULES = (
 FILE_WAIT = 600.0
 #: What the answers about a log's file (``/api/logs/NAME/file.mcap``) let a page of another origin read.
 FILE_EXPOSED = "Accept-Ranges, Content-Length, Content-Range, ETag, Last-Modified"
+#: What a page of another origin may send with its request for a log's file: the headers its answer reads.
+FILE_REQUEST_HEADERS = "Range, If-Range, If-Match, If-None-Match, If-Modified-Since"
+#: How long a browser may keep a preflight's answer (Chromium keeps it at most 2 hours).
+PREFLIGHT_SECONDS = 7200
 
 
 class _Connection(GatedConnection, FramingConnection):
@@ -376,6 +381,8 @@ class XVIZServer:
             )
 
     async def _answer(self, connection: ServerConnection, request: Request) -> Response | None:
+        if isinstance(connection, GatedConnection) and connection.preflight:
+            return self._preflight(connection, request)
         if request.headers.get("Upgrade", "").lower() == "websocket":
             if feed_name(request.path) is not None:
                 reason = ingest_refusal(
@@ -543,6 +550,24 @@ class XVIZServer:
         head.headers.update(answer.headers)
         body = self._files.read(built, answer.offset, answer.length, self.metrics.file_bytes.inc)
         return streamed(head, body, self.settings.idle_timeout, length=answer.length)
+
+    def _preflight(self, connection: GatedConnection, request: Request) -> Response:
+        """The answer to an ``OPTIONS`` request: for a log's file, a CORS preflight's answer that lets the page
+        of an allowed origin send its ranged, conditional GET; elsewhere no CORS."""
+        response = connection.options()
+        path = urlsplit(request.path).path
+        if path.startswith(LOG_PATH) and _file_path(path) is not None:
+            cors = self._cors(request)
+            response.headers.update(cors)
+            if "Access-Control-Allow-Origin" in cors:
+                response.headers.update(
+                    {
+                        "Access-Control-Allow-Methods": ALLOW,
+                        "Access-Control-Allow-Headers": FILE_REQUEST_HEADERS,
+                        "Access-Control-Max-Age": str(PREFLIGHT_SECONDS),
+                    }
+                )
+        return response
 
     def _cors(self, request: Request) -> dict[str, str]:
         """The CORS headers that let a page of another origin (the apps) read an answer: any origin, or those
