@@ -589,6 +589,27 @@ async def test_a_header_given_on_two_lines_is_read_as_one_list_not_answered_500(
     assert not [line for line in server.lines if "failed" in line], server.lines
 
 
+async def test_a_request_the_server_fails_to_answer_gets_a_500_that_names_it(kitti_root: Path) -> None:
+    """A header sent twice that the server reads as one value (``Accept`` on the page, ``Upgrade``) raises while it
+    answers: the 500 names the request, carries every answer's headers, and the server goes on."""
+    async with served(kitti_root) as server:
+        await healthz(server)
+        page = await asyncio.to_thread(
+            raw, server.port, b"GET / HTTP/1.1\r\nHost: x\r\nAccept: text/html\r\nAccept: text/html\r\n\r\n"
+        )
+        listing = await asyncio.to_thread(
+            raw, server.port, b"GET /api/logs HTTP/1.1\r\nHost: x\r\nUpgrade: a\r\nUpgrade: b\r\n\r\n"
+        )
+        await healthz(server)
+    for (status, headers, _), path in ((page, "/"), (listing, "/api/logs")):
+        assert status == b"HTTP/1.1 500 Internal Server Error"
+        assert headers.get("x-content-type-options") == "nosniff" and headers.get("referrer-policy") == "strict-origin"
+    assert page[2] == b"the server failed to answer GET /: see its log\n"
+    assert listing[2] == b"the server failed to answer GET /api/logs: see its log\n"  # not websockets' own 500
+    assert [line for line in server.lines if "answering GET / failed" in line]
+    assert [line for line in server.lines if "answering GET /api/logs failed" in line]
+
+
 # -- clients that send and never read --------------------------------------------------------------------------------
 
 _FOXGLOVE = "foxglove.websocket.v1"

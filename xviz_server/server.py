@@ -374,7 +374,7 @@ class XVIZServer:
         except Exception:
             path = urlsplit(request.path).path
             logger.exception("answering GET %s failed", path)
-            upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
+            upgrade = any(value.lower() == "websocket" for value in request.headers.get_all("Upgrade"))
             what = f"a WebSocket session on {path}" if upgrade else f"GET {path}"
             return connection.respond(
                 HTTPStatus.INTERNAL_SERVER_ERROR, f"the server failed to answer {what}: see its log\n"
