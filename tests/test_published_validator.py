@@ -266,6 +266,8 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "ros1-turtlesim-twist": _recording("ros1/turtlesim.bag"),
     "ros1-embag-truck": _recording("ros1/embag/test.bag"),
     "ros1-embag-strings": _recording("ros1/embag/test_2.bag"),
+    "ros1-lichtblick-tf-tree": _recording("ros1/lichtblick/example-bz2.bag"),
+    "ros1-robot-localization-navsatfix": _recording("ros1/robot_localization/test1.bag"),
 }
 #: The sources that ``convert`` takes.
 DATASETS = [

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import foxglove_client, running_server
 from xviz_server.datasets.ros import RosBag
 from xviz_server.datasets.ros.bag import open_bag
 from xviz_server.records import unpack
@@ -274,3 +275,104 @@ def test_the_catalog_gives_a_recording_its_container_as_format(relative: str, co
     log = RosBag(RECORDINGS / relative)
     index = TimeIndex.from_spans((float(t), float(t), i) for i, t in enumerate(log.times))
     assert facts("rosbag", Format.BINARY, log.metadata(), index, None, None)["format"] == container
+
+
+async def foxglove_head(bag: Path, name: str, seconds: float = 3.0) -> dict[str, object]:
+    """What the published Foxglove client got of the first ``seconds`` of ``bag``'s real-time playback."""
+    async with running_server(None, dataset=[f"rosbag:{bag}"]) as server:
+        out = await foxglove_client(
+            f"ws://127.0.0.1:{server.port}/?log={name}",
+            "foxglove.websocket.v1",
+            options=("--timeout-ms", str(int(seconds * 1000))),
+        )
+    assert out["errors"] in ([], ["timeout"]) and out["statuses"] == []
+    return out
+
+
+def _recorded(path: Path, topic: str) -> list[tuple[int, object]]:
+    """``topic``'s messages as rosbags reads them from a ROS 1 bag: (record time, message)."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path]) as reader:  # with the definitions the bag holds
+        connections = [c for c in reader.connections if c.topic == topic]
+        return [(t, reader.deserialize(data, c.msgtype)) for c, t, data in reader.messages(connections)]
+
+
+TURTLES = RECORDINGS / "ros1" / "lichtblick" / "example-bz2.bag"
+
+
+@pytest.mark.slow
+def test_a_tf_tree_of_two_turtles_moves_the_vehicle_pose():
+    # /tf (tf/tfMessage, bz2 chunks) holds world -> turtle1 and world -> turtle2; /tf_static (tf2_msgs) beside it.
+    moves = [
+        (t, transform.transform.translation)
+        for t, message in _recorded(TURTLES, "/tf")
+        for transform in message.transforms  # type: ignore[attr-defined]
+        if (transform.header.frame_id, transform.child_frame_id) == ("world", "turtle1")
+    ]
+    log = RosBag(TURTLES)
+    assert log.bag.topics["/tf"].msgtype == "tf/msg/tfMessage" and len(log.bag.topics["/tf"]) == 2688
+    assert {"world", "turtle1", "turtle2"} <= log.tree.frames
+    assert log.pose_source.describe() == "/tf: world -> turtle1"
+    times = np.array([t for t, _ in moves], float)
+    positions = []
+    for frame, tick in enumerate(log.clock):
+        position = log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["position"]
+        if times[0] <= tick <= times[-1]:  # interpolated between the transforms recorded either side
+            expected = [np.interp(tick, times, [getattr(v, axis) for _, v in moves]) for axis in "xy"]
+            np.testing.assert_allclose(position[:2], expected, atol=1e-6)
+        positions.append(position)
+    # The turtle drives over the whole 11 x 11 m field, not a pose stuck at the origin.
+    spread = np.ptp(np.array(positions)[:, :2], axis=0)
+    assert (spread > 5.0).all(), spread
+
+
+@pytest.mark.slow
+async def test_a_tf_tree_on_the_foxglove_face_the_pose_and_the_original_transforms():
+    log = RosBag(TURTLES)
+    out = await foxglove_head(TURTLES, "example-bz2")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert (channels["/tf"]["encoding"], channels["/tf"]["schemaName"]) == ("ros1", "tf/tfMessage")
+    assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    topics = out["topics"]
+    poses = topics["/xviz/vehicle_pose"]  # type: ignore[index]
+    assert poses["count"] >= 2
+    clock = np.asarray(log.clock, np.int64)
+    for time, summary in zip(poses["timestamps"], poses["summaries"]):
+        frame = int(np.argmin(np.abs(clock - int(time))))
+        assert abs(int(clock[frame]) - int(time)) < 1000  # the frame's time, through the XVIZ float seconds
+        position = log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["position"]
+        assert [summary["translation"].get(axis, 0.0) for axis in "xyz"] == pytest.approx(position)
+    recorded = {str(t) for t, _ in _recorded(TURTLES, "/tf")}
+    assert topics["/tf"]["count"] > 0 and set(topics["/tf"]["timestamps"]) <= recorded  # type: ignore[index]
+
+
+HUSKY = RECORDINGS / "ros1" / "robot_localization" / "test1.bag"
+
+
+def test_navsat_fixes_give_the_map_origin_beside_odometry():
+    fixes = _recorded(HUSKY, "/fix")
+    first = fixes[0][1]
+    log = RosBag(HUSKY)
+    assert {m.topic: m.role for m in log.mappings} == {
+        "/fix": "origin",
+        "/husky_velocity_controller/odom": "pose",
+        "/imu/data": "series",
+    }
+    assert len(log.bag.topics["/fix"]) == 989
+    origin = (first.longitude, first.latitude, first.altitude)  # type: ignore[attr-defined]
+    assert log.map_origin == origin
+    expected = dict(zip(("longitude", "latitude", "altitude"), origin))
+    for frame in (0, len(log) // 2, len(log) - 1):
+        assert log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["map_origin"] == expected
+
+
+@pytest.mark.slow
+async def test_navsat_fixes_on_the_foxglove_face_as_recorded():
+    out = await foxglove_head(HUSKY, "test1")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert (channels["/fix"]["encoding"], channels["/fix"]["schemaName"]) == ("ros1", "sensor_msgs/NavSatFix")
+    fixes = out["topics"]["/fix"]  # type: ignore[index]
+    recorded = [str(t) for t, _ in _recorded(HUSKY, "/fix")]
+    assert fixes["count"] >= 2 and fixes["timestamps"] == recorded[: fixes["count"]]
+    assert {"latitude", "longitude", "altitude", "status"} <= set(fixes["summaries"][0])
