@@ -268,6 +268,7 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "ros1-embag-strings": _recording("ros1/embag/test_2.bag"),
     "ros1-lichtblick-tf-tree": _recording("ros1/lichtblick/example-bz2.bag"),
     "ros1-robot-localization-navsatfix": _recording("ros1/robot_localization/test1.bag"),
+    "ros1-webviz-marker": _recording("ros1/webviz/only-a-cube.bag"),
 }
 #: The sources that ``convert`` takes.
 DATASETS = [

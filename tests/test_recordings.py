@@ -376,3 +376,56 @@ async def test_navsat_fixes_on_the_foxglove_face_as_recorded():
     recorded = [str(t) for t, _ in _recorded(HUSKY, "/fix")]
     assert fixes["count"] >= 2 and fixes["timestamps"] == recorded[: fixes["count"]]
     assert {"latitude", "longitude", "altitude", "status"} <= set(fixes["summaries"][0])
+
+
+CUBE = RECORDINGS / "ros1" / "webviz" / "only-a-cube.bag"
+
+
+def _cube_in_vehicle_frame() -> np.ndarray:
+    """The footprint of the recorded cube, from its frame (the tree's root) into the vehicle frame (the tree's child)."""
+    ((_, tf),) = _recorded(CUBE, "/tf")
+    ((_, marker),) = _recorded(CUBE, "/marker_in_parent_frame")
+    edge = tf.transforms[0].transform  # type: ignore[attr-defined]
+    x, y, z, w = (getattr(edge.rotation, axis) for axis in "xyzw")
+    rotation = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    translation = np.array([getattr(edge.translation, axis) for axis in "xyz"])
+    centre = np.array([getattr(marker.pose.position, axis) for axis in "xyz"])  # type: ignore[attr-defined]
+    half = np.array([getattr(marker.scale, axis) for axis in "xyz"]) / 2  # type: ignore[attr-defined]
+    corners = [centre + half * [sx, sy, -1] for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    return (np.array(corners) - translation) @ rotation  # the inverse of the vehicle's pose in the marker's frame
+
+
+def test_a_marker_recorded_after_the_last_frame_time_is_drawn():
+    log = RosBag(CUBE)
+    assert {m.topic: m.role for m in log.mappings} == {"/marker_in_parent_frame": "markers", "/tf": "transforms"}
+    # The only transform starts the clock; the cube comes 1 ms later, and a last frame holds it.
+    assert log.bag.topics["/marker_in_parent_frame"].times[0] > log.clock[0]
+    assert "primitives" not in log.convert(0)["updates"][0]
+    (cube,) = log.convert(len(log) - 1)["updates"][0]["primitives"]["/marker_in_parent_frame/polygons"]["polygons"]
+    assert cube["base"]["object_id"] == "0" and cube["base"]["style"] == {"fill_color": [0, 0, 255, 128], "height": 1.0}
+    drawn, expected = np.asarray(cube["vertices"]), _cube_in_vehicle_frame()
+    distances = np.linalg.norm(drawn[:, None, :] - expected[None, :, :], axis=2)  # each corner drawn once
+    assert (
+        drawn.shape == (4, 3)
+        and sorted(distances.argmin(axis=1)) == [0, 1, 2, 3]
+        and distances.min(axis=1).max() < 1e-5
+    )
+
+
+@pytest.mark.slow
+async def test_a_marker_on_the_foxglove_face_converted_and_as_recorded():
+    out = await foxglove_head(CUBE, "only-a-cube")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert channels["/marker_in_parent_frame"]["schemaName"] == "visualization_msgs/Marker"
+    assert channels["/xviz/marker_in_parent_frame/polygons"]["schemaName"] == "foxglove.SceneUpdate"
+    topics = out["topics"]
+    ((recorded, _),) = _recorded(CUBE, "/marker_in_parent_frame")
+    assert topics["/marker_in_parent_frame"]["timestamps"] == [str(recorded)]  # type: ignore[index]
+    # The last frame's scene: the cube, after a deletion of what the frame before drew.
+    assert topics["/xviz/marker_in_parent_frame/polygons"]["summaries"] == [{"entities": 1, "deletions": 1}]  # type: ignore[index]
