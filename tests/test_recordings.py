@@ -429,3 +429,52 @@ async def test_a_marker_on_the_foxglove_face_converted_and_as_recorded():
     assert topics["/marker_in_parent_frame"]["timestamps"] == [str(recorded)]  # type: ignore[index]
     # The last frame's scene: the cube, after a deletion of what the frame before drew.
     assert topics["/xviz/marker_in_parent_frame/polygons"]["summaries"] == [{"entities": 1, "deletions": 1}]  # type: ignore[index]
+
+
+VELODYNE = RECORDINGS / "rosbag2" / "nebula" / "vlp32" / "1713492677464078412"
+OUSTER = RECORDINGS / "ros1" / "ouster" / "512x10_raw.bag"
+PACKETS = (
+    "holds the raw packets of a sensor's driver, not points: record the driver's point cloud topic, "
+    "or replay the bag through the driver"
+)
+
+
+@pytest.mark.parametrize(
+    ("path", "topics"),
+    [
+        (VELODYNE, {"/sensing/lidar/front/velodyne_packets": "velodyne_msgs/msg/VelodyneScan"}),
+        (
+            OUSTER,
+            {
+                "/os_node0/lidar_packets": "ouster_ros/msg/PacketMsg",
+                "/os_node0/imu_packets": "ouster_ros/msg/PacketMsg",
+            },
+        ),
+    ],
+    ids=["velodyne-vlp32-sqlite3", "ouster-ros1"],
+)
+def test_driver_packets_are_named_per_channel(path: Path, topics: dict[str, str]):
+    log = RosBag(path)
+    assert {t: log.bag.topics[t].msgtype for t in topics} == topics
+    assert {t: log.bag.problems[t] for t in topics} == {t: f"{msgtype} {PACKETS}" for t, msgtype in topics.items()}
+    assert {m.topic: m.role for m in log.mappings if m.topic in topics} == dict.fromkeys(topics, "unknown")
+    # The bag is served: its frames (the packets' times, 10 Hz over the bag), with what else it holds.
+    assert len(log) >= 2
+    for frame in range(len(log)):
+        update = log.convert(frame)["updates"][0]
+        assert update["poses"]["/vehicle_pose"]["position"] == [0.0, 0.0, 0.0] and "primitives" not in update
+
+
+@pytest.mark.slow
+async def test_driver_packets_on_the_foxglove_face():
+    # Ouster's ROS 1 bag holds the packets' definition: they go to Foxglove clients as recorded, every one.
+    out = await foxglove_head(OUSTER, "512x10_raw")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert channels["/os_node0/lidar_packets"]["schemaName"] == "ouster_ros/PacketMsg"
+    counts = {t: info["count"] for t, info in out["topics"].items()}  # type: ignore[attr-defined]
+    assert (counts["/os_node0/lidar_packets"], counts["/os_node0/imu_packets"]) == (32, 10)
+    # The sqlite3 bag holds no definition of VelodyneScan: no channel for it (the protocol needs a schema), the rest
+    # of the session goes on.
+    out = await foxglove_head(VELODYNE, "1713492677464078412")
+    topics = {c["topic"] for c in out["channels"]}  # type: ignore[attr-defined]
+    assert "/sensing/lidar/front/velodyne_packets" not in topics and out["topics"]["/vehicle_pose"]["count"] == 5  # type: ignore[index]
