@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -120,7 +121,9 @@ def sdk_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(sdk_recording: Path):
-    from foxglove_sdk_recording import FRAMES, POINTS, T0
+    from foxglove_sdk_recording import FRAMES, POINTS, QUARTER_LEFT_XYZW, T0
+
+    from xviz_server.datasets.ros.geometry import apply, matrix
 
     log = RosBag(sdk_recording)
     assert log.bag.problems == {} and log.bag.container == "MCAP"
@@ -129,26 +132,43 @@ def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(s
         "/camera": "image",
         "/raw": "image",
         "/lidar": "points",
+        "/lidar_posed": "points",
         "/scan": "points",
         "/tf": "transforms",
         "/goal": "trajectory",
+        "/route": "path",
+        "/wheel_odom": "series",
         "/gps": "origin",
+        "/fixes": "origin",
         "/scene": "markers",
         "/log": "text",
         "/json_log": "text",
     }
     assert log.pose_source.describe() == "/tf: world -> base_link" and len(log) == FRAMES
     assert log.map_origin == (8.4, 49.0, 110.0)
+    fix = log.bag.message("/fixes", 0)[1]  # LocationFixes: its first fix, as a NavSatFix
+    assert (fix.latitude, fix.longitude, fix.altitude, fix.header.frame_id) == (49.0, 8.4, 110.0, "gps")
     update = log.convert(1)["updates"][0]
     assert update["timestamp"] == (T0 + 100_000_000) / 1e9
     assert update["poses"]["/vehicle_pose"]["position"] == [1.0, 0.0, 0.0]
     primitives = update["primitives"]
     (cloud,) = primitives["/lidar"]["points"]
     assert np.array_equal(cloud["points"], POINTS[:2])  # the beam without a return left out
+    # The same cloud with a pose in its frame: the points moved by it, the beam without a return still left out.
+    (posed,) = primitives["/lidar_posed"]["points"]
+    sensor = matrix(SimpleNamespace(x=0.0, y=0.0, z=1.0), SimpleNamespace(**dict(zip("xyzw", QUARTER_LEFT_XYZW))))
+    np.testing.assert_allclose(posed["points"], apply(sensor, POINTS[:2]), atol=1e-6)
+    assert posed["points"][0].tolist() == pytest.approx([-2.0, 1.0, 4.0])
+    # PosesInFrame as a nav_msgs/Path (in the vehicle frame), Odometry's twist as time series.
+    (route,) = primitives["/route"]["polylines"]
+    np.testing.assert_allclose(route["vertices"], [[3.0, 2.0, 0.0], [6.0, 2.0, 0.0]])
+    values = {s: v for series in update["time_series"] for s, v in zip(series["streams"], series["values"]["doubles"])}
+    assert values == {"/wheel_odom/speed": 10.0, "/wheel_odom/yaw_rate": 0.25}
     (scan,) = primitives["/scan"]["points"]  # the return at infinity left out
     np.testing.assert_allclose(scan["points"], [[2.0, 0.0, 0.0], [0.0, 3.0, 0.0]], atol=1e-6)
     assert [p["base"]["object_id"] for p in primitives["/scene/polygons"]["polygons"]] == ["car/0"]
-    assert [t["text"] for t in primitives["/scene/texts"]["texts"]] == ["car"]
+    # The entity's model (a mesh) is not drawn, as a ROS mesh marker is not; its cube and text are.
+    assert [(t["text"], t["base"]["object_id"]) for t in primitives["/scene/texts"]["texts"]] == [("car", "car/2")]
     assert [image["width_px"] for image in primitives["/camera"]["images"]] == [32]
     # /goal is drawn as a trajectory in the vehicle frame: 10 m ahead of a vehicle at x=1, then 11 m.
     (goal,) = primitives["/goal"]["polylines"]
