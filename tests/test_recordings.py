@@ -62,15 +62,47 @@ def test_service_event_topics_do_not_make_a_ros2_mcap_bag_unreadable():
     log = RosBag(ROSBAG2 / "mcap" / "bag_with_topics_and_service_events")
     assert log.name == "bag_with_topics_and_service_events" and log.bag.container == "ROS 2 mcap"
     events = {"/test_service1/_service_event", "/test_service2/_service_event"}
-    # Each service event channel is named with its cause; the topics beside them are read.
-    assert events <= log.bag.problems.keys() and all("BasicTypes_Event" in log.bag.problems[t] for t in events)
-    assert {m.topic: m.role for m in log.mappings if m.topic in events} == dict.fromkeys(events, "unknown")
+    # The service event channels decode (their schema is the .srv text), the topics beside them too; XVIZ has no
+    # stream for them, which the mapping names.
+    assert log.bag.problems == {}
+    assert {m.topic: m.describe() for m in log.mappings if m.topic in events} == dict.fromkeys(
+        events, "unknown type, not served"
+    )
+    event = log.bag.message("/test_service1/_service_event", 0)[1]
+    assert event.info.event_type == 0 and len(event.request) == 1 and event.response == []
+    assert isinstance(event.request[0].string_value, str)
     assert [len(log.bag.topics[t]) for t in ("/test_topic1", "/test_topic2")] == [1, 1]
     strings = log.bag.message("/test_topic1", 0)[1]
     assert isinstance(strings.string_value, str)
     log.convert(0)
     # Foxglove clients get every topic, the service events too, as recorded.
     assert events | {"/test_topic1", "/test_topic2"} <= {o.topic for o in log.originals}
+
+
+def test_service_events_decode_with_their_requests_and_responses():
+    from mcap.reader import make_reader
+
+    path = ROSBAG2 / "mcap" / "only_services.mcap"
+    with path.open("rb") as file:  # the events' times and bytes as the file holds them
+        recorded = [(m.log_time, m.data) for _, _, m in make_reader(file).iter_messages(log_time_order=True)]
+    log = RosBag(path)
+    topic = "/add_two_ints/_service_event"
+    assert log.bag.problems == {} and log.bag.topics[topic].msgtype == "example_interfaces/srv/AddTwoInts_Event"
+    events = [log.bag.message(topic, i) for i in range(len(log.bag.topics[topic]))]
+    assert [t for t, _ in events] == [t for t, _ in recorded] and len(events) == 12
+    # Each call: the request received (event type 1) and the response sent (2) under one sequence number, the
+    # response the sum of the request's operands.
+    calls: dict[int, dict[int, object]] = {}
+    for _, event in events:
+        calls.setdefault(event.info.sequence_number, {})[event.info.event_type] = event
+    assert sorted(calls) == [1, 2, 3, 4, 5, 6]
+    for call in calls.values():
+        (request,), (response,) = call[1].request, call[2].response  # type: ignore[attr-defined]
+        assert call[1].response == call[2].request == []  # type: ignore[attr-defined]
+        assert response.sum == request.a + request.b
+    # Served: no XVIZ stream for them, the original bytes to Foxglove clients.
+    served = sorted((t, bytes(p)) for f in range(len(log)) for name, t, p in unpack(log.original_messages(f)))
+    assert served == sorted(recorded)
 
 
 def _text_rows(log: RosBag, stream: str) -> list[list[str]]:
