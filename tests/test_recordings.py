@@ -329,8 +329,9 @@ def test_the_catalog_gives_a_recording_its_container_as_format(relative: str, co
     assert facts("rosbag", Format.BINARY, log.metadata(), index, None, None)["format"] == container
 
 
-async def foxglove_head(bag: Path, name: str, seconds: float = 3.0) -> dict[str, object]:
-    """What the published Foxglove client got of the first ``seconds`` of ``bag``'s real-time playback."""
+async def foxglove_head(bag: Path, name: str, seconds: float = 8.0) -> dict[str, object]:
+    """What the published Foxglove client got of ``bag``'s real-time playback within ``seconds`` (all of a bag that
+    ends sooner: the client stops once nothing more comes)."""
     async with running_server(None, dataset=[f"rosbag:{bag}"]) as server:
         out = await foxglove_client(
             f"ws://127.0.0.1:{server.port}/?log={name}",
