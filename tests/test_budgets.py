@@ -589,25 +589,25 @@ async def test_a_header_given_on_two_lines_is_read_as_one_list_not_answered_500(
     assert not [line for line in server.lines if "failed" in line], server.lines
 
 
-async def test_a_request_the_server_fails_to_answer_gets_a_500_that_names_it(kitti_root: Path) -> None:
-    """A header sent twice that the server reads as one value (``Accept`` on the page, ``Upgrade``) raises while it
-    answers: the 500 names the request, carries every answer's headers, and the server goes on."""
+async def test_a_header_read_as_one_value_given_twice_is_a_400_naming_it(kitti_root: Path) -> None:
+    """A header sent on two lines that the server reads as one value (``Accept`` on the page, ``Upgrade``, ``Origin``
+    on the file) is the client's error, not the server's: a 400 naming it, with every answer's headers."""
     async with served(kitti_root) as server:
         await healthz(server)
-        page = await asyncio.to_thread(
-            raw, server.port, b"GET / HTTP/1.1\r\nHost: x\r\nAccept: text/html\r\nAccept: text/html\r\n\r\n"
-        )
-        listing = await asyncio.to_thread(
-            raw, server.port, b"GET /api/logs HTTP/1.1\r\nHost: x\r\nUpgrade: a\r\nUpgrade: b\r\n\r\n"
-        )
+        answers = [
+            await asyncio.to_thread(raw, server.port, request)
+            for request in (
+                b"GET / HTTP/1.1\r\nHost: x\r\nAccept: text/html\r\nAccept: text/html\r\n\r\n",
+                b"GET /api/logs HTTP/1.1\r\nHost: x\r\nUpgrade: a\r\nUpgrade: b\r\n\r\n",
+                b"HEAD /api/logs/kitti/file.mcap HTTP/1.1\r\nHost: x\r\nOrigin: http://a\r\nOrigin: http://b\r\n\r\n",
+            )
+        ]
         await healthz(server)
-    for status, headers, _ in (page, listing):
-        assert status == b"HTTP/1.1 500 Internal Server Error"
+    for (status, headers, body), name in zip(answers, ("Accept", "Upgrade", "Origin")):
+        assert status == b"HTTP/1.1 400 Bad Request", (status, body)
         assert headers.get("x-content-type-options") == "nosniff" and headers.get("referrer-policy") == "strict-origin"
-    assert page[2] == b"the server failed to answer GET /: see its log\n"
-    assert listing[2] == b"the server failed to answer GET /api/logs: see its log\n"  # not websockets' own 500
-    assert [line for line in server.lines if "answering GET / failed" in line]
-    assert [line for line in server.lines if "answering GET /api/logs failed" in line]
+        assert body.lower() in (f"the header {name!r} is given more than once\n".lower().encode(), b""), body
+    assert not [line for line in server.lines if "failed" in line]
 
 
 # -- clients that send and never read --------------------------------------------------------------------------------

@@ -51,6 +51,7 @@ from urllib.parse import urlsplit
 
 import orjson
 from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.datastructures import MultipleValuesError
 from websockets.http11 import Request, Response
 from websockets.typing import Origin, Subprotocol
 
@@ -367,10 +368,13 @@ class XVIZServer:
             self.sessions.discard(connection)
 
     async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
-        """The answer to ``request``, or ``None`` to accept its WebSocket handshake; a failure is a 500 that
-        names what was asked (websockets' own would say a WebSocket failed to open)."""
+        """The answer to ``request``, or ``None`` to accept its WebSocket handshake. A header given on two lines
+        that is read as one value is a 400 naming it; any other failure is a 500 that names what was asked
+        (websockets' own would say a WebSocket failed to open)."""
         try:
             return await self._answer(connection, request)
+        except MultipleValuesError as exc:
+            return connection.respond(HTTPStatus.BAD_REQUEST, f"the header {exc.args[0]!r} is given more than once\n")
         except Exception:
             path = urlsplit(request.path).path
             logger.exception("answering GET %s failed", path)
