@@ -250,7 +250,9 @@ async def test_a_live_session_behind_a_5_mbps_token_bucket_starts_with_a_frame_t
     # probe; on a loaded machine, seldom, a probe misread), the level is undone within 2 s.
     ups = [t for t, level in changes if level != "minimal"]
     downs = [t for t, level in changes if level == "minimal"]
-    assert len(ups) == len(downs) and all(0 < b - a for a, b in zip(ups, downs)), changes
+    assert all(a < b for a, b in zip(ups, downs)), changes
+    # each undone, but one in the last 2 s, which the end of the session may cut short
+    assert len(downs) == len(ups) or (len(downs) == len(ups) - 1 and ups[-1] >= 10), changes
     for up, down in zip(ups, downs):  # undone within 2 s of its updates reaching the viewer (not of their making)
         reached = [t for t, n in viewer.updates if t >= up and n > 2 * first[1]]
         assert not reached or down - reached[0] <= 2, (changes, viewer.updates)
