@@ -96,7 +96,7 @@ class Broker:
             stderr=subprocess.DEVNULL,
         )
         client = self.client()
-        for _ in range(100):
+        for _ in range(600):  # up to 30 s: a loaded machine starts it slowly
             try:
                 await client.ping()
                 break
