@@ -487,6 +487,7 @@ async def xviz_updates(xviz: Any, count: int) -> list[float]:
     return times
 
 
+@pytest.mark.slow  # the feed published at 10 Hz, as a source sends it
 @pytest.mark.parametrize("subprotocol", SUBPROTOCOLS)
 async def test_published_client_follows_a_live_feed_beside_an_xviz_viewer(
     kitti_root: Path, kitti_log: Path, subprotocol: str

@@ -94,6 +94,7 @@ async def test_a_name_in_a_directory_wins_over_the_same_name_in_a_store(proxy: P
     assert not proxy.gets("json/short")
 
 
+@pytest.mark.slow  # moto's S3 server behind a proxy, and node
 async def test_the_published_client_reads_a_log_in_the_store(proxy: Proxy, kitti_log: Path):
     """@xviz/parser gets from the store what it gets from the files: the whole log, an instant, a filtered range."""
     files = [kitti_log / f"{i}-frame.glb" for i in range(1, 27)]  # the metadata first, as a client reads them
