@@ -564,6 +564,7 @@ async def stalled_live_client(server: Any, metadata: dict[str, Any]) -> tuple[An
     return feed, stalled
 
 
+@pytest.mark.slow  # 50 frames of 1.5 MB to two clients: 3 s on a quiet machine, 13 s at load 6
 async def test_a_stalled_live_client_stays_bounded_and_is_told_it_fell_behind(
     kitti_root: Path, kitti_log: Path
 ) -> None:

@@ -280,6 +280,7 @@ async def test_the_file_is_answered_with_ranges_and_conditions_and_readable_by_o
     or shutil.which("node") is None,
     reason="needs playwright-core and chromium: run scripts/test.sh",
 )
+@pytest.mark.slow  # a browser
 async def test_a_page_of_another_origin_reads_the_file_by_ranges_in_chromium(tmp_path: Path) -> None:
     write_log(tmp_path / "logs" / "drive", random_updates(5))
     async with running_server(tmp_path / "logs") as server:
