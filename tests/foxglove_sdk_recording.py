@@ -14,6 +14,8 @@ STEP = 100_000_000
 FRAMES = 4
 #: The points of each cloud: the third is a beam without a return.
 POINTS = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [0.0, 0.0, 0.0]], np.float32)
+#: A quarter turn left about z, as /lidar_posed's pose: the sensor's x is the vehicle's y.
+QUARTER_LEFT_XYZW = (0.0, 0.0, float(np.sqrt(0.5)), float(np.sqrt(0.5)))
 
 
 def _png(width: int, height: int) -> bytes:
@@ -25,9 +27,10 @@ def _png(width: int, height: int) -> bytes:
 
 
 def write_sdk_recording(path: Path) -> Path:
-    """``path``: /lidar (PointCloud), /camera (CompressedImage), /raw (RawImage), /tf (FrameTransforms: base_link 1 m
-    further along x a frame), /goal (PoseInFrame), /gps (LocationFix), /scene (SceneUpdate: a cube and a text),
-    /scan (LaserScan), /log (Log), and /json_log (foxglove.Log in JSON)."""
+    """``path``: /lidar (PointCloud), /lidar_posed (the same cloud with a pose in its frame), /camera
+    (CompressedImage), /raw (RawImage), /tf (FrameTransforms: base_link 1 m further along x a frame), /goal
+    (PoseInFrame), /route (PosesInFrame), /wheel_odom (Odometry), /gps (LocationFix), /fixes (LocationFixes), /scene
+    (SceneUpdate: a cube, a model and a text), /scan (LaserScan), /log (Log), and /json_log (foxglove.Log in JSON)."""
     import foxglove
     from foxglove import channels as ch
     from foxglove import messages as fm
@@ -45,23 +48,60 @@ def write_sdk_recording(path: Path) -> Path:
             ("/scene", ch.SceneUpdateChannel),
             ("/scan", ch.LaserScanChannel),
             ("/log", ch.LogChannel),
+            ("/lidar_posed", ch.PointCloudChannel),
+            ("/route", ch.PosesInFrameChannel),
+            ("/wheel_odom", ch.OdometryChannel),
+            ("/fixes", ch.LocationFixesChannel),
         )
     }
     identity = fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+    quarter_left = fm.Quaternion(**dict(zip("xyzw", QUARTER_LEFT_XYZW)))
     float32 = fm.PackedElementFieldNumericType.Float32
     with foxglove.open_mcap(path, allow_overwrite=True, context=context):
         for i in range(FRAMES):
             t = T0 + i * STEP
             stamp = fm.Timestamp(sec=t // 10**9, nsec=t % 10**9)
             at = {"log_time": t}
-            channels["/lidar"].log(
-                fm.PointCloud(
+            # The same points twice: in the vehicle frame, and seen by a sensor 1 m up turned a quarter left.
+            for topic, z, turn in (("/lidar", 0.0, identity), ("/lidar_posed", 1.0, quarter_left)):
+                channels[topic].log(
+                    fm.PointCloud(
+                        timestamp=stamp,
+                        frame_id="base_link",
+                        pose=fm.Pose(position=fm.Vector3(x=0.0, y=0.0, z=z), orientation=turn),
+                        point_stride=12,
+                        fields=[fm.PackedElementField(name=a, offset=4 * k, type=float32) for k, a in enumerate("xyz")],
+                        data=POINTS.tobytes(),
+                    ),
+                    **at,
+                )
+            channels["/route"].log(
+                fm.PosesInFrame(
                     timestamp=stamp,
                     frame_id="base_link",
-                    pose=fm.Pose(position=fm.Vector3(x=0.0, y=0.0, z=0.0), orientation=identity),
-                    point_stride=12,
-                    fields=[fm.PackedElementField(name=a, offset=4 * k, type=float32) for k, a in enumerate("xyz")],
-                    data=POINTS.tobytes(),
+                    poses=[
+                        fm.Pose(position=fm.Vector3(x=float(x), y=2.0, z=0.0), orientation=identity) for x in (3, 6)
+                    ],
+                ),
+                **at,
+            )
+            channels["/wheel_odom"].log(
+                fm.Odometry(
+                    timestamp=stamp,
+                    frame_id="world",
+                    body_frame_id="base_link",
+                    pose=fm.Pose(position=fm.Vector3(x=float(i), y=0.5, z=0.0), orientation=identity),
+                    linear_velocity=fm.Vector3(x=10.0, y=0.0, z=0.0),
+                    angular_velocity=fm.Vector3(x=0.0, y=0.0, z=0.25),
+                ),
+                **at,
+            )
+            channels["/fixes"].log(
+                fm.LocationFixes(
+                    fixes=[
+                        fm.LocationFix(timestamp=stamp, frame_id="gps", latitude=49.0, longitude=8.4, altitude=110.0),
+                        fm.LocationFix(timestamp=stamp, frame_id="gps2", latitude=0.0, longitude=0.0, altitude=0.0),
+                    ]
                 ),
                 **at,
             )
@@ -120,6 +160,13 @@ def write_sdk_recording(path: Path) -> Path:
                                     pose=fm.Pose(position=fm.Vector3(x=5.0, y=0.0, z=0.0), orientation=identity),
                                     size=fm.Vector3(x=4.0, y=2.0, z=1.5),
                                     color=fm.Color(r=1.0, g=0.0, b=0.0, a=1.0),
+                                )
+                            ],
+                            models=[  # a mesh: not drawn, as a ROS mesh marker
+                                fm.ModelPrimitive(
+                                    pose=fm.Pose(position=fm.Vector3(x=5.0, y=0.0, z=0.0), orientation=identity),
+                                    scale=fm.Vector3(x=1.0, y=1.0, z=1.0),
+                                    url="package://car/car.dae",
                                 )
                             ],
                             texts=[

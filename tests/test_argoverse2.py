@@ -163,3 +163,37 @@ def test_a_frame_whose_files_pass_the_frame_budget_is_refused_unread(written):
             opened.truncate(70 << 20)
     with pytest.raises(FrameSizeError, match=rf"frame {index}: its messages and images would unpack 140 MiB"):
         log.convert(index)
+
+
+@pytest.mark.slow
+async def test_a_real_log_in_the_store_whose_sweep_fails_mid_log_is_an_error_naming_it_and_served_on(monkeypatch):
+    """A 404, then connections cut, on the real log's second sweep in moto's S3: that frame is an error naming the log,
+    the frame and the object; the other frame is served; once the store answers again, every frame is."""
+    name = f"val/{REAL.name}"
+    first, second = sorted((REAL / "sensors" / "lidar").glob("*.feather"))
+    with moto_process() as store:
+        store.bucket("av2")
+        store.upload(REAL.parent.parent, "av2", "sensor")
+        async with proxied(store, monkeypatch) as proxy:
+            async with running_server(["s3://av2/sensor"], store_retries=1) as server:
+                await server.catalog.open(name)
+
+                async def stream() -> list[dict]:
+                    async with client(server, f"/?log={name}") as viewer:
+                        assert (await viewer.recv())["type"] == "xviz/metadata"
+                        await viewer.send("transform_log", {"id": "all"})
+                        return await viewer.until("transform_log_done", "all")
+
+                proxy.fault(second.name, status=404, times=1)
+                missing = await stream()
+                proxy.fault(second.name, cut_after=100)  # every try cut short
+                cut = await stream()
+                proxy.faults.clear()
+                again = await stream()
+    key = f"s3://av2/sensor/{name}/sensors/lidar/{second.name}"
+    for messages, cause in ((missing, "no such object (404)"), (cut, "the connection failed or was cut short")):
+        errors = [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
+        assert len(errors) == 1 and f"frame 1 of log {name!r}" in errors[0] and key in errors[0], errors
+        assert cause in errors[0], errors
+        assert timestamps(messages) == [int(first.stem) / 1e9]
+    assert len(timestamps(again)) == 2 and not [m for m in again if m["type"] == "xviz/error"]

@@ -266,6 +266,11 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "ros1-turtlesim-twist": _recording("ros1/turtlesim.bag"),
     "ros1-embag-truck": _recording("ros1/embag/test.bag"),
     "ros1-embag-strings": _recording("ros1/embag/test_2.bag"),
+    "ros1-lichtblick-tf-tree": _recording("ros1/lichtblick/example-bz2.bag"),
+    "ros1-robot-localization-navsatfix": _recording("ros1/robot_localization/test1.bag"),
+    "ros1-webviz-marker": _recording("ros1/webviz/only-a-cube.bag"),
+    "rosbag2-nebula-velodyne-packets": _recording("rosbag2/nebula/vlp32/1713492677464078412"),
+    "ros1-ouster-packets": _recording("ros1/ouster/512x10_raw.bag"),
 }
 #: The sources that ``convert`` takes.
 DATASETS = [

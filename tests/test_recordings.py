@@ -6,10 +6,12 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from helpers import foxglove_client, running_server
 from xviz_server.datasets.ros import RosBag
 from xviz_server.datasets.ros.bag import open_bag
 from xviz_server.records import unpack
@@ -60,15 +62,47 @@ def test_service_event_topics_do_not_make_a_ros2_mcap_bag_unreadable():
     log = RosBag(ROSBAG2 / "mcap" / "bag_with_topics_and_service_events")
     assert log.name == "bag_with_topics_and_service_events" and log.bag.container == "ROS 2 mcap"
     events = {"/test_service1/_service_event", "/test_service2/_service_event"}
-    # Each service event channel is named with its cause; the topics beside them are read.
-    assert events <= log.bag.problems.keys() and all("BasicTypes_Event" in log.bag.problems[t] for t in events)
-    assert {m.topic: m.role for m in log.mappings if m.topic in events} == dict.fromkeys(events, "unknown")
+    # The service event channels decode (their schema is the .srv text), the topics beside them too; XVIZ has no
+    # stream for them, which the mapping names.
+    assert log.bag.problems == {}
+    assert {m.topic: m.describe() for m in log.mappings if m.topic in events} == dict.fromkeys(
+        events, "unknown type, not served"
+    )
+    event = log.bag.message("/test_service1/_service_event", 0)[1]
+    assert event.info.event_type == 0 and len(event.request) == 1 and event.response == []
+    assert isinstance(event.request[0].string_value, str)
     assert [len(log.bag.topics[t]) for t in ("/test_topic1", "/test_topic2")] == [1, 1]
     strings = log.bag.message("/test_topic1", 0)[1]
     assert isinstance(strings.string_value, str)
     log.convert(0)
     # Foxglove clients get every topic, the service events too, as recorded.
     assert events | {"/test_topic1", "/test_topic2"} <= {o.topic for o in log.originals}
+
+
+def test_service_events_decode_with_their_requests_and_responses():
+    from mcap.reader import make_reader
+
+    path = ROSBAG2 / "mcap" / "only_services.mcap"
+    with path.open("rb") as file:  # the events' times and bytes as the file holds them
+        recorded = [(m.log_time, m.data) for _, _, m in make_reader(file).iter_messages(log_time_order=True)]
+    log = RosBag(path)
+    topic = "/add_two_ints/_service_event"
+    assert log.bag.problems == {} and log.bag.topics[topic].msgtype == "example_interfaces/srv/AddTwoInts_Event"
+    events = [log.bag.message(topic, i) for i in range(len(log.bag.topics[topic]))]
+    assert [t for t, _ in events] == [t for t, _ in recorded] and len(events) == 12
+    # Each call: the request received (event type 1) and the response sent (2) under one sequence number, the
+    # response the sum of the request's operands.
+    calls: dict[int, dict[int, object]] = {}
+    for _, event in events:
+        calls.setdefault(event.info.sequence_number, {})[event.info.event_type] = event
+    assert sorted(calls) == [1, 2, 3, 4, 5, 6]
+    for call in calls.values():
+        (request,), (response,) = call[1].request, call[2].response  # type: ignore[attr-defined]
+        assert call[1].response == call[2].request == []  # type: ignore[attr-defined]
+        assert response.sum == request.a + request.b
+    # Served: no XVIZ stream for them, the original bytes to Foxglove clients.
+    served = sorted((t, bytes(p)) for f in range(len(log)) for name, t, p in unpack(log.original_messages(f)))
+    assert served == sorted(recorded)
 
 
 def _text_rows(log: RosBag, stream: str) -> list[list[str]]:
@@ -119,7 +153,9 @@ def sdk_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(sdk_recording: Path):
-    from foxglove_sdk_recording import FRAMES, POINTS, T0
+    from foxglove_sdk_recording import FRAMES, POINTS, QUARTER_LEFT_XYZW, T0
+
+    from xviz_server.datasets.ros.geometry import apply, matrix
 
     log = RosBag(sdk_recording)
     assert log.bag.problems == {} and log.bag.container == "MCAP"
@@ -128,26 +164,43 @@ def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(s
         "/camera": "image",
         "/raw": "image",
         "/lidar": "points",
+        "/lidar_posed": "points",
         "/scan": "points",
         "/tf": "transforms",
         "/goal": "trajectory",
+        "/route": "path",
+        "/wheel_odom": "series",
         "/gps": "origin",
+        "/fixes": "origin",
         "/scene": "markers",
         "/log": "text",
         "/json_log": "text",
     }
     assert log.pose_source.describe() == "/tf: world -> base_link" and len(log) == FRAMES
     assert log.map_origin == (8.4, 49.0, 110.0)
+    fix = log.bag.message("/fixes", 0)[1]  # LocationFixes: its first fix, as a NavSatFix
+    assert (fix.latitude, fix.longitude, fix.altitude, fix.header.frame_id) == (49.0, 8.4, 110.0, "gps")
     update = log.convert(1)["updates"][0]
     assert update["timestamp"] == (T0 + 100_000_000) / 1e9
     assert update["poses"]["/vehicle_pose"]["position"] == [1.0, 0.0, 0.0]
     primitives = update["primitives"]
     (cloud,) = primitives["/lidar"]["points"]
     assert np.array_equal(cloud["points"], POINTS[:2])  # the beam without a return left out
+    # The same cloud with a pose in its frame: the points moved by it, the beam without a return still left out.
+    (posed,) = primitives["/lidar_posed"]["points"]
+    sensor = matrix(SimpleNamespace(x=0.0, y=0.0, z=1.0), SimpleNamespace(**dict(zip("xyzw", QUARTER_LEFT_XYZW))))
+    np.testing.assert_allclose(posed["points"], apply(sensor, POINTS[:2]), atol=1e-6)
+    assert posed["points"][0].tolist() == pytest.approx([-2.0, 1.0, 4.0])
+    # PosesInFrame as a nav_msgs/Path (in the vehicle frame), Odometry's twist as time series.
+    (route,) = primitives["/route"]["polylines"]
+    np.testing.assert_allclose(route["vertices"], [[3.0, 2.0, 0.0], [6.0, 2.0, 0.0]])
+    values = {s: v for series in update["time_series"] for s, v in zip(series["streams"], series["values"]["doubles"])}
+    assert values == {"/wheel_odom/speed": 10.0, "/wheel_odom/yaw_rate": 0.25}
     (scan,) = primitives["/scan"]["points"]  # the return at infinity left out
     np.testing.assert_allclose(scan["points"], [[2.0, 0.0, 0.0], [0.0, 3.0, 0.0]], atol=1e-6)
     assert [p["base"]["object_id"] for p in primitives["/scene/polygons"]["polygons"]] == ["car/0"]
-    assert [t["text"] for t in primitives["/scene/texts"]["texts"]] == ["car"]
+    # The entity's model (a mesh) is not drawn, as a ROS mesh marker is not; its cube and text are.
+    assert [(t["text"], t["base"]["object_id"]) for t in primitives["/scene/texts"]["texts"]] == [("car", "car/2")]
     assert [image["width_px"] for image in primitives["/camera"]["images"]] == [32]
     # /goal is drawn as a trajectory in the vehicle frame: 10 m ahead of a vehicle at x=1, then 11 m.
     (goal,) = primitives["/goal"]["polylines"]
@@ -274,3 +327,207 @@ def test_the_catalog_gives_a_recording_its_container_as_format(relative: str, co
     log = RosBag(RECORDINGS / relative)
     index = TimeIndex.from_spans((float(t), float(t), i) for i, t in enumerate(log.times))
     assert facts("rosbag", Format.BINARY, log.metadata(), index, None, None)["format"] == container
+
+
+async def foxglove_head(bag: Path, name: str, seconds: float = 8.0) -> dict[str, object]:
+    """What the published Foxglove client got of ``bag``'s real-time playback within ``seconds`` (all of a bag that
+    ends sooner: the client stops once nothing more comes)."""
+    async with running_server(None, dataset=[f"rosbag:{bag}"]) as server:
+        out = await foxglove_client(
+            f"ws://127.0.0.1:{server.port}/?log={name}",
+            "foxglove.websocket.v1",
+            options=("--timeout-ms", str(int(seconds * 1000))),
+        )
+    assert out["errors"] in ([], ["timeout"]) and out["statuses"] == []
+    return out
+
+
+def _recorded(path: Path, topic: str) -> list[tuple[int, object]]:
+    """``topic``'s messages as rosbags reads them from a ROS 1 bag: (record time, message)."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path]) as reader:  # with the definitions the bag holds
+        connections = [c for c in reader.connections if c.topic == topic]
+        return [(t, reader.deserialize(data, c.msgtype)) for c, t, data in reader.messages(connections)]
+
+
+TURTLES = RECORDINGS / "ros1" / "lichtblick" / "example-bz2.bag"
+
+
+@pytest.mark.slow
+def test_a_tf_tree_of_two_turtles_moves_the_vehicle_pose():
+    # /tf (tf/tfMessage, bz2 chunks) holds world -> turtle1 and world -> turtle2; /tf_static (tf2_msgs) beside it.
+    moves = [
+        (t, transform.transform.translation)
+        for t, message in _recorded(TURTLES, "/tf")
+        for transform in message.transforms  # type: ignore[attr-defined]
+        if (transform.header.frame_id, transform.child_frame_id) == ("world", "turtle1")
+    ]
+    log = RosBag(TURTLES)
+    assert log.bag.topics["/tf"].msgtype == "tf/msg/tfMessage" and len(log.bag.topics["/tf"]) == 2688
+    assert {"world", "turtle1", "turtle2"} <= log.tree.frames
+    assert log.pose_source.describe() == "/tf: world -> turtle1"
+    times = np.array([t for t, _ in moves], float)
+    positions = []
+    for frame, tick in enumerate(log.clock):
+        position = log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["position"]
+        if times[0] <= tick <= times[-1]:  # interpolated between the transforms recorded either side
+            expected = [np.interp(tick, times, [getattr(v, axis) for _, v in moves]) for axis in "xy"]
+            np.testing.assert_allclose(position[:2], expected, atol=1e-6)
+        positions.append(position)
+    # The turtle drives over the whole 11 x 11 m field, not a pose stuck at the origin.
+    spread = np.ptp(np.array(positions)[:, :2], axis=0)
+    assert (spread > 5.0).all(), spread
+
+
+@pytest.mark.slow
+async def test_a_tf_tree_on_the_foxglove_face_the_pose_and_the_original_transforms():
+    log = RosBag(TURTLES)
+    out = await foxglove_head(TURTLES, "example-bz2")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert (channels["/tf"]["encoding"], channels["/tf"]["schemaName"]) == ("ros1", "tf/tfMessage")
+    assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    topics = out["topics"]
+    poses = topics["/xviz/vehicle_pose"]  # type: ignore[index]
+    assert poses["count"] >= 2
+    clock = np.asarray(log.clock, np.int64)
+    for time, summary in zip(poses["timestamps"], poses["summaries"]):
+        frame = int(np.argmin(np.abs(clock - int(time))))
+        assert abs(int(clock[frame]) - int(time)) < 1000  # the frame's time, through the XVIZ float seconds
+        position = log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["position"]
+        assert [summary["translation"].get(axis, 0.0) for axis in "xyz"] == pytest.approx(position)
+    recorded = {str(t) for t, _ in _recorded(TURTLES, "/tf")}
+    assert topics["/tf"]["count"] > 0 and set(topics["/tf"]["timestamps"]) <= recorded  # type: ignore[index]
+
+
+HUSKY = RECORDINGS / "ros1" / "robot_localization" / "test1.bag"
+
+
+def test_navsat_fixes_give_the_map_origin_beside_odometry():
+    fixes = _recorded(HUSKY, "/fix")
+    first = fixes[0][1]
+    log = RosBag(HUSKY)
+    assert {m.topic: m.role for m in log.mappings} == {
+        "/fix": "origin",
+        "/husky_velocity_controller/odom": "pose",
+        "/imu/data": "series",
+    }
+    assert len(log.bag.topics["/fix"]) == 989
+    origin = (first.longitude, first.latitude, first.altitude)  # type: ignore[attr-defined]
+    assert log.map_origin == origin
+    expected = dict(zip(("longitude", "latitude", "altitude"), origin))
+    for frame in (0, len(log) // 2, len(log) - 1):
+        assert log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["map_origin"] == expected
+
+
+@pytest.mark.slow
+async def test_navsat_fixes_on_the_foxglove_face_as_recorded():
+    out = await foxglove_head(HUSKY, "test1")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert (channels["/fix"]["encoding"], channels["/fix"]["schemaName"]) == ("ros1", "sensor_msgs/NavSatFix")
+    fixes = out["topics"]["/fix"]  # type: ignore[index]
+    recorded = [str(t) for t, _ in _recorded(HUSKY, "/fix")]
+    assert fixes["count"] >= 2 and fixes["timestamps"] == recorded[: fixes["count"]]
+    assert {"latitude", "longitude", "altitude", "status"} <= set(fixes["summaries"][0])
+
+
+CUBE = RECORDINGS / "ros1" / "webviz" / "only-a-cube.bag"
+
+
+def _cube_in_vehicle_frame() -> np.ndarray:
+    """The footprint of the recorded cube, from its frame (the tree's root) into the vehicle frame (the tree's child)."""
+    ((_, tf),) = _recorded(CUBE, "/tf")
+    ((_, marker),) = _recorded(CUBE, "/marker_in_parent_frame")
+    edge = tf.transforms[0].transform  # type: ignore[attr-defined]
+    x, y, z, w = (getattr(edge.rotation, axis) for axis in "xyzw")
+    rotation = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    translation = np.array([getattr(edge.translation, axis) for axis in "xyz"])
+    centre = np.array([getattr(marker.pose.position, axis) for axis in "xyz"])  # type: ignore[attr-defined]
+    half = np.array([getattr(marker.scale, axis) for axis in "xyz"]) / 2  # type: ignore[attr-defined]
+    corners = [centre + half * [sx, sy, -1] for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    return (np.array(corners) - translation) @ rotation  # the inverse of the vehicle's pose in the marker's frame
+
+
+def test_a_marker_recorded_after_the_last_frame_time_is_drawn():
+    log = RosBag(CUBE)
+    assert {m.topic: m.role for m in log.mappings} == {"/marker_in_parent_frame": "markers", "/tf": "transforms"}
+    # The only transform starts the clock; the cube comes 1 ms later, and a last frame holds it.
+    assert log.bag.topics["/marker_in_parent_frame"].times[0] > log.clock[0]
+    assert "primitives" not in log.convert(0)["updates"][0]
+    (cube,) = log.convert(len(log) - 1)["updates"][0]["primitives"]["/marker_in_parent_frame/polygons"]["polygons"]
+    assert cube["base"]["object_id"] == "0" and cube["base"]["style"] == {"fill_color": [0, 0, 255, 128], "height": 1.0}
+    drawn, expected = np.asarray(cube["vertices"]), _cube_in_vehicle_frame()
+    distances = np.linalg.norm(drawn[:, None, :] - expected[None, :, :], axis=2)  # each corner drawn once
+    assert (
+        drawn.shape == (4, 3)
+        and sorted(distances.argmin(axis=1)) == [0, 1, 2, 3]
+        and distances.min(axis=1).max() < 1e-5
+    )
+
+
+@pytest.mark.slow
+async def test_a_marker_on_the_foxglove_face_converted_and_as_recorded():
+    out = await foxglove_head(CUBE, "only-a-cube")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert channels["/marker_in_parent_frame"]["schemaName"] == "visualization_msgs/Marker"
+    assert channels["/xviz/marker_in_parent_frame/polygons"]["schemaName"] == "foxglove.SceneUpdate"
+    topics = out["topics"]
+    ((recorded, _),) = _recorded(CUBE, "/marker_in_parent_frame")
+    assert topics["/marker_in_parent_frame"]["timestamps"] == [str(recorded)]  # type: ignore[index]
+    # The last frame's scene: the cube, after a deletion of what the frame before drew.
+    assert topics["/xviz/marker_in_parent_frame/polygons"]["summaries"] == [{"entities": 1, "deletions": 1}]  # type: ignore[index]
+
+
+VELODYNE = RECORDINGS / "rosbag2" / "nebula" / "vlp32" / "1713492677464078412"
+OUSTER = RECORDINGS / "ros1" / "ouster" / "512x10_raw.bag"
+PACKETS = (
+    "holds the raw packets of a sensor's driver, not points: record the driver's point cloud topic, "
+    "or replay the bag through the driver"
+)
+
+
+@pytest.mark.parametrize(
+    ("path", "topics"),
+    [
+        (VELODYNE, {"/sensing/lidar/front/velodyne_packets": "velodyne_msgs/msg/VelodyneScan"}),
+        (
+            OUSTER,
+            {
+                "/os_node0/lidar_packets": "ouster_ros/msg/PacketMsg",
+                "/os_node0/imu_packets": "ouster_ros/msg/PacketMsg",
+            },
+        ),
+    ],
+    ids=["velodyne-vlp32-sqlite3", "ouster-ros1"],
+)
+def test_driver_packets_are_named_per_channel(path: Path, topics: dict[str, str]):
+    log = RosBag(path)
+    assert {t: log.bag.topics[t].msgtype for t in topics} == topics
+    assert {t: log.bag.problems[t] for t in topics} == {t: f"{msgtype} {PACKETS}" for t, msgtype in topics.items()}
+    assert {m.topic: m.role for m in log.mappings if m.topic in topics} == dict.fromkeys(topics, "unknown")
+    # The bag is served: its frames (the packets' times, 10 Hz over the bag), with what else it holds.
+    assert len(log) >= 2
+    for frame in range(len(log)):
+        update = log.convert(frame)["updates"][0]
+        assert update["poses"]["/vehicle_pose"]["position"] == [0.0, 0.0, 0.0] and "primitives" not in update
+
+
+@pytest.mark.slow
+async def test_driver_packets_on_the_foxglove_face():
+    # Ouster's ROS 1 bag holds the packets' definition: they go to Foxglove clients as recorded, every one.
+    out = await foxglove_head(OUSTER, "512x10_raw")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert channels["/os_node0/lidar_packets"]["schemaName"] == "ouster_ros/PacketMsg"
+    counts = {t: info["count"] for t, info in out["topics"].items()}  # type: ignore[attr-defined]
+    assert (counts["/os_node0/lidar_packets"], counts["/os_node0/imu_packets"]) == (32, 10)
+    # The sqlite3 bag holds no definition of VelodyneScan: no channel for it (the protocol needs a schema), the rest
+    # of the session goes on.
+    out = await foxglove_head(VELODYNE, "1713492677464078412")
+    topics = {c["topic"] for c in out["channels"]}  # type: ignore[attr-defined]
+    assert "/sensing/lidar/front/velodyne_packets" not in topics and out["topics"]["/vehicle_pose"]["count"] == 5  # type: ignore[index]

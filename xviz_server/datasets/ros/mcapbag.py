@@ -18,9 +18,13 @@ a record cut off by the end of the file ends the walk with one warning.
 Messages are sorted by record time whatever their order in the file.
 Repeated schema, channel and statistics records are read as one.
 
-A channel that cannot be decoded (an encoding without a decoder, a schema
-that does not parse, no schema) is named in :attr:`McapBag.problems` with
-the reason; its messages are still served as the file holds them.
+A ROS 2 service event channel (``pkg/srv/Name_Event``, recorded with service
+introspection on) has the service's ``.srv`` text as its schema, which is no
+message definition: it is decoded with the event's definition built from it
+(:func:`service_event_schema`). A channel that cannot be decoded (an
+encoding without a decoder, a schema that does not parse, no schema) is
+named in :attr:`McapBag.problems` with the reason; its messages are still
+served as the file holds them.
 """
 
 from __future__ import annotations
@@ -46,12 +50,22 @@ from ...unpack import MAX_CHUNK_BYTES, check_declared, unpack
 from .bag import CHUNK_CACHE_BYTES, MCAP_MAGIC, Topic, reason
 from .wellknown import ROS_OF, adapt, attributes
 
-__all__ = ["McapBag", "ros_type"]
+__all__ = ["McapBag", "ros_type", "service_event_schema"]
 
 logger = logging.getLogger(__name__)
 
 _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _FOOTER, _DATA_END = 0x03, 0x04, 0x05, 0x06, 0x07, 0x02, 0x0F
 _TEXT_SCHEMAS = ("ros1msg", "ros2msg", "ros2idl", "jsonschema", "omgidl")
+_SEPARATOR = "=" * 80
+#: service_msgs/msg/ServiceEventInfo, the header of every ROS 2 service event.
+_SERVICE_EVENT_INFO = """uint8 REQUEST_SENT = 0
+uint8 REQUEST_RECEIVED = 1
+uint8 RESPONSE_SENT = 2
+uint8 RESPONSE_RECEIVED = 3
+uint8 event_type
+builtin_interfaces/Time stamp
+char[16] client_gid
+int64 sequence_number"""
 
 
 @dataclass(frozen=True)
@@ -88,6 +102,45 @@ def ros_type(name: str) -> str:
     """A ROS type name as rosbags writes it: ``sensor_msgs/PointCloud2`` -> ``sensor_msgs/msg/PointCloud2``."""
     parts = name.split("/")
     return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
+
+
+def service_event_schema(schema: Any) -> Any | None:
+    """The decodable schema of a ROS 2 service event channel whose schema is its service's ``.srv`` text, else None.
+
+    A ``pkg/srv/Name_Event`` message is the event's ``service_msgs/ServiceEventInfo``,
+    then at most one request and at most one response. The types are named
+    without underscores (``NameEvent``, ``NameRequest``), which the ROS 2
+    parser requires; the bytes do not depend on the names.
+    """
+    from mcap.records import Schema
+
+    parts = schema.name.split("/")
+    text = bytes(schema.data).decode("utf-8", "replace")
+    if schema.encoding != "ros2msg" or len(parts) != 3 or parts[1] != "srv" or not parts[2].endswith("_Event"):
+        return None
+    request, separator, response = text.partition("\n---\n")
+    if not separator and text.startswith("---\n"):
+        request, separator, response = "", "---", text[4:]
+    if not separator:
+        return None
+    package, service = parts[0], parts[2][: -len("_Event")]
+    definition = "\n".join(
+        [
+            "service_msgs/ServiceEventInfo info",
+            f"{service}Request[<=1] request",
+            f"{service}Response[<=1] response",
+            _SEPARATOR,
+            "MSG: service_msgs/ServiceEventInfo",
+            _SERVICE_EVENT_INFO,
+            _SEPARATOR,
+            f"MSG: {package}/{service}Request",
+            request,
+            _SEPARATOR,
+            f"MSG: {package}/{service}Response",
+            response,
+        ]
+    )
+    return Schema(id=schema.id, name=f"{package}/{service}Event", encoding=schema.encoding, data=definition.encode())
 
 
 def _decoder_factories() -> list[Any]:
@@ -165,10 +218,11 @@ class McapBag:
         if encoding == "json":
             self._decoders[topic] = lambda data: attributes(json.loads(bytes(data)))
         else:
+            event = service_event_schema(schema) if schema is not None and encoding == "cdr" else None
             for factory in factories:
                 try:
                     with contextlib.redirect_stderr(io.StringIO()):  # the ROS 2 parser prints what it fails on
-                        decoder = factory.decoder_for(encoding, schema)
+                        decoder = factory.decoder_for(encoding, event or schema)
                 except Exception as exc:  # noqa: BLE001 - a schema that does not parse
                     self.problems[topic] = f"its {schema.encoding} schema {name} does not parse, at {reason(exc)!r}"
                     return name

@@ -6,8 +6,12 @@ becomes an object with the fields of the ROS message the mapping knows
 makes the object. JSON messages are first given attribute access
 (:func:`attributes`); their ``bytes`` fields are base64, their times
 ``{sec, nsec}``, as the JSON schemas say. What a Foxglove message has that
-its ROS counterpart lacks is left out: the pose of a ``PointCloud`` or
-``LaserScan`` within its frame, the colour of each ``SceneUpdate`` vertex.
+its ROS counterpart lacks is left out: the pose of a ``LaserScan`` within
+its frame, the colour of each ``SceneUpdate`` vertex, the velocity covariance
+of an ``Odometry``. A ``PointCloud``'s pose within its frame is applied to its
+points (when x, y and z are floating point; integer coordinates are left as
+they are); a ``LocationFixes`` message is its first fix; a ``SceneUpdate``
+model becomes a mesh marker (which, as in ROS, is not drawn).
 """
 
 from __future__ import annotations
@@ -16,6 +20,10 @@ import base64
 import math
 from types import SimpleNamespace
 from typing import Any
+
+import numpy as np
+
+from .geometry import apply, from_pose
 
 __all__ = ["ROS_OF", "adapt", "attributes", "nanoseconds"]
 
@@ -27,7 +35,10 @@ ROS_OF = {
     "foxglove.FrameTransform": "tf2_msgs/msg/TFMessage",
     "foxglove.FrameTransforms": "tf2_msgs/msg/TFMessage",
     "foxglove.PoseInFrame": "geometry_msgs/msg/PoseStamped",
+    "foxglove.PosesInFrame": "nav_msgs/msg/Path",
+    "foxglove.Odometry": "nav_msgs/msg/Odometry",
     "foxglove.LocationFix": "sensor_msgs/msg/NavSatFix",
+    "foxglove.LocationFixes": "sensor_msgs/msg/NavSatFix",
     "foxglove.SceneUpdate": "visualization_msgs/msg/MarkerArray",
     "foxglove.LaserScan": "sensor_msgs/msg/LaserScan",
     "foxglove.Log": "rcl_interfaces/msg/Log",
@@ -38,7 +49,9 @@ _NUMERIC = {1: 2, 2: 1, 3: 4, 4: 3, 5: 6, 6: 5, 7: 7, 8: 8}
 _NUMERIC_NAMES = {"UINT8": 1, "INT8": 2, "UINT16": 3, "INT16": 4, "UINT32": 5, "INT32": 6, "FLOAT32": 7, "FLOAT64": 8}
 _LINE_STRIP, _LINE_LOOP, _LINE_LIST = 0, 1, 2
 # visualization_msgs/Marker types and actions (see .markers).
-_ARROW, _CUBE, _SPHERE, _CYLINDER, _M_LINE_STRIP, _M_LINE_LIST, _TEXT = 0, 1, 2, 3, 4, 5, 9
+_ARROW, _CUBE, _SPHERE, _CYLINDER, _M_LINE_STRIP, _M_LINE_LIST, _TEXT, _MESH = 0, 1, 2, 3, 4, 5, 9, 10
+# sensor_msgs/PointField FLOAT32 and FLOAT64, as numpy types.
+_FLOATS = {7: "f4", 8: "f8"}
 _DELETEALL = 3
 
 
@@ -99,12 +112,43 @@ def _numeric(value: Any) -> int:
     return _NUMERIC.get(number, 0)
 
 
+def _posed(data: bytes, stride: int, fields: list[SimpleNamespace], pose: Any) -> bytes:
+    """``data`` with the x, y, z of each point moved by ``pose`` (the cloud's pose in its frame), if they are floats.
+
+    Points at exactly (0, 0, 0), beams without a return, are not moved.
+    """
+    transform = from_pose(_pose(pose))
+    xyz = {f.name: f for f in fields if f.name in ("x", "y", "z")}
+    count = len(data) // stride if stride else 0
+    if np.allclose(transform, np.eye(4)) or len(xyz) < 3 or not count:
+        return data
+    if any(f.datatype not in _FLOATS or f.offset + int(_FLOATS[f.datatype][1]) > stride for f in xyz.values()):
+        return data
+    layout = np.dtype(
+        {
+            "names": ["x", "y", "z"],
+            "formats": ["<" + _FLOATS[xyz[a].datatype] for a in "xyz"],
+            "offsets": [xyz[a].offset for a in "xyz"],
+            "itemsize": stride,
+        }
+    )
+    records = np.frombuffer(bytearray(data[: count * stride]), layout)
+    records.flags.writeable = True
+    points = np.stack([records[a] for a in "xyz"], axis=1).astype(np.float32)
+    returned = (points != 0).any(axis=1)  # a beam without a return stays at (0, 0, 0), to be left out as one
+    moved = apply(transform, points[returned])
+    for i, axis in enumerate("xyz"):
+        records[axis][returned] = moved[:, i]
+    return records.tobytes()
+
+
 def _cloud(m: Any) -> SimpleNamespace:
     data, stride = _bytes(_get(m, "data")), int(_get(m, "point_stride", 0))
     fields = [
         SimpleNamespace(name=f.name, offset=int(_get(f, "offset", 0)), datatype=_numeric(_get(f, "type", 0)), count=1)
         for f in _get(m, "fields", [])
     ]
+    data = _posed(data, stride, fields, _get(m, "pose"))
     width = len(data) // stride if stride else 0
     return SimpleNamespace(
         header=_header(m),
@@ -236,6 +280,18 @@ def _scene(m: Any) -> SimpleNamespace:
                     _get(arrow, "color"),
                 )
             )
+        for model in _get(entity, "models", []):
+            parts.append(
+                _marker(
+                    entity,
+                    frame,
+                    len(parts),
+                    _MESH,
+                    _get(model, "pose"),
+                    _vector(_get(model, "scale")),
+                    _get(model, "color"),
+                )
+            )
         for text in _get(entity, "texts", []):
             parts.append(
                 _marker(
@@ -274,6 +330,25 @@ def _adapt(name: str, m: Any) -> Any:
         return SimpleNamespace(transforms=[_transform(t) for t in _get(m, "transforms", [])])
     if name == "foxglove.PoseInFrame":
         return SimpleNamespace(header=_header(m), pose=_pose(_get(m, "pose")))
+    if name == "foxglove.PosesInFrame":
+        header = _header(m)
+        return SimpleNamespace(
+            header=header, poses=[SimpleNamespace(header=header, pose=_pose(p)) for p in _get(m, "poses", [])]
+        )
+    if name == "foxglove.Odometry":
+        return SimpleNamespace(
+            header=_header(m),
+            child_frame_id=str(_get(m, "body_frame_id", "")),
+            pose=SimpleNamespace(pose=_pose(_get(m, "pose"))),
+            twist=SimpleNamespace(
+                twist=SimpleNamespace(
+                    linear=_vector(_get(m, "linear_velocity")), angular=_vector(_get(m, "angular_velocity"))
+                )
+            ),
+        )
+    if name == "foxglove.LocationFixes":
+        fixes = _get(m, "fixes", [])
+        return _adapt("foxglove.LocationFix", fixes[0] if fixes else SimpleNamespace())
     if name == "foxglove.LocationFix":
         return SimpleNamespace(
             header=_header(m),
