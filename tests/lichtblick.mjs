@@ -15,7 +15,7 @@
 // each Raw Messages panel's distinct texts in the order shown, each Plot panel's pixels of the series colour at the end,
 // whether the 3D panel's canvas shows a picture (varied pixels), the page errors and console errors and warnings,
 // the requests to other hosts (refused: the tests use no network).
-import {launch, loopbackOnly} from './chromium.mjs';
+import {drawn, launch, loopbackOnly, pixelTools} from './chromium.mjs';
 
 const options = {timeout: 60000, viewport: {width: 1400, height: 900}, panels: [], hosts: [], ...JSON.parse(process.argv[2])};
 
@@ -31,35 +31,7 @@ try {
     if (message.type() === 'warning') report.consoleWarnings.push(message.text());
   });
   await loopbackOnly(page, report.externalRequests, options.hosts);
-  await page.addInitScript(() => {
-    // The RGBA pixels of a PNG, decoded by the page's own image decoder.
-    window.pixelsOf = async base64 => {
-      const image = new Image();
-      image.src = `data:image/png;base64,${base64}`;
-      await image.decode();
-      const canvas = new OffscreenCanvas(image.width, image.height);
-      const context = canvas.getContext('2d');
-      context.drawImage(image, 0, 0);
-      return context.getImageData(0, 0, image.width, image.height).data;
-    };
-    // Pixels of one colour (#rrggbb, within 40 per channel) in a PNG.
-    window.countColour = async (base64, hex) => {
-      const data = await window.pixelsOf(base64);
-      const want = [1, 3, 5].map(i => parseInt(hex.slice(i, i + 2), 16));
-      let count = 0;
-      for (let i = 0; i < data.length; i += 4) {
-        if (Math.abs(data[i] - want[0]) < 40 && Math.abs(data[i + 1] - want[1]) < 40 && Math.abs(data[i + 2] - want[2]) < 40) count++;
-      }
-      return count;
-    };
-    // How many colours a PNG shows (one pixel in 97 looked at): a flat or empty view shows a few.
-    window.colours = async base64 => {
-      const data = await window.pixelsOf(base64);
-      const seen = new Set();
-      for (let i = 0; i < data.length; i += 4 * 97) seen.add((data[i] << 16) | (data[i + 1] << 8) | data[i + 2]);
-      return seen.size;
-    };
-  });
+  await pixelTools(page);
   await page.goto(options.url, {waitUntil: 'domcontentloaded', timeout: options.timeout});
   report.steps.push('loaded');
 
@@ -86,13 +58,9 @@ try {
     }
   }
 
-  // The 3D panel: a picture, not one flat colour.
-  const canvas = page.locator('[data-testid~="3D!xviz"] canvas').first();
-  if (await canvas.count()) {
-    const shot = await canvas.screenshot().catch(() => null);
-    if (shot) {
-      report.drawn3d = await page.evaluate(base64 => window.colours(base64), shot.toString('base64')) > 20;
-    }
+  // The 3D panel: a picture, not one flat colour (looked at until it is one: the screenshot waits for it too).
+  if (await page.locator('[data-testid~="3D!xviz"]').count()) {
+    report.drawn3d = await drawn(page, '3D!xviz', Math.max(deadline, Date.now() + 10000));
   }
   if (options.screenshot) await page.screenshot({path: options.screenshot});
 

@@ -31,9 +31,11 @@ from helpers import (
     running_server,
     served,
     ten_hz,
+    timestamps,
     write_log,
 )
 from xviz_server.budget import LOG_LINES, MAX_ITEMS, NAMED
+from xviz_server.unpack import size_text
 
 pytestmark = pytest.mark.slow
 
@@ -248,6 +250,169 @@ async def test_a_frame_of_huge_valid_clouds_is_refused_unread_on_both_faces(clou
     assert max(growth.values()) < TENS_OF_MB, {pid: f"{g / _MiB:.0f} MiB" for pid, g in growth.items()}
 
 
+#: Over the 128 MiB one frame may read in all, in what a frame's files declare: the file is sparse, never written.
+OVER = 130 * _MiB
+REFUSED = "more than the limit of 128 MiB for one frame: refused"
+
+
+async def both_faces(server: Served, log: str) -> tuple[list[dict[str, Any]], list[str], list[int]]:
+    """A log played whole on each face: the XVIZ session's messages; the Foxglove session's statuses and the log
+    times (nanoseconds) of the messages it sent, until it fell quiet."""
+    xviz = await server.session(log)
+    statuses: list[str] = []
+    stamps: list[int] = []
+    async with await foxglove(server, log) as websocket:
+        await websocket.send(
+            json.dumps(
+                {
+                    "op": "subscribe",
+                    "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in websocket.channels],
+                }
+            )
+        )  # type: ignore[attr-defined]
+        try:
+            while True:
+                data = await asyncio.wait_for(websocket.recv(), 5)
+                if isinstance(data, bytes) and data[0] == 0x01:  # messageData: subscription, log time, payload
+                    stamps.append(struct.unpack_from("<Q", data, 5)[0])
+                elif isinstance(data, str) and json.loads(data)["op"] == "status":
+                    statuses.append(json.loads(data)["message"])
+        except asyncio.TimeoutError:
+            pass
+    return xviz, statuses, stamps
+
+
+async def only_log(server: Served) -> str:
+    """The name of the one log the server serves, once its catalog has it."""
+
+    async def listed() -> bool:
+        return bool(await server.logs())
+
+    await eventually(listed, 60)
+    (log,) = await server.logs()
+    return log
+
+
+def frame_errors(messages: list[dict[str, Any]]) -> list[str]:
+    return [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
+
+
+async def test_a_kitti_frame_whose_files_pass_the_frame_limit_is_refused_unread_on_both_faces(
+    shared_dir: Path, tmp_path: Path
+) -> None:
+    import os
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(
+        shared_dir / "data" / "kitti-raw-2011_09_26_drive_0001-head", data / "raw", copy_function=os.symlink
+    )
+    drive = data / "raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    sweep = drive / "velodyne_points" / "data" / "0000000003.bin"
+    sweep.unlink()
+    with sweep.open("wb") as file:
+        file.truncate(OVER)  # with frame 3's four images, over the limit
+    async with served(data) as server:
+        log = await only_log(server)
+        xviz, statuses, stamps = await both_faces(server, log)
+        await healthz(server)
+    images = sum((drive / f"image_0{n}" / "data" / "0000000003.png").stat().st_size for n in range(4))
+    refused = f"frame 3: its messages and images would unpack {size_text(OVER + images)}, {REFUSED} unread"
+    assert len(timestamps(xviz)) == 24 and [
+        error.endswith(f"of log '{log}': {refused}") for error in frame_errors(xviz)
+    ] == [True], frame_errors(xviz)
+    assert len(statuses) == 1 and statuses[0].endswith(refused), statuses
+    assert len(set(stamps)) == 24 and str(drive) not in statuses[0] + frame_errors(xviz)[0]
+
+
+async def test_a_waymo_frame_whose_record_or_range_images_pass_the_frame_limit_is_refused_on_both_faces(
+    tmp_path: Path,
+) -> None:
+    import zlib
+
+    from devkit.waymo_scene import T0, write_scene
+    from xviz_server.datasets.waymo import frame_pb2 as pb
+    from xviz_server.datasets.waymo.segment import MAX_MATRIX_BYTES
+    from xviz_server.datasets.waymo.tfrecord import RecordFile, masked_crc, write_records
+
+    scene, _, _ = write_scene(tmp_path / "scene")
+    first, _, last = (RecordFile(scene).read(n) for n in range(3))
+    # Frame 2: fifteen range images of 60 MiB each, each under the 64 MiB a matrix may be, 900 MiB in all.
+    bomb = pb.Frame(timestamp_micros=T0 + 200_000)
+    bomb.pose.transform.extend(np.eye(4).flatten())
+    zeros = zlib.compress(bytes(60 * _MiB), 9)
+    assert 60 * _MiB < MAX_MATRIX_BYTES
+    for name in range(1, 6):
+        laser = bomb.lasers.add(name=name)
+        laser.ri_return1.range_image_compressed = laser.ri_return2.range_image_compressed = zeros
+        laser.ri_return1.range_image_pose_compressed = zeros
+    later = pb.Frame.FromString(last)
+    later.timestamp_micros = T0 + 300_000
+    segment = tmp_path / "data" / "segment-15.tfrecord"
+    segment.parent.mkdir()
+    write_records(segment, [first])
+    # Frame 1: a record of 130 MiB that begins with its time, the rest a hole in the file (never read).
+    length = struct.pack("<Q", OVER)
+    with segment.open("r+b") as file:  # not "ab": a file opened to append writes at its end, wherever it seeks
+        file.seek(0, io.SEEK_END)
+        file.write(length + struct.pack("<I", masked_crc(length)))
+        start = file.tell()
+        file.write(pb.Frame(timestamp_micros=T0 + 100_000).SerializeToString())
+        file.seek(start + OVER)  # the rest of the data: zeros
+        file.write(b"\0" * 4)  # its CRC
+    with segment.open("ab") as file:
+        rest = tmp_path / "rest.tfrecord"
+        write_records(rest, [bomb.SerializeToString(), later.SerializeToString()])
+        file.write(rest.read_bytes())
+    assert segment.stat().st_blocks * 512 < 16 * _MiB
+    async with served(tmp_path / "data") as server:
+        log = await only_log(server)
+        xviz, statuses, stamps = await both_faces(server, log)
+        await healthz(server)
+    unread = f"frame 1: its messages and images would unpack 130 MiB, {REFUSED} unread"
+    inflated = f"frame 2: its messages and images unpack {REFUSED.replace('refused', '')}refused after"
+    errors = frame_errors(xviz)
+    assert timestamps(xviz) == [T0 / 1e6, (T0 + 300_000) / 1e6], errors
+    assert len(errors) == 2 and unread in errors[0] and inflated in errors[1], errors
+    assert len(statuses) == 2 and unread in statuses[0] and inflated in statuses[1], statuses
+    assert sorted(set(stamps)) == [T0 * 1000, (T0 + 300_000) * 1000]
+
+
+async def test_a_vista_frame_whose_sweep_and_video_pass_the_frame_limit_is_refused_unread_on_both_faces(
+    tmp_path: Path,
+) -> None:
+    import h5py
+    from test_vista import FRAMES, write_trace
+
+    write_trace(tmp_path / "data" / "good")
+    large = write_trace(tmp_path / "data" / "large")
+    points = 12_000_000  # a sweep's rows declare 12 M points: 183.1 MiB of xyz and intensity, none of it written
+    (large / "lidar_3d.h5").unlink()
+    with h5py.File(large / "lidar_3d.h5", "w") as file:
+        file.create_dataset("xyz", (FRAMES, points, 3), np.float32, chunks=(1, 1 << 16, 3))
+        file.create_dataset("intensity", (FRAMES, points), np.float32, chunks=(1, 1 << 16))
+    assert (large / "lidar_3d.h5").stat().st_size < _MiB
+    async with served(tmp_path / "data") as server:
+
+        async def listed() -> bool:
+            return len(await server.logs()) == 2
+
+        await eventually(listed, 60)
+        xviz, statuses, stamps = await both_faces(server, "large")
+        good_xviz, good_statuses, good_stamps = await both_faces(server, "good")
+        await healthz(server)
+    declared = size_text(points * 16 + 64 * 48 * 3)  # the sweep's rows and a decoded video frame
+    refused = [f"frame {n}: its messages and images would unpack {declared}, {REFUSED} unread" for n in range(FRAMES)]
+    assert (
+        not timestamps(xviz)
+        and [error.endswith(f"of log 'large': {text}") for error, text in zip(frame_errors(xviz), refused)]
+        == [True] * FRAMES
+    ), frame_errors(xviz)
+    assert [said.endswith(text) for said, text in zip(statuses, refused)] == [True] * FRAMES and not stamps, statuses
+    assert len(timestamps(good_xviz)) == FRAMES and not frame_errors(good_xviz) and not good_statuses
+    assert len(set(good_stamps)) == FRAMES
+
+
 # -- exports ------------------------------------------------------------------------------------------------------
 
 
@@ -310,6 +475,38 @@ async def test_a_session_url_parameter_given_twice_is_refused_and_ignored(kitti_
     )
 
 
+async def test_a_url_parameter_given_twice_gets_the_same_refusal_on_the_foxglove_face(kitti_root: Path) -> None:
+    async with running_server(kitti_root) as server:
+        async with client(server, "/?log=kitti&log=other") as viewer:
+            xviz = [await viewer.recv(30) for _ in range(2)]
+        async with connect(
+            f"ws://127.0.0.1:{server.port}/?log=kitti&log=other&max_mbps=5&max_mbps=6&speed=1&speed=2",
+            subprotocols=["foxglove.websocket.v1"],  # type: ignore[list-item]
+        ) as websocket:
+            info = json.loads(await asyncio.wait_for(websocket.recv(), 30))
+            said = [json.loads(await asyncio.wait_for(websocket.recv(), 30)) for _ in range(2)]
+            _, channels = await foxglove_opened_after(websocket)
+    refusal = "bad connection URL parameter 'log': give it at most once; it is ignored"
+    # XVIZ: an error, then the only log, as if no log were named.
+    assert [m["type"] for m in xviz] == ["xviz/error", "xviz/metadata"] and xviz[0]["data"]["message"].endswith(refusal)
+    # Foxglove: the server's info, an error status for each parameter it reads (speed is not one), then the only log.
+    assert info["op"] == "serverInfo"
+    assert said == [
+        {"op": "status", "level": 2, "message": refusal},
+        {"op": "status", "level": 2, "message": refusal.replace("'log'", "'max_mbps'")},
+    ]
+    assert channels
+
+
+async def foxglove_opened_after(websocket: ClientConnection) -> tuple[int, list[dict[str, Any]]]:
+    """The rest of a Foxglove log's opening once ``serverInfo`` and the statuses are read: its start, its channels."""
+    start = await asyncio.wait_for(websocket.recv(), 30)
+    assert isinstance(start, bytes) and start[0] == 0x02
+    advertise = json.loads(await asyncio.wait_for(websocket.recv(), 30))
+    assert advertise["op"] == "advertise"
+    return struct.unpack_from("<Q", start, 1)[0], advertise["channels"]
+
+
 # -- the catalog ---------------------------------------------------------------------------------------------------
 
 
@@ -366,6 +563,51 @@ async def test_every_http_answer_carries_the_same_headers_and_says_what_was_aske
         assert headers.get("referrer-policy") == "strict-origin", (name, headers)
         assert b"WebSocket connection" not in body, (name, body)
     assert answers["414"][2] == b"cannot read this request: read 10016 bytes, expected no more than 8192 bytes.\n"
+
+
+async def test_a_header_given_on_two_lines_is_read_as_one_list_not_answered_500(kitti_root: Path) -> None:
+    """Two ``Range`` lines made the file's answer fail (a 500): they are one list of ranges, as RFC 9110 reads them."""
+    async with served(kitti_root) as server:
+        await healthz(server)
+        head = b"GET /api/logs/kitti/file.mcap HTTP/1.1\r\nHost: x\r\nConnection: close\r\n"
+        status, headers, whole = await asyncio.to_thread(raw, server.port, head + b"\r\n")
+        answers = [
+            await asyncio.to_thread(raw, server.port, head + lines + b"\r\n")
+            for lines in (
+                b"Range: bytes=0-1\r\nRange: bytes=2-3\r\n",  # two ranges: not served, the whole file is
+                b'If-None-Match: "old"\r\nIf-None-Match: ' + headers["etag"].encode() + b"\r\n",  # one list of tags
+                b"Range: bytes=0-9\r\nAccept: */*\r\nAccept: text/plain\r\n",  # another header twice
+            )
+        ]
+        await healthz(server)
+    assert status == b"HTTP/1.1 200 OK" and len(whole) == int(headers["content-length"]) > 0
+    assert [(answer[0], answer[2]) for answer in answers] == [
+        (b"HTTP/1.1 200 OK", whole),
+        (b"HTTP/1.1 304 Not Modified", b""),
+        (b"HTTP/1.1 206 Partial Content", whole[:10]),
+    ]
+    assert not [line for line in server.lines if "failed" in line], server.lines
+
+
+async def test_a_header_read_as_one_value_given_twice_is_a_400_naming_it(kitti_root: Path) -> None:
+    """A header sent on two lines that the server reads as one value (``Accept`` on the page, ``Upgrade``, ``Origin``
+    on the file) is the client's error, not the server's: a 400 naming it, with every answer's headers."""
+    async with served(kitti_root) as server:
+        await healthz(server)
+        answers = [
+            await asyncio.to_thread(raw, server.port, request)
+            for request in (
+                b"GET / HTTP/1.1\r\nHost: x\r\nAccept: text/html\r\nAccept: text/html\r\n\r\n",
+                b"GET /api/logs HTTP/1.1\r\nHost: x\r\nUpgrade: a\r\nUpgrade: b\r\n\r\n",
+                b"HEAD /api/logs/kitti/file.mcap HTTP/1.1\r\nHost: x\r\nOrigin: http://a\r\nOrigin: http://b\r\n\r\n",
+            )
+        ]
+        await healthz(server)
+    for (status, headers, body), name in zip(answers, ("Accept", "Upgrade", "Origin")):
+        assert status == b"HTTP/1.1 400 Bad Request", (status, body)
+        assert headers.get("x-content-type-options") == "nosniff" and headers.get("referrer-policy") == "strict-origin"
+        assert body.lower() in (f"the header {name!r} is given more than once\n".lower().encode(), b""), body
+    assert not [line for line in server.lines if "failed" in line]
 
 
 # -- clients that send and never read --------------------------------------------------------------------------------

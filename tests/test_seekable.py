@@ -70,7 +70,7 @@ SIZE = 1000
 def test_an_answer_follows_the_ranges_and_conditions_of_the_request(
     headers: dict[str, str], status: int, span: Any
 ) -> None:
-    answer = decide(headers, Representation(SIZE, ETAG, WHEN))
+    answer = decide(headers.items(), Representation(SIZE, ETAG, WHEN))
     assert answer.status == status
     assert (answer.headers["Accept-Ranges"], answer.headers["ETag"], answer.headers["Last-Modified"]) == (
         "bytes",
@@ -307,8 +307,69 @@ async def test_a_page_of_another_origin_reads_the_file_by_ranges_in_chromium(tmp
         {"status": 206, "contentRange": f"bytes 0-99/{size}", "bytes": 100},
         {"status": 206, "contentRange": f"bytes {size - 10}-{size - 1}/{size}", "bytes": 10},
     ]
-    # A header beyond Range makes the browser ask first (OPTIONS), which gets no CORS answer: the apps send none.
-    assert "error" in report["ifRange"]
+    # A header beyond Range makes the browser ask first (OPTIONS): answered, the ranged GET follows.
+    assert report["ifRange"] == {"status": 206, "contentRange": f"bytes 0-99/{size}", "bytes": 100}
+
+
+def options(port: int, path: str, *lines: str) -> tuple[str, dict[str, str]]:
+    """An ``OPTIONS`` request sent on a socket as a browser's preflight is: its status line and headers (names in
+    lower case)."""
+    import socket
+
+    with socket.create_connection(("127.0.0.1", port), timeout=30) as sock:
+        sock.sendall("\r\n".join([f"OPTIONS {path} HTTP/1.1", "Host: 127.0.0.1", *lines, "", ""]).encode())
+        data = b""
+        while b"\r\n\r\n" not in data and (chunk := sock.recv(65536)):
+            data += chunk
+    status, *fields = data.partition(b"\r\n\r\n")[0].decode().split("\r\n")
+    return status, {name.lower(): value for name, _, value in (field.partition(": ") for field in fields)}
+
+
+async def test_a_preflight_for_a_logs_file_is_answered_with_cors_and_nowhere_else(tmp_path: Path) -> None:
+    write_log(tmp_path / "logs" / "drive", random_updates(5))
+    asking = (
+        "Origin: http://app.example",
+        "Access-Control-Request-Method: GET",
+        "Access-Control-Request-Headers: if-none-match,range",
+    )
+    file = FILE.format("drive")
+    async with running_server(tmp_path / "logs") as server:
+        answers = {
+            path: await asyncio.to_thread(options, server.port, path, *asking)
+            for path in (file, "/", "/api/logs", "/api/logs/drive/export", "/nowhere")
+        }
+        handshake = await asyncio.to_thread(
+            options,
+            server.port,
+            file,
+            *asking,
+            "Upgrade: websocket",
+            "Connection: Upgrade",
+            "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+            "Sec-WebSocket-Version: 13",
+        )
+    async with running_server(tmp_path / "logs", allowed_origins=["http://app.example"]) as server:
+        allowed = await asyncio.to_thread(options, server.port, file, *asking)
+        other = await asyncio.to_thread(options, server.port, file, "Origin: http://other.example", *asking[1:])
+    status, headers = answers.pop(file)
+    assert status == "HTTP/1.1 204 No Content" and "content-length" not in headers
+    assert (headers["allow"], headers["access-control-allow-origin"], headers["access-control-allow-methods"]) == (
+        "GET, HEAD",
+        "*",
+        "GET, HEAD",
+    )
+    assert {"Range", "If-Range", "If-None-Match", "If-Match", "If-Modified-Since"} == set(
+        headers["access-control-allow-headers"].split(", ")
+    )
+    assert headers["access-control-max-age"] == "7200" and headers["x-content-type-options"] == "nosniff"
+    assert headers["access-control-expose-headers"] == (
+        "Accept-Ranges, Content-Length, Content-Range, ETag, Last-Modified"
+    )  # as the file's own answers
+    for status, headers in [*answers.values(), handshake]:  # elsewhere: no CORS; and never a WebSocket session
+        assert status == "HTTP/1.1 204 No Content" and headers["allow"] == "GET, HEAD"
+    assert not [name for _, headers in answers.values() for name in headers if name.startswith("access-control")]
+    assert allowed[1]["access-control-allow-origin"] == "http://app.example" and allowed[1]["vary"] == "Origin"
+    assert "access-control-allow-origin" not in other[1] and "access-control-allow-methods" not in other[1]
 
 
 async def test_a_whole_file_get_cut_short_by_the_client_stops_the_sending(tmp_path: Path) -> None:
@@ -424,6 +485,64 @@ async def test_at_most_builds_files_are_made_at_a_time(tmp_path: Path) -> None:
             await asyncio.sleep(0.005)
         assert {status for status, _, _ in await asked} == {200}
     assert max(seen) <= BUILDS and len(list(files.glob("*.mcap"))) == len(names), seen
+
+
+async def test_the_files_folder_keeps_to_its_cap_removing_the_least_recently_asked_for_never_one_being_read(
+    tmp_path: Path,
+) -> None:
+    import socket
+
+    from helpers import eventually
+    from xviz_server.foxglove.seekable import _stem
+
+    logs, state = tmp_path / "logs", tmp_path / "state"
+    for name in "abcd":
+        write_log(logs / name, random_updates(10))
+    write_log(logs / "big", random_updates(20, points=50_000))  # a file of megabytes, over the cap by itself
+    files = state / "files"
+
+    def kept() -> set[str]:
+        stems = {_stem(name): name for name in [*"abcd", "big"]}
+        return {stems[path.name.rpartition("-")[0]] for path in files.glob("*.mcap")}
+
+    async def head(server: Any, name: str) -> None:
+        status, _, _ = await asyncio.to_thread(http_get, server.port, FILE.format(name), "HEAD")
+        assert status == 200
+
+    async with running_server(logs, state_dir=state) as server:  # the default cap: every file is kept
+        for name in "abcd":
+            await head(server, name)
+        assert kept() == set("abcd")
+    cap = 2.5 * max(path.stat().st_size for path in files.glob("*.mcap"))  # two small files, not three
+    shutil.rmtree(files)
+    async with running_server(logs, state_dir=state, files_gb=cap / 1e9) as server:
+        await head(server, "a")
+        await head(server, "b")
+        await head(server, "a")  # b is now the least recently asked for
+        await head(server, "c")
+        assert kept() == {"a", "c"}
+        # A reader that takes the head and then nothing: its file is being read.
+        reader = socket.socket()
+        reader.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        await asyncio.to_thread(reader.connect, ("127.0.0.1", server.port))
+        reader.sendall(f"GET {FILE.format('big')} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
+        data = b""
+        while b"\r\n\r\n" not in data:
+            data += await asyncio.to_thread(reader.recv, 4096)
+        assert data.startswith(b"HTTP/1.1 200 OK")
+        assert kept() == {"big"}  # made, and alone over the cap: the others are removed
+        await head(server, "d")
+        assert kept() == {"big", "d"}  # big is being read
+        reader.close()
+
+        async def let_go() -> bool:
+            return not server._files._held  # the answer to the reader has ended
+
+        await eventually(let_go)
+        await head(server, "a")
+        assert kept() == {"d", "a"}  # big, the least recently asked for, is removed now
+        status, _, body = await asyncio.to_thread(http_get, server.port, FILE.format("big"), Range="bytes=0-7")
+        assert (status, body) == (206, b"\x89MCAP0\r\n")  # made again on request
 
 
 def test_the_file_url_names_the_log_percent_decoded() -> None:

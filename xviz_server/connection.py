@@ -22,7 +22,6 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
-from urllib.parse import urlsplit
 
 from websockets.exceptions import ConnectionClosed
 
@@ -37,7 +36,6 @@ from .linkwatch import is_loopback, sample_link
 from .live import FeedEvent, LiveUpdate, Subscription
 from .logfmt import peer
 from .logs import Log
-from .params import repeated
 from .readahead import ReadAhead, Window
 from .session import (
     CancelStream,
@@ -76,7 +74,7 @@ class Connection(FaceConnection[Session]):
             lag_timeout=self.settings.live_lag_timeout,
             detail=self.settings.detail == "auto",
             local=is_loopback(self.websocket),
-            repeated=repeated(urlsplit(self.path).query),
+            repeated=self.repeated,
         )
 
     def _opened(self) -> None:

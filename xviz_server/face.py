@@ -49,6 +49,7 @@ from .live import LiveFeed, LiveRegistry, Subscription, watch_lag
 from .logfmt import ending, log_event, peer, redact_url
 from .logs import Catalog, Log
 from .metrics import Metrics
+from .params import repeated
 from .settings import Settings
 
 if TYPE_CHECKING:
@@ -93,6 +94,8 @@ class FaceConnection(Generic[S]):
         self.metrics = metrics
         self.settings = settings
         self.path, path, query = request_target(websocket)
+        #: Names the URL's query gives more than once: the session refuses them (see :func:`~xviz_server.params.repeated`).
+        self.repeated = repeated(urlsplit(self.path).query)
         self.session: S = self._make_session(path, query)
         self._tasks: set[asyncio.Task[None]] = set()
         self.messages_sent = 0

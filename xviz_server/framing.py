@@ -86,6 +86,7 @@ from .version import require_tested
 from .viewer import HEADERS
 
 __all__ = [
+    "close_body",
     "TESTED_WEBSOCKETS",
     "SEPARATE_PAYLOAD",
     "OPEN_TIMEOUT",
@@ -169,6 +170,12 @@ def streamed(
     return StreamedResponse(
         response.status_code, response.reason_phrase, headers, chunks=chunks, stall_timeout=stall_timeout, length=length
     )
+
+
+async def close_body(response: Response | None) -> None:
+    """Close the body of ``response`` if it is a :class:`StreamedResponse` that has one: it will not be sent."""
+    if isinstance(response, StreamedResponse) and response.chunks is not None:
+        await response.chunks.aclose()
 
 
 class FramingProtocol(ServerProtocol):
@@ -258,14 +265,14 @@ class FramingConnection(ServerConnection):
             await asyncio.wait_for(handshake, self._patience)
         except BaseException:
             handshake.cancel()
+            await close_body(getattr(self, "response", None))  # a body never sent is closed all the same
             raise
         response = self.response
-        if (
-            isinstance(response, StreamedResponse)
-            and response.chunks is not None
-            and self.protocol.state is State.CONNECTING
-        ):
-            await self._send_body(response, response.chunks)
+        if isinstance(response, StreamedResponse) and response.chunks is not None:
+            if self.protocol.state is State.CONNECTING:
+                await self._send_body(response, response.chunks)
+            else:
+                await close_body(response)
 
     async def _send_body(self, response: StreamedResponse, chunks: AsyncGenerator[bytes, None]) -> None:
         transport = self.transport

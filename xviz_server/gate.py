@@ -9,8 +9,10 @@ they reach the parser:
 * ``HEAD`` is read as ``GET`` and answered as GET would be, without the
   body (its ``Content-Length`` is the GET's); a HEAD that asks for a
   WebSocket handshake is answered ``405 Method Not Allowed``;
-* ``OPTIONS`` is answered ``204 No Content`` with ``Allow: GET, HEAD`` (no
-  CORS: a browser's preflight for another origin fails, as it should);
+* ``OPTIONS`` is read as ``GET`` too (:attr:`GatedConnection.preflight`
+  set), for ``process_request`` to answer: :meth:`GatedConnection.options`,
+  ``204 No Content`` with ``Allow: GET, HEAD``, and CORS headers where the
+  server lets pages of other origins read (a log's file); never a handshake;
 * a request with another method (``POST /``, ``PUT``) is answered ``405
   Method Not Allowed`` with ``Allow: GET, HEAD``, and bytes that are no HTTP
   request ``400 Bad Request``; the connection is then closed;
@@ -27,12 +29,15 @@ from http import HTTPStatus
 from websockets.asyncio.server import ServerConnection
 from websockets.http11 import SERVER, Request, Response
 
-__all__ = ["GatedConnection"]
+from .framing import close_body
+
+__all__ = ["ALLOW", "GatedConnection"]
 
 logger = logging.getLogger(__name__)
 
 _SERVED = "WebSocket sessions, and GET /, /healthz or /metrics"
-_ALLOW = "GET, HEAD"
+#: The methods served: what ``Allow`` says.
+ALLOW = "GET, HEAD"
 _METHODS = (b"GET", b"HEAD", b"OPTIONS")  # those answered
 _TLS_HANDSHAKE = 0x16  # content type of a TLS record carrying a handshake (ClientHello)
 
@@ -46,6 +51,9 @@ class GatedConnection(ServerConnection):
     _refused = False
     #: Whether the request is a HEAD: its response goes without its body.
     head_only = False
+    #: Whether the request is an OPTIONS (a browser's CORS preflight): ``process_request`` answers it, and a
+    #: handshake it would accept is answered :meth:`options` instead.
+    preflight = False
 
     def data_received(self, data: bytes) -> None:
         if self._refused:
@@ -59,6 +67,9 @@ class GatedConnection(ServerConnection):
             self._head = None
             if method == b"HEAD":
                 self.head_only = True
+                data = b"GET " + rest
+            elif method == b"OPTIONS":
+                self.preflight = True
                 data = b"GET " + rest
             elif method == b"GET" and space:
                 data = head
@@ -81,20 +92,30 @@ class GatedConnection(ServerConnection):
                 if isinstance(changed, Awaitable):
                     changed = await changed
                 response = changed or response
+            if self.preflight and response.status_code == HTTPStatus.SWITCHING_PROTOCOLS:
+                response = self.options()
             if not self.head_only:
                 return response
             if response.status_code == HTTPStatus.SWITCHING_PROTOCOLS:
                 response = self._method_not_allowed("HEAD")
+            await close_body(response)  # a streamed body is not sent
             return Response(
                 response.status_code, response.reason_phrase, response.headers
             )  # its head only, whatever its kind
 
         await super().handshake(process_request, respond, server_header)
 
+    def options(self) -> Response:
+        """The answer to an ``OPTIONS`` request: ``204 No Content`` with ``Allow: GET, HEAD``."""
+        response = self.respond(HTTPStatus.NO_CONTENT, "")
+        del response.headers["Content-Type"], response.headers["Content-Length"]
+        response.headers["Allow"] = ALLOW
+        return response
+
     def _method_not_allowed(self, method: str) -> Response:
         logger.info("refused a %s request from %s: only GET and HEAD are served", method, self.remote_address)
         response = self.respond(HTTPStatus.METHOD_NOT_ALLOWED, f"only GET and HEAD are served here: {_SERVED}\n")
-        response.headers["Allow"] = _ALLOW
+        response.headers["Allow"] = ALLOW
         return response
 
     def _refuse(self, head: bytes) -> None:
@@ -107,11 +128,7 @@ class GatedConnection(ServerConnection):
             )
         else:
             method = head.partition(b" ")[0]
-            if method == b"OPTIONS":
-                response = self.respond(HTTPStatus.NO_CONTENT, "")
-                del response.headers["Content-Type"], response.headers["Content-Length"]
-                response.headers["Allow"] = _ALLOW
-            elif method.isalpha() and method.isupper():
+            if method.isalpha() and method.isupper():
                 response = self._method_not_allowed(method.decode())
             else:
                 response = self.respond(HTTPStatus.BAD_REQUEST, f"not an HTTP request; this port serves {_SERVED}\n")

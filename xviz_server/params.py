@@ -8,7 +8,8 @@ same things the same way, with a
 * :func:`single`: the value of each parameter the route knows, refusing one
   given twice (``start=1&start=2``: which one was meant is unknowable);
 * :func:`repeated`: the names a query string gives twice, for a reader of
-  one value per name (an XVIZ session's URL);
+  one value per name (a WebSocket session's URL, on either face), and
+  :func:`given_twice`, what the session says of each;
 * :func:`seconds`: a number of seconds, written ``[-]digits[.digits][e[±]digits]``
   and finite. Python's ``float`` also takes ``1_000``, `` 5 ``, ``inf`` and
   ``+5``: none of them is a number a client writes on purpose, and ``+``
@@ -23,9 +24,10 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from urllib.parse import parse_qsl
 
+from .budget import shown
 from .exceptions import QueryError
 
-__all__ = ["single", "seconds", "repeated"]
+__all__ = ["single", "seconds", "repeated", "given_twice"]
 
 _NUMBER = re.compile(r"-?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
 #: Characters of a refused value shown in the error.
@@ -50,6 +52,12 @@ def repeated(query: str) -> frozenset[str]:
     """The names given more than once in the query string ``query`` (for a reader that takes one value of each)."""
     counts = Counter(name for name, _ in parse_qsl(query, keep_blank_values=True))
     return frozenset(name for name, count in counts.items() if count > 1)
+
+
+def given_twice(name: str) -> str:
+    """What a WebSocket session tells its client of a URL parameter given more than once (see :func:`repeated`):
+    refused, and taken as not given."""
+    return f"bad connection URL parameter {shown(name)}: give it at most once; it is ignored"
 
 
 def seconds(name: str, text: str, *, at_least: float | None = None) -> float:

@@ -20,13 +20,17 @@ caller sends the bytes.
   multipart answers): the range is ignored, the whole file is answered.
 
 Every answer carries ``Accept-Ranges: bytes``, ``ETag`` and ``Last-Modified``.
+
+A header given on several lines is read as one, its values joined by commas
+(RFC 9110, section 5.3): two ``Range`` lines are several ranges, two
+``If-None-Match`` lines one list of tags.
 """
 
 from __future__ import annotations
 
 import email.utils
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from http import HTTPStatus
 
@@ -61,9 +65,12 @@ class Answer:
     headers: dict[str, str] = field(default_factory=dict)
 
 
-def decide(headers: Mapping[str, str], file: Representation) -> Answer:
-    """The answer to a GET (or HEAD) of ``file`` with the request's ``headers`` (names in any case)."""
-    lowered = {name.lower(): value for name, value in headers.items()}
+def decide(headers: Iterable[tuple[str, str]], file: Representation) -> Answer:
+    """The answer to a GET (or HEAD) of ``file`` with the request's header lines ``headers`` (names in any case)."""
+    lowered: dict[str, str] = {}
+    for name, value in headers:
+        key = name.lower()
+        lowered[key] = f"{lowered[key]}, {value}" if key in lowered else value
     common = {"Accept-Ranges": "bytes", "ETag": file.etag, "Last-Modified": file.last_modified}
     if (wanted := lowered.get("if-match")) is not None and not _matches(wanted, file.etag, strong=True):
         return Answer(HTTPStatus.PRECONDITION_FAILED, headers=common)

@@ -14,7 +14,8 @@ not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer
 * ``GET /api/logs/NAME/file.mcap``: the whole log as an MCAP file served
   with byte ranges, for the Foxglove and Lichtblick apps to seek in (see
   :mod:`xviz_server.foxglove.seekable` and :mod:`xviz_server.ranges`);
-  other origins may read it (CORS, within ``--allowed-origin`` when set);
+  other origins may read it (CORS, within ``--allowed-origin`` when set),
+  and ``OPTIONS`` of it is a CORS preflight's answer;
 * ``GET /healthz``: ``ok`` (then, with ``--broker``, a line on the broker's
   state, and one for each reader of a feed that keeps failing), or HTTP 503
   saying what is broken (a worker process pool that lost a process and is
@@ -50,6 +51,7 @@ from urllib.parse import urlsplit
 
 import orjson
 from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.datastructures import MultipleValuesError
 from websockets.http11 import Request, Response
 from websockets.typing import Origin, Subprotocol
 
@@ -59,8 +61,8 @@ from .catalog import Indexer, parse_query
 from .datasets import GENERATED, KINDS, dataset_options, dataset_problem
 from .exceptions import ConfigError, LogError, LogNotFound, QueryError, XVIZError
 from .foxglove.wire import SUBPROTOCOLS
-from .framing import OPEN_TIMEOUT, FramingConnection, streamed
-from .gate import GatedConnection
+from .framing import OPEN_TIMEOUT, FramingConnection, StreamedResponse, streamed
+from .gate import ALLOW, GatedConnection
 from .layout import LOG, check_log_name
 from .metrics import CONTENT_TYPE, Metrics
 from .settings import Settings
@@ -75,7 +77,7 @@ if TYPE_CHECKING:
 
     from .connection import Connection
     from .foxglove.connection import FoxgloveConnection
-    from .foxglove.seekable import LogFiles
+    from .foxglove.seekable import BuiltFile, LogFiles
     from .live import LiveRegistry
     from .live.broker import Broker
     from .live.record import Recorder
@@ -109,6 +111,10 @@ SESSION_MODULES = (
 FILE_WAIT = 600.0
 #: What the answers about a log's file (``/api/logs/NAME/file.mcap``) let a page of another origin read.
 FILE_EXPOSED = "Accept-Ranges, Content-Length, Content-Range, ETag, Last-Modified"
+#: What a page of another origin may send with its request for a log's file: the headers its answer reads.
+FILE_REQUEST_HEADERS = "Range, If-Range, If-Match, If-None-Match, If-Modified-Since"
+#: How long a browser may keep a preflight's answer (Chromium keeps it at most 2 hours).
+PREFLIGHT_SECONDS = 7200
 
 
 class _Connection(GatedConnection, FramingConnection):
@@ -231,7 +237,9 @@ class XVIZServer:
         from .foxglove.seekable import LogFiles
 
         self._files = LogFiles(
-            None if self.settings.state_dir is None else self.settings.state_dir / "files", self.workers
+            None if self.settings.state_dir is None else self.settings.state_dir / "files",
+            self.workers,
+            int(self.settings.files_gb * 1e9),
         )
         await self.indexer.start(self._catalog)
         if self._catalog.kinds() - {LOG}:
@@ -360,20 +368,25 @@ class XVIZServer:
             self.sessions.discard(connection)
 
     async def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
-        """The answer to ``request``, or ``None`` to accept its WebSocket handshake; a failure is a 500 that
-        names what was asked (websockets' own would say a WebSocket failed to open)."""
+        """The answer to ``request``, or ``None`` to accept its WebSocket handshake. A header given on two lines
+        that is read as one value is a 400 naming it; any other failure is a 500 that names what was asked
+        (websockets' own would say a WebSocket failed to open)."""
         try:
             return await self._answer(connection, request)
+        except MultipleValuesError as exc:
+            return connection.respond(HTTPStatus.BAD_REQUEST, f"the header {exc.args[0]!r} is given more than once\n")
         except Exception:
             path = urlsplit(request.path).path
             logger.exception("answering GET %s failed", path)
-            upgrade = request.headers.get("Upgrade", "").lower() == "websocket"
+            upgrade = any(value.lower() == "websocket" for value in request.headers.get_all("Upgrade"))
             what = f"a WebSocket session on {path}" if upgrade else f"GET {path}"
             return connection.respond(
                 HTTPStatus.INTERNAL_SERVER_ERROR, f"the server failed to answer {what}: see its log\n"
             )
 
     async def _answer(self, connection: ServerConnection, request: Request) -> Response | None:
+        if isinstance(connection, GatedConnection) and connection.preflight:
+            return self._preflight(connection, request)
         if request.headers.get("Upgrade", "").lower() == "websocket":
             if feed_name(request.path) is not None:
                 reason = ingest_refusal(
@@ -487,8 +500,6 @@ class XVIZServer:
     async def _file(self, connection: ServerConnection, request: Request, name: str) -> Response:
         """Log ``name`` as a whole MCAP file, or the byte range of it the request asks for (see :mod:`.ranges`)."""
         from .foxglove.frame import log_plan
-        from .foxglove.seekable import read_file
-        from .ranges import decide
 
         assert self._files is not None
         if isinstance(connection, FramingConnection):
@@ -507,7 +518,22 @@ class XVIZServer:
             return connection.respond(
                 HTTPStatus.SERVICE_UNAVAILABLE, f"cannot make the file of log {name!r}: {exc.strerror or exc}\n"
             )
-        answer = decide(request.headers, built.representation)
+        try:
+            response = self._file_answer(connection, request, built)
+        except BaseException:
+            self._files.release(built)
+            raise
+        if not isinstance(response, StreamedResponse):  # no body: the file is not read
+            self._files.release(built)
+        return response
+
+    def _file_answer(self, connection: ServerConnection, request: Request, built: BuiltFile) -> Response:
+        """The answer with the file :meth:`LogFiles.get` gave and holds: with a body that releases it once
+        closed, or without one."""
+        from .ranges import decide
+
+        assert self._files is not None
+        answer = decide(request.headers.raw_items(), built.representation)
         if answer.status not in (HTTPStatus.OK, HTTPStatus.PARTIAL_CONTENT):
             text = (
                 ""
@@ -526,8 +552,26 @@ class XVIZServer:
         del head.headers["Content-Type"]
         head.headers["Content-Type"] = "application/octet-stream"
         head.headers.update(answer.headers)
-        body = read_file(built.path, answer.offset, answer.length, self.workers, self.metrics.file_bytes.inc)
+        body = self._files.read(built, answer.offset, answer.length, self.metrics.file_bytes.inc)
         return streamed(head, body, self.settings.idle_timeout, length=answer.length)
+
+    def _preflight(self, connection: GatedConnection, request: Request) -> Response:
+        """The answer to an ``OPTIONS`` request: for a log's file, a CORS preflight's answer that lets the page
+        of an allowed origin send its ranged, conditional GET; elsewhere no CORS."""
+        response = connection.options()
+        path = urlsplit(request.path).path
+        if path.startswith(LOG_PATH) and _file_path(path) is not None:
+            cors = self._cors(request)
+            response.headers.update(cors)
+            if "Access-Control-Allow-Origin" in cors:
+                response.headers.update(
+                    {
+                        "Access-Control-Allow-Methods": ALLOW,
+                        "Access-Control-Allow-Headers": FILE_REQUEST_HEADERS,
+                        "Access-Control-Max-Age": str(PREFLIGHT_SECONDS),
+                    }
+                )
+        return response
 
     def _cors(self, request: Request) -> dict[str, str]:
         """The CORS headers that let a page of another origin (the apps) read an answer: any origin, or those

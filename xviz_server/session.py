@@ -50,7 +50,6 @@ import numpy as np
 import pydantic
 from websockets.frames import CloseCode
 
-from .budget import shown
 from .codec import Format, decode, encode
 from .detail import DetailChooser, Sample
 from .events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
@@ -71,6 +70,7 @@ from .messages import (
     parse_client_message,
     stream_filter,
 )
+from .params import given_twice
 
 __all__ = [
     "Session",
@@ -255,10 +255,7 @@ class Session:
 
     def connect(self) -> list[Event]:
         """The connection opened: read the start parameters from the URL (each at most once)."""
-        events: list[Event] = [
-            self._error("start", f"bad connection URL parameter {shown(name)}: give it at most once; it is ignored")
-            for name in sorted(self.repeated & _URL_KEYS)
-        ]
+        events: list[Event] = [self._error("start", given_twice(name)) for name in sorted(self.repeated & _URL_KEYS)]
         self.query = {key: value for key, value in self.query.items() if key not in self.repeated}
         params = {key: self.query[key] for key in URL_START_KEYS if key in self.query}
         if "log" not in params:

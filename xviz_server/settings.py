@@ -70,6 +70,12 @@ class Settings(BaseSettings):
         "restart lists every log at once, and the logs' MCAP files to seek in (files/); default: none, the catalog is "
         "kept in memory and built again at each start, the files in a temporary folder",
     )
+    files_gb: float = Field(
+        default=4,
+        gt=0,
+        description="most GB the logs' MCAP files to seek in (files/ under --state-dir, else a temporary folder) "
+        "may take: once a new file puts them over, the least recently asked for are removed, never one being read",
+    )
     catalog_poll: float = Field(
         default=2,
         gt=0,

@@ -20,7 +20,8 @@ length fits in the file and in :data:`MAX_RECORD_BYTES`.
 
 Whatever each part's size, one frame may read at most :data:`MAX_FRAME_BYTES`
 in all, summed from what its parts declare before any is read (see
-:meth:`~xviz_server.datasets.ros.RosBag.frame_parts`).
+:func:`check_frame`); parts that declare no size (a Waymo frame's range
+images) are counted as they unpack, on a :class:`FrameTally`.
 
 A refusal is an :class:`~xviz_server.exceptions.OversizeError`; data that
 is not what its compression says, or unpacks to fewer bytes than declared,
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import bz2
 import io
+import threading
 import zlib
 from collections.abc import Callable
 from typing import Any
@@ -43,6 +45,7 @@ __all__ = [
     "MAX_CHUNK_BYTES",
     "MAX_FRAME_BYTES",
     "check_frame",
+    "FrameTally",
     "MAX_RECORD_BYTES",
     "MAX_FILE_RATIO",
     "COMPRESSIONS",
@@ -184,6 +187,35 @@ def check_frame(declared: int, frame: int, where: str, path: object = None) -> N
             frame=frame,
             path=path,
         )
+
+
+class FrameTally:
+    """What frame ``frame`` has unpacked so far in all, for parts that declare no size: counted as they unpack,
+    from threads side by side, starting from ``spent`` (what its parts declared and :func:`check_frame` let
+    through).
+
+    :meth:`take` raises a :class:`~xviz_server.exceptions.FrameSizeError` naming ``where`` once the count passes
+    :data:`MAX_FRAME_BYTES`.
+    """
+
+    def __init__(self, spent: int, frame: int, where: str, path: object = None) -> None:
+        self.spent, self._frame, self._where, self._path = spent, frame, where, path
+        self._lock = threading.Lock()
+
+    def take(self, size: int) -> None:
+        """Count ``size`` more bytes unpacked; refuse the frame if that passes the limit."""
+        with self._lock:
+            self.spent += size
+            spent = self.spent
+        if spent > MAX_FRAME_BYTES:
+            raise FrameSizeError(
+                f"{self._where}: frame {self._frame}: its messages and images unpack more than the limit of "
+                f"{size_text(MAX_FRAME_BYTES)} for one frame: refused after {size_text(spent)}",
+                size=spent,
+                limit=MAX_FRAME_BYTES,
+                frame=self._frame,
+                path=self._path,
+            )
 
 
 def check_declared(declared: int, where: str, limit: int = MAX_CHUNK_BYTES) -> None:

@@ -57,8 +57,10 @@ from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..codec.image import sniff_image
 from ..exceptions import DatasetError
 from ..storepath import StoreTree
+from ..unpack import check_frame
 from . import DEFAULT_IMAGE_WIDTH
 from .images import encode_like, fit_width
+from .sensors import file_size
 from .shared import EARTH_RADIUS, footprints, reflectance_colors
 
 __all__ = [
@@ -377,9 +379,13 @@ class KittiDrive:
         path = self.path / "oxts" / "data" / f"{frame:010d}.txt"
         return Oxts.parse(_read_text(path), path)
 
+    def velodyne_path(self, frame: int) -> Path | StoreTree:
+        """Where the velodyne sweep of a frame is (``velodyne_points/data/0000000007.bin``)."""
+        return self.path / "velodyne_points" / "data" / f"{frame:010d}.bin"
+
     def velodyne(self, frame: int) -> np.ndarray:
         """The velodyne sweep of a frame, read-only float32 (N, 4): x, y, z, reflectance."""
-        path = self.path / "velodyne_points" / "data" / f"{frame:010d}.bin"
+        path = self.velodyne_path(frame)
         data = _read_bytes(path)
         if len(data) % 16:
             raise DatasetError(
@@ -521,8 +527,15 @@ class KittiDrive:
         return meta.build()
 
     def convert(self, frame: int, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
-        """The state update of ``frame`` (the data of an ``xviz/state_update``)."""
+        """The state update of ``frame`` (the data of an ``xviz/state_update``).
+
+        Raises :class:`~xviz_server.exceptions.FrameSizeError`, the frame unread, when its sweep and images
+        are more than :data:`~xviz_server.unpack.MAX_FRAME_BYTES` in all (see :func:`~xviz_server.unpack.check_frame`).
+        """
         metadata = metadata or self.metadata()
+        cameras = [stream.removeprefix("/camera/") for stream in metadata["streams"] if stream.startswith("/camera/")]
+        files = [self.velodyne_path(frame), *(self.image_path(camera, frame) for camera in cameras)]
+        check_frame(sum(map(file_size, files)), frame, str(self.path), self.path)
         builder = FrameBuilder(metadata)
         t = float(self.times[frame])
         oxts = self._oxts_cached(frame)
@@ -534,10 +547,8 @@ class KittiDrive:
         trajectory = self._trajectory(frame, oxts)
         if len(trajectory) >= 2:
             builder.polyline("/vehicle/trajectory", trajectory)
-        for stream in metadata["streams"]:
-            if stream.startswith("/camera/"):
-                camera = stream.removeprefix("/camera/")
-                builder.image(stream, self.image(camera, frame))
+        for camera in cameras:
+            builder.image(f"/camera/{camera}", self.image(camera, frame))
         if self.tracklets:
             self._add_tracklets(builder, frame)
         builder.time_series("/vehicle/velocity", t, oxts.vf)

@@ -40,6 +40,7 @@ import numpy as np
 
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..exceptions import DatasetError
+from ..unpack import check_frame
 from . import DEFAULT_IMAGE_WIDTH, require
 from .images import jpeg
 from .shared import intensity_colors
@@ -119,6 +120,12 @@ class _VideoReader:
         except self._errors as exc:
             raise DatasetError(f"{path}: cannot open video: {exc}", path=path) from None
         self.position = 0  # number of the next frame the decoder gives
+
+    @property
+    def frame_bytes(self) -> int:
+        """The size of one decoded frame (RGB, 3 bytes a pixel), as the video's stream declares it."""
+        stream = self._container.streams.video[0]
+        return int(stream.codec_context.width) * int(stream.codec_context.height) * 3
 
     def frame(self, number: int) -> np.ndarray:
         try:
@@ -223,20 +230,33 @@ class VistaTrace:
 
     # -- data -----------------------------------------------------------------
 
+    def _reader(self, camera: str, number: int) -> _VideoReader:
+        """An open reader of a camera's video that has not passed frame ``number``."""
+        readers = self.__dict__.setdefault("_readers", {})
+        reader: _VideoReader | None = readers.get(camera)
+        if reader is None or reader.position > number:
+            if reader is not None:
+                reader.close()
+            reader = readers[camera] = _VideoReader(self.path / f"{camera}.avi")
+        return reader
+
     def video_frame(self, camera: str, number: int) -> np.ndarray:
         """Frame ``number`` (0-based, in the file) of a camera's video, RGB uint8 (H, W, 3).
 
         Videos are read forward: a reader stays open per camera, so frames
         asked for in order are each decoded once.
         """
-        path = self.path / f"{camera}.avi"
-        readers = self.__dict__.setdefault("_readers", {})
-        reader = readers.get(camera)
-        if reader is None or reader.position > number:
-            if reader is not None:
-                reader.close()
-            reader = readers[camera] = _VideoReader(path)
-        return reader.frame(number)
+        return self._reader(camera, number).frame(number)
+
+    def sweep_bytes(self, lidar: str) -> int:
+        """What one sweep of a lidar holds (its ``xyz`` and ``intensity`` rows), as the HDF5 file declares it."""
+        h5py = require("h5py", "VISTA traces", "vista")
+        path = self.path / f"{lidar}.h5"
+        try:
+            with h5py.File(path, "r") as file:
+                return sum(math.prod(file[name].shape[1:]) * file[name].dtype.itemsize for name in ("xyz", "intensity"))
+        except (OSError, KeyError, ValueError, TypeError) as exc:
+            raise DatasetError(f"{path}: cannot read: {exc}", path=path) from None
 
     def sweep(self, lidar: str, number: int) -> tuple[np.ndarray, np.ndarray]:
         """Sweep ``number`` of a lidar: xyz float32 (N, 3) and intensity (N,), padding removed."""
@@ -286,9 +306,23 @@ class VistaTrace:
         return meta.build()
 
     def convert(self, index: int, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The state update of frame ``index``.
+
+        Raises :class:`~xviz_server.exceptions.FrameSizeError`, the frame unread, when its lidar sweeps and decoded
+        video frames, as the files declare them, are more than :data:`~xviz_server.unpack.MAX_FRAME_BYTES` in all.
+        """
         metadata = metadata or self.metadata()
-        builder = FrameBuilder(metadata)
         t = float(self.times[index])
+        sweeps = {lidar: self._nearest(lidar, t) for lidar in self.lidars}
+        pictures = {
+            camera: int(self._master[index, 0]) if camera == self.cameras[0] else self._nearest(camera, t)
+            for camera in self.cameras
+        }
+        declared = sum(map(self.sweep_bytes, sweeps)) + sum(
+            self._reader(camera, number).frame_bytes for camera, number in pictures.items()
+        )
+        check_frame(declared, index, str(self.path), self.path)
+        builder = FrameBuilder(metadata)
         x, y, heading = self.poses[index]
         builder.pose("/vehicle_pose", t, position=(x, y, 0.0), orientation=(0.0, 0.0, heading))
         speed, curvature = self._functions
@@ -299,11 +333,10 @@ class VistaTrace:
             builder.polyline(
                 "/vehicle/trajectory", np.column_stack([self.poses[ahead, :2], np.zeros(int(ahead.sum()))])
             )
-        for lidar in self.lidars:
-            points, intensity = self.sweep(lidar, self._nearest(lidar, t))
+        for lidar, number in sweeps.items():
+            points, intensity = self.sweep(lidar, number)
             if len(points):
                 builder.points(f"/lidar/{lidar}", points, intensity_colors(intensity))
-        for camera in self.cameras:
-            number = int(self._master[index, 0]) if camera == self.cameras[0] else self._nearest(camera, t)
+        for camera, number in pictures.items():
             builder.image(f"/camera/{camera}", jpeg(self.video_frame(camera, number), self.image_max_width))
         return builder.build(t)

@@ -107,6 +107,7 @@ class FoxgloveConnection(FaceConnection[FoxgloveSession]):
             lag_timeout=self.settings.live_lag_timeout,
             detail=self.settings.detail == "auto",
             local=is_loopback(self.websocket),
+            repeated=self.repeated,
         )
 
     def _start_fields(self) -> dict[str, Any]:

@@ -18,6 +18,12 @@ file is written frame by frame into a temporary file renamed into place once
 complete (what a build holds in memory is a chunk of messages, whatever the
 log's length); requests that come while it is made wait for that same build.
 At most :data:`BUILDS` files are made at a time; the others wait their turn.
+
+The folder holds at most ``limit`` bytes of files (``--files-gb``): once a
+build has put it over, the files least recently asked for (their access time,
+set at each request) are removed until it is under, never one being read
+(from the request to the end of its answer, or of a ``HEAD``'s) nor the one
+just made. A file removed is made again on its next request.
 """
 
 from __future__ import annotations
@@ -28,10 +34,12 @@ import logging
 import os
 import shutil
 import tempfile
-from collections.abc import AsyncGenerator, Callable
+import time
+from collections import Counter
+from collections.abc import AsyncGenerator, Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from ..logs import Log
 from ..ranges import Representation
@@ -66,18 +74,23 @@ class BuiltFile:
 
 
 class LogFiles:
-    """The MCAP files of the logs, in ``folder`` (made if missing; ``None``: a temporary folder, removed by :meth:`close`)."""
+    """The MCAP files of the logs, in ``folder`` (made if missing; ``None``: a temporary folder, removed by
+    :meth:`close`), at most ``limit`` bytes of them (see the module's docstring)."""
 
-    def __init__(self, folder: Path | None, workers: Workers) -> None:
+    def __init__(self, folder: Path | None, workers: Workers, limit: int) -> None:
         self._given = folder
         self._folder: Path | None = folder
         self._workers = workers
+        self._limit = limit
         self._building: dict[Path, asyncio.Task[BuiltFile]] = {}
         self._swept = False
         self._turns = asyncio.Semaphore(BUILDS)
+        self._held: Counter[Path] = Counter()  # the files being read: answers under way
+        self._lock = asyncio.Lock()  # taking a file to read, and removing files, one at a time
 
     async def get(self, log: Log, plan: Plan, version: str) -> BuiltFile:
-        """The file of ``log`` at ``version`` (its version on disk or in its store), made now if it is not yet.
+        """The file of ``log`` at ``version`` (its version on disk or in its store), made now if it is not yet,
+        held until :meth:`release` or the end of :meth:`read`: no file is removed while held.
 
         Raises what making it raises (a frame that cannot be read or
         converted: its :class:`~xviz_server.exceptions.XVIZError`; the disk:
@@ -89,12 +102,39 @@ class LogFiles:
             folder
             / f"{stem}-{_digest(version.encode(), log.index.start.tobytes(), __version__.encode(), repr(plan).encode())}.mcap"
         )
-        task = self._building.get(path)  # no await from this look to the task's registration: one build a file
-        if task is None:
-            task = asyncio.ensure_future(self._find_or_build(log, plan, path, stem))
-            self._building[path] = task
-            task.add_done_callback(lambda _: self._building.pop(path, None))
-        return await asyncio.shield(task)
+        for _ in range(3):  # another build may remove it before it is held: make it again
+            task = self._building.get(path)  # no await from this look to the task's registration: one build a file
+            if task is None:
+                task = asyncio.ensure_future(self._find_or_build(log, plan, path, stem))
+                self._building[path] = task
+                task.add_done_callback(lambda _: self._building.pop(path, None))
+            await asyncio.shield(task)
+            async with self._lock:
+                built = await self._workers.io(_used, path)
+                if built is not None:
+                    self._held[path] += 1
+                    return built
+        raise OSError(f"the files' folder is full: the file of log {log.name!r} was removed as soon as it was made")
+
+    def release(self, built: BuiltFile) -> None:
+        """Let a file :meth:`get` gave be removed again (its answer is sent, or will not be)."""
+        self._held[built.path] -= 1
+        if self._held[built.path] <= 0:
+            del self._held[built.path]
+
+    def read(
+        self, built: BuiltFile, offset: int, length: int, count: Callable[[int], object]
+    ) -> AsyncGenerator[bytes, None]:
+        """:func:`read_file` of a file :meth:`get` gave, released once the pieces are closed, started or not."""
+        return _Released(read_file(built.path, offset, length, self._workers, count), lambda: self.release(built))
+
+    async def _evict(self, made: Path) -> None:
+        """Remove the files least recently asked for until the folder is within its limit, but those held and
+        ``made``."""
+        async with self._lock:
+            removed = await self._workers.io(_evict, made.parent, self._limit, {made, *self._held})
+        for path in removed:
+            logger.info("removed %s: the files' folder was over its %d bytes", path.name, self._limit)
 
     async def close(self) -> None:
         """Stop the builds under way (their temporary files removed); remove the folder if it was a temporary one."""
@@ -148,6 +188,7 @@ class LogFiles:
             found.representation.size / 2**20,
             asyncio.get_running_loop().time() - began,
         )
+        await self._evict(path)
         return found
 
 
@@ -171,6 +212,59 @@ def _built(path: Path) -> BuiltFile | None:
     except FileNotFoundError:
         return None
     return BuiltFile(path, Representation(stat.st_size, f'"{path.stem.rpartition("-")[2]}"', stat.st_mtime))
+
+
+def _used(path: Path) -> BuiltFile | None:
+    """The file at ``path`` if it is there, its access time set to now: the time it was last asked for (it blocks)."""
+    try:
+        stat = path.stat()
+        os.utime(path, ns=(time.time_ns(), stat.st_mtime_ns))  # its time of modification, which answers tell, kept
+    except FileNotFoundError:
+        return None
+    return _built(path)
+
+
+def _evict(folder: Path, limit: int, kept: Collection[Path]) -> list[Path]:
+    """Remove files of ``folder``, least recently asked for first, but ``kept``, until they take at most ``limit``
+    bytes; the files removed (it blocks)."""
+    files = []
+    for path in folder.glob("*.mcap"):
+        try:
+            files.append((path.stat(), path))
+        except FileNotFoundError:
+            continue
+    total = sum(stat.st_size for stat, _ in files)
+    removed = []
+    for stat, path in sorted(files, key=lambda item: item[0].st_atime_ns):
+        if total <= limit:
+            break
+        if path in kept:
+            continue
+        _remove(path)
+        total -= stat.st_size
+        removed.append(path)
+    return removed
+
+
+class _Released(AsyncGenerator[bytes, None]):
+    """``pieces``, calling ``release`` once when closed, whether they were started or not (a generator that
+    never started runs no ``finally``)."""
+
+    def __init__(self, pieces: AsyncGenerator[bytes, None], release: Callable[[], None]) -> None:
+        self._pieces, self._release = pieces, release
+
+    async def asend(self, value: None) -> bytes:
+        return await self._pieces.asend(value)
+
+    async def athrow(self, *args: Any) -> bytes:
+        return await self._pieces.athrow(*args)
+
+    async def aclose(self) -> None:
+        try:
+            await self._pieces.aclose()
+        finally:
+            release, self._release = self._release, lambda: None
+            release()
 
 
 def _finish(out: IO[bytes], partial: Path, path: Path, stem: str) -> None:

@@ -52,6 +52,7 @@ from ..detail import DetailChooser, Sample
 from ..events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
 from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
 from ..levels import Level, profile_level
+from ..params import given_twice
 from ..session import DetailChanged
 from .convert import Channel
 from .wire import (
@@ -184,6 +185,8 @@ class FoxgloveSession:
     #: Whether levels of detail are on (``--detail auto``); ``local``: the client is on this host.
     detail: bool = True
     local: bool = False
+    #: Names the URL's query gives more than once: refused, and taken as not given.
+    repeated: frozenset[str] = frozenset()
     chooser: DetailChooser = field(init=False)
     log: FoxgloveLog | None = field(init=False, default=None)
     #: The live feed followed (or waited for), once the session chose one.
@@ -205,7 +208,7 @@ class FoxgloveSession:
     _behind: bool = field(init=False, default=False)  # the live client is dropping updates
     _profile: str = field(init=False, default="auto")  # the level asked for (a level's name), or auto
     _watched: set[str] = field(init=False, default_factory=set)  # parameters the client subscribed to
-    _detail_errors: list[Send] = field(init=False, default_factory=list)  # about the URL's profile or max_mbps
+    _url_errors: list[Send] = field(init=False, default_factory=list)  # about the URL's parameters
     _clock: float = field(init=False, default=0.0)  # the time of the last sample
     _live_updates: int = field(init=False, default=0)  # live updates at hand so far
 
@@ -216,8 +219,12 @@ class FoxgloveSession:
 
     def connect(self) -> list[Event]:
         """The connection opened: open the log its URL names, or look up the live feed it names."""
+        self._url_errors = [
+            self._status(ERROR, given_twice(name), kind="url") for name in sorted(self.repeated & _URL_KEYS)
+        ]
+        self.query = {key: value for key, value in self.query.items() if key not in self.repeated}
         name = self._asked = self.query.get("log") or self.query.get("logGuid") or self.path.strip("/") or None
-        self._detail_errors = self._url_detail()
+        self._url_errors += self._url_detail()
         if self.query.get("session_type", "").upper() == "LIVE":
             self._live = True
             return [LookUpLive(name)]
@@ -225,7 +232,7 @@ class FoxgloveSession:
             if len(self.available) != 1:
                 shown = ", ".join(repr(n) for n in self.available[:20]) or "none"
                 return [
-                    self._server_info(),
+                    *self._opening(),
                     self._status(ERROR, f"no log named: add ?log=NAME to the URL; available: {shown}", kind="log"),
                 ]
             name = self.available[0]
@@ -243,8 +250,7 @@ class FoxgloveSession:
         self._set_rate()
         advertise = text("advertise", channels=[channel.advertisement() for channel in log.channels])
         return [
-            self._server_info(),
-            *self._take_detail_errors(),
+            *self._opening(),
             Send(time_message(log.start_time), text=False),
             Send(advertise, text=True),
         ]
@@ -254,7 +260,7 @@ class FoxgloveSession:
         if isinstance(error, LogNotFound) and self._asked is not None and not self._live and self._unfound is None:
             self._unfound = error
             return [LookUpLive(self._asked)]
-        return [self._server_info(), self._status(ERROR, str(error), kind="log")]
+        return [*self._opening(), self._status(ERROR, str(error), kind="log")]
 
     def receive(self, data: bytes | str) -> list[Event]:
         """A message arrived from the client."""
@@ -302,7 +308,7 @@ class FoxgloveSession:
         name = self._asked
         if self._unfound is not None:
             if name not in facts.running:
-                return [self._server_info(), self._status(ERROR, str(self._unfound), kind="log")]
+                return [*self._opening(), self._status(ERROR, str(self._unfound), kind="log")]
             self._live = True
             return self._follow(name)
         if not facts.allowed:
@@ -319,7 +325,7 @@ class FoxgloveSession:
         shown = ", ".join(repr(n) for n in running[:20]) or "none"
         what = f"named {name!r} can be followed" if name is not None else "named: add ?log=NAME to the URL"
         return [
-            self._server_info(),
+            *self._opening(),
             self._status(ERROR, f"no live feed {what}; running live feeds: {shown}", kind="live"),
         ]
 
@@ -561,9 +567,10 @@ class FoxgloveSession:
         self.chooser.choose(fixed, None if cap is None else cap * 125_000, self._clock)
         return errors
 
-    def _take_detail_errors(self) -> list[Send]:
-        errors, self._detail_errors = self._detail_errors, []
-        return errors
+    def _opening(self) -> list[Send]:
+        """``serverInfo``, then a status for each URL parameter that cannot be used (once: then none)."""
+        errors, self._url_errors = self._url_errors, []
+        return [self._server_info(), *errors]
 
     def _set_rate(self) -> None:
         """The content's updates a second, for the chooser: a log's frames a second times the speed."""
@@ -627,7 +634,7 @@ class FoxgloveSession:
     def _follow(self, name: str) -> list[Event]:
         self.feed = name
         self.chooser.live = True
-        return [self._server_info(), *self._take_detail_errors(), SubscribeLive(name)]
+        return [*self._opening(), SubscribeLive(name)]
 
     def _waiting(self, name: str) -> Send:
         return self._status(INFO, f"live feed {name!r} has not started yet; waiting for it", kind="waiting")
@@ -660,6 +667,8 @@ class FoxgloveSession:
         return f" in log {self.log.name!r}" if self.log is not None else ""
 
 
+#: Every parameter a session reads from its URL.
+_URL_KEYS = frozenset(("log", "logGuid", "session_type", "profile", "max_mbps"))
 #: The parameters this server has.
 _PARAMETERS = (PROFILE_PARAMETER, LEVEL_PARAMETER)
 

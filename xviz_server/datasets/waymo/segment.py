@@ -26,7 +26,11 @@ record whose time cannot be found at all is left out of the segment, with a
 warning.
 
 Decompressing a matrix is bounded: a range image larger than
-:data:`MAX_MATRIX_BYTES` once decompressed is an error.
+:data:`MAX_MATRIX_BYTES` once decompressed is an error. A frame is bounded
+in all: a record longer than :data:`~xviz_server.unpack.MAX_FRAME_BYTES` is
+refused unread, and its range images are counted on a
+:class:`~xviz_server.unpack.FrameTally` as they decompress, from the
+record's length: either raises :class:`~xviz_server.exceptions.FrameSizeError`.
 """
 
 from __future__ import annotations
@@ -40,8 +44,9 @@ import numpy as np
 from google.protobuf.message import DecodeError
 from zlib_ng import zlib_ng
 
-from ...exceptions import DatasetError
+from ...exceptions import DatasetError, FrameSizeError
 from ...storepath import StorePath, data_path
+from ...unpack import FrameTally, check_frame
 from .. import DEFAULT_IMAGE_WIDTH, threads
 from ..images import scale_jpegs
 from . import frame_pb2 as pb
@@ -55,6 +60,8 @@ logger = logging.getLogger(__name__)
 
 #: The largest decompressed matrix accepted (a TOP range image is 2.7 MB).
 MAX_MATRIX_BYTES = 64 << 20
+#: How much of a matrix is decompressed at a time, each step counted on the frame's tally.
+_STEP = 4 << 20
 
 # The field number of Frame.timestamp_micros, and the protobuf wire types.
 _TIMESTAMP_FIELD = 2
@@ -164,6 +171,9 @@ class WaymoRecordSegment(WaymoLog):
     def read(self, index: int) -> WaymoFrame:
         number = self._frames[0][index]
         where = self.records.where(number)
+        length = self.records.records[number].length
+        check_frame(length, index, str(self.path), self.path)
+        tally = FrameTally(length, index, str(self.path), self.path)
         frame = pb.Frame()
         try:
             frame.ParseFromString(self.records.read(number))
@@ -172,11 +182,14 @@ class WaymoRecordSegment(WaymoLog):
         if len(frame.pose.transform) != 16:
             raise DatasetError(f"{where}: Frame.pose has {len(frame.pose.transform)} values, not 16", path=self.path)
         pose = np.array(frame.pose.transform, dtype=np.float64).reshape(4, 4)
-        matrices = self._inflate_all(frame, where)  # first: the lidar work below waits for them
+        matrices = self._inflate_all(frame, where, tally)  # first: the lidar work below waits for them
         scaling = scale_jpegs(
             {pb.CameraName.Name.Name(image.name): image.image for image in frame.images if image.name},
             self.image_max_width,
         )  # beside the lidar work
+        for future in matrices.values():  # a frame over the limit is refused whole, whichever part passed it
+            if isinstance(error := future.exception(), FrameSizeError):
+                raise error
         points, intensity, in_zone = self._lidar(frame, pose, matrices, where)
         boxes = np.array(
             [
@@ -227,8 +240,9 @@ class WaymoRecordSegment(WaymoLog):
             lidar_points.append(range_points(directions, origins, period, returns))
         return join_points(lidar_points)
 
-    def _inflate_all(self, frame: pb.Frame, where: str) -> dict[tuple[int, str], Future[np.ndarray]]:
-        """Start decoding every range image and pixel pose of ``frame``, side by side (see :mod:`xviz_server.datasets.threads`)."""
+    def _inflate_all(self, frame: pb.Frame, where: str, tally: FrameTally) -> dict[tuple[int, str], Future[np.ndarray]]:
+        """Start decoding every range image and pixel pose of ``frame``, side by side (see :mod:`xviz_server.datasets.threads`),
+        each counted on ``tally``."""
         matrices: dict[tuple[int, str], Future[np.ndarray]] = {}
         for laser in frame.lasers:
             lidar = pb.LaserName.Name.Name(laser.name)
@@ -239,7 +253,7 @@ class WaymoRecordSegment(WaymoLog):
             ):
                 if compressed:
                     matrices[laser.name, part] = threads.submit(
-                        self._matrix, compressed, channels, f"laser {lidar} {part}", where
+                        self._matrix, compressed, channels, f"laser {lidar} {part}", where, tally
                     )
         return matrices
 
@@ -272,20 +286,30 @@ class WaymoRecordSegment(WaymoLog):
             self._geometry[key] = rays
         return self._geometry[key]
 
-    def _matrix(self, compressed: bytes, channels: int, what: str, where: str) -> np.ndarray:
-        """A zlib-compressed MatrixFloat [H, W, channels] as a float32 array."""
+    def _matrix(self, compressed: bytes, channels: int, what: str, where: str, tally: FrameTally) -> np.ndarray:
+        """A zlib-compressed MatrixFloat [H, W, channels] as a float32 array, decompressed a step at a time onto
+        ``tally``."""
         inflate = zlib_ng.decompressobj()  # zlib-ng: the same stream, inflated faster
-        try:
-            raw = inflate.decompress(compressed, MAX_MATRIX_BYTES)
-        except zlib_ng.error as exc:  # type: ignore[misc]  # its stub declares error an instance
-            raise DatasetError(f"{where}: {what}: not zlib data: {exc}", path=self.path) from None
-        if inflate.unconsumed_tail:
-            raise DatasetError(f"{where}: {what}: more than {MAX_MATRIX_BYTES} bytes decompressed", path=self.path)
+        parts: list[bytes] = []
+        rest, size = compressed, 0
+        while not inflate.eof:
+            room = min(_STEP, MAX_MATRIX_BYTES + 1 - size)
+            try:
+                part = inflate.decompress(rest, room)
+            except zlib_ng.error as exc:  # type: ignore[misc]  # its stub declares error an instance
+                raise DatasetError(f"{where}: {what}: not zlib data: {exc}", path=self.path) from None
+            tally.take(len(part))
+            parts.append(part)
+            size, rest = size + len(part), inflate.unconsumed_tail
+            if size > MAX_MATRIX_BYTES:
+                raise DatasetError(f"{where}: {what}: more than {MAX_MATRIX_BYTES} bytes decompressed", path=self.path)
+            if len(part) < room and not rest:  # every byte in, and what it gave out
+                break
         if not inflate.eof:
             raise DatasetError(f"{where}: {what}: the zlib data is cut short", path=self.path)
         matrix = pb.MatrixFloat()
         try:
-            matrix.ParseFromString(raw)
+            matrix.ParseFromString(b"".join(parts))
         except DecodeError as exc:
             raise DatasetError(f"{where}: {what}: not a MatrixFloat: {exc}", path=self.path) from None
         dims = tuple(matrix.shape.dims)
