@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
+import inspect
 import json
 import os
 import re
@@ -245,12 +246,20 @@ async def running_server(data_dir: Path | Sequence[Path | str] | None, **setting
         yield server
 
 
-async def eventually(check: Callable[[], Any], timeout: float = 15.0) -> None:
-    """Wait until ``await check()`` is true."""
+async def eventually(check: Callable[[], Any], timeout: float = 30.0) -> None:
+    """Wait until ``check()`` is true (awaited when it gives an awaitable), polling; fail after ``timeout`` s.
+
+    The way a test waits for the server to get somewhere: on a condition, never a fixed sleep, with a deadline
+    generous enough that no load on the machine reaches it."""
     deadline = time.monotonic() + timeout
-    while not await check():
+    while not await _checked(check):
         assert time.monotonic() < deadline, "not within the time allowed"
-        await asyncio.sleep(0.1)
+        await asyncio.sleep(0.05)
+
+
+async def _checked(check: Callable[[], Any]) -> Any:
+    result = check()
+    return await result if inspect.isawaitable(result) else result
 
 
 def http_get(port: int, path: str, method: str = "GET", **headers: str) -> tuple[int, dict[str, str], bytes]:
@@ -300,7 +309,7 @@ class Client:
     def __init__(self, websocket: ClientConnection) -> None:
         self.websocket = websocket
 
-    async def recv(self, timeout: float = 10) -> dict[str, Any]:
+    async def recv(self, timeout: float = 30) -> dict[str, Any]:
         """The next message, decoded; ``_text`` tells whether it came as a text frame."""
         data = await asyncio.wait_for(self.websocket.recv(), timeout)
         message = decode(data)

@@ -105,6 +105,7 @@ def test_a_corrupt_sweep_or_a_file_over_the_limit_is_named_and_the_rest_is_serve
         log.convert(0)
 
 
+@pytest.mark.slow  # moto's S3 server
 async def test_a_log_is_served_from_a_folder_and_from_an_object_store(written, monkeypatch):
     async with running_server(written.folder.parent) as server:
         assert server.catalog.names() == [LOG]

@@ -12,7 +12,7 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from helpers import PNG_2X1, client, metadata, running_server, update
+from helpers import PNG_2X1, client, eventually, metadata, running_server, update
 from xviz_server.codec import Format, decode, edit_glb, encode
 from xviz_server.live import feed as feed_module
 
@@ -55,7 +55,8 @@ async def test_a_feed_named_explicitly_is_never_substituted():
     async with running_server(None) as server:
         evil = await push_metadata(server, "evil-from-browser")
         await evil.send(encode({"type": "xviz/state_update", "data": update(1.0)}, Format.BINARY))
-        await asyncio.sleep(0.2)
+        feed = server.live.get("evil-from-browser")
+        await eventually(lambda: feed.state() is not None)  # the other feed has something to show
         async with client(server, "/?session_type=live&log=car") as viewer:
             notice = await viewer.recv()
             assert notice["type"] == "xviz/error" and "'car' has not started yet" in notice["data"]["message"]
@@ -90,12 +91,11 @@ async def test_the_state_of_a_feed_whose_source_left_is_freed_after_the_grace_pe
     async with running_server(None) as server:
         source = await push_metadata(server, "car")
         await source.send(encode({"type": "xviz/state_update", "data": update(1.0, points=100_000)}, Format.BINARY))
-        await asyncio.sleep(0.2)
         feed = server.live.get("car")
-        assert feed is not None and feed.state() is not None
+        assert feed is not None
+        await eventually(lambda: feed.state() is not None)
         await source.close()
-        await asyncio.sleep(0.6)
-        assert feed.state() is None
+        await eventually(lambda: feed.state() is None)  # freed once the grace period is over
 
 
 async def test_viewers_asking_for_made_up_feeds_create_nothing(monkeypatch: pytest.MonkeyPatch):
@@ -110,8 +110,7 @@ async def test_viewers_asking_for_made_up_feeds_create_nothing(monkeypatch: pyte
         assert server.live.names() == []
         for viewer in viewers:
             await viewer.close()
-        await asyncio.sleep(0.2)
-        assert not server.live._waited  # nobody waits: the names are forgotten
+        await eventually(lambda: not server.live._waited)  # nobody waits: the names are forgotten
 
 
 @pytest.mark.parametrize("where", ["primitives", "behind a number"])

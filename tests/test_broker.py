@@ -96,7 +96,7 @@ class Broker:
             stderr=subprocess.DEVNULL,
         )
         client = self.client()
-        for _ in range(100):
+        for _ in range(600):  # up to 30 s: a loaded machine starts it slowly
             try:
                 await client.ping()
                 break
@@ -358,7 +358,8 @@ async def test_reconfigure_passes_through_the_broker_and_a_second_source_is_refu
     updates = frames()[:6]
     async with replicas(tmp_path, broker, 2) as (a, b):
         async with source(a, query="?reconfigure=1") as car:
-            await until(lambda: _listed(b, "car"), what="B to list A's feed")
+            # Started, not only listed: a viewer of a feed listed before its metadata came is told it has not started.
+            await until(lambda: _started(b, "car"), what="B to list A's feed, its source connected")
             async with connect(b.url("/?log=car&session_type=live"), max_size=None) as viewer:
                 assert decode(await viewer.recv())["type"] == "xviz/metadata"
                 change = {"desired_streams": ["/vehicle_pose", "/lidar/points"], "message_format": "JSON"}

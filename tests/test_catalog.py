@@ -423,7 +423,7 @@ async def test_a_log_that_fails_to_index_is_listed_with_its_error(tmp_path: Path
     assert "error" not in logs["car-01/seg-000001"]
 
 
-@pytest.mark.parametrize("damage", ["garbage", "older", "truncated"])
+@pytest.mark.parametrize("damage", ["garbage", "older", "truncated", "a column short"])
 async def test_a_corrupt_or_older_catalog_file_is_built_again_with_one_log_line(
     tmp_path: Path, damage: str, caplog: pytest.LogCaptureFixture
 ):
@@ -441,14 +441,20 @@ async def test_a_corrupt_or_older_catalog_file_is_built_again_with_one_log_line(
     else:
         async with running_server(tmp_path / "logs", state_dir=state):
             pass
-        data = path.read_bytes()
-        path.write_bytes(data[: len(data) // 3] + b"\xff" * 4096)
+        if damage == "truncated":
+            data = path.read_bytes()
+            path.write_bytes(data[: len(data) // 3] + b"\xff" * 4096)
+        else:  # as a file made before a column was added to catalog/columns.py
+            with contextlib.closing(sqlite3.connect(path)) as old, old:
+                old.execute("ALTER TABLE logs DROP COLUMN vehicle")
     caplog.set_level(logging.INFO, "xviz_server")
     async with running_server(tmp_path / "logs", state_dir=state) as server:
         page = await listing(server)
     warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING and "catalog" in r.getMessage()]
     assert len(warnings) == 1 and "building it again" in warnings[0], warnings
+    assert damage != "a column short" or "columns differ from this server's in vehicle" in warnings[0]
     assert page["found"] == page["indexed"] == 5 and "ghost" not in [log["name"] for log in page["logs"]]
+    assert all(log["vehicle"] for log in page["logs"])
     with sqlite3.connect(path) as rebuilt:
         assert rebuilt.execute("PRAGMA user_version").fetchone()[0] == SCHEMA
 

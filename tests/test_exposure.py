@@ -92,7 +92,9 @@ async def test_control_characters_in_the_path_are_escaped_in_the_log(root: Path)
     writer.write(request)
     await writer.drain()
     assert (await asyncio.wait_for(reader.readline(), 10)).startswith(b"HTTP/1.1 101")
-    await asyncio.sleep(0.3)
+    while not any("session start" in line for line in lines):
+        lines.append((await asyncio.wait_for(process.stderr.readline(), 30)).decode())
+        assert lines[-1], "the server exited"
     writer.close()
     log = await stop_serving(process, lines)
     (start,) = [line for line in log.splitlines() if "session start" in line]

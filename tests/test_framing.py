@@ -25,7 +25,7 @@ from websockets.frames import Frame, Opcode
 from websockets.protocol import OPEN
 from websockets.server import ServerProtocol
 
-from helpers import close_received, paused_viewer, running_server
+from helpers import close_received, eventually, paused_viewer, running_server
 from xviz_server.codec import Format, decode, encode
 from xviz_server.events import Variant
 from xviz_server.framing import (
@@ -318,7 +318,12 @@ def test_stalled_clients_keep_evicted_frames_and_bounded_buffers(kitti_root: Pat
                 await websocket.send(transform_log(f"s{i}"))
                 websocket.transport.pause_reading()
                 stalled.append(websocket)
-            await asyncio.sleep(1.0)
+            # Each stops mid-log: the server holds bytes it cannot write to it.
+            await eventually(
+                lambda: (
+                    sum(bool(session.websocket.transport.get_write_buffer_size()) for session in server.sessions) == 10
+                )
+            )
             for i in range(2):  # another client streams the log twice: the cache evicts what the others wait on
                 async with connect(f"ws://127.0.0.1:{server.port}/kitti", max_size=None) as websocket:
                     await websocket.recv()
@@ -359,8 +364,7 @@ def test_a_live_viewer_that_stops_reading_large_frames_is_closed_by_the_lag_limi
                 await asyncio.sleep(0.1)
             slow.transport.resume_reading()
             assert (await close_received(slow)).code == 1013
-            await asyncio.sleep(0.2)
-            assert not server.sessions
+            await eventually(lambda: not server.sessions)
 
     uvloop.run(scenario())
 
@@ -380,7 +384,7 @@ def test_live_fan_out_shares_one_payload_and_every_viewer_gets_it(
             ]
             for viewer in viewers:
                 assert decode(await viewer.recv())["type"] == "xviz/metadata"
-            await asyncio.sleep(0.2)
+            await eventually(lambda: all(session._live_idle for session in server.sessions))  # each waits for it
             update = await feed.publish(kitti_frame)
             assert await update.encoded(Variant(Format.BINARY), server.workers) is kitti_frame
             for viewer in viewers:

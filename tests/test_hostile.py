@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import json
+import logging
 import socket
 import time
 from pathlib import Path
@@ -15,7 +16,7 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 
-from helpers import client, metadata, running_server, ten_hz, update, write_log
+from helpers import client, eventually, metadata, running_server, ten_hz, update, write_log
 
 META = metadata()
 from xviz_server import server as server_module
@@ -43,13 +44,6 @@ async def stalled_reader(port: int, path: str, request: dict | None = None):
     return websocket
 
 
-async def until(condition, timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        await asyncio.sleep(0.05)
-
-
 @pytest.fixture
 def big_log(tmp_path: Path) -> Path:
     write_log(tmp_path / "logs" / "big", ten_hz(40, points=100_000))  # 1.2 MB a frame
@@ -67,22 +61,27 @@ async def test_sessions_that_stop_reading_are_ended_and_free_their_places(big_lo
         ]
         with pytest.raises(InvalidStatus):  # both places taken
             await connect(f"ws://127.0.0.1:{server.port}/big")
-        await until(lambda: not server.sessions, 15)
+        await eventually(lambda: not server.sessions)
         async with client(server, "/big") as c:  # a new client gets in
             assert (await c.recv())["type"] == "xviz/metadata"
         for websocket in stalled:
             websocket.transport.abort()
 
 
-async def test_shutdown_is_bounded_whatever_the_clients_do(big_log: Path, monkeypatch: pytest.MonkeyPatch):
+async def test_shutdown_is_bounded_whatever_the_clients_do(
+    big_log: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+):
     monkeypatch.setattr(server_module, "SHUTDOWN_TIMEOUT", 1.0)
-    async with running_server(big_log) as server:  # idle timeout 60 s: only shutdown ends them
+    caplog.set_level(logging.WARNING, logger="xviz_server")
+    async with running_server(big_log, idle_timeout=600) as server:  # only shutdown ends them
         stalled = await stalled_reader(server.port, "/big", {"type": "xviz/transform_log", "data": {"id": "1"}})
-        await until(
-            lambda: server.sessions and next(iter(server.sessions)).websocket.transport.get_write_buffer_size(), 10
+        await eventually(
+            lambda: server.sessions and next(iter(server.sessions)).websocket.transport.get_write_buffer_size()
         )
         started = time.monotonic()
-    assert time.monotonic() - started < 8  # SHUTDOWN_TIMEOUT, then the stuck connection is aborted
+    # SHUTDOWN_TIMEOUT, then the stuck connection is aborted: well within the idle timeout, whatever the load.
+    assert "shutdown: aborting 1 connections that did not close in 1 s" in caplog.text
+    assert time.monotonic() - started < 60
     stalled.transport.abort()
 
 
@@ -91,13 +90,13 @@ async def test_a_live_viewer_that_never_reads_is_closed_at_the_lag_timeout(big_l
         feed = server.live.feed("car")
         feed.set_metadata(META)
         await stalled_reader(server.port, "/?log=car&session_type=live")
-        await until(lambda: server.sessions, 5)
+        await eventually(lambda: server.sessions)
         for i in range(60):
             await feed.publish(update(float(i), points=50_000))
             await asyncio.sleep(0.05)
             if not server.sessions:
                 break
-        await until(lambda: not server.sessions, 10)
+        await eventually(lambda: not server.sessions)
 
 
 async def test_no_task_exception_is_left_unretrieved_when_a_client_leaves(tmp_path: Path, caplog):
@@ -144,12 +143,12 @@ async def test_poisoned_updates_are_refused_at_the_door_and_the_source_stays(tmp
     async with running_server(None, record=tmp_path / "record") as server:
         async with connect(f"ws://127.0.0.1:{server.port}/ingest/car", max_size=None) as source:
             await source.send(json.dumps({"type": "xviz/metadata", "data": META}))
-            await until(lambda: server.live.get("car") is not None and server.live.get("car").metadata, 5)
+            await eventually(lambda: server.live.get("car") is not None and server.live.get("car").metadata)
             async with client(server, "/?log=car&session_type=live") as viewer:
                 assert (await viewer.recv())["type"] == "xviz/metadata"
                 for data, field in POISON:
                     await source.send(poisoned(data))
-                    error = json.loads(await asyncio.wait_for(source.recv(), 5))
+                    error = json.loads(await asyncio.wait_for(source.recv(), 30))
                     assert error["type"] == "xviz/error" and field in error["data"]["message"], (field, error)
                     assert "live feed 'car': live feed" not in error["data"]["message"]
                 await source.send(encode({"type": "xviz/state_update", "data": update(7.0)}, Format.BINARY))
@@ -184,14 +183,18 @@ async def test_a_large_json_update_is_parsed_off_the_event_loop(tmp_path: Path):
         ticker = asyncio.ensure_future(tick())
         async with connect(f"ws://127.0.0.1:{server.port}/ingest/car", max_size=None) as source:
             await source.send(json.dumps({"type": "xviz/metadata", "data": META}))
-            await until(lambda: server.live.get("car") is not None and server.live.get("car").metadata, 5)
+            await eventually(lambda: server.live.get("car") is not None and server.live.get("car").metadata)
             async with client(server, "/?log=car&session_type=live") as viewer:
                 await viewer.recv()
+                sent = time.monotonic()
                 await source.send(big)
-                received = await viewer.recv(60)
+                received = await viewer.recv(120)
+                took = time.monotonic() - sent
         ticker.cancel()
         assert received["data"]["updates"][0]["primitives"]["/points"]["points"][0]["points"].shape == (600_000, 3)
-        assert max(gaps) < 1.0, max(gaps)  # parsing it on the loop stalls it for seconds
+        # Parsing it on the loop would stall the loop for most of the time the update took to come through; a share
+        # of that time, not seconds, so that the machine's load does not decide.
+        assert max(gaps) < took / 2, (max(gaps), took)
 
 
 # -- recordings ---------------------------------------------------------------------------
@@ -208,7 +211,7 @@ async def test_a_disk_error_ends_the_recording_and_the_feed_goes_on(tmp_path: Pa
             for i in range(3):
                 await feed.publish(update(float(i)))
                 assert (await viewer.recv())["data"]["updates"][0]["timestamp"] == float(i)
-        await until(lambda: "xviz_record_errors_total 1.0" in server.metrics.exposition().decode(), 5)
+        await eventually(lambda: "xviz_record_errors_total 1.0" in server.metrics.exposition().decode())
 
 
 async def test_the_record_cap_ends_a_recording_as_a_valid_log(tmp_path: Path):

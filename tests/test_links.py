@@ -149,6 +149,7 @@ async def test_a_log_over_a_slow_link_starts_with_a_frame_that_fits_and_plays_in
         )
 
 
+@pytest.mark.slow
 async def test_a_slow_reader_is_no_slow_link(kitti_root):
     # The proxy reads 20 Mbit/s: the server's backlog waits for it to read (its receive window is full).
     async with running_server(kitti_root) as server, shaped_link(server.port, 20) as link:

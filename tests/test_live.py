@@ -12,9 +12,10 @@ import pytest
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from helpers import Client, client, close_received, paused_viewer, running_server, ten_hz, update, write_log
+from helpers import Client, client, close_received, eventually, paused_viewer, running_server, ten_hz, update, write_log
 from xviz_server.auth import ingest_refusal as refusal
 from xviz_server.codec import Format, decode, encode
+from xviz_server.layout import frame_name
 from xviz_server.state import downsample_points
 
 META = {
@@ -158,7 +159,7 @@ async def test_reconfigure_filter_decimation_downsampling_and_format(root: Path)
                     },
                 },
             )
-            await asyncio.sleep(0.1)
+            await eventually(lambda: received_config)  # the session took it, then forwarded it to the feed
             for i in range(6):
                 await feed.publish(update(10 + i, points=1000))
             got = [await next_update(c) for _ in range(3)]
@@ -200,8 +201,7 @@ async def test_viewer_hopelessly_behind_is_disconnected_with_a_reason(root: Path
         slow.transport.resume_reading()
         close = await close_received(slow)
         assert close.code == 1013 and "too slow: dropped live updates" in close.reason
-        await asyncio.sleep(0.2)
-        assert not server.sessions
+        await eventually(lambda: not server.sessions)
 
 
 # ------------------------------------------------------------------ ingest
@@ -219,20 +219,20 @@ async def test_network_ingest_with_reconfigure_forwarding(root: Path):
         ) as source:
             await source.send(json.dumps({"type": "xviz/metadata", "data": META}))
             await source.send(encode({"type": "xviz/state_update", "data": update(3.0)}, Format.BINARY))
-            await asyncio.sleep(0.1)
+            await eventually(lambda: (feed := server.live.get("truck")) is not None and feed.state() is not None)
             async with client(server, "/?logGuid=truck") as viewer:
                 assert (await viewer.recv())["type"] == "xviz/metadata"
                 assert (await viewer.recv())["data"]["updates"][0]["timestamp"] == 3.0
                 await source.send(encode({"type": "xviz/state_update", "data": update(3.1)}, Format.JSON))
                 assert (await next_update(viewer))["data"]["updates"][0]["timestamp"] == 3.1
                 await viewer.send("reconfigure", {"update_type": "DELTA", "config_update": {"max_points": 5}})
-                forwarded = json.loads(await asyncio.wait_for(source.recv(), 5))
+                forwarded = json.loads(await asyncio.wait_for(source.recv(), 30))
                 assert forwarded == {
                     "type": "xviz/reconfigure",
                     "data": {"update_type": "DELTA", "config_update": {"max_points": 5}},
                 }
                 await source.send(json.dumps({"type": "xviz/transform_log", "data": {"id": "x"}}))
-                error = json.loads(await asyncio.wait_for(source.recv(), 5))
+                error = json.loads(await asyncio.wait_for(source.recv(), 30))
                 assert error["type"] == "xviz/error" and "not 'xviz/transform_log'" in error["data"]["message"]
             async with connect(f"ws://127.0.0.1:{server.port}/ingest/truck?token=s3cret") as second:
                 with pytest.raises(ConnectionClosed) as closed:
@@ -346,7 +346,7 @@ async def test_a_recording_cut_short_is_still_a_readable_log(root: Path, tmp_pat
         feed.set_metadata(META)
         for i in range(5):
             await feed.publish(update(float(i)))
-        await asyncio.sleep(0.3)
+        await eventually(lambda: any(record.glob(f"car/*/{frame_name(4)}.glb")))  # the last, written atomically
         [recording] = list((record / "car").iterdir())
         # as a crash would leave it: frames so far, an index that may lag behind
         snapshot = tmp_path / "crashed" / "car"
@@ -373,11 +373,11 @@ async def test_one_publish_writes_to_every_viewer_that_keeps_up_and_queues_for_o
         try:
             for websocket in fast:
                 await websocket.recv(), await websocket.recv()  # metadata, state
-            await asyncio.sleep(0.2)  # every session waits for the next update now
             ports = {websocket.local_address[1] for websocket in fast}
             sessions = {session.websocket.remote_address[1] in ports: session for session in server.sessions}
             slow_session = sessions[False]
             fast_sessions = [s for s in server.sessions if s is not slow_session]
+            await eventually(lambda: all(s._live_idle for s in fast_sessions))  # each waits for the next update
             published = 8
             for t in range(1, 30):  # large updates until the paused viewer's socket is full
                 published += 1

@@ -90,9 +90,12 @@ async def test_json_log_lines_for_sessions_and_errors(root: Path):
         await websocket.recv()
         await websocket.send("{broken")
         await websocket.recv()
-    await asyncio.sleep(0.3)
+    rest: list[str] = []
+    while not any("session end" in line for line in rest):  # logged as the session ends, before the server stops
+        rest.append((await asyncio.wait_for(process.stderr.readline(), 30)).decode())
+        assert rest[-1], "the server exited"
     process.terminate()
-    rest = (await process.stderr.read()).decode().splitlines()
+    rest += (await process.stderr.read()).decode().splitlines()
     await process.wait()
     events = {line["event"]: line for line in map(json.loads, rest) if "event" in line}
     assert {"session start", "error sent", "session end"} <= set(events)

@@ -449,7 +449,13 @@ async def whole_log(
     "log, query, window, count",
     [
         ("kitti", "", {}, 25),
-        ("kitti", "?message_format=JSON", {"start_timestamp": 1317042145.9, "end_timestamp": 1317042146.3}, 4),
+        pytest.param(  # four KITTI clouds as JSON text: seconds of encoding and decoding
+            "kitti",
+            "?message_format=JSON",
+            {"start_timestamp": 1317042145.9, "end_timestamp": 1317042146.3},
+            4,
+            marks=pytest.mark.slow,
+        ),
         ("rich", "", {}, 4),
         ("rich", "?message_format=JSON", {}, 4),
     ],

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from websockets.asyncio.client import connect
 
-from helpers import client, running_server, ten_hz, timestamps, update, write_log
+from helpers import client, eventually, running_server, ten_hz, timestamps, update, write_log
 from xviz_server.codec import Format, encode
 
 
@@ -83,19 +83,21 @@ async def test_a_killed_worker_process_is_replaced_and_healthz_says_so_meanwhile
         victim = await server.workers.cpu(os.getpid)
         assert victim != os.getpid()
         os.kill(victim, signal.SIGKILL)
-        status, body = 200, b""
-        for _ in range(400):  # up to 20 s: a loaded machine starts a pool slowly
-            status, body = await get(server.port, "/healthz")
-            if status != 200:
-                break
-            await asyncio.sleep(0.05)
+        health: list[tuple[int, bytes]] = []
+
+        async def unhealthy() -> bool:
+            health.append(await get(server.port, "/healthz"))
+            return health[-1][0] != 200
+
+        await eventually(unhealthy, 60)  # a loaded machine starts a pool slowly
+        status, body = health[-1]
         assert status == 503 and b"a worker process died" in body
         assert await transform(server, "/clouds", desired_streams=["/points"]) == expected
-        for _ in range(400):  # up to 20 s: a loaded machine starts a pool slowly
-            if await get(server.port, "/healthz") == (200, b"ok\n"):
-                break
-            await asyncio.sleep(0.05)
-        assert await get(server.port, "/healthz") == (200, b"ok\n")
+
+        async def healthy() -> bool:
+            return await get(server.port, "/healthz") == (200, b"ok\n")
+
+        await eventually(healthy, 60)
         assert await server.workers.cpu(os.getpid) != os.getpid()  # processes again, not the stand-in thread
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from helpers import INTEROP, http_get, metric, running_server, update, write_log
+from helpers import INTEROP, eventually, http_get, metric, running_server, update, write_log
 from xviz_server.foxglove.convert import plan
 from xviz_server.ranges import Representation, decide
 
@@ -280,6 +280,7 @@ async def test_the_file_is_answered_with_ranges_and_conditions_and_readable_by_o
     or shutil.which("node") is None,
     reason="needs playwright-core and chromium: run scripts/test.sh",
 )
+@pytest.mark.slow  # a browser
 async def test_a_page_of_another_origin_reads_the_file_by_ranges_in_chromium(tmp_path: Path) -> None:
     write_log(tmp_path / "logs" / "drive", random_updates(5))
     async with running_server(tmp_path / "logs") as server:
@@ -382,10 +383,7 @@ async def test_a_whole_file_get_cut_short_by_the_client_stops_the_sending(tmp_pa
         head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 10)
         assert head.startswith(b"HTTP/1.1 200 OK") and f"Content-Length: {size}".encode() in head
         writer.transport.abort()
-        deadline = asyncio.get_running_loop().time() + 10
-        while server._open() and asyncio.get_running_loop().time() < deadline:
-            await asyncio.sleep(0.05)
-        assert server._open() == 0
+        await eventually(lambda: server._open() == 0)
         assert await sent_bytes(server) < size / 2
 
 
@@ -455,16 +453,19 @@ async def test_a_request_waits_for_the_file_past_the_handshake_limit(
     import xviz_server.framing
     import xviz_server.server
 
-    # Making the first log's file (48 MB of points) takes far longer than 0.05 s, whatever the machine.
-    write_log(tmp_path / "logs" / "first", random_updates(40, points=100_000))
-    write_log(tmp_path / "logs" / "second", random_updates(15))
-    monkeypatch.setattr(xviz_server.framing, "OPEN_TIMEOUT", 0.05)  # far less than making a file takes
+    # Making either log's file (48 MB of points) takes far longer than 0.05 s, whatever the machine, and about
+    # 1 s on the project's 2-core machine.
+    for name in ("first", "second"):
+        write_log(tmp_path / "logs" / name, random_updates(40, points=100_000))
     async with running_server(tmp_path / "logs") as server:
         # Allowed no longer than the handshake: the connection is dropped before the file is made.
+        monkeypatch.setattr(xviz_server.framing, "OPEN_TIMEOUT", 0.05)  # far less than making a file takes
         monkeypatch.setattr(xviz_server.server, "FILE_WAIT", 0.05)
         with pytest.raises(ConnectionError):
             await asyncio.to_thread(http_get, server.port, FILE.format("first"), "HEAD")
-        # Allowed FILE_WAIT: answered once the file is made.
+        # Allowed FILE_WAIT: answered once the file is made. The handshake's own limit is less than the making, and
+        # long enough that the request always comes within it, however loaded the machine (0.05 s would not be).
+        monkeypatch.setattr(xviz_server.framing, "OPEN_TIMEOUT", 0.5)
         monkeypatch.setattr(xviz_server.server, "FILE_WAIT", 600.0)
         status, headers, _ = await asyncio.to_thread(http_get, server.port, FILE.format("second"), "HEAD")
         assert status == 200 and int(headers["Content-Length"]) > 0

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import client, running_server, ten_hz, timestamps, write_log
+from helpers import client, eventually, running_server, ten_hz, timestamps, write_log
 from xviz_server.catalog import parse_query
 from xviz_server.codec import Format
 
@@ -123,9 +123,9 @@ async def test_a_log_copied_in_while_running_is_served_to_a_logguid_url(tmp_path
     async with running_server(root) as server:
         write_log(root / "arrived", ten_hz(3))
         async with client(server, "/?logGuid=arrived&worker=true") as c:
-            assert (await c.recv(5))["type"] == "xviz/metadata"
+            assert (await c.recv())["type"] == "xviz/metadata"
             await c.send("transform_log", {"id": "1"})
-            assert len(timestamps(await c.until("transform_log_done", "1", timeout=5))) == 3
+            assert len(timestamps(await c.until("transform_log_done", "1"))) == 3
 
 
 async def _stream_after_frames_deleted(server, root: Path, name: str) -> tuple[list[float], list[dict]]:
@@ -159,12 +159,9 @@ async def test_a_log_is_not_read_in_when_preload_is_off_or_it_is_larger(tmp_path
     assert served == [] and len(errors) == 40
 
 
-async def _cache_fills(server, entries: int, timeout: float = 5) -> None:
-    """Wait until the frame cache holds ``entries`` entries, or ``timeout`` s."""
-    for _ in range(int(timeout / 0.05)):
-        if len(server.cache) >= entries:
-            return
-        await asyncio.sleep(0.05)
+async def _cache_fills(server, entries: int) -> None:
+    """Wait until the frame cache holds ``entries`` entries."""
+    await eventually(lambda: len(server.cache) >= entries)
 
 
 async def test_listing_the_catalog_reads_no_frames(tmp_path: Path):

@@ -21,6 +21,7 @@ from helpers import (
     GROWTH,
     Client,
     client,
+    eventually,
     run_cli,
     run_xviz_session_async,
     running_server,
@@ -93,6 +94,7 @@ async def test_a_name_in_a_directory_wins_over_the_same_name_in_a_store(proxy: P
     assert not proxy.gets("json/short")
 
 
+@pytest.mark.slow  # moto's S3 server behind a proxy, and node
 async def test_the_published_client_reads_a_log_in_the_store(proxy: Proxy, kitti_log: Path):
     """@xviz/parser gets from the store what it gets from the files: the whole log, an instant, a filtered range."""
     files = [kitti_log / f"{i}-frame.glb" for i in range(1, 27)]  # the metadata first, as a client reads them
@@ -186,7 +188,13 @@ FAULTS = {  # what the proxy does to every GET of one frame, what the error says
 }
 
 
-@pytest.mark.parametrize("fault", FAULTS.values(), ids=FAULTS.keys())
+@pytest.mark.parametrize(
+    "fault",
+    [  # a stalled store is waited for three times (2 s each): the slow tier
+        pytest.param(fault, id=name, marks=[pytest.mark.slow] if name == "stalled" else [])
+        for name, fault in FAULTS.items()
+    ],
+)
 async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(
     proxy: Proxy, fault: tuple[dict[str, Any], str, int, float]
 ):
@@ -257,6 +265,7 @@ async def test_credentials_and_endpoint_come_from_the_shared_aws_files(
     assert b"Credential=AKIAFROMTHEFILE00001/" in proxy.heads[0] and b"/eu-west-1/s3/" in proxy.heads[0]
 
 
+@pytest.mark.slow  # six xviz-server processes, one of them serving
 async def test_secrets_never_show_in_logs_errors_or_config(proxy: Proxy):
     env = {**store_env(proxy.url), "XVIZ_STORE_RETRIES": "1", "XVIZ_STORE_TIMEOUT": "2"}
     shown = run_cli("config", "--data-dir", ROOT, "--data-dir", "/srv/logs", **env)
@@ -311,11 +320,11 @@ async def test_the_catalog_lists_logs_in_the_store_and_forgets_removed_ones(prox
         assert listed[KITTI]["start_time"] == START and "/lidar/points" in listed[KITTI]["streams"]
         for key in keys:
             s3.delete(BUCKET, key)
-        for _ in range(100):  # the next listing of the store
-            if "drive" not in await asyncio.to_thread(catalog, server):
-                break
-            await asyncio.sleep(0.1)
-        assert "drive" not in await asyncio.to_thread(catalog, server)
+
+        async def forgotten() -> bool:  # at the next listing of the store
+            return "drive" not in await asyncio.to_thread(catalog, server)
+
+        await eventually(forgotten)
         async with client(server, "/?log=drive") as viewer:
             assert (await viewer.recv())["type"] == "xviz/error"
 

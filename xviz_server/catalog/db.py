@@ -3,14 +3,16 @@
 One row a log: its name, kind, where it is and its version (what says it
 changed: a folder's modification times, a store listing's ETags), the state
 of its facts (found, indexed, or the error that indexing it met) and the
-facts themselves. Stream names are kept apart (one row a name, one a log's
-stream) so that a search by stream uses an index.
+facts themselves, a column each of :data:`~xviz_server.catalog.columns.COLUMNS`.
+Stream names are kept apart (one row a name, one a log's stream) so that a
+search by stream uses an index.
 
-A file that is not a database, or one of another :data:`SCHEMA` version, is
-deleted and built again (with one warning). When the file cannot be
-written (a full disk, a file-size limit, a read-only state directory), the
-catalog moves to memory with what it held, with one warning, and the
-server goes on serving.
+A file that is not a database, one of another :data:`SCHEMA` version, or one
+whose table of logs has other columns than those declared (a column added or
+dropped since it was made), is deleted and built again (with one warning).
+When the file cannot be written (a full disk, a file-size limit, a read-only
+state directory), the catalog moves to memory with what it held, with one
+warning, and the server goes on serving.
 
 Every method blocks: callers run them in the I/O threads. One connection
 serves every thread, one call at a time.
@@ -18,6 +20,7 @@ serves every thread, one call at a time.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import sqlite3
 import threading
@@ -27,6 +30,8 @@ from pathlib import Path
 from typing import Any
 
 import orjson
+
+from .columns import COLUMNS
 
 __all__ = ["SCHEMA", "FILE_NAME", "CatalogDB", "Row", "FOUND", "WAITING", "INDEXED", "FAILED"]
 
@@ -40,24 +45,9 @@ FILE_NAME = "catalog.sqlite3"
 #: States of a log's facts: found (to index), waiting (a log folder without its index yet), indexed, failed.
 FOUND, WAITING, INDEXED, FAILED = "found", "waiting", "indexed", "failed"
 
-#: The columns of a log's facts, besides its name.
-FACTS = (
-    "kind",
-    "format",
-    "frames",
-    "start_time",
-    "end_time",
-    "duration",
-    "bytes",
-    "modified",
-    "description",
-    "vehicle",
-    "tags",
-    "streams",
-    "error",
-    "detail",
-)
-_JSON = frozenset({"tags", "streams", "detail"})
+#: The columns of a log's facts.
+_FACTS = tuple(column.name for column in COLUMNS)
+_JSON = frozenset(column.name for column in COLUMNS if column.json)
 
 _TABLES = f"""
 CREATE TABLE logs (
@@ -68,9 +58,7 @@ CREATE TABLE logs (
     version TEXT NOT NULL,
     state TEXT NOT NULL,
     kind TEXT NOT NULL,
-    format TEXT, frames INTEGER, start_time REAL, end_time REAL, duration REAL,
-    bytes INTEGER, modified REAL, description TEXT, vehicle TEXT, tags TEXT,
-    streams TEXT, error TEXT, detail TEXT
+    {", ".join(f"{column.name} {column.sql}" for column in COLUMNS)}
 );
 CREATE INDEX logs_state ON logs (state);
 CREATE TABLE stream_names (id INTEGER PRIMARY KEY, name TEXT NOT NULL UNIQUE);
@@ -81,14 +69,7 @@ PRAGMA user_version = {SCHEMA};
 
 #: The indexes of the sorts and of time searches. A new file gets them once its first build is done
 #: (:meth:`CatalogDB.sort_indexes`): kept up to date during it, they would slow each of its writes.
-SORT_INDEXES = {
-    "logs_start": "start_time, name",
-    "logs_end": "end_time, name",
-    "logs_duration": "duration, name",
-    "logs_frames": "frames, name",
-    "logs_bytes": "bytes, name",
-    "logs_modified": "modified, name",
-}
+SORT_INDEXES = {column.sort_index: f"{column.name}, name" for column in COLUMNS if column.sort_index}
 
 
 @dataclass(frozen=True)
@@ -128,8 +109,12 @@ class CatalogDB:
                 version = connection.execute("PRAGMA user_version").fetchone()[0]
                 if version == SCHEMA:
                     connection.execute("SELECT count(*) FROM logs").fetchone()
-                    return self._tune(connection)
-                reason = f"it is of version {version}, this server's is {SCHEMA}"
+                    if not (differ := _columns(connection) ^ _declared_columns()):
+                        return self._tune(connection)
+                    names = sorted({column[0] for column in differ})
+                    reason = f"its columns differ from this server's in {', '.join(names)}"
+                else:
+                    reason = f"it is of version {version}, this server's is {SCHEMA}"
             except sqlite3.DatabaseError as exc:
                 reason = f"it is unreadable ({exc})"
             connection.close()
@@ -324,8 +309,8 @@ class CatalogDB:
     def indexed(self, results: Iterable[tuple[str, str, dict[str, Any]]]) -> None:
         """Store facts: ``(name, version, facts)``, each only if the log is still at that version.
 
-        ``facts`` has the keys of :data:`FACTS` it knows; with ``error``
-        the log is marked failed.
+        ``facts`` has the names of :data:`~xviz_server.catalog.columns.COLUMNS`
+        it knows; with ``error`` the log is marked failed.
         """
 
         def store(connection: sqlite3.Connection, results: list[tuple[str, str, dict[str, Any]]]) -> None:
@@ -337,13 +322,13 @@ class CatalogDB:
                     ids[name, version] = log
             # Those changed or removed meanwhile are indexed again, or not at all.
             stored = [(ids[name, version], facts) for name, version, facts in results if (name, version) in ids]
-            assignments = ", ".join(f"{key} = ?" for key in FACTS if key != "kind")
+            assignments = ", ".join(f"{key} = ?" for key in _FACTS)
             connection.executemany(
                 f"UPDATE logs SET state = ?, {assignments} WHERE id = ?",
                 [
                     (
                         FAILED if facts.get("error") else INDEXED,
-                        *(_column(key, facts.get(key)) for key in FACTS if key != "kind"),
+                        *(_column(key, facts.get(key)) for key in _FACTS),
                         log,
                     )
                     for log, facts in stored
@@ -389,7 +374,7 @@ class CatalogDB:
 
     def select(self, where: str, parameters: Sequence[Any], order: str, limit: int) -> list[dict[str, Any]]:
         """The logs ``WHERE where ORDER BY order LIMIT limit``, as dictionaries of their columns."""
-        sql = f"SELECT name, state, {', '.join(FACTS)} FROM logs {where and f'WHERE {where}'} ORDER BY {order} LIMIT ?"
+        sql = f"SELECT name, state, kind, {', '.join(_FACTS)} FROM logs {where and f'WHERE {where}'} ORDER BY {order} LIMIT ?"
         with self._lock:
             cursor = self._connection.execute(sql, (*parameters, limit))
             columns = [column[0] for column in cursor.description]
@@ -406,6 +391,20 @@ class CatalogDB:
         with self._lock:
             row = self._connection.execute("SELECT id FROM stream_names WHERE name = ?", (stream,)).fetchone()
         return None if row is None else int(row[0])
+
+
+def _columns(connection: sqlite3.Connection) -> set[tuple[str, str, int, int]]:
+    """The columns of the table ``logs``: name, type, whether not null, place in the primary key."""
+    return {
+        (name, kind, notnull, key) for _, name, kind, notnull, _, key in connection.execute("PRAGMA table_info(logs)")
+    }
+
+
+def _declared_columns() -> set[tuple[str, str, int, int]]:
+    """The columns of the table ``logs`` that :data:`_TABLES` makes."""
+    with contextlib.closing(sqlite3.connect(":memory:")) as memory:
+        memory.executescript(_TABLES)
+        return _columns(memory)
 
 
 def _column(key: str, value: Any) -> Any:

@@ -66,6 +66,9 @@ def facts(
 ) -> dict[str, Any]:
     """The catalog's facts of a log of ``kind`` with this metadata and index, ``size`` bytes, modified at ``modified``.
 
+    One value for each of :data:`~xviz_server.catalog.columns.COLUMNS` but
+    ``error`` (``None`` where it is not known), and the ``kind``.
+
     ``frames`` is the log's number of frames when ``index`` holds only some of them (see :func:`read_local_log`).
     """
     metadata = complete_metadata(metadata, index)

@@ -45,6 +45,7 @@ from ..layout import LOG, Found, found_at
 from ..store import ObjectStore, StoredDataset, StoredLog
 from ..storepath import StoreTree
 from ..work import Workers
+from .columns import COLUMNS
 from .db import FILE_NAME, FOUND, WAITING, CatalogDB, Row
 from .query import Query
 from .scan import LocalScan, source_kind, version_of
@@ -256,7 +257,8 @@ class Indexer:
         if not rows:
             return None
         (row,) = rows
-        return {**summary(row), "state": row["state"], **({"detail": row["detail"]} if row.get("detail") else {})}
+        shown = {column.name: row[column.name] for column in COLUMNS if not column.listed and row.get(column.name)}
+        return {**summary(row), "state": row["state"], **shown}
 
     # -- finding logs -------------------------------------------------------
 
@@ -607,22 +609,9 @@ def _digest(parts: Any) -> str:
 
 
 def summary(row: dict[str, Any]) -> dict[str, Any]:
-    """A log as a listing shows it: today's fields (name, format, frames, time range, streams) and the new ones."""
+    """A log as a listing shows it: name, kind, whether it is indexed, and its listed columns that are known."""
     shown: dict[str, Any] = {"name": row["name"], "kind": row["kind"], "indexed": row["state"] not in (FOUND, WAITING)}
-    for key in (
-        "format",
-        "frames",
-        "start_time",
-        "end_time",
-        "duration",
-        "streams",
-        "bytes",
-        "modified",
-        "description",
-        "vehicle",
-        "tags",
-        "error",
-    ):
-        if row.get(key) is not None:
-            shown[key] = row[key]
+    for column in COLUMNS:
+        if column.listed and row.get(column.name) is not None:
+            shown[column.name] = row[column.name]
     return shown

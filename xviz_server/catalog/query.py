@@ -2,7 +2,7 @@
 
 Parameters (each at most once; others, like ``token``, are left alone):
 
-* ``q``: a substring of the name or the description, any case;
+* ``q``: a substring of the name or a column searched (the description), any case;
 * ``stream``: a stream the log has (its exact name);
 * ``kind``: one kind or several, comma-separated (see :func:`~xviz_server.catalog.scan.listed_kinds`);
 * ``from``, ``to``: seconds; the log's time range overlaps them;
@@ -28,12 +28,15 @@ import orjson
 
 from ..exceptions import QueryError
 from ..params import seconds, single
+from .columns import COLUMNS
 from .scan import listed_kinds
 
 __all__ = ["SORTS", "LIMIT", "MAX_LIMIT", "Query", "parse_query"]
 
-#: Orders of a listing: by name, or by a fact then name.
-SORTS = ("name", "start_time", "end_time", "duration", "frames", "bytes", "modified")
+#: Orders of a listing: by name, or by a fact then name (the columns with an index to sort by).
+SORTS = ("name", *(column.name for column in COLUMNS if column.sort_index))
+#: What ``q`` looks in.
+_SEARCHED = ("name", *(column.name for column in COLUMNS if column.searched))
 LIMIT = 100
 MAX_LIMIT = 1000
 #: Longest ``q`` and ``stream``, in characters.
@@ -74,8 +77,8 @@ class Query:
         parameters: list[Any] = []
         if self.q is not None:
             pattern = "%" + self.q.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
-            conditions.append("(name LIKE ? ESCAPE '\\' OR description LIKE ? ESCAPE '\\')")
-            parameters += [pattern, pattern]
+            conditions.append("(" + " OR ".join(f"{name} LIKE ? ESCAPE '\\'" for name in _SEARCHED) + ")")
+            parameters += [pattern] * len(_SEARCHED)
         if self.stream is not None:
             conditions.append("id IN (SELECT log FROM log_streams WHERE stream = ?)")
             parameters.append(-1 if stream_id is None else stream_id)
