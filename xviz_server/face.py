@@ -219,6 +219,7 @@ class FaceConnection(Generic[S]):
         task = asyncio.ensure_future(guarded())
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
+        task.add_done_callback(lambda _: coroutine.close())  # cancelled before it started: never awaited, not a leak
         return task
 
     async def _write(self, data: bytes, text: bool) -> None:
