@@ -12,8 +12,8 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from ..codec import Format
-from ..index import TimeIndex
 from ..layout import Found
+from ..timeindex import TimeIndex
 
 __all__ = ["LogSource", "Provider"]
 

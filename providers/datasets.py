@@ -26,11 +26,11 @@ import numpy as np
 from ..codec import Format
 from ..datasets import SCENE, convert_frame, describe_dataset, detect, original_messages, scenes
 from ..exceptions import DatasetError, FrameError, LogError, StoreError, WorkerError
-from ..index import TimeIndex
 from ..layout import Found, discover
 from ..records import OriginalTopic
 from ..store import StoredDataset
-from ..storepath import StorePath, StoreTree
+from ..store.path import StorePath, StoreTree
+from ..timeindex import TimeIndex
 from ..work import Workers
 
 __all__ = ["DatasetProvider", "DatasetLog", "explicit_datasets"]

@@ -22,10 +22,10 @@ from ..codec import Format, decode, detect_format, is_pbe
 from ..exceptions import DecodeError, FrameError, LogError, MessageError
 from ..folders import Folder, LocalFolder
 from ..frames import placement, render, span
-from ..index import TimeIndex
 from ..layout import INDEX_FILE, INDEX_NUMBER, METADATA_NUMBER, Found, file_number, frame_name, frame_numbers
 from ..messages import unwrap
 from ..readahead import ReadAhead
+from ..timeindex import TimeIndex
 from ..work import Workers
 
 __all__ = ["StaticLogProvider", "StaticLog", "FORMATS", "read_metadata", "index_problem"]

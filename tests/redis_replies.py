@@ -5,7 +5,7 @@
 keeps the bytes of each reply exactly as they came, cut where hiredis says
 the reply ends. The commands cover every kind of reply the broker gives:
 statuses, errors, integers (negative too), nil bulk strings and arrays,
-empty arrays, bulk strings small and over :data:`~xviz_server.live.wire.LARGE`,
+empty arrays, bulk strings small and over :data:`~xviz_server.live.redis_wire.LARGE`,
 and arrays nested four deep (``XREAD``, ``XINFO STREAM FULL``, ``COMMAND INFO``).
 """
 

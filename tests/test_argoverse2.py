@@ -108,7 +108,7 @@ def test_a_corrupt_sweep_or_a_file_over_the_limit_is_named_and_the_rest_is_serve
 @pytest.mark.slow  # moto's S3 server
 async def test_a_log_is_served_from_a_folder_and_from_an_object_store(written, monkeypatch):
     async with running_server(written.folder.parent) as server:
-        assert server.catalog.names() == [LOG]
+        assert server.shelf.names() == [LOG]
         async with client(server, f"/?log={LOG}") as c:
             assert set(CAMERAS) <= {s.removeprefix("/camera/") for s in (await c.recv())["data"]["streams"]}
             await c.send("transform_log", {"id": "a"})
@@ -118,7 +118,7 @@ async def test_a_log_is_served_from_a_folder_and_from_an_object_store(written, m
         store.upload(written.folder.parent.parent, "av2", "sensor")
         async with proxied(store, monkeypatch):
             async with running_server(["s3://av2/sensor"]) as server:
-                assert server.catalog.names() == [f"val/{LOG}"]
+                assert server.shelf.names() == [f"val/{LOG}"]
                 async with client(server, f"/?log=val/{LOG}") as c:
                     await c.recv()
                     await c.send("transform_log", {"id": "a"})
@@ -177,7 +177,7 @@ async def test_a_real_log_in_the_store_whose_sweep_fails_mid_log_is_an_error_nam
         store.upload(REAL.parent.parent, "av2", "sensor")
         async with proxied(store, monkeypatch) as proxy:
             async with running_server(["s3://av2/sensor"], store_retries=1) as server:
-                await server.catalog.open(name)
+                await server.shelf.open(name)
 
                 async def stream() -> list[dict]:
                     async with client(server, f"/?log={name}") as viewer:

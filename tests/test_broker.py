@@ -793,7 +793,7 @@ async def test_a_broker_that_answers_what_is_not_resp_fails_the_wire_at_once():
     # A peer on the broker's address that answers garbage: the connection is dropped and its replies fail, no hang.
     from redis.exceptions import ConnectionError as BrokerConnectionError
 
-    from xviz_server.live.wire import Wire
+    from xviz_server.live.redis_wire import Wire
 
     async def garbage(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         await reader.read(100)
@@ -815,7 +815,7 @@ async def test_a_broker_that_answers_what_is_not_resp_fails_the_wire_at_once():
 
 async def test_the_wire_reads_a_frame_from_the_broker_as_written(broker: Broker):
     # XADD and XREAD of real frames through a real redis-server: a value as large as LARGE, one byte over it, 2.1 MB.
-    from xviz_server.live.wire import LARGE, Wire
+    from xviz_server.live.redis_wire import LARGE, Wire
 
     frame = frames()[0]
     wire = await Wire.open(broker.url, "xviz-test", timeout=5)

@@ -141,7 +141,7 @@ def test_transform_layouts_agree():
 
 
 # Each case adds one kind of data to a frame and names where it lands in the stream set.
-KINDS: dict[str, tuple[Callable[[FrameBuilder], object], str, str]] = {
+DATA_KINDS: dict[str, tuple[Callable[[FrameBuilder], object], str, str]] = {
     "points": (lambda f: f.points("/lidar/points", np.zeros((5, 3), np.float32)), "primitives", "/lidar/points"),
     "points, RGB": (
         lambda f: f.points("/lidar/points", np.ones((5, 3)), np.full((5, 3), 9, np.uint8)),
@@ -227,9 +227,9 @@ KINDS: dict[str, tuple[Callable[[FrameBuilder], object], str, str]] = {
 }
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", DATA_KINDS)
 def test_every_kind_validates(metadata: dict, kind: str):
-    add, field, stream = KINDS[kind]
+    add, field, stream = DATA_KINDS[kind]
     frame = FrameBuilder(metadata)
     add(frame)
     update = frame.build(T)
@@ -256,8 +256,8 @@ def test_pose_validates_and_times_the_frame(metadata: dict, map_origin):
 def test_a_full_frame_validates(metadata: dict):
     frame = FrameBuilder(metadata)
     frame.pose("/vehicle_pose", T)
-    for add, _, _ in KINDS.values():
-        if add is not KINDS["variable, empty"][0]:
+    for add, _, _ in DATA_KINDS.values():
+        if add is not DATA_KINDS["variable, empty"][0]:
             add(frame)
     validate(frame.build())
 

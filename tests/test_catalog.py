@@ -101,7 +101,7 @@ async def test_pages_list_every_log_once_in_order_and_open_none(fleet: tuple[Pat
     async with running_server(root) as server:
         first = await listing(server, limit=40)
         listed = await every_page(server, limit=40)
-        assert len(server.catalog._open) == 0 and len(server.cache) == 0  # no log opened, no frame read
+        assert len(server.shelf._open) == 0 and len(server.cache) == 0  # no log opened, no frame read
     assert set(first) == {"server", "logs", "live", "next", "indexed", "found"} and first["live"] == []
     assert first["indexed"] == first["found"] == len(logs) + 3
     assert [log["name"] for log in listed] == sorted([log.name for log in logs] + KITTI_COPIES)
@@ -243,8 +243,8 @@ SESSION_ONLY = (
     "foxglove_schemas_protobuf",
     "xviz_server.codec",
     "xviz_server.messages",
-    "xviz_server.session",
-    "xviz_server.connection",
+    "xviz_server.xviz.session",
+    "xviz_server.xviz.connection",
     "xviz_server.logs",
     "xviz_server.catalog.facts",
 )

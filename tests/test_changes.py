@@ -18,13 +18,13 @@ from xviz_server.catalog.query import parse_query
 from xviz_server.catalog.scan import listed_kinds, source_kind
 from xviz_server.codec import Format
 from xviz_server.exceptions import QueryError
-from xviz_server.index import TimeIndex
+from xviz_server.timeindex import TimeIndex
 
 
 def test_a_dataset_kind_registered_in_datasets_kinds_is_listed_and_queried(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(QueryError, match="unknown kind 'lyft'"):
         parse_query({"kind": ["lyft"]})
-    monkeypatch.setitem(datasets.KINDS, "lyft", ("lyft", "LyftScene", "is_lyft_scene"))
+    monkeypatch.setitem(datasets.DATASET_KINDS, "lyft", ("lyft", "LyftScene", "is_lyft_scene"))
     assert "lyft" in listed_kinds()
     assert source_kind("lyft", "/data/scene-1") == "lyft"
     assert parse_query({"kind": ["lyft,kitti"]}).kinds == ("lyft", "kitti")

@@ -104,7 +104,7 @@ def test_default_demo_is_twenty_seconds_at_ten_hertz():
 
 async def test_served_on_demand_as_the_log_demo():
     async with running_server(None, dataset=["demo"]) as server:
-        assert server.catalog.names() == ["demo"]
+        assert server.shelf.names() == ["demo"]
         async with client(server, "/?log=demo") as c:
             metadata = await c.recv()
             assert metadata["type"] == "xviz/metadata" and metadata["data"]["log_info"]["start_time"] == START

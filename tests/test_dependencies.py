@@ -28,7 +28,7 @@ def test_a_release_not_tested_is_refused_with_how_to_install_a_tested_one():
     ("module", "library", "attribute"),
     [
         ("xviz_server.framing", "websockets.version", "version"),
-        ("xviz_server.live.wire", "redis", "__version__"),
+        ("xviz_server.live.redis_wire", "redis", "__version__"),
     ],
 )
 def test_importing_a_guarded_module_with_another_release_fails_at_once(module: str, library: str, attribute: str):

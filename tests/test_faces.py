@@ -21,7 +21,7 @@ from helpers import Client, client, http_get, running_server, served
 from xviz_server.foxglove import connection as foxglove_connection
 from xviz_server.foxglove.session import FoxgloveSession
 from xviz_server.logs import Log
-from xviz_server.session import Session
+from xviz_server.xviz.session import Session
 
 FACES = ("xviz", "foxglove")
 

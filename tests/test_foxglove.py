@@ -44,7 +44,7 @@ from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.datasets.ros import RosBag
 from xviz_server.datasets.ros import dataset as ros_dataset
 from xviz_server.exceptions import DatasetError, FrameSizeError
-from xviz_server.foxglove.wire import SUBPROTOCOLS
+from xviz_server.foxglove.protocol import SUBPROTOCOLS
 from xviz_server.records import unpack
 
 

@@ -17,7 +17,7 @@ from websockets.asyncio.client import connect
 from helpers import foxglove_client, http_get, running_server
 from xviz_server.builder import FrameBuilder, MetadataBuilder
 from xviz_server.codec import Format, decode, encode
-from xviz_server.foxglove.convert import plan, read_survey, survey
+from xviz_server.foxglove.translate import plan, read_survey, survey
 from xviz_server.messages import envelope
 
 #: The JSON types a property may have in Foxglove's and Lichtblick's JSON Schema parser (``parseJsonSchema``):

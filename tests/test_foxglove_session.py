@@ -16,7 +16,7 @@ from websockets.frames import CloseCode
 
 from xviz_server.events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
 from xviz_server.exceptions import FrameError, LogError, LogNotFound
-from xviz_server.foxglove.convert import Channel
+from xviz_server.foxglove.protocol import ENDED, PAUSED, PLAYING, time_message
 from xviz_server.foxglove.schemas import json_schema
 from xviz_server.foxglove.session import (
     CAPABILITIES,
@@ -28,7 +28,7 @@ from xviz_server.foxglove.session import (
     SendLive,
     Stop,
 )
-from xviz_server.foxglove.wire import ENDED, PAUSED, PLAYING, time_message
+from xviz_server.foxglove.translate import Channel
 
 START, END = 1_000_000_000_000, 1_002_400_000_000  # nanoseconds: a log of 2.4 s
 

@@ -52,9 +52,9 @@ from xviz_server.admission import admit
 from xviz_server.codec import Format, decode, decode_glb, decode_json, decode_pbe, encode
 from xviz_server.events import Send
 from xviz_server.exceptions import DatasetError, DecodeError, EncodeError, MessageError
-from xviz_server.index import TimeIndex
 from xviz_server.layout import METADATA_NUMBER
-from xviz_server.session import Session
+from xviz_server.timeindex import TimeIndex
+from xviz_server.xviz.session import Session
 
 pytestmark = [pytest.mark.slow, needs_data]
 
@@ -522,7 +522,7 @@ class _FoxgloveLog:
 
     @functools.cached_property
     def channels(self) -> Any:
-        from xviz_server.foxglove.convert import plan
+        from xviz_server.foxglove.translate import plan
 
         return plan(decode((KITTI_LOG / f"{METADATA_NUMBER}-frame.glb").read_bytes())["data"]).channels
 
@@ -859,7 +859,7 @@ def resp_seeds(scratch: Path) -> list[bytes]:
 
 
 def parse_replies(data: bytes, sizes: Iterator[int]) -> list[Any]:
-    from xviz_server.live.wire import Replies
+    from xviz_server.live.redis_wire import Replies
 
     replies, parsed, at = Replies(), [], 0
     while at < len(data):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from xviz_server.exceptions import DecodeError
-from xviz_server.index import TimeIndex
+from xviz_server.timeindex import TimeIndex
 
 
 def test_reference_index_and_range_queries():

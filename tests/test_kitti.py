@@ -448,7 +448,7 @@ async def test_served_on_demand_and_errors_name_the_file(own_copy: Path, tmp_pat
     root = own_copy.parent.parent  # holds 2011_09_26/<drive>
     async with running_server(root) as server:
         name = "2011_09_26/2011_09_26_drive_0001_sync"
-        assert name in server.catalog.names()
+        assert name in server.shelf.names()
         async with client(server, f"/?log={name}") as c:
             metadata = await c.recv()
             assert metadata["data"]["log_info"]["start_time"] == 1317042145.964
@@ -461,7 +461,7 @@ async def test_served_on_demand_and_errors_name_the_file(own_copy: Path, tmp_pat
 
 async def test_dataset_given_explicitly_is_named_by_its_folder(raw: Path):
     async with running_server(None, dataset=[f"kitti:{raw}"]) as server:
-        assert server.catalog.names() == [raw.name]
+        assert server.shelf.names() == [raw.name]
         async with client(server) as c:  # the only log
             assert (await c.recv())["type"] == "xviz/metadata"
             await c.send("transform_point_in_time", {"id": "p", "query_timestamp": 1317042146.0})

@@ -243,7 +243,7 @@ async def seek(
     summary = make_reader(io.BytesIO(data)).get_summary()
     assert summary is not None
     chunk = max(c.chunk_length + c.message_index_length for c in summary.chunk_indexes)
-    starts = sorted(float(t) for t in (await server.catalog.open(log)).index.start)
+    starts = sorted(float(t) for t in (await server.shelf.open(log)).index.start)
     middle = starts[0] + (starts[-1] - starts[0]) / 2
     shown = max(t for t in starts if t <= middle)  # the frame the app shows at the middle
     layout = json.loads(json.dumps(layout))

@@ -441,5 +441,5 @@ async def test_a_foxglove_client_shares_each_level_of_a_frame_with_xviz_sessions
     xviz = await misses(["xviz"])
     both = await misses(["xviz", FOXGLOVE])
     # One conversion a frame, of the level XVIZ made (not the level again), and the Foxglove plan's survey of the
-    # first frame's value types (foxglove.convert.survey), kept in the cache like a frame.
+    # first frame's value types (foxglove.translate.survey), kept in the cache like a frame.
     assert both == xviz + len(NUMBERS) + 1

@@ -151,7 +151,7 @@ def test_a_table_over_the_limit_is_refused_before_it_is_read(root, monkeypatch):
 
 async def test_each_scene_is_a_log_served_over_the_protocol(root):
     async with running_server(None, dataset=[f"nuscenes:{root.root}"]) as server:
-        assert server.catalog.names() == ["scene-0061", "scene-0103"]
+        assert server.shelf.names() == ["scene-0061", "scene-0103"]
         async with client(server, "/?log=scene-0103") as c:
             metadata = (await c.recv())["data"]
             assert {
@@ -172,7 +172,7 @@ async def test_the_scenes_of_a_root_in_a_data_dir_are_listed_and_served(tmp_path
     (tmp_path / "store" / "one").mkdir()
     write_nuscenes(tmp_path / "store" / "one" / "nuscenes", scenes=("scene-0553",))
     async with running_server(tmp_path / "store") as server:
-        assert server.catalog.names() == ["nuscenes-mini/scene-0061", "nuscenes-mini/scene-0103", "one/nuscenes"]
+        assert server.shelf.names() == ["nuscenes-mini/scene-0061", "nuscenes-mini/scene-0103", "one/nuscenes"]
         async with client(server, "/?log=nuscenes-mini/scene-0103") as c:
             metadata = (await c.recv())["data"]
             assert metadata["log_info"]["start_time"] == pytest.approx(written.lidar["scene-0103"][0] / 1e6)

@@ -84,7 +84,7 @@ def test_a_gzip_bomb_is_refused(sequence: Path, monkeypatch):
 async def test_found_and_served(sequence: Path):
     assert detect(sequence) == "pandaset" and detect(sequence.parent) is None
     async with running_server(sequence.parent) as server:
-        assert server.catalog.names() == ["001"]
+        assert server.shelf.names() == ["001"]
         async with client(server, "/?log=001") as c:
             assert "/camera/front_camera" in (await c.recv())["data"]["streams"]
             await c.send("transform_log", {"id": "p"})

@@ -322,7 +322,7 @@ def _text_rows_of(update: dict[str, object], stream: str) -> list[list[str]]:
 def test_the_catalog_gives_a_recording_its_container_as_format(relative: str, container: str):
     from xviz_server.catalog.facts import facts
     from xviz_server.codec import Format
-    from xviz_server.index import TimeIndex
+    from xviz_server.timeindex import TimeIndex
 
     log = RosBag(RECORDINGS / relative)
     index = TimeIndex.from_spans((float(t), float(t), i) for i, t in enumerate(log.times))

@@ -778,7 +778,7 @@ async def test_served_over_a_socket_beside_a_broken_bag(
     (root / "good.mcap").write_bytes(bags["mcap"].read_bytes())
     (root / "cut.bag").write_bytes(bags["ros1"].read_bytes()[:100_000])
     async with running_server(root, dataset=[f"rosbag:{bags['ros1']}"]) as server:
-        assert {"good", "cut", "drive"} <= set(server.catalog.names())
+        assert {"good", "cut", "drive"} <= set(server.shelf.names())
         for _ in range(2):  # the client is told the log's name and the cause, never where the file is
             async with client(server, "/?log=cut") as c:
                 error = await c.recv()

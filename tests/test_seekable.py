@@ -17,7 +17,7 @@ import pytest
 from mcap.reader import make_reader
 
 from helpers import INTEROP, eventually, http_get, metric, running_server, update, write_log
-from xviz_server.foxglove.convert import plan
+from xviz_server.foxglove.translate import plan
 from xviz_server.ranges import Representation, decide
 
 FILE = "/api/logs/{}/file.mcap"
@@ -179,7 +179,7 @@ async def test_a_seek_to_the_middle_reads_the_summary_and_a_few_chunks_with_the_
     kitti_root: Path,
 ) -> None:
     async with running_server(kitti_root) as server:
-        log = await server.catalog.open("kitti")
+        log = await server.shelf.open("kitti")
         topics = sorted(channel.topic for channel in plan(log.metadata, log.originals).channels)
         status, headers, whole = await asyncio.to_thread(http_get, server.port, FILE.format("kitti"))
         assert status == 200 and int(headers["Content-Length"]) == len(whole)

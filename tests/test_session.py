@@ -11,9 +11,9 @@ import pytest
 from xviz_server.codec import Format, decode, encode
 from xviz_server.events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
 from xviz_server.exceptions import FrameError, LogNotFound
-from xviz_server.index import TimeIndex
 from xviz_server.messages import envelope
-from xviz_server.session import (
+from xviz_server.timeindex import TimeIndex
+from xviz_server.xviz.session import (
     CancelStream,
     ConfigureLive,
     QueryInstant,

@@ -26,10 +26,10 @@ async def test_log_without_index_is_indexed_from_its_frames(tmp_path: Path, fmt:
     write_log(tmp_path / "raw", ten_hz(12), fmt=fmt, index=False)
     async with running_server(tmp_path) as server:
         assert await stream_all(server, "/raw") == [round(100 + i / 10, 3) for i in range(12)]
-        log = await server.catalog.open("raw")
+        log = await server.shelf.open("raw")
         assert log.metadata["log_info"] == {"start_time": 100.0, "end_time": 101.1}
         # built once, shared: a second open returns the same log
-        assert await server.catalog.open("raw") is log
+        assert await server.shelf.open("raw") is log
 
 
 @pytest.mark.parametrize(
@@ -51,7 +51,7 @@ async def test_wrong_index_is_rebuilt(tmp_path: Path, index_text: str):
 async def test_real_index_is_used_as_is(kitti_log: Path, tmp_path: Path):
     (tmp_path / "k").symlink_to(kitti_log)
     async with running_server(tmp_path) as server:
-        log = await server.catalog.open("k")
+        log = await server.shelf.open("k")
         timing = json.loads((kitti_log / "0-frame.json").read_text())["timing"]
         assert log.index.start.tolist() == [row[0] for row in timing]
         assert log.index.frames.tolist() == list(range(25))
@@ -62,7 +62,7 @@ async def test_real_index_is_used_as_is(kitti_log: Path, tmp_path: Path):
 async def test_root_that_is_itself_a_log(tmp_path: Path):
     write_log(tmp_path / "solo", ten_hz(3))
     async with running_server(tmp_path / "solo") as server:
-        assert server.catalog.names() == ["solo"]
+        assert server.shelf.names() == ["solo"]
         assert len(await stream_all(server, "/")) == 3
 
 
@@ -77,7 +77,7 @@ async def test_symlink_loops_do_not_hang_the_scan(tmp_path: Path):
     write_log(tmp_path / "a" / "log", ten_hz(2))
     (tmp_path / "a" / "loop").symlink_to(tmp_path / "a")
     async with running_server(tmp_path) as server:
-        assert "a/log" in server.catalog.names()
+        assert "a/log" in server.shelf.names()
 
 
 @pytest.mark.parametrize(
@@ -132,7 +132,7 @@ async def _stream_after_frames_deleted(server, root: Path, name: str) -> tuple[l
     """Open ``name`` in a session, wait for any preload, delete its frame files, stream it in the same session."""
     async with client(server, f"/{name}") as c:
         assert (await c.recv())["type"] == "xviz/metadata"
-        preload = server.catalog._preloads.get(name)
+        preload = server.shelf._preloads.get(name)
         if preload is not None:
             await asyncio.wait_for(asyncio.shield(preload), 10)
         for path in (root / name).glob("*-frame.json"):

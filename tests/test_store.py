@@ -80,7 +80,7 @@ def frame_gets(proxy: Proxy) -> list[str]:
 async def test_logs_under_the_prefix_are_listed_by_their_path_beside_local_ones(proxy: Proxy, tmp_path: Path):
     write_log(tmp_path / "local" / "drive", ten_hz(3))
     async with running_server([tmp_path / "local", ROOT]) as server:
-        assert server.catalog.names() == ["drive", "json/short", KITTI]  # not .hidden, not notes
+        assert server.shelf.names() == ["drive", "json/short", KITTI]  # not .hidden, not notes
         short = await stream(server, "json/short")
         local = await stream(server, "drive")
     assert [u["data"]["updates"][0]["timestamp"] for u in updates(short)] == [100.0, 100.1, 100.2, 100.3, 100.4]
@@ -126,7 +126,7 @@ async def test_the_published_client_reads_a_log_in_the_store(proxy: Proxy, kitti
 
 async def test_a_log_uploaded_while_serving_is_found_on_first_request(proxy: Proxy, s3: MotoS3, tmp_path: Path):
     async with running_server([ROOT, f"s3://{BUCKET}/late"]) as server:
-        assert "new/drive" not in server.catalog.names()
+        assert "new/drive" not in server.shelf.names()
         s3.upload(write_log(tmp_path / "late", ten_hz(4)), BUCKET, "late/new/drive")
         listings = len(proxy.requests)
         assert len(updates(await stream(server, "new/drive"))) == 4
@@ -162,7 +162,7 @@ async def test_a_point_in_time_query_is_one_get(proxy: Proxy):
 async def test_a_stream_keeps_several_gets_in_flight_within_its_count(s3: MotoS3, monkeypatch: pytest.MonkeyPatch):
     async with proxied(s3, monkeypatch, delay=0.05) as slow:
         async with running_server([ROOT], store_read_ahead=6) as server:
-            await server.catalog.open(KITTI)
+            await server.shelf.open(KITTI)
             slow.most_in_flight = 0
             assert len(updates(await stream(server, KITTI))) == 25
     assert 3 <= slow.most_in_flight <= 6
@@ -173,7 +173,7 @@ async def test_a_stream_keeps_its_gets_within_its_bytes(s3: MotoS3, monkeypatch:
     smallest = min((kitti_log / f"{i}-frame.glb").stat().st_size for i in range(2, 27))
     async with proxied(s3, monkeypatch, delay=0.05) as slow:
         async with running_server([ROOT], store_read_ahead=6, store_read_ahead_mb=smallest / 2 / (1 << 20)) as server:
-            await server.catalog.open(KITTI)
+            await server.shelf.open(KITTI)
             slow.most_in_flight = 0
             assert len(updates(await stream(server, KITTI))) == 25
     assert slow.most_in_flight == 1
@@ -200,7 +200,7 @@ async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(
 ):
     what, cause, tries, timeout = fault
     async with running_server([ROOT], store_retries=2, store_timeout=timeout) as server:
-        await server.catalog.open(KITTI)
+        await server.shelf.open(KITTI)
         injected = proxy.fault(f"{KITTI}/5-frame.glb", **what)
         messages = await stream(server, KITTI)
     errors = [m for m in messages if m["type"] == "xviz/error"]
@@ -216,7 +216,7 @@ async def test_a_frame_the_store_fails_is_an_error_naming_log_frame_and_key(
 )
 async def test_a_failure_that_passes_is_retried(proxy: Proxy, what: dict[str, Any]):
     async with running_server([ROOT], store_retries=2) as server:
-        await server.catalog.open(KITTI)
+        await server.shelf.open(KITTI)
         injected = proxy.fault(f"{KITTI}/5-frame.glb", times=2, **what)
         messages = await stream(server, KITTI)
     assert [m["type"] for m in messages].count("xviz/error") == 0 and len(updates(messages)) == 25
@@ -228,7 +228,7 @@ async def test_an_object_deleted_from_the_store_is_an_error_and_the_rest_is_serv
 ):
     s3.upload(write_log(tmp_path / "gone", ten_hz(4), fmt=Format.JSON), BUCKET, "gone/drive")
     async with running_server([f"s3://{BUCKET}/gone"]) as server:
-        await server.catalog.open("drive")
+        await server.shelf.open("drive")
         s3.delete(BUCKET, "gone/drive/3-frame.json")
         messages = await stream(server, "drive")
     errors = [m["data"]["message"] for m in messages if m["type"] == "xviz/error"]
@@ -241,7 +241,7 @@ async def test_a_store_that_refuses_the_listing_serves_nothing_and_says_so(
 ):
     proxy.fault("list-type", status=403)
     async with running_server([ROOT]) as server:
-        assert server.catalog.names() == []
+        assert server.shelf.names() == []
         async with client(server, f"/?log={KITTI}") as viewer:
             error = await viewer.recv()
     assert error["type"] == "xviz/error" and KITTI in error["data"]["message"]
@@ -261,7 +261,7 @@ async def test_credentials_and_endpoint_come_from_the_shared_aws_files(
     monkeypatch.setenv("AWS_CONFIG_FILE", str(tmp_path / "config"))
     monkeypatch.setenv("AWS_PROFILE", "fleet")
     async with running_server([ROOT]) as server:
-        assert KITTI in server.catalog.names()
+        assert KITTI in server.shelf.names()
     assert b"Credential=AKIAFROMTHEFILE00001/" in proxy.heads[0] and b"/eu-west-1/s3/" in proxy.heads[0]
 
 
@@ -334,7 +334,7 @@ async def test_a_store_that_went_away_ends_the_stream_with_errors_and_the_server
 ):
     write_log(tmp_path / "local" / "drive", ten_hz(3))
     async with running_server([ROOT, tmp_path / "local"], store_retries=1) as server:
-        await server.catalog.open(KITTI)
+        await server.shelf.open(KITTI)
         await proxy.close()  # nothing listens there any more
         messages = await stream(server, KITTI)
         local = await stream(server, "drive")

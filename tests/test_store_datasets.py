@@ -30,8 +30,8 @@ from helpers import client, run_xviz_session_async, running_server
 from xviz_server.codec import Format
 from xviz_server.datasets.kitti import KittiDrive
 from xviz_server.exceptions import StoreError
-from xviz_server.storeclient import store_config
-from xviz_server.storepath import CACHE_BYTES, MIN_FETCH, StorePath
+from xviz_server.store.client import store_config
+from xviz_server.store.path import CACHE_BYTES, MIN_FETCH, StorePath
 
 #: Datasets converted from moto's S3 server: each test several seconds on 2 cores.
 pytestmark = pytest.mark.slow
@@ -105,7 +105,7 @@ def updates(messages: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 async def frames(server: Any, name: str) -> list[bytes]:
-    log = await server.catalog.open(name)
+    log = await server.shelf.open(name)
     return [await log.frame(number, Format.BINARY) for number in range(len(log.index))]
 
 
@@ -113,7 +113,7 @@ async def test_datasets_in_the_store_are_listed_beside_logs_and_a_sqlite3_bag_is
     proxy: Proxy, files: Path, caplog: pytest.LogCaptureFixture
 ):
     async with running_server([ROOT]) as server:
-        assert server.catalog.names() == sorted(name for _, name, _ in DATASETS.values())
+        assert server.shelf.names() == sorted(name for _, name, _ in DATASETS.values())
     refused = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING and "drive.db3" in r.getMessage()]
     assert (
         len(refused) == 1
@@ -131,7 +131,7 @@ async def test_frames_from_the_store_are_the_bytes_from_the_same_files_on_disk(
     async with running_server([ROOT]) as from_store, running_server([local]) as from_disk:
         stored, read = await frames(from_store, name), await frames(from_disk, name)
         messages = await stream(from_store, name)
-        assert (await from_store.catalog.open(name)).metadata == (await from_disk.catalog.open(name)).metadata
+        assert (await from_store.shelf.open(name)).metadata == (await from_disk.shelf.open(name)).metadata
     assert len(stored) == count and stored == read
     assert len(updates(messages)) == count and not [m for m in messages if m["type"] == "xviz/error"]
     if container != "kitti":  # a KITTI drive's files are objects of their own, read whole
@@ -167,7 +167,7 @@ async def test_a_404_mid_stream_is_an_error_naming_log_frame_and_key_and_the_res
     if container == "kitti":
         key += "/velodyne_points/data/0000000003.bin"
     async with running_server([ROOT]) as server:
-        await server.catalog.open(name)
+        await server.shelf.open(name)
         injected = proxy.fault(key, status=404, times=1)  # not retried: exactly one GET fails
         first = await stream(server, name)
         again = await stream(server, name)
@@ -184,7 +184,7 @@ async def test_a_404_mid_stream_is_an_error_naming_log_frame_and_key_and_the_res
 async def test_connections_cut_while_streaming_are_errors_and_the_server_serves_on(container: str, proxy: Proxy):
     key, name, count = DATASETS[container]
     async with running_server([ROOT], store_retries=1) as server:
-        await server.catalog.open(name)
+        await server.shelf.open(name)
         proxy.fault(key, cut_after=100)  # every try cut short
         cut = await stream(server, name)
         proxy.faults.clear()
@@ -202,7 +202,7 @@ async def test_connections_cut_while_streaming_are_errors_and_the_server_serves_
 async def test_an_object_that_is_gone_when_opened_is_an_error_naming_it(proxy: Proxy, s3: MotoS3, files: Path):
     s3.put(BUCKET, "gone/x.tfrecord", (files / DATASETS["waymo"][0]).read_bytes())
     async with running_server([f"s3://{BUCKET}/gone"]) as server:
-        assert server.catalog.names() == ["x"]
+        assert server.shelf.names() == ["x"]
         s3.delete(BUCKET, "gone/x.tfrecord")
         async with client(server, "/?log=x") as viewer:
             error = await viewer.recv()
@@ -212,7 +212,7 @@ async def test_an_object_that_is_gone_when_opened_is_an_error_naming_it(proxy: P
 
 async def test_a_dataset_uploaded_while_serving_is_found_on_first_request(proxy: Proxy, s3: MotoS3, files: Path):
     async with running_server([f"s3://{BUCKET}/late"]) as server:
-        assert server.catalog.names() == []
+        assert server.shelf.names() == []
         s3.put(BUCKET, "late/more/drive.mcap", (files / DATASETS["mcap"][0]).read_bytes())
         assert len(updates(await stream(server, "more/drive"))) == BAG_FRAMES
 
@@ -223,7 +223,7 @@ async def test_a_kitti_drive_uploaded_while_serving_is_found_on_first_request_as
     name = DATASETS["kitti"][1]
     local = on_disk("kitti", files, shared_dir, tmp_path / "local")
     async with running_server([f"s3://{BUCKET}/late-kitti"]) as from_store, running_server([local]) as from_disk:
-        assert from_store.catalog.names() == []
+        assert from_store.shelf.names() == []
         await asyncio.to_thread(
             s3.upload, shared_dir / "data" / RAW / "2011_09_26", BUCKET, "late-kitti/kitti-raw/2011_09_26"
         )
@@ -231,9 +231,9 @@ async def test_a_kitti_drive_uploaded_while_serving_is_found_on_first_request_as
         messages = await stream(from_store, name)  # the first request that names it
         lookup = [r for r in proxy.requests[started:] if "list-type" in r]
         stored, read = await frames(from_store, name), await frames(from_disk, name)
-        assert (await from_store.catalog.open(name)).metadata == (await from_disk.catalog.open(name)).metadata
+        assert (await from_store.shelf.open(name)).metadata == (await from_disk.shelf.open(name)).metadata
         await from_store.indexer.settled()  # the catalog lists what the session found, before the store's next listing
-        assert from_store.catalog.names() == [name]
+        assert from_store.shelf.names() == [name]
     assert len(updates(messages)) == 25 and not [m for m in messages if m["type"] == "xviz/error"]
     assert stored == read and len(stored) == 25
     # the drive's folder, the date folder, then everything below the drive: never the whole prefix

@@ -300,7 +300,7 @@ async def test_the_kitti_log_opens_directly(tmp_path: Path, kitti_log: Path):
     async with running_server(tmp_path) as server:
         # Metadata, the first frame, and the 25 frames asked for once it was drawn.
         report = await open_page(server, f"/?log={kitti_log.name}", "kitti", frames=27)
-        streams = (await server.catalog.open(kitti_log.name)).streams
+        streams = (await server.shelf.open(kitti_log.name)).streams
         queries = await asyncio.to_thread(point_in_time_requests, server)
     assert_drawn_cleanly(report)
     assert_stream_list_shows(report, streams)

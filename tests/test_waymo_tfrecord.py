@@ -343,9 +343,9 @@ async def test_segments_are_found_under_the_data_dir_and_in_a_folder_given(tmp_p
         write_segment(tmp_path / "store" / "waymo" / f"{name}.tfrecord", [record])
     (tmp_path / "store" / "waymo" / "notes.txt").write_text("not a segment")
     async with running_server(tmp_path / "store") as server:
-        assert server.catalog.names() == ["waymo/segment-a", "waymo/segment-b"]
+        assert server.shelf.names() == ["waymo/segment-a", "waymo/segment-b"]
     async with running_server(None, dataset=[f"waymo:{tmp_path / 'store' / 'waymo'}"]) as server:
-        assert server.catalog.names() == ["segment-a", "segment-b"]
+        assert server.shelf.names() == ["segment-a", "segment-b"]
         async with client(server, "/?log=segment-b") as c:
             assert (await c.recv())["data"]["log_info"]["start_time"] == pytest.approx(T0 / 1e6, abs=1e-6)
 

@@ -67,7 +67,7 @@ async def test_every_segment_of_a_data_dir_is_served(tmp_path: Path):
     write_v2_scene(tmp_path / "store" / "training", segment=SEGMENT)
     write_v2_scene(tmp_path / "store" / "training", frames=2, segment="16_000_020_000")
     async with running_server(tmp_path / "store") as server:
-        names = server.catalog.names()
+        names = server.shelf.names()
         assert names == [f"training/vehicle_pose/{SEGMENT}", "training/vehicle_pose/16_000_020_000"]
         async with client(server, f"/?log=training/vehicle_pose/{SEGMENT}") as c:
             metadata = await c.recv()

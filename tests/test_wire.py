@@ -1,4 +1,4 @@
-"""The hand-written RESP2 reader of the broker's wire (``live/wire.py``), without a server process or the KITTI data.
+"""The hand-written RESP2 reader of the broker's wire (``live/redis_wire.py``), without a server process or the KITTI data.
 
 The reader is sans I/O: bytes go in as the socket splits them, whole replies
 come out. Here it is held to hiredis, the C parser redis-py uses, on real
@@ -24,7 +24,7 @@ from xviz_server.codec import encode_glb
 hiredis = pytest.importorskip("hiredis", reason="needs the broker extra: pip install -e '.[broker]'")
 from redis.exceptions import InvalidResponse, ResponseError  # noqa: E402  (after the broker extra is known)
 
-from xviz_server.live.wire import LARGE, Replies  # noqa: E402
+from xviz_server.live.redis_wire import LARGE, Replies  # noqa: E402
 
 needs_server = pytest.mark.skipif(not have_redis_server(), reason="needs redis-server: run scripts/test.sh")
 

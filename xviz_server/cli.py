@@ -353,7 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
     probe.add_argument("--json", action="store_true", help="print the summary as JSON")
     probe.set_defaults(run=_probe)
 
-    from .datasets import DEFAULT_IMAGE_WIDTH, KINDS
+    from .datasets import DATASET_KINDS, DEFAULT_IMAGE_WIDTH
 
     convert = commands.add_parser(
         "convert",
@@ -361,7 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Convert a raw dataset (a KITTI raw drive folder, ...) into a log in the reference layout, "
         "using every core. An interrupted conversion resumes when run again.",
     )
-    convert.add_argument("kind", choices=sorted(KINDS), help="dataset kind")
+    convert.add_argument("kind", choices=sorted(DATASET_KINDS), help="dataset kind")
     convert.add_argument("source", type=Path, help="the dataset (e.g. a KITTI drive folder)")
     convert.add_argument("output", type=Path, help="the log directory to write")
     convert.add_argument(

@@ -1,6 +1,6 @@
 """The vocabulary both protocol faces share: the events their sessions answer with, and the facts they are told.
 
-The XVIZ session (:mod:`xviz_server.session`) and the Foxglove session
+The XVIZ session (:mod:`xviz_server.xviz.session`) and the Foxglove session
 (:mod:`xviz_server.foxglove.session`) are sans-I/O state machines: fed what
 happened on a connection, they answer with events that the asyncio side
 (:mod:`xviz_server.face` and each face's connection) carries out. The events

@@ -1,6 +1,6 @@
 """What both protocol faces' connections share: one way to run a session, carry out its events and fail.
 
-A connection runs one sans-I/O session (the XVIZ :class:`~xviz_server.session.Session`
+A connection runs one sans-I/O session (the XVIZ :class:`~xviz_server.xviz.session.Session`
 or the Foxglove :class:`~xviz_server.foxglove.session.FoxgloveSession`) on
 one WebSocket: it feeds the session what happens and carries out the events
 it answers with. :class:`FaceConnection` does for both faces what does not
@@ -47,13 +47,13 @@ from .exceptions import XVIZError
 from .flow import close, watch_progress
 from .live import LiveFeed, LiveRegistry, Subscription, watch_lag
 from .logfmt import ending, log_event, peer, redact_url
-from .logs import Catalog, Log
+from .logs import Log, LogShelf
 from .metrics import Metrics
 from .params import repeated
 from .settings import Settings
 
 if TYPE_CHECKING:
-    from .session import DetailChanged
+    from .xviz.session import DetailChanged
 
 __all__ = ["FaceConnection", "FaceSession", "request_target"]
 
@@ -86,10 +86,10 @@ class FaceConnection(Generic[S]):
     the events of their face."""
 
     def __init__(
-        self, websocket: ServerConnection, catalog: Catalog, live: LiveRegistry, metrics: Metrics, settings: Settings
+        self, websocket: ServerConnection, shelf: LogShelf, live: LiveRegistry, metrics: Metrics, settings: Settings
     ) -> None:
         self.websocket = websocket
-        self.catalog = catalog
+        self.shelf = shelf
         self.live = live
         self.metrics = metrics
         self.settings = settings
@@ -250,7 +250,7 @@ class FaceConnection(Generic[S]):
 
     async def _open_log(self, name: str) -> None:
         try:
-            log = await self.catalog.open(name)
+            log = await self.shelf.open(name)
         except XVIZError as exc:
             await self._execute(self.session.log_failed(exc))
         else:

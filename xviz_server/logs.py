@@ -1,6 +1,6 @@
 """Logs as sessions see them, whatever provider they come from.
 
-:class:`Catalog` names every log the providers serve and opens each one
+:class:`LogShelf` names every log the providers serve and opens each one
 once; the :class:`Log` it returns is shared by every session. A log's frames
 go through the shared :class:`~xviz_server.cache.FrameCache`: the bytes read
 from the source, checked once, and each rendering of them (another format,
@@ -23,7 +23,6 @@ from .cache import FrameCache
 from .codec import Format, cut_glb, detect_format, encode
 from .datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_store, scenes
 from .exceptions import DecodeError, FrameError, LogError, LogNotFound, SchemaValidationError, XVIZError
-from .index import TimeIndex
 from .layout import LOG, Found, check_log_name, discover, frame_bytes, is_log_directory, stamp_of
 from .levels import FULL, Level
 from .messages import XVIZ_VERSION, envelope, is_number
@@ -34,9 +33,10 @@ from .readahead import ReadAhead
 from .records import OriginalTopic
 from .state import COMPLETE_TYPES
 from .store import ObjectStore, StoredDataset, StoredLog
+from .timeindex import TimeIndex
 from .work import Place, Workers
 
-__all__ = ["Catalog", "Known", "Log", "complete_metadata"]
+__all__ = ["LogShelf", "Known", "Log", "complete_metadata"]
 
 logger = logging.getLogger(__name__)
 
@@ -289,7 +289,7 @@ def complete_metadata(metadata: dict[str, Any], index: TimeIndex) -> dict[str, A
 
 
 class Known(Protocol):
-    """What knows every log served, when a :class:`Catalog` does not scan for them itself."""
+    """What knows every log served, when a :class:`LogShelf` does not scan for them itself."""
 
     def available(self) -> Sequence[str]:
         """The names of the logs, in order."""
@@ -304,7 +304,7 @@ class Known(Protocol):
         ...
 
 
-class Catalog:
+class LogShelf:
     """Every log under the data roots and every dataset named, by name; each is opened once and shared.
 
     ``roots`` are directories and object stores; a name found in a

@@ -25,7 +25,7 @@ not WebSocket handshakes get, each with the headers of :data:`xviz_server.viewer
 A WebSocket connection on ``/ingest/<name>`` is a live source feeding the
 live feed ``<name>`` (see :mod:`xviz_server.live.ingest`); on any other path it
 is a session (the path may name the log): a Foxglove session when the
-handshake offers one of :data:`~xviz_server.foxglove.wire.SUBPROTOCOLS`
+handshake offers one of :data:`~xviz_server.foxglove.protocol.SUBPROTOCOLS`
 (the first of them it offers is chosen), else an XVIZ session. Beyond ``max_sessions``
 open sessions, handshakes are refused with HTTP 503.
 """
@@ -58,9 +58,9 @@ from websockets.typing import Origin, Subprotocol
 from .auth import feed_name, ingest_refusal, token_matches
 from .cache import FrameCache
 from .catalog import Indexer, parse_query
-from .datasets import GENERATED, KINDS, dataset_options, dataset_problem
+from .datasets import DATASET_KINDS, GENERATED, dataset_options, dataset_problem
 from .exceptions import ConfigError, LogError, LogNotFound, QueryError, XVIZError
-from .foxglove.wire import SUBPROTOCOLS
+from .foxglove.protocol import SUBPROTOCOLS
 from .framing import OPEN_TIMEOUT, FramingConnection, StreamedResponse, streamed
 from .gate import ALLOW, GatedConnection
 from .layout import LOG, check_log_name
@@ -75,13 +75,13 @@ from .work import Workers
 if TYPE_CHECKING:
     import ssl
 
-    from .connection import Connection
     from .foxglove.connection import FoxgloveConnection
     from .foxglove.seekable import BuiltFile, LogFiles
     from .live import LiveRegistry
     from .live.broker import Broker
     from .live.record import Recorder
-    from .logs import Catalog
+    from .logs import LogShelf
+    from .xviz.connection import Connection
 
 __all__ = ["XVIZServer", "run"]
 
@@ -100,9 +100,9 @@ MAX_QUEUE = 2
 SESSION_MODULES = (
     "logs",
     "live",
-    "connection",
+    "xviz.connection",
     "foxglove.connection",
-    "foxglove.convert",
+    "foxglove.translate",
     "foxglove.export",
     "foxglove.seekable",
     "live.ingest",
@@ -148,7 +148,7 @@ class XVIZServer:
             poll=settings.catalog_poll,
             store_poll=settings.catalog_store_poll,
         )
-        self._catalog: Catalog | None = None
+        self._shelf: LogShelf | None = None
         self._files: LogFiles | None = None
         self._live: LiveRegistry | None = None
         self._ready = asyncio.Event()  # set once sessions can be served
@@ -166,10 +166,10 @@ class XVIZServer:
         )
 
     @property
-    def catalog(self) -> Catalog:
+    def shelf(self) -> LogShelf:
         """What opens the logs that sessions name (set once started)."""
-        assert self._catalog is not None, "server not started"
-        return self._catalog
+        assert self._shelf is not None, "server not started"
+        return self._shelf
 
     @property
     def live(self) -> LiveRegistry:
@@ -206,7 +206,7 @@ class XVIZServer:
         await self.workers.io(_import_session_modules)
         self.metrics.show_levels()
         from .live import LiveRegistry
-        from .logs import Catalog
+        from .logs import LogShelf
 
         self._live = LiveRegistry(self.workers, on_drop=self.metrics.live_drops.inc)
         if self.settings.record is not None:
@@ -224,7 +224,7 @@ class XVIZServer:
         if self.settings.broker is not None:
             self.broker = _broker(self.settings, self._live, self.metrics, self.workers)
             self.broker.start()
-        self._catalog = Catalog(
+        self._shelf = LogShelf(
             self._roots,
             self.cache,
             self.workers,
@@ -233,7 +233,7 @@ class XVIZServer:
             validate=self.settings.validate_frames,
             preload_bytes=int(min(self.settings.preload_mb, self.settings.cache_mb / 2) * MB),
         )
-        await self._catalog.find_datasets()
+        await self._shelf.find_datasets()
         from .foxglove.seekable import LogFiles
 
         self._files = LogFiles(
@@ -241,8 +241,8 @@ class XVIZServer:
             self.workers,
             int(self.settings.files_gb * 1e9),
         )
-        await self.indexer.start(self._catalog)
-        if self._catalog.kinds() - {LOG}:
+        await self.indexer.start(self._shelf)
+        if self._shelf.kinds() - {LOG}:
             await self.workers.warm()  # datasets are converted in the process pool: have it up first
         if self.settings.live_from is not None:
             await self._start_replay(self.settings.live_from)
@@ -286,13 +286,13 @@ class XVIZServer:
     async def _start_replay(self, directory: Path) -> None:
         """Replay a static log as the live feed named after its folder."""
         from .live.replay import replay
-        from .logs import Catalog
+        from .logs import LogShelf
 
-        catalog = Catalog([directory], self.cache, self.workers)
-        names = await catalog.scan()
+        shelf = LogShelf([directory], self.cache, self.workers)
+        names = await shelf.scan()
         if not names:
             raise LogError(f"--live-from {directory}: no log in the reference layout there", log=str(directory))
-        log = await catalog.open(names[0])
+        log = await shelf.open(names[0])
         feed = self.live.feed(log.name)
         self._replay = asyncio.ensure_future(replay(log, feed, rate=self.settings.rate, loop=self.settings.loop))
         logger.info(
@@ -324,8 +324,8 @@ class XVIZServer:
                     connection.transport.abort()
                 await server.wait_closed()
             self._server = None
-        if self._catalog is not None:
-            self._catalog.close()
+        if self._shelf is not None:
+            self._shelf.close()
         if self._files is not None:
             await self._files.close()
         await self.indexer.close()
@@ -349,18 +349,18 @@ class XVIZServer:
     async def _handle(self, websocket: ServerConnection) -> None:
         assert websocket.request is not None
         await self._ready.wait()
-        from .connection import Connection
         from .foxglove.connection import FoxgloveConnection
         from .live.ingest import run_ingest
+        from .xviz.connection import Connection
 
         if feed_name(websocket.request.path) is not None:
             await run_ingest(websocket, self.live, self.workers, self.settings, self.metrics)
             return
         connection: Connection | FoxgloveConnection
         if websocket.subprotocol in SUBPROTOCOLS:
-            connection = FoxgloveConnection(websocket, self.catalog, self.live, self.metrics, self.settings)
+            connection = FoxgloveConnection(websocket, self.shelf, self.live, self.metrics, self.settings)
         else:
-            connection = Connection(websocket, self.catalog, self.live, self.metrics, self.settings)
+            connection = Connection(websocket, self.shelf, self.live, self.metrics, self.settings)
         self.sessions.add(connection)
         try:
             await connection.run()
@@ -457,7 +457,7 @@ class XVIZServer:
 
         try:
             span = parse_range(query)
-            log = await self.catalog.open(name, preload=False)
+            log = await self.shelf.open(name, preload=False)
             positions = span.frames(log)
         except LogNotFound as exc:
             return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
@@ -487,7 +487,7 @@ class XVIZServer:
         from .foxglove.layout import app_layout
 
         try:
-            log = await self.catalog.open(name, preload=False)
+            log = await self.shelf.open(name, preload=False)
         except LogNotFound as exc:
             return connection.respond(HTTPStatus.NOT_FOUND, f"{exc}\n")
         except XVIZError as exc:
@@ -505,8 +505,8 @@ class XVIZServer:
         if isinstance(connection, FramingConnection):
             connection.allow(FILE_WAIT)
         try:
-            log = await self.catalog.open(name, preload=False)
-            stamp = self.catalog.stamp(name)
+            log = await self.shelf.open(name, preload=False)
+            stamp = self.shelf.stamp(name)
             version = ",".join(map(str, stamp)) if stamp else await self.indexer.version(name) or ""
             built = await self._files.get(log, await log_plan(log), version)
         except LogNotFound as exc:
@@ -706,8 +706,8 @@ def parse_dataset(text: str) -> tuple[str, Path, dict[str, str]]:
         return kind, Path(path or kind), {}
     if not separator or not kind or not path:
         raise ValueError(f"--dataset {text!r}: give KIND:PATH, like kitti:/data/2011_09_26_drive_0001_sync")
-    if kind not in KINDS:
-        raise ValueError(f"--dataset {text!r}: unknown kind {kind!r}; known: {', '.join(sorted(KINDS))}")
+    if kind not in DATASET_KINDS:
+        raise ValueError(f"--dataset {text!r}: unknown kind {kind!r}; known: {', '.join(sorted(DATASET_KINDS))}")
     if not Path(path).exists():
         raise ValueError(f"--dataset {text!r}: {path}: no such file or directory")
     options = dict(urllib.parse.parse_qsl(query))

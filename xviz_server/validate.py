@@ -19,7 +19,6 @@ import orjson
 
 from .codec import decode
 from .exceptions import DecodeError, MessageError, SchemaValidationError
-from .index import TimeIndex
 from .layout import (
     INDEX_FILE,
     INDEX_NUMBER,
@@ -34,6 +33,7 @@ from .layout import (
 )
 from .messages import unwrap
 from .state import update_streams
+from .timeindex import TimeIndex
 from .validation import get_validator
 
 __all__ = ["FileReport", "Report", "check_paths"]

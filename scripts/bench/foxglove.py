@@ -4,7 +4,7 @@
     .venv/bin/python scripts/bench/foxglove.py [--repeats 5] [--rate 10] [--seconds 20] [--live-clients 3] [--quick]
 
 1. Converting: each of the 25 real KITTI frames (2.2 MB GLB) into its
-   Foxglove messages (:func:`xviz_server.foxglove.convert.convert`), in this
+   Foxglove messages (:func:`xviz_server.foxglove.translate.convert`), in this
    process, beside decoding the same frame alone (the bare codec's share).
 2. Streaming: one server process (``xviz-server serve``) serving the KITTI
    log from a warm frame cache; one client at a time reads as fast as it can:
@@ -61,8 +61,8 @@ from websockets.asyncio.client import connect
 from websockets.typing import Subprotocol
 
 from xviz_server.codec import decode
-from xviz_server.foxglove.convert import convert, nanoseconds, plan
 from xviz_server.foxglove.session import MAX_SPEED
+from xviz_server.foxglove.translate import convert, nanoseconds, plan
 from xviz_server.records import unpack
 
 MB = 1e6

@@ -5,11 +5,11 @@
 
 Starts Debian's ``redis-server`` on a free loopback port. A writer process
 adds a real KITTI frame (2.1 MB of GLB) to a stream at ``--rate`` Hz with
-``live/wire.py``, its send time in a field before the frame; a reader in
+``live/redis_wire.py``, its send time in a field before the frame; a reader in
 another process waits in ``XREAD BLOCK`` and notes when each reply is whole.
 Three readers take turns, ``--rounds`` times:
 
-* ``wire``: this server's reader (``live/wire.py``: the socket reads into
+* ``wire``: this server's reader (``live/redis_wire.py``: the socket reads into
   its buffer, the frame copied out once);
 * ``redis-py``: the bare library, ``redis.asyncio`` with hiredis;
 * ``raw socket``: the machine's limit, a blocking socket that reads the
@@ -42,7 +42,7 @@ READERS = ("wire", "redis-py", "raw socket")
 
 
 async def write(url: str, frames: int, rate: float) -> None:
-    from xviz_server.live.wire import Wire
+    from xviz_server.live.redis_wire import Wire
 
     frame = FRAME.read_bytes()
     wire = await Wire.open(url, "bench-writer", 5)
@@ -61,7 +61,7 @@ def stamp(fields: list[bytes]) -> float:
 
 
 async def read_wire(url: str, frames: int) -> tuple[list[float], list[float]]:
-    from xviz_server.live.wire import Wire
+    from xviz_server.live.redis_wire import Wire
 
     class Timed(Wire):
         first = 0.0

@@ -7,7 +7,7 @@
 * :mod:`.query`: the parameters of ``GET /api/logs``, as SQL, and its cursor.
 
 Sessions do not wait for it: a session opens the log it names whether the
-catalog has indexed it or not (see :class:`~xviz_server.logs.Catalog`).
+catalog has indexed it or not (see :class:`~xviz_server.logs.LogShelf`).
 """
 
 from .indexer import Indexer

@@ -11,7 +11,7 @@ those two frames only, each if it is at most :data:`MAX_SPAN_READ` bytes
 (a bigger one leaves that end of the range unknown). A session that opens
 such a log reads every frame and may count fewer (a corrupt frame is left
 out of its index). A log in an object store and a raw dataset are opened as
-a session opens them (see :meth:`~xviz_server.logs.Catalog.load`), which
+a session opens them (see :meth:`~xviz_server.logs.LogShelf.load`), which
 reads the same two messages from a store and converts a dataset's metadata.
 
 Facts (:func:`facts`) are what ``GET /api/logs`` lists: format, frames,
@@ -33,11 +33,11 @@ import orjson
 from ..codec import Format
 from ..exceptions import DecodeError, LogError
 from ..frames import span
-from ..index import TimeIndex
 from ..layout import FRAME_FILE, INDEX_FILE, INDEX_NUMBER, LOG, METADATA_NUMBER, file_number, frame_numbers
 from ..logs import complete_metadata
 from ..messages import is_number
 from ..providers.static_log import FORMATS, index_problem, read_metadata
+from ..timeindex import TimeIndex
 
 __all__ = ["facts", "read_local_log", "tree_bytes", "MAX_SPAN_READ"]
 

@@ -43,7 +43,7 @@ from ..datasets import FILE_KINDS, GENERATED, STORE_REFUSED, detect, detect_in_s
 from ..exceptions import XVIZError
 from ..layout import LOG, Found, found_at
 from ..store import ObjectStore, StoredDataset, StoredLog
-from ..storepath import StoreTree
+from ..store.path import StoreTree
 from ..work import Workers
 from .columns import COLUMNS
 from .db import FILE_NAME, FOUND, WAITING, CatalogDB, Row
@@ -53,7 +53,7 @@ from .scan import LocalScan, source_kind, version_of
 if (
     TYPE_CHECKING
 ):  # reading logs (.facts, the providers) is imported once there is one to read: the listing answers without it
-    from ..logs import Catalog
+    from ..logs import LogShelf
 
 __all__ = ["Indexer", "SETTLE", "CONCURRENCY", "SWEEP_PAGE"]
 
@@ -132,7 +132,7 @@ class Indexer:
                 [*(scan.root for scan in self._scans), DATASETS, *(store.url for store in self._stores)]
             )
         }
-        self._catalog: Catalog  # given to start()
+        self._shelf: LogShelf  # given to start()
         self._workers = workers
         self._path = None if state_dir is None else Path(state_dir) / FILE_NAME
         self._poll = poll
@@ -156,11 +156,11 @@ class Indexer:
         """Open the database (a file of another version or unreadable is built again): no log is looked at."""
         self.db = await self._workers.io(CatalogDB, self._path)
 
-    async def start(self, catalog: Catalog) -> None:
-        """Start the tasks; ``catalog`` opens logs (datasets and logs that need it) and is told where names come from."""
+    async def start(self, shelf: LogShelf) -> None:
+        """Start the tasks; ``shelf`` opens logs (datasets and logs that need it) and is told where names come from."""
         await self._counted()
-        self._catalog = catalog
-        catalog.known = self
+        self._shelf = shelf
+        shelf.known = self
         self._tasks = [asyncio.ensure_future(self._look()), asyncio.ensure_future(self._index())]
 
     async def close(self) -> None:
@@ -303,7 +303,7 @@ class Indexer:
         removed = await self._workers.io(self._db.keep_roots, list(self._rank))
         if removed:
             logger.info("catalog: %d logs of data roots no longer served left the catalog", removed)
-        datasets = await self._catalog.find_datasets()
+        datasets = await self._shelf.find_datasets()
         self._datasets = {found.name: found for found in datasets}
         rows = [
             Row(
@@ -337,7 +337,7 @@ class Indexer:
             asyncio.ensure_future(self._workers.warm())  # datasets convert in the process pool
 
     def _takes(self, row: Row, known: tuple[str, str] | None) -> bool:
-        """Whether ``row`` is new or changed, and not a name that a root served first holds (see :class:`~xviz_server.logs.Catalog`)."""
+        """Whether ``row`` is new or changed, and not a name that a root served first holds (see :class:`~xviz_server.logs.LogShelf`)."""
         if known is None:
             return True
         root, version = known
@@ -549,7 +549,7 @@ class Indexer:
             log = StaticLog(name, entry.folder, entry.folder.listed(), self._workers)
             metadata, index = await log.metadata(), await log.index()
             return facts(kind, log.format, metadata, index, entry.folder.listed_bytes(), None)
-        opened = await self._catalog.load(entry)
+        opened = await self._shelf.load(entry)
         size, modified = None, None
         if isinstance(entry, Found) and entry.kind not in GENERATED:
             size, modified = await self._workers.io(tree_bytes, str(entry.path))

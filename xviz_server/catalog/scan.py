@@ -22,7 +22,7 @@ from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..datasets import FILE_KINDS, KINDS, file_problem
+from ..datasets import DATASET_KINDS, FILE_KINDS, file_problem
 from ..layout import FRAME_FILE, INDEX_FILE, LOG, place_of, split_place, stamp_from, stamp_of
 from .db import Row
 
@@ -53,9 +53,11 @@ def source_kind(kind: str, place: str) -> str:
 
 def listed_kinds() -> tuple[str, ...]:
     """Every kind the catalog lists logs as: static logs, then each dataset kind registered in
-    :data:`xviz_server.datasets.KINDS` (ROS recordings as ``bag`` and ``mcap``)."""
+    :data:`xviz_server.datasets.DATASET_KINDS` (ROS recordings as ``bag`` and ``mcap``)."""
     return tuple(
-        name for kind in (LOG, *KINDS) for name in ([n for _, n in _BY_SUFFIX[kind]] if kind in _BY_SUFFIX else [kind])
+        name
+        for kind in (LOG, *DATASET_KINDS)
+        for name in ([n for _, n in _BY_SUFFIX[kind]] if kind in _BY_SUFFIX else [kind])
     )
 
 

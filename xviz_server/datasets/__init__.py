@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from ..exceptions import DatasetError
 from ..records import OriginalTopic
-from ..storepath import StorePath, StoreTree
+from ..store.path import StorePath, StoreTree
 
 if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, and starts, without numpy and the codecs
     import numpy as np
@@ -25,7 +25,7 @@ if TYPE_CHECKING:  # imported where frames are made: the server lists datasets, 
 
 __all__ = [
     "Dataset",
-    "KINDS",
+    "DATASET_KINDS",
     "FILE_KINDS",
     "SCENE_KINDS",
     "SCENE",
@@ -72,7 +72,7 @@ class Dataset(Protocol):
 
 #: Dataset kinds: the module of each, its class, and the function that
 #: recognises its layout. Modules are imported when first needed.
-KINDS: dict[str, tuple[str, str, str]] = {
+DATASET_KINDS: dict[str, tuple[str, str, str]] = {
     "kitti": ("kitti", "KittiDrive", "is_kitti_drive"),
     "waymo": ("waymo", "open_segment", "is_waymo_segment"),
     "vista": ("vista", "VistaTrace", "is_vista_trace"),
@@ -106,8 +106,8 @@ STORE_REFUSED: dict[str, str] = {
 
 
 def _member(kind: str, position: int) -> Callable[..., Any]:
-    module = importlib.import_module(f".{KINDS[kind][0]}", __name__)
-    return getattr(module, KINDS[kind][position])
+    module = importlib.import_module(f".{DATASET_KINDS[kind][0]}", __name__)
+    return getattr(module, DATASET_KINDS[kind][position])
 
 
 def open_dataset(kind: str, path: Path | StorePath | StoreTree, **options: Any) -> Dataset:
@@ -116,8 +116,8 @@ def open_dataset(kind: str, path: Path | StorePath | StoreTree, **options: Any) 
     ``path`` is a file or folder, or an object or folder in a store for the
     kinds of :data:`STORE_KINDS`.
     """
-    if kind not in KINDS:
-        raise DatasetError(f"unknown dataset kind {kind!r}; known: {', '.join(sorted(KINDS))}", path=path)
+    if kind not in DATASET_KINDS:
+        raise DatasetError(f"unknown dataset kind {kind!r}; known: {', '.join(sorted(DATASET_KINDS))}", path=path)
     path = _in_store(path)
     if isinstance(path, (StorePath, StoreTree)) and kind not in STORE_KINDS:
         raise DatasetError(f"{path}: a {kind} dataset is not read from an object store", path=path)
@@ -135,7 +135,7 @@ def scenes(kind: str, path: Path) -> list[str]:
     if kind not in SCENE_KINDS:
         return []
     try:
-        names = getattr(importlib.import_module(f".{KINDS[kind][0]}", __name__), SCENE_KINDS[kind])(path)
+        names = getattr(importlib.import_module(f".{DATASET_KINDS[kind][0]}", __name__), SCENE_KINDS[kind])(path)
     except DatasetError:
         return []
     return list(names) if len(names) > 1 else []
@@ -168,7 +168,7 @@ def _in_store(path: Any) -> Path | StorePath | StoreTree:
 def detect(path: Path) -> str | None:
     """The kind of dataset whose layout the folder or file ``path`` has, if any."""
     if path.is_dir():
-        return next((kind for kind in KINDS if _member(kind, 2)(path)), None)
+        return next((kind for kind in DATASET_KINDS if _member(kind, 2)(path)), None)
     kind = FILE_KINDS.get(path.suffix)
     return kind if kind is not None and _member(kind, 2)(path) else None
 
@@ -235,7 +235,7 @@ def dataset_problem(kind: str, path: Path) -> str | None:
     dataset is opened only when a client asks for it. ``None`` when nothing
     is found wrong.
     """
-    if kind in GENERATED or kind not in KINDS:
+    if kind in GENERATED or kind not in DATASET_KINDS:
         return None
     other = detect(path)
     if other is not None and other != kind:

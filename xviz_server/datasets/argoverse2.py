@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import DatasetError
-from ..storepath import StoreTree
+from ..store.path import StoreTree
 from ..unpack import check_frame
 from . import DEFAULT_IMAGE_WIDTH, require
 from .images import scale_jpegs

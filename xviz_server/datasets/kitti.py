@@ -56,7 +56,7 @@ import numpy as np
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..codec.image import sniff_image
 from ..exceptions import DatasetError
-from ..storepath import StoreTree
+from ..store.path import StoreTree
 from ..unpack import check_frame
 from . import DEFAULT_IMAGE_WIDTH
 from .images import encode_like, fit_width
@@ -345,7 +345,7 @@ class KittiDrive:
     ``path`` is the drive folder inside its date folder, the date folder
     (holding one drive), or the folder above date folders (holding one drive
     in all); see :func:`find_drive`; or such a folder in an object store (a
-    :class:`~xviz_server.storepath.StoreTree`, each file one GET). Images wider than ``image_max_width`` are scaled down (aspect
+    :class:`~xviz_server.store.path.StoreTree`, each file one GET). Images wider than ``image_max_width`` are scaled down (aspect
     kept) and re-encoded as PNG. Small and picklable: worker processes get a
     copy and read the files themselves. Every missing or unreadable file
     raises :class:`~xviz_server.exceptions.DatasetError` naming it.

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..builder import FrameBuilder, MetadataBuilder, ui
 from ..exceptions import DatasetError
-from ..storepath import StorePath, StoreTree
+from ..store.path import StorePath, StoreTree
 from .shared import footprints, intensity_colors, pose_angles
 
 __all__ = [

@@ -43,13 +43,13 @@ from ..linkwatch import is_loopback, sample_link
 from ..live import FeedEvent, LiveUpdate
 from ..logs import Log
 from ..records import unpack
-from ..session import DetailChanged
 from ..version import __version__
-from .convert import Channel, Plan, nanoseconds
+from ..xviz.session import DetailChanged
 from .frame import Message, frame_messages, log_plan
 from .live import LivePlan, converted, feed_plan, update_time
+from .protocol import message_header, time_message
 from .session import FoxgloveSession, Play, SendLatest, SendLive, Stop
-from .wire import message_header, time_message
+from .translate import Channel, Plan, nanoseconds
 
 __all__ = ["FoxgloveConnection"]
 
@@ -102,7 +102,7 @@ class FoxgloveConnection(FaceConnection[FoxgloveSession]):
         return FoxgloveSession(
             path=path,
             query=query,
-            available=self.catalog.available(),
+            available=self.shelf.available(),
             server_name=f"xviz-server {__version__}",
             lag_timeout=self.settings.live_lag_timeout,
             detail=self.settings.detail == "auto",

@@ -42,8 +42,8 @@ from ..logs import Log
 from ..params import SHOWN, seconds, single
 from ..probe.report import Instant
 from ..work import Workers
-from .convert import Plan
 from .frame import Message, frame_messages
+from .translate import Plan
 
 __all__ = [
     "FORMATS",

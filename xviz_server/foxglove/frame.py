@@ -18,7 +18,7 @@ from ..exceptions import XVIZError
 from ..levels import FULL, Level
 from ..logs import Log
 from ..records import unpack
-from .convert import CONVERTED, Plan, convert, plan, read_survey, survey
+from .translate import CONVERTED, Plan, convert, plan, read_survey, survey
 
 __all__ = ["Message", "frame_messages", "log_plan", "SURVEY"]
 
@@ -54,8 +54,8 @@ async def frame_messages(
 
 
 async def log_plan(log: Log) -> Plan:
-    """The Foxglove channels of ``log`` (see :func:`~xviz_server.foxglove.convert.plan`), with what its first frame
-    tells (:func:`~xviz_server.foxglove.convert.survey`, made once and kept in the frame cache); a first frame that
+    """The Foxglove channels of ``log`` (see :func:`~xviz_server.foxglove.translate.plan`), with what its first frame
+    tells (:func:`~xviz_server.foxglove.translate.survey`, made once and kept in the frame cache); a first frame that
     cannot be read leaves the log without an origin, its time series as numbers unless their metadata says."""
     first = None
     if len(log.index.frames):

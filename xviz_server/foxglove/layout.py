@@ -15,8 +15,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from .convert import ROOT_FRAME, Plan
 from .export import log_path
+from .translate import ROOT_FRAME, Plan
 
 __all__ = ["app_layout", "layout_path", "LAYOUT_SUFFIX"]
 

@@ -1,8 +1,8 @@
 """A live feed's updates as Foxglove messages, converted once per update for every Foxglove client of the feed.
 
-A feed's channels are those :func:`~xviz_server.foxglove.convert.plan`
+A feed's channels are those :func:`~xviz_server.foxglove.translate.plan`
 gives for its metadata (:func:`feed_plan`, made once per metadata). Each
-update's messages are :func:`~xviz_server.foxglove.convert.convert` of its
+update's messages are :func:`~xviz_server.foxglove.translate.convert` of its
 GLB bytes, made by the first Foxglove client to ask and kept with the update
 (:meth:`~xviz_server.live.LiveUpdate.derived`): the other clients of the
 feed get the same bytes. Below full detail they are made of the update's
@@ -20,7 +20,7 @@ from weakref import WeakKeyDictionary
 from ..levels import FULL, Level
 from ..live import LiveFeed, LiveUpdate
 from ..work import Workers
-from .convert import CONVERTED, Plan, convert, first_origin, nanoseconds, plan
+from .translate import CONVERTED, Plan, convert, first_origin, nanoseconds, plan
 
 __all__ = ["LivePlan", "feed_plan", "converted", "update_time"]
 

@@ -45,8 +45,8 @@ from ..logs import Log
 from ..ranges import Representation
 from ..version import __version__
 from ..work import Workers
-from .convert import Plan
 from .export import ExportRange, export, log_path
+from .translate import Plan
 
 __all__ = ["FILE_SUFFIX", "BUILDS", "READ_BYTES", "BuiltFile", "LogFiles", "file_path", "read_file"]
 

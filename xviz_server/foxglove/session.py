@@ -1,6 +1,6 @@
 """The Foxglove protocol state of one connection, as a pure state machine (sans-I/O).
 
-Like :class:`xviz_server.session.Session`, a :class:`FoxgloveSession` takes
+Like :class:`xviz_server.xviz.session.Session`, a :class:`FoxgloveSession` takes
 what happened (the connection opened, a message came, the log opened, the
 player reached a time) and answers with events for the asyncio side to carry
 out. It owns every decision of the protocol: which log the URL names, what
@@ -53,9 +53,8 @@ from ..events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive
 from ..exceptions import FoxgloveProtocolError, LogNotFound, XVIZError
 from ..levels import Level, profile_level
 from ..params import given_twice
-from ..session import DetailChanged
-from .convert import Channel
-from .wire import (
+from ..xviz.session import DetailChanged
+from .protocol import (
     CLIENT_MESSAGE_DATA,
     ENDED,
     PAUSED,
@@ -69,6 +68,7 @@ from .wire import (
     text,
     time_message,
 )
+from .translate import Channel
 
 __all__ = [
     "FoxgloveLog",
@@ -161,7 +161,7 @@ class SendLive:
     """Send the messages of the live update at hand to ``targets`` (subscriptions by channel), then a ``time``
     message of ``time`` (nanoseconds) unless it is ``None``.
 
-    Channels are numbered as :func:`~xviz_server.foxglove.convert.plan`
+    Channels are numbered as :func:`~xviz_server.foxglove.translate.plan`
     numbers those of the feed's metadata.
     """
 

@@ -24,7 +24,7 @@ from redis.exceptions import RedisError
 
 from ..logfmt import redact_password
 from ..metrics import Metrics
-from .wire import Wire
+from .redis_wire import Wire
 
 __all__ = ["Link", "FAILURES", "BLOCK_MS", "COMMAND_TIMEOUT", "cancel"]
 

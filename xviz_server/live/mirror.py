@@ -48,8 +48,8 @@ from ..exceptions import BrokerError, XVIZError
 from ..work import Workers
 from .feed import LiveFeed
 from .link import BLOCK_MS, COMMAND_TIMEOUT, FAILURES, Link, cancel
+from .redis_wire import Wire
 from .streams import Entry, before, registration, updates
-from .wire import Wire
 
 __all__ = ["Mirror", "Numbering"]
 

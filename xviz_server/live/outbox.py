@@ -29,8 +29,8 @@ from ..state import COMPLETE_TYPES
 from ..work import Workers
 from .feed import FeedEvent, LiveFeed, LiveUpdate
 from .link import BLOCK_MS, COMMAND_TIMEOUT, FAILURES, Link, cancel
+from .redis_wire import Wire
 from .streams import CLAIM, FEEDS, Entry, control, registration, updates
-from .wire import Wire
 
 __all__ = ["Outbox", "kept"]
 

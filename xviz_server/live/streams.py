@@ -30,7 +30,7 @@ __all__ = ["FEEDS", "CLAIM", "Entry", "registration", "updates", "control", "bef
 FEEDS = "xviz:feeds"
 #: Version of the entries' layout; entries of another version are skipped.
 VERSION = b"1"
-KINDS = frozenset({b"meta", b"update", b"key", b"gone", b"reconfigure"})
+ENTRY_KINDS = frozenset({b"meta", b"update", b"key", b"gone", b"reconfigure"})
 
 #: Claims (or renews) a feed's registration, atomically. KEYS: registration, FEEDS, the
 #: feed's stream; ARGV: replica id, time to live in ms, feed name. Returns the other
@@ -106,7 +106,7 @@ class Entry:
         if fields.get(b"v") != VERSION:
             raise BrokerError(f"not an entry of layout version {VERSION.decode()} (fields {sorted(fields)[:8]})")
         kind, owner, number = fields.get(b"t", b""), fields.get(b"o", b""), fields.get(b"n", b"")
-        if kind not in KINDS or not owner or not number.lstrip(b"-").isdigit():
+        if kind not in ENTRY_KINDS or not owner or not number.lstrip(b"-").isdigit():
             raise BrokerError(f"entry with kind {kind[:20]!r}, owner {owner[:40]!r}, number {number[:20]!r}")
         data = fields.get(b"d", b"")
         if kind != b"gone" and not data:

@@ -278,7 +278,7 @@ def client_main(spec_text: str) -> None:
 def foxglove_sdk_main(directory: str) -> None:
     """The foxglove-sdk server with one channel per channel this server advertises for the KITTI log in ``directory``.
 
-    Every frame is converted first (``xviz_server.foxglove.convert``, what the
+    Every frame is converted first (``xviz_server.foxglove.translate``, what the
     server's warm cache holds). A play request starts a thread that logs every
     message in time order as fast as the SDK takes them (its queue per client
     holds the whole log: none is dropped), then broadcasts the state *ended*.
@@ -296,7 +296,7 @@ def foxglove_sdk_main(directory: str) -> None:
     PlaybackState, PlaybackStatus = websocket.PlaybackState, websocket.PlaybackStatus
 
     from xviz_server.codec import decode
-    from xviz_server.foxglove.convert import convert, plan
+    from xviz_server.foxglove.translate import convert, plan
     from xviz_server.records import unpack
 
     frames = sorted(Path(directory).glob("*-frame.glb"), key=lambda path: int(path.name.split("-")[0]))

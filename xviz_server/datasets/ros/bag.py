@@ -28,7 +28,7 @@ indexed in memory at open, by one read of the whole file (see
 :mod:`.reindex`), and a warning says so.
 
 A ROS 1 bag or an MCAP file may be an object in a store
-(:class:`~xviz_server.storepath.StorePath`): it is read with ranged GETs, a
+(:class:`~xviz_server.store.path.StorePath`): it is read with ranged GETs, a
 chunk with one GET, and the message indexes of a topic's MCAP chunks all at
 once. A ROS 2 bag folder is read from disk only (SQLite reads a local
 file).
@@ -50,7 +50,7 @@ import numpy as np
 
 from ...exceptions import DatasetError, StoreError
 from ...records import OriginalTopic
-from ...storepath import RangedFile, StorePath, data_path
+from ...store.path import RangedFile, StorePath, data_path
 from ...unpack import (
     MAX_CHUNK_BYTES,
     MAX_FILE_RATIO,

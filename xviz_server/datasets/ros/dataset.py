@@ -41,7 +41,7 @@ import numpy as np
 from ...builder import FrameBuilder, MetadataBuilder, ui
 from ...exceptions import DatasetError, FrameSizeError, OversizeError
 from ...records import RECORD_BYTES, OriginalTopic, pack
-from ...storepath import StorePath, data_path
+from ...store.path import StorePath, data_path
 from ...unpack import MAX_FRAME_BYTES, size_text
 from .. import DEFAULT_IMAGE_WIDTH
 from .bag import is_rosbag, open_bag

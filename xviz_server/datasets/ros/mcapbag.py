@@ -45,7 +45,7 @@ import numpy as np
 
 from ...exceptions import DatasetError, StoreError
 from ...records import OriginalTopic
-from ...storepath import StorePath
+from ...store.path import StorePath
 from ...unpack import MAX_CHUNK_BYTES, check_declared, unpack
 from .bag import CHUNK_CACHE_BYTES, MCAP_MAGIC, Topic, reason
 from .wellknown import ROS_OF, adapt, attributes

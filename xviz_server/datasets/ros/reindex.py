@@ -16,7 +16,7 @@ index: :attr:`~MemoryIndexedReader.reindexed` tells which happened.
 
 An indexed bag's index is not all at its end: each chunk is followed by
 the index records of its messages. For a bag in an object store
-(:class:`~xviz_server.storepath.RangedFile`), the reader fetches the
+(:class:`~xviz_server.store.path.RangedFile`), the reader fetches the
 headers of every chunk in one batch of parallel ranged GETs, and then every
 chunk's index records in another, where rosbags would make two GETs per
 chunk one after another.
@@ -44,7 +44,7 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag1 import Reader, ReaderError
 from rosbags.rosbag1.reader import Chunk, ChunkInfo, Header, IndexData, RecordType, read_uint32
 
-from ...storepath import RangedFile
+from ...store.path import RangedFile
 from ...unpack import check_declared, unpack
 
 __all__ = ["MemoryIndexedReader"]

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ...storepath import StorePath
+from ...store.path import StorePath
 from .. import DEFAULT_IMAGE_WIDTH
 from .log import SUFFIX, WaymoLog
 from .npz import WaymoSegment, is_npz_segment

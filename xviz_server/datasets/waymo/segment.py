@@ -45,7 +45,7 @@ from google.protobuf.message import DecodeError
 from zlib_ng import zlib_ng
 
 from ...exceptions import DatasetError, FrameSizeError
-from ...storepath import StorePath, data_path
+from ...store.path import StorePath, data_path
 from ...unpack import FrameTally, check_frame
 from .. import DEFAULT_IMAGE_WIDTH, threads
 from ..images import scale_jpegs

@@ -24,7 +24,7 @@ The framing is read here, not with TensorFlow's ``tf.data.TFRecordDataset``
 hundreds of megabytes, with wheels for few platforms and Python releases,
 for a format of four fields; and its reader goes through a file from the
 start, where serving needs any record at once by its offset, from a file or
-an object store (:class:`~xviz_server.storepath.StorePath`), and an error
+an object store (:class:`~xviz_server.store.path.StorePath`), and an error
 that names the bad record while the others are served. The CRC32C is
 google-crc32c's (C, with the processor's CRC instructions).
 """
@@ -39,7 +39,7 @@ from pathlib import Path
 import google_crc32c
 
 from ...exceptions import DatasetError, StoreError
-from ...storepath import StorePath, data_path
+from ...store.path import StorePath, data_path
 from ...unpack import MAX_RECORD_BYTES, size_text
 
 __all__ = ["Record", "RecordFile", "is_tfrecord", "header_problem", "masked_crc", "write_records"]

@@ -1,4 +1,4 @@
-"""The asyncio side of a session: carry out what :class:`~xviz_server.session.Session` decides.
+"""The asyncio side of a session: carry out what :class:`~xviz_server.xviz.session.Session` decides.
 
 One :class:`Connection` per WebSocket connection reads client messages,
 feeds them to the session and carries out the events it answers with:
@@ -25,18 +25,18 @@ from typing import Any
 
 from websockets.exceptions import ConnectionClosed
 
-from .codec import Format
-from .detail import Sample
-from .events import SubscribeLive
-from .exceptions import XVIZError
-from .face import FaceConnection
-from .framing import ready_to_write, write_message
-from .levels import LEVELS, Level
-from .linkwatch import is_loopback, sample_link
-from .live import FeedEvent, LiveUpdate, Subscription
-from .logfmt import peer
-from .logs import Log
-from .readahead import ReadAhead, Window
+from ..codec import Format
+from ..detail import Sample
+from ..events import SubscribeLive
+from ..exceptions import XVIZError
+from ..face import FaceConnection
+from ..framing import ready_to_write, write_message
+from ..levels import LEVELS, Level
+from ..linkwatch import is_loopback, sample_link
+from ..live import FeedEvent, LiveUpdate, Subscription
+from ..logfmt import peer
+from ..logs import Log
+from ..readahead import ReadAhead, Window
 from .session import (
     CancelStream,
     ConfigureLive,
@@ -69,7 +69,7 @@ class Connection(FaceConnection[Session]):
         return Session(
             path=path,
             query=query,
-            available=self.catalog.available(),
+            available=self.shelf.available(),
             live=self.live.names(),
             lag_timeout=self.settings.live_lag_timeout,
             detail=self.settings.detail == "auto",

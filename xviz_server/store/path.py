@@ -12,7 +12,7 @@ rosbags' readers do with a path: ``name``, ``stem``, ``suffix``,
 an object deleted or replaced since is found out when read.
 
 A path pickles as its key, its size and its store's
-:class:`~xviz_server.storeclient.StoreConfig` (bucket, time limits, and the
+:class:`~xviz_server.store.client.StoreConfig` (bucket, time limits, and the
 endpoint, region and credentials the server resolved at start), and a
 worker process that unpickles one makes its own client of the store from
 it, once. ``repr`` and ``str`` show the ``s3://`` URL only.
@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO, NamedTuple, TypeVar, cast
 
 from obstore.exceptions import BaseError
 
-from .storeclient import SCHEME, StoreConfig, failure, get_range, s3_client, store_error
+from .client import SCHEME, StoreConfig, failure, get_range, s3_client, store_error
 
 if TYPE_CHECKING:
     from obstore.store import S3Store

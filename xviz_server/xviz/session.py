@@ -5,7 +5,7 @@ the events that carry its decisions out, as ``websockets``' sans-I/O
 protocol does: every method named after something that happened (the
 connection opened, a message arrived, a log was opened, a stream ended, a
 live update came) returns a list of :data:`Event`. The asyncio layer
-(:mod:`xviz_server.connection`) carries them out and reports back. Events
+(:mod:`xviz_server.xviz.connection`) carries them out and reports back. Events
 name logs and frames by name and number; they hold no I/O object.
 
 Recorded logs: a ``transform_log`` becomes :class:`StreamFrames`. A newer
@@ -50,13 +50,12 @@ import numpy as np
 import pydantic
 from websockets.frames import CloseCode
 
-from .codec import Format, decode, encode
-from .detail import DetailChooser, Sample
-from .events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
-from .exceptions import DecodeError, LogNotFound, MessageError, XVIZError
-from .index import TimeIndex
-from .levels import FULL, Level, profile_level
-from .messages import (
+from ..codec import Format, decode, encode
+from ..detail import DetailChooser, Sample
+from ..events import Close, LiveFacts, LookUpLive, OpenLog, Send, SubscribeLive, Variant
+from ..exceptions import DecodeError, LogNotFound, MessageError, XVIZError
+from ..levels import FULL, Level, profile_level
+from ..messages import (
     Error,
     Reconfigure,
     SessionConfig,
@@ -70,7 +69,8 @@ from .messages import (
     parse_client_message,
     stream_filter,
 )
-from .params import given_twice
+from ..params import given_twice
+from ..timeindex import TimeIndex
 
 __all__ = [
     "Session",

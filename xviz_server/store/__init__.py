@@ -10,10 +10,10 @@ A one-file dataset under the prefix (a Waymo ``.tfrecord`` segment, a ROS 1
 ``.bag``, an ``.mcap`` file) is served too, named by its key path below the
 prefix without its suffix, and so is a dataset that is a folder of files (a
 KITTI raw drive), named by its folder's key path; both are read with ranged
-GETs (see :mod:`xviz_server.storepath`).
+GETs (see :mod:`xviz_server.store.path`).
 
 The client, its time limits and retries, and the errors of a failed
-request are those of :mod:`xviz_server.storeclient`.
+request are those of :mod:`xviz_server.store.client`.
 """
 
 from __future__ import annotations
@@ -30,10 +30,10 @@ from typing import TYPE_CHECKING, Any
 import obstore
 from obstore.exceptions import BaseError
 
-from .exceptions import ConfigError, StoreError
-from .layout import FRAME_FILE, LOG
-from .readahead import ReadAhead
-from .storeclient import (
+from ..exceptions import ConfigError, StoreError
+from ..layout import FRAME_FILE, LOG
+from ..readahead import ReadAhead
+from .client import (
     BACKOFF_MAX,
     CONNECT_TIMEOUT,
     SCHEME,
@@ -43,12 +43,12 @@ from .storeclient import (
     store_config,
     store_error,
 )
-from .storepath import StorePath, StoreTree
+from .path import StorePath, StoreTree
 
 if TYPE_CHECKING:
     from obstore import ObjectMeta
 
-    from .settings import Settings
+    from ..settings import Settings
 
 __all__ = ["is_store_url", "data_roots", "ObjectStore", "StoreFolder", "StoredLog", "StoredDataset"]
 
@@ -139,7 +139,7 @@ class ObjectStore:
         without the suffix. ``refused`` maps the suffixes of datasets that are
         not read from a store to why: each such file is left out with a
         warning, once. ``detect`` names the kind of dataset that a folder
-        (a :class:`~xviz_server.storepath.StoreTree` of the listing) is, if
+        (a :class:`~xviz_server.store.path.StoreTree` of the listing) is, if
         any; a dataset's folders are not searched further.
         """
         try:
@@ -283,7 +283,7 @@ class ObjectStore:
         :class:`~xviz_server.exceptions.StoreError` after the retries.
 
         It is read as the range of that size, and no more of the answer
-        (see :func:`~xviz_server.storeclient.get_range`): a GET of a whole
+        (see :func:`~xviz_server.store.client.get_range`): a GET of a whole
         object makes obstore set aside as many bytes as the answer's
         ``Content-Length`` says before reading any, and one that says 1 TiB
         aborts the process.
