@@ -171,9 +171,10 @@ class WaymoRecordSegment(WaymoLog):
     def read(self, index: int) -> WaymoFrame:
         number = self._frames[0][index]
         where = self.records.where(number)
-        length = self.records.records[number].length
-        check_frame(length, index, str(self.path), self.path)
-        tally = FrameTally(length, index, str(self.path), self.path)
+        record = self.records.records[number]
+        if record.problem is None:  # a record the framing finds bad is refused by name when read, below
+            check_frame(record.length, index, str(self.path), self.path)
+        tally = FrameTally(record.length, index, str(self.path), self.path)
         frame = pb.Frame()
         try:
             frame.ParseFromString(self.records.read(number))
