@@ -60,6 +60,14 @@ async def foxglove(server: Served, log: str = "kitti") -> ClientConnection:
     return websocket
 
 
+async def subscribe_all(websocket: ClientConnection) -> None:
+    """Subscribe ``websocket`` (from :func:`foxglove`) to every channel it was advertised."""
+    channels = websocket.channels  # type: ignore[attr-defined]
+    await websocket.send(
+        json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in channels]})
+    )
+
+
 async def status(websocket: ClientConnection) -> str:
     """The message of the next ``status``, other messages skipped."""
     while True:
@@ -91,19 +99,11 @@ async def test_a_foxglove_message_of_half_a_million_bad_items_gets_one_status_an
 ) -> None:
     async with served(kitti_root) as server:
         async with await foxglove(server) as warm:  # the workers are up and the log's frames cached
-            await warm.send(
-                json.dumps(
-                    {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in warm.channels]}
-                )
-            )  # type: ignore[attr-defined]
+            await subscribe_all(warm)
             await arrivals(warm, 2.0)
         before = server.rss()
         watcher, attacker = await foxglove(server), await foxglove(server)
-        await watcher.send(
-            json.dumps(
-                {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in watcher.channels]}
-            )
-        )  # type: ignore[attr-defined]
+        await subscribe_all(watcher)
         await watcher.recv()
         watching = asyncio.ensure_future(arrivals(watcher))
         # 524 000 items in 1 MB: refused whole, unread, in one status.
@@ -225,14 +225,7 @@ async def test_a_frame_of_huge_valid_clouds_is_refused_unread_on_both_faces(clou
         before = server.rss()
         xviz, good = await asyncio.gather(server.session("clouds"), server.session("kitti"))
         async with await foxglove(server, "clouds") as websocket:
-            await websocket.send(
-                json.dumps(
-                    {
-                        "op": "subscribe",
-                        "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in websocket.channels],
-                    }
-                )
-            )  # type: ignore[attr-defined]
+            await subscribe_all(websocket)
             statuses = [await status(websocket) for _ in range(3)]
         await healthz(server)
         growth = grown(server, before)
@@ -262,14 +255,7 @@ async def both_faces(server: Served, log: str) -> tuple[list[dict[str, Any]], li
     statuses: list[str] = []
     stamps: list[int] = []
     async with await foxglove(server, log) as websocket:
-        await websocket.send(
-            json.dumps(
-                {
-                    "op": "subscribe",
-                    "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in websocket.channels],
-                }
-            )
-        )  # type: ignore[attr-defined]
+        await subscribe_all(websocket)
         try:
             while True:
                 data = await asyncio.wait_for(websocket.recv(), 5)
@@ -675,11 +661,7 @@ async def flood(port: int, subprotocol: str, frame: bytes, sent: list[int], loca
 async def test_clients_that_send_512_kb_messages_and_never_read_cost_tens_of_mb(kitti_root: Path) -> None:
     async with served(kitti_root, XVIZ_IDLE_TIMEOUT="10") as server:
         async with await foxglove(server) as warm:  # the workers are up and the log's frames cached
-            await warm.send(
-                json.dumps(
-                    {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in warm.channels]}
-                )
-            )  # type: ignore[attr-defined]
+            await subscribe_all(warm)
             await arrivals(warm, 2.0)
         before = server.rss()
         watcher = await foxglove(server)
@@ -695,11 +677,7 @@ async def test_clients_that_send_512_kb_messages_and_never_read_cost_tens_of_mb(
             return all(count[0] >= 2 * _FLOOD or future.done() for count, future in zip(counts, floods))
 
         await eventually(under_way, 30)
-        await watcher.send(
-            json.dumps(
-                {"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in watcher.channels]}
-            )
-        )  # type: ignore[attr-defined]
+        await subscribe_all(watcher)
         watching = asyncio.ensure_future(arrivals(watcher))
         await healthz(server)
 
