@@ -5,7 +5,9 @@
 # --quick (first) runs the fast tier only: the tests not marked slow (docs/testing.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+quick=0
 if [ "${1:-}" = "--quick" ]; then
+    quick=1
     shift
     set -- -m "not slow" "$@"
 fi
@@ -20,6 +22,17 @@ fi
 # The broker tests (live feeds across replicas) run Debian's redis-server.
 if ! command -v redis-server >/dev/null 2>&1; then
     apt-get update -q && apt-get install -y -q redis-server
+fi
+# The real Lichtblick app's tests (slow tier): its web app built from tests/vendor/lichtblick/, once per
+# machine (kept in ~/.cache/xviz-server; a first build takes half an hour), with corepack (node's own builds
+# have it, Debian's nodejs not: installed from npm then). A failed build fails the run.
+# XVIZ_LICHTBLICK_DIR set (empty: skip those tests) is used as it is.
+if [ "$quick" = 0 ] && [ -z "${XVIZ_LICHTBLICK_DIR+set}" ]; then
+    if ! command -v corepack >/dev/null 2>&1; then
+        npm install --global --no-audit --no-fund --loglevel=error corepack@0.34.6
+    fi
+    XVIZ_LICHTBLICK_DIR=$(scripts/build-lichtblick.sh)
+    export XVIZ_LICHTBLICK_DIR
 fi
 scripts/typecheck.sh
 exec python -m pytest "$@"

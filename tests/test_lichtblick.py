@@ -1,9 +1,10 @@
 """The real Lichtblick web app in Chromium, connected to this server as a user connects: every channel listed, a Plot
 drawn, each message at its log's time, the vehicle moving, and the first layout the server offers.
 
-Lichtblick is not in this repository: ``scripts/build-lichtblick.sh DIR`` builds its web app from its public source
-at a pinned commit as its Dockerfile does (the static files land in ``DIR/web/.webpack``); point
-``XVIZ_LICHTBLICK_DIR`` at that folder. Without it these tests are skipped. The app is served here on loopback
+``scripts/build-lichtblick.sh`` builds the app's web build from its source vendored in ``tests/vendor/lichtblick/``
+as its Dockerfile does, and prints the folder of its static files; ``scripts/test.sh`` runs it and points
+``XVIZ_LICHTBLICK_DIR`` at that folder. Without it these tests are skipped, or fail in CI (``CI`` set), where the
+app is always built. The app is served here on loopback
 with a layout put in its ``index.html`` where its Docker image puts ``/lichtblick/default-layout.json``: the one
 ``GET /api/logs/NAME/layout.json`` answers, and panels of the test's own that read what the app shows.
 """
@@ -47,12 +48,11 @@ PLACEHOLDER = "/*LICHTBLICK_SUITE_DEFAULT_LAYOUT_PLACEHOLDER*/"
 #: The colour of the test's Plot series, counted in the Plot panel's pixels.
 PLOT_COLOUR = "#ff00ff"
 
-if not APP or not (Path(APP) / "index.html").is_file():
-    pytest.skip(
-        "no Lichtblick web app: run scripts/build-lichtblick.sh DIR (clones lichtblick-suite/lichtblick at a pinned"
-        " commit, builds it as its Dockerfile does; needs GitHub), then set XVIZ_LICHTBLICK_DIR=DIR/web/.webpack",
-        allow_module_level=True,
-    )
+#: What a run without the app says.
+NO_APP = (
+    "no Lichtblick web app: export XVIZ_LICHTBLICK_DIR=$(scripts/build-lichtblick.sh) (builds it from"
+    " tests/vendor/lichtblick/ as its Dockerfile does, once; scripts/test.sh does it: docs/testing.md)"
+)
 
 
 class _AppHandler(SimpleHTTPRequestHandler):
@@ -78,6 +78,10 @@ class _AppHandler(SimpleHTTPRequestHandler):
 @pytest.fixture
 def app() -> Iterator[Any]:
     """Serve the app on loopback; call the result with a layout to get the app's address."""
+    if not APP or not (Path(APP) / "index.html").is_file():
+        if os.environ.get("CI"):
+            pytest.fail(NO_APP, pytrace=False)
+        pytest.skip(NO_APP)
     handler = type("Handler", (_AppHandler,), {})
     server = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(handler, directory=APP))
     thread = threading.Thread(target=server.serve_forever, daemon=True)
