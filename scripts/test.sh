@@ -24,12 +24,16 @@ if ! command -v redis-server >/dev/null 2>&1; then
     apt-get update -q && apt-get install -y -q redis-server
 fi
 # The real Lichtblick app's tests (slow tier): its web app built from tests/vendor/lichtblick/, once per
-# machine (kept in ~/.cache/xviz-server; a first build takes half an hour), with corepack (node's own builds
-# have it, Debian's nodejs not: installed from npm then). A failed build fails the run.
+# machine (kept in ~/.cache/xviz-server; a first build takes about 5 min on 2 cores), with corepack (node's own builds
+# have it, Debian's nodejs not: installed from npm then) and xz (Debian's xz-utils, not in every image).
+# A failed build fails the run.
 # XVIZ_LICHTBLICK_DIR set (empty: skip those tests) is used as it is.
 if [ "$quick" = 0 ] && [ -z "${XVIZ_LICHTBLICK_DIR+set}" ]; then
     if ! command -v corepack >/dev/null 2>&1; then
         npm install --global --no-audit --no-fund --loglevel=error corepack@0.34.6
+    fi
+    if ! command -v xz >/dev/null 2>&1; then
+        apt-get update -q && apt-get install -y -q xz-utils
     fi
     XVIZ_LICHTBLICK_DIR=$(scripts/build-lichtblick.sh)
     export XVIZ_LICHTBLICK_DIR
