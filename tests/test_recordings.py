@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from helpers import foxglove_client, running_server
+from helpers import assert_same_message, foxglove_client, running_server
 from xviz_server.datasets.ros import RosBag
 from xviz_server.datasets.ros.bag import open_bag
 from xviz_server.records import unpack
@@ -531,3 +531,137 @@ async def test_driver_packets_on_the_foxglove_face():
     out = await foxglove_head(VELODYNE, "1713492677464078412")
     topics = {c["topic"] for c in out["channels"]}  # type: ignore[attr-defined]
     assert "/sensing/lidar/front/velodyne_packets" not in topics and out["topics"]["/vehicle_pose"]["count"] == 5  # type: ignore[index]
+
+
+# -- an Ouster cloud: the real packets above decoded by the Ouster SDK -------------------
+
+OUSTER_CLOUD = RECORDINGS / "ros1" / "ouster" / "cloud.bag"
+
+
+def _cloud_fields(cloud: object) -> dict[str, np.ndarray]:
+    """Every field of an organised little-endian ``PointCloud2`` as recorded, by its own field list, one row a point."""
+    kinds = {2: "u1", 4: "u2", 6: "u4", 7: "f4"}  # the PointField datatypes this cloud uses
+    fields = cloud.fields  # type: ignore[attr-defined]
+    layout = np.dtype(
+        {
+            "names": [f.name for f in fields],
+            "formats": ["<" + kinds[f.datatype] for f in fields],
+            "offsets": [f.offset for f in fields],
+            "itemsize": cloud.point_step,  # type: ignore[attr-defined]
+        }
+    )
+    records = np.frombuffer(bytes(cloud.data), layout)  # type: ignore[attr-defined]
+    return {name: records[name] for name in layout.names}
+
+
+def test_an_ouster_cloud_is_served_without_its_no_return_points():
+    ((recorded, cloud),) = _recorded(OUSTER_CLOUD, "/ouster/points")
+    assert (cloud.height, cloud.width) == (128, 512)  # type: ignore[attr-defined]
+    fields = _cloud_fields(cloud)
+    xyz = np.stack([fields[axis] for axis in "xyz"], axis=1)
+    # A beam without a return is exactly (0, 0, 0), its range 0: more than half of this cloud, as in the issue's.
+    missing = (xyz == 0).all(axis=1)
+    assert np.array_equal(missing, fields["range"] == 0) and missing.sum() > len(xyz) // 2
+    log = RosBag(OUSTER_CLOUD)
+    assert {m.topic: m.role for m in log.mappings} == {
+        "/ouster/points": "points",
+        "/ouster/imu": "series",
+        "/ouster/metadata": "text",
+    }
+    assert log.clock.tolist() == [recorded]
+    update = log.convert(0)["updates"][0]
+    (points,) = update["primitives"]["/ouster/points"]["points"]
+    assert np.array_equal(points["points"], xyz[~missing])  # every return, in the cloud's order; no (0, 0, 0)
+    # The IMU beside it: the latest of its messages at the cloud's time.
+    imus = _recorded(OUSTER_CLOUD, "/ouster/imu")
+    _, imu = [(t, m) for t, m in imus if t <= recorded][-1]
+    values = {s: v for series in update["time_series"] for s, v in zip(series["streams"], series["values"]["doubles"])}
+    assert values == {
+        "/ouster/imu/acceleration": imu.linear_acceleration.x,  # type: ignore[attr-defined]
+        "/ouster/imu/yaw_rate": imu.angular_velocity.z,  # type: ignore[attr-defined]
+    }
+
+
+@pytest.mark.slow
+async def test_an_ouster_cloud_on_the_foxglove_face_converted_and_as_recorded():
+    ((recorded, cloud),) = _recorded(OUSTER_CLOUD, "/ouster/points")
+    returns = int((np.stack([_cloud_fields(cloud)[axis] for axis in "xyz"], axis=1) != 0).any(axis=1).sum())
+    out = await foxglove_head(OUSTER_CLOUD, "cloud")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert (channels["/ouster/points"]["encoding"], channels["/ouster/points"]["schemaName"]) == (
+        "ros1",
+        "sensor_msgs/PointCloud2",
+    )
+    assert channels["/xviz/ouster/points"]["schemaName"] == "foxglove.PointCloud"
+    topics = out["topics"]
+    # The original, every point of it; the converted cloud, its returns only.
+    (original,) = topics["/ouster/points"]["summaries"]  # type: ignore[index]
+    assert topics["/ouster/points"]["timestamps"] == [str(recorded)]  # type: ignore[index]
+    assert (original["width"], original["height"], original["bytes"]) == (512, 128, len(cloud.data))  # type: ignore[attr-defined]
+    (converted,) = topics["/xviz/ouster/points"]["summaries"]  # type: ignore[index]
+    assert converted["points"] == returns < 512 * 128
+    assert topics["/ouster/imu"]["count"] == len(_recorded(OUSTER_CLOUD, "/ouster/imu"))  # type: ignore[index]
+
+
+# -- MCAP of the ros1 profile: real bags as `mcap convert` writes them --------------------
+
+
+@pytest.mark.parametrize(
+    "relative",
+    ["ros1/ouster/cloud.bag", "ros1/robot_localization/test1.bag", "ros1/lichtblick/example-bz2.bag"],
+    ids=["ouster-cloud", "husky-navsatfix", "turtles-tf-tree"],
+)
+def test_a_ros1_profile_mcap_serves_like_its_bag(relative: str, tmp_path: Path):
+    from mcap.reader import make_reader
+    from ros1_profile_mcap import write_ros1_mcap
+    from rosbags.rosbag1 import Reader
+
+    bag = RECORDINGS / relative
+    path = write_ros1_mcap(bag, tmp_path / f"{bag.stem}.mcap")
+    with path.open("rb") as file:  # the file as MCAP's reader sees it: the ros1 profile, the bag's bytes
+        reader = make_reader(file)
+        assert reader.get_header().profile == "ros1"
+        written = [
+            (c.topic, s.name, s.encoding, c.message_encoding, m.log_time, m.data) for s, c, m in reader.iter_messages()
+        ]
+    with Reader(bag) as source:
+        recorded = [
+            (c.topic, c.msgtype.replace("/msg/", "/"), "ros1msg", "ros1", t, bytes(d)) for c, t, d in source.messages()
+        ]
+    assert sorted(written) == sorted(recorded)
+    # Served as the bag is: the same roles, clock and pose source, and frame for frame the same XVIZ.
+    original, converted = RosBag(bag), RosBag(path)
+    assert converted.bag.container == "MCAP" and converted.bag.problems == original.bag.problems == {}
+    assert [(m.topic, m.role) for m in converted.mappings] == [(m.topic, m.role) for m in original.mappings]
+    assert converted.clock.tolist() == original.clock.tolist()
+    assert converted.pose_source.describe() == original.pose_source.describe()
+    metadata, expected = converted.metadata(), original.metadata()
+    assert metadata["log_info"].pop("source") == f"MCAP bag {bag.stem}"  # the container named, the rest the same
+    assert expected["log_info"].pop("source") == f"ROS 1 bag {bag.stem}" and metadata == expected
+    frames = sorted({*range(0, len(original), max(1, len(original) // 25)), len(original) - 1})
+    for frame in frames:
+        assert_same_message(converted.convert(frame), original.convert(frame), f"frame {frame}")
+
+
+@pytest.mark.slow
+async def test_a_ros1_profile_mcap_on_the_foxglove_face(tmp_path: Path):
+    from ros1_profile_mcap import write_ros1_mcap
+
+    path = write_ros1_mcap(OUSTER_CLOUD, tmp_path / "ouster.mcap")
+    out = await foxglove_head(path, "ouster")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    # The channels as the file declares them: ROS 1 messages, their schemas named as in ROS 1.
+    assert {
+        t: (c["encoding"], c["schemaName"], c["schemaEncoding"]) for t, c in channels.items() if "xviz" not in t
+    } == {
+        "/ouster/points": ("ros1", "sensor_msgs/PointCloud2", "ros1msg"),
+        "/ouster/imu": ("ros1", "sensor_msgs/Imu", "ros1msg"),
+        "/ouster/metadata": ("ros1", "std_msgs/String", "ros1msg"),
+    }
+    topics = out["topics"]
+    recorded = {
+        topic: [str(t) for t, _ in _recorded(OUSTER_CLOUD, topic)] for topic in ("/ouster/points", "/ouster/imu")
+    }
+    assert {t: topics[t]["timestamps"] for t in recorded} == recorded  # type: ignore[index]
+    bag = await foxglove_head(OUSTER_CLOUD, "cloud")  # the converted cloud as the bag's
+    assert topics["/xviz/ouster/points"]["summaries"] == bag["topics"]["/xviz/ouster/points"]["summaries"]  # type: ignore[index]
