@@ -286,6 +286,8 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "ros1-ouster-cloud": _recording("ros1/ouster/cloud.bag"),
     "mcap-ros1-ouster-cloud": _ros1_profile_mcap("ros1/ouster/cloud.bag"),
     "mcap-ros1-husky-navsatfix": _ros1_profile_mcap("ros1/robot_localization/test1.bag"),
+    "mcap-lichtblick-json-logs": _recording("mcap/lichtblick/example_logs.mcap"),
+    "mcap-lichtblick-json-images": _recording("mcap/lichtblick/custom-camera-model.mcap"),
 }
 #: The sources of a single frame (one lidar sweep): one state update is all their window holds.
 ONE_FRAME = {"ros1-ouster-cloud", "mcap-ros1-ouster-cloud"}

@@ -643,17 +643,25 @@ def test_a_ros1_profile_mcap_serves_like_its_bag(relative: str, tmp_path: Path):
         assert_same_message(converted.convert(frame), original.convert(frame), f"frame {frame}")
 
 
+def _recorded_channels(out: dict[str, object]) -> dict[str, tuple[str, str, str]]:
+    """The channels of the file's own topics a Foxglove client got (not the converted /xviz ones): encoding, schema
+    name and schema encoding by topic."""
+    channels: list[dict[str, str]] = out["channels"]  # type: ignore[assignment]
+    return {
+        c["topic"]: (c["encoding"], c["schemaName"], c["schemaEncoding"])
+        for c in channels
+        if not c["topic"].startswith("/xviz/")
+    }
+
+
 @pytest.mark.slow
 async def test_a_ros1_profile_mcap_on_the_foxglove_face(tmp_path: Path):
     from ros1_profile_mcap import write_ros1_mcap
 
     path = write_ros1_mcap(OUSTER_CLOUD, tmp_path / "ouster.mcap")
     out = await foxglove_head(path, "ouster")
-    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
     # The channels as the file declares them: ROS 1 messages, their schemas named as in ROS 1.
-    assert {
-        t: (c["encoding"], c["schemaName"], c["schemaEncoding"]) for t, c in channels.items() if "xviz" not in t
-    } == {
+    assert _recorded_channels(out) == {
         "/ouster/points": ("ros1", "sensor_msgs/PointCloud2", "ros1msg"),
         "/ouster/imu": ("ros1", "sensor_msgs/Imu", "ros1msg"),
         "/ouster/metadata": ("ros1", "std_msgs/String", "ros1msg"),
@@ -665,3 +673,92 @@ async def test_a_ros1_profile_mcap_on_the_foxglove_face(tmp_path: Path):
     assert {t: topics[t]["timestamps"] for t in recorded} == recorded  # type: ignore[index]
     bag = await foxglove_head(OUSTER_CLOUD, "cloud")  # the converted cloud as the bag's
     assert topics["/xviz/ouster/points"]["summaries"] == bag["topics"]["/xviz/ouster/points"]["summaries"]  # type: ignore[index]
+
+
+# -- MCAP without a profile: foxglove schemas in JSON, as Lichtblick's tests write them ----
+
+LICHTBLICK = RECORDINGS / "mcap" / "lichtblick"
+
+
+def _json_messages(path: Path, topic: str) -> list[tuple[int, dict[str, object]]]:
+    """``topic``'s messages as MCAP's reader reads them from ``path``: (log time, the decoded JSON)."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as file:
+        return [(m.log_time, json.loads(m.data)) for _, c, m in make_reader(file).iter_messages() if c.topic == topic]
+
+
+def test_foxglove_logs_in_json_each_shown_in_the_messages_table():
+    path = LICHTBLICK / "example_logs.mcap"
+    logs = _json_messages(path, "/rosout")
+    log = RosBag(path)
+    assert log.bag.container == "MCAP" and log.bag.problems == {}
+    assert {m.topic: m.describe() for m in log.mappings} == {
+        "/rosout": "UI_PRIMITIVE (a table of the recent messages) /rosout",
+        "mouse": "unknown type, not served",
+    }
+    levels = {1: "DEBUG", 2: "INFO", 3: "WARN", 4: "ERROR", 5: "FATAL"}  # foxglove.LogLevel
+    shown: set[tuple[str, str]] = set()
+    for frame in range(len(log)):
+        rows = _text_rows_of(log.convert(frame)["updates"][0], "/rosout")
+        assert 0 < len(rows) <= 200
+        shown |= {(level, text) for _, level, _, text in rows}
+    # Every one of the 1000 messages is in some frame's table, with its level.
+    assert len(logs) == 1000 and shown == {(levels[m["level"]], m["message"]) for _, m in logs}  # type: ignore[index]
+
+
+def _jpegs(path: Path) -> list[tuple[int, bytes]]:
+    """The images of ``/image/compressed``, a JSON channel of ``foxglove.CompressedImage``: (log time, the bytes)."""
+    import base64
+
+    return [(t, base64.b64decode(m["data"])) for t, m in _json_messages(path, "/image/compressed")]  # type: ignore[arg-type]
+
+
+def test_foxglove_compressed_images_in_json_with_their_recorded_times():
+    import io
+
+    from PIL import Image
+
+    path = LICHTBLICK / "custom-camera-model.mcap"
+    images = _jpegs(path)
+    log, wide = RosBag(path), RosBag(path, image_max_width=640)
+    assert {m.topic: m.role for m in log.mappings} == {
+        "/image/compressed": "image",
+        "/camera_calibration": "unknown",
+        "/camera_calibration/custom": "unknown",
+    }
+    # The file's log times are milliseconds written as nanoseconds (1.7e12 ns: 1747 s after the epoch): served as
+    # they are, each image in the first frame at or after it (10 Hz over the file).
+    assert log.bag.topics["/image/compressed"].times.tolist() == [t for t, _ in images]
+    for time, jpeg in images:
+        frame = int(np.searchsorted(log.clock, time))
+        (served,) = log.convert(frame)["updates"][0]["primitives"]["/image/compressed"]["images"]
+        # 520 pixels wide: scaled down to --image-max-width (400), the same picture, still a JPEG ...
+        with Image.open(io.BytesIO(jpeg)) as recorded, Image.open(io.BytesIO(bytes(served["data"]))) as shown:
+            assert (recorded.size, shown.format, shown.size) == ((520, 360), "JPEG", (400, 276))
+            assert (served["width_px"], served["height_px"]) == shown.size
+            expected = np.asarray(recorded.convert("RGB").resize(shown.size, Image.Resampling.BILINEAR), float)
+            assert np.abs(np.asarray(shown.convert("RGB"), float) - expected).mean() < 8
+        # ... and passed through as recorded where 520 pixels fit.
+        (whole,) = wide.convert(frame)["updates"][0]["primitives"]["/image/compressed"]["images"]
+        assert bytes(whole["data"]) == jpeg
+
+
+@pytest.mark.slow
+async def test_foxglove_json_channels_on_the_foxglove_face():
+    path = LICHTBLICK / "custom-camera-model.mcap"
+    out = await foxglove_head(path, "custom-camera-model")
+    assert _recorded_channels(out) == {
+        "/image/compressed": ("json", "foxglove.CompressedImage", "jsonschema"),
+        "/camera_calibration": ("json", "foxglove.CameraCalibration", "jsonschema"),
+        "/camera_calibration/custom": ("json", "foxglove.CameraCalibration", "jsonschema"),
+    }
+    topics = out["topics"]
+    recorded = [str(t) for t, _ in _json_messages(path, "/image/compressed")]
+    assert topics["/image/compressed"]["timestamps"] == recorded  # type: ignore[index]
+    # The originals decode as the JSON they are (the JPEG in base64); the converted images are JPEGs too.
+    originals = topics["/image/compressed"]["summaries"]  # type: ignore[index]
+    assert [s["bytes"] for s in originals] == [len(jpeg) for _, jpeg in _jpegs(path)]
+    converted = topics["/xviz/image/compressed"]["summaries"]  # type: ignore[index]
+    assert len(converted) == len(RosBag(path))  # one a frame
+    assert {(s["format"], s["magic"]) for s in originals + converted} == {("jpeg", "ffd8ffe0")}
