@@ -1,13 +1,14 @@
 """A real ROS 1 bag as an MCAP file of the ``ros1`` profile, written by the published ROS 1 writer.
 
-``mcap convert`` (the MCAP CLI, in Go and Rust: neither runs here) makes such a file of a bag: one schema per
-message type (its ``ros1msg`` definition as the bag records it), one channel per topic (message encoding
-``ros1``), every message's bytes unchanged at its record time. :func:`write_ros1_mcap` does the same with
-``mcap-ros1-support``'s ``mcap_ros1.writer.Writer`` (profile ``ros1``), reading the bag with rosbags: the
-writer takes a message object with a ROS 1 type name, its full definition and a ``serialize`` method, which
-here writes the recorded bytes as they are. What differs from the CLI's output is the writer's own choice of
-chunking and compression (zstd chunks of 1 MiB) and the channels' metadata (the CLI copies the connection's
-``callerid`` and ``latching``; this writer leaves it empty).
+``mcap convert`` (the MCAP CLI, in Go and Rust: neither runs here) makes such a file of a bag: profile ``ros1``,
+one schema per message type (its ``ros1msg`` definition as the bag records it), channels of message encoding
+``ros1``, every message's bytes unchanged with its record time as log and publish time. :func:`write_ros1_mcap`
+does the same with ``mcap-ros1-support``'s ``mcap_ros1.writer.Writer``, reading the bag with rosbags: the writer
+takes a message object with a ROS 1 type name, its full definition and a ``serialize`` method, which here writes
+the recorded bytes as they are. What differs from the CLI's output: the writer's chunking and compression (zstd
+chunks of 1 MiB), one channel per topic (the CLI makes one per bag connection, with the connection's other header
+fields, such as ``callerid`` and ``latching``, as the channel's metadata; this writer leaves it empty) and
+sequence numbers (0 here, counted by the CLI).
 """
 
 from __future__ import annotations
