@@ -56,6 +56,9 @@ if ! flock -n 9; then
 fi
 done_already
 (cd "$(dirname "$ARCHIVE")" && sha256sum --quiet -c "$NAME.tar.xz.sha256" >&2) || die "$ARCHIVE: checksum differs"
+# `git archive` names the commit in the tar's first (pax) header: the one this script builds.
+header=$(xz -dc "$ARCHIVE" 2>/dev/null | head -c 1024 | tr -d '\0' || true)
+[[ $header == *"comment=$COMMIT"* ]] || die "$ARCHIVE is not the archive of commit $COMMIT"
 
 WORK=$(mktemp -d "$ROOT/.$NAME.XXXXXX")
 trap 'rm -rf "$WORK"' EXIT
