@@ -65,7 +65,7 @@ trap 'rm -rf "$WORK"' EXIT
 LOG=$ROOT/$NAME.log
 : >"$LOG"
 run() {
-    if ! "$@" >>"$LOG" 2>&1; then
+    if ! "$@" >>"$LOG" 2>&1 9>&-; then
         tail -n 60 "$LOG" >&2
         die "failed: $* (the whole log: $LOG)"
     fi
