@@ -715,6 +715,44 @@ async def test_a_clip_exports_as_an_indexed_mcap_file_with_the_same_channels(kit
         assert held == sorted(held) and all(a[1] <= b[0] for a, b in zip(held, held[1:])), held
 
 
+def test_the_chunks_are_cut_by_weight_and_the_messages_held_are_bounded() -> None:
+    """Light messages go in chunks of their channel alone, heavy ones share theirs; what is held before it is written
+    stays within ``HELD_BYTES`` and a frame, however many light channels; the reader gets every message in time
+    order."""
+    from mcap.writer import CompressionType, Writer
+
+    from xviz_server.foxglove.export import HELD_BYTES, LIGHT_BYTES, _Chunks
+
+    out = io.BytesIO()
+    writer = Writer(out, chunk_size=1 << 62, compression=CompressionType.ZSTD)
+    writer.start()
+    schema = writer.register_schema("blob", "jsonschema", b"{}")
+    channels = {i: writer.register_channel(f"/c{i}", "json", schema) for i in range(202)}  # 0, 1 heavy; 200 light
+    chunks = _Chunks(writer, channels)
+    generator = np.random.default_rng(3)  # random bytes: the chunks are no smaller than their messages
+    added: list[tuple[str, int, bytes]] = []
+    sequence = 0
+    for frame in range(150):  # the light channels' 6 MB would all be held until the end without the bound
+        time = 1_000_000_000 + frame * 100_000_000
+        messages = [(i, time, memoryview(generator.bytes(6 * LIGHT_BYTES if i < 2 else 200))) for i in channels]
+        sequence = chunks.add(messages, sequence)
+        added += [(f"/c{i}", time, bytes(data)) for i, time, data in messages]
+        frame_bytes = sum(len(data) for _, _, data in messages)
+        assert sum(len(data) for _, _, data in added) - out.tell() <= HELD_BYTES + frame_bytes
+    chunks.close()
+    writer.finish()
+    reader = make_reader(io.BytesIO(out.getvalue()))
+    summary = reader.get_summary()
+    assert summary is not None
+    ids = {channel.topic: channel.id for channel in summary.channels.values()}
+    heavy = {ids["/c0"], ids["/c1"]}
+    groups = [set(chunk.message_index_offsets) for chunk in summary.chunk_indexes]
+    assert all(group == heavy or (len(group) == 1 and not group & heavy) for group in groups), groups
+    assert len({channel for group in groups for channel in group}) == 202
+    read = [(channel.topic, message.log_time, message.data) for _, channel, message in reader.iter_messages()]
+    assert [time for _, time, _ in read] == sorted(time for _, time, _ in read) and sorted(read) == sorted(added)
+
+
 async def test_a_clip_may_be_given_in_seconds_after_the_log_start(kitti_root: Path, kitti_log: Path) -> None:
     updates = kitti_frames(kitti_log)
     first = updates[0]["timestamp"]
