@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from helpers import foxglove_client, running_server
+from helpers import assert_same_message, foxglove_client, running_server
 from xviz_server.datasets.ros import RosBag
 from xviz_server.datasets.ros.bag import open_bag
 from xviz_server.records import unpack
@@ -531,3 +531,234 @@ async def test_driver_packets_on_the_foxglove_face():
     out = await foxglove_head(VELODYNE, "1713492677464078412")
     topics = {c["topic"] for c in out["channels"]}  # type: ignore[attr-defined]
     assert "/sensing/lidar/front/velodyne_packets" not in topics and out["topics"]["/vehicle_pose"]["count"] == 5  # type: ignore[index]
+
+
+# -- an Ouster cloud: the real packets above decoded by the Ouster SDK -------------------
+
+OUSTER_CLOUD = RECORDINGS / "ros1" / "ouster" / "cloud.bag"
+
+
+def _cloud_fields(cloud: object) -> dict[str, np.ndarray]:
+    """Every field of an organised little-endian ``PointCloud2`` as recorded, by its own field list, one row a point."""
+    kinds = {2: "u1", 4: "u2", 6: "u4", 7: "f4"}  # the PointField datatypes this cloud uses
+    fields = cloud.fields  # type: ignore[attr-defined]
+    layout = np.dtype(
+        {
+            "names": [f.name for f in fields],
+            "formats": ["<" + kinds[f.datatype] for f in fields],
+            "offsets": [f.offset for f in fields],
+            "itemsize": cloud.point_step,  # type: ignore[attr-defined]
+        }
+    )
+    records = np.frombuffer(bytes(cloud.data), layout)  # type: ignore[attr-defined]
+    return {name: records[name] for name in layout.names}
+
+
+def test_an_ouster_cloud_is_served_without_its_no_return_points():
+    ((recorded, cloud),) = _recorded(OUSTER_CLOUD, "/ouster/points")
+    assert (cloud.height, cloud.width) == (128, 512)  # type: ignore[attr-defined]
+    fields = _cloud_fields(cloud)
+    xyz = np.stack([fields[axis] for axis in "xyz"], axis=1)
+    # A beam without a return is exactly (0, 0, 0), its range 0: more than half of this cloud, as in the issue's.
+    missing = (xyz == 0).all(axis=1)
+    assert np.array_equal(missing, fields["range"] == 0) and missing.sum() > len(xyz) // 2
+    log = RosBag(OUSTER_CLOUD)
+    assert {m.topic: m.role for m in log.mappings} == {
+        "/ouster/points": "points",
+        "/ouster/imu": "series",
+        "/ouster/metadata": "text",
+    }
+    assert log.clock.tolist() == [recorded]
+    update = log.convert(0)["updates"][0]
+    (points,) = update["primitives"]["/ouster/points"]["points"]
+    assert np.array_equal(points["points"], xyz[~missing])  # every return, in the cloud's order; no (0, 0, 0)
+    # The IMU beside it: the latest of its messages at the cloud's time.
+    imus = _recorded(OUSTER_CLOUD, "/ouster/imu")
+    _, imu = [(t, m) for t, m in imus if t <= recorded][-1]
+    values = {s: v for series in update["time_series"] for s, v in zip(series["streams"], series["values"]["doubles"])}
+    assert values == {
+        "/ouster/imu/acceleration": imu.linear_acceleration.x,  # type: ignore[attr-defined]
+        "/ouster/imu/yaw_rate": imu.angular_velocity.z,  # type: ignore[attr-defined]
+    }
+
+
+@pytest.mark.slow
+async def test_an_ouster_cloud_on_the_foxglove_face_converted_and_as_recorded():
+    ((recorded, cloud),) = _recorded(OUSTER_CLOUD, "/ouster/points")
+    returns = int((np.stack([_cloud_fields(cloud)[axis] for axis in "xyz"], axis=1) != 0).any(axis=1).sum())
+    out = await foxglove_head(OUSTER_CLOUD, "cloud")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert (channels["/ouster/points"]["encoding"], channels["/ouster/points"]["schemaName"]) == (
+        "ros1",
+        "sensor_msgs/PointCloud2",
+    )
+    assert channels["/xviz/ouster/points"]["schemaName"] == "foxglove.PointCloud"
+    topics = out["topics"]
+    # The original, every point of it; the converted cloud, its returns only.
+    (original,) = topics["/ouster/points"]["summaries"]  # type: ignore[index]
+    assert topics["/ouster/points"]["timestamps"] == [str(recorded)]  # type: ignore[index]
+    assert (original["width"], original["height"], original["bytes"]) == (512, 128, len(cloud.data))  # type: ignore[attr-defined]
+    (converted,) = topics["/xviz/ouster/points"]["summaries"]  # type: ignore[index]
+    assert converted["points"] == returns < 512 * 128
+    assert topics["/ouster/imu"]["count"] == len(_recorded(OUSTER_CLOUD, "/ouster/imu"))  # type: ignore[index]
+
+
+# -- MCAP of the ros1 profile: real bags as `mcap convert` writes them --------------------
+
+
+@pytest.mark.parametrize(
+    "relative",
+    ["ros1/ouster/cloud.bag", "ros1/robot_localization/test1.bag", "ros1/lichtblick/example-bz2.bag"],
+    ids=["ouster-cloud", "husky-navsatfix", "turtles-tf-tree"],
+)
+def test_a_ros1_profile_mcap_serves_like_its_bag(relative: str, tmp_path: Path):
+    from mcap.reader import make_reader
+    from ros1_profile_mcap import write_ros1_mcap
+    from rosbags.rosbag1 import Reader
+
+    bag = RECORDINGS / relative
+    path = write_ros1_mcap(bag, tmp_path / f"{bag.stem}.mcap")
+    with path.open("rb") as file:  # the file as MCAP's reader sees it: the ros1 profile, the bag's bytes
+        reader = make_reader(file)
+        assert reader.get_header().profile == "ros1"
+        written = [
+            (c.topic, s.name, s.encoding, c.message_encoding, m.log_time, m.data) for s, c, m in reader.iter_messages()
+        ]
+    with Reader(bag) as source:
+        recorded = [
+            (c.topic, c.msgtype.replace("/msg/", "/"), "ros1msg", "ros1", t, bytes(d)) for c, t, d in source.messages()
+        ]
+    assert sorted(written) == sorted(recorded)
+    # Served as the bag is: the same roles, clock and pose source, and frame for frame the same XVIZ.
+    original, converted = RosBag(bag), RosBag(path)
+    assert converted.bag.container == "MCAP" and converted.bag.problems == original.bag.problems == {}
+    assert [(m.topic, m.role) for m in converted.mappings] == [(m.topic, m.role) for m in original.mappings]
+    assert converted.clock.tolist() == original.clock.tolist()
+    assert converted.pose_source.describe() == original.pose_source.describe()
+    metadata, expected = converted.metadata(), original.metadata()
+    assert metadata["log_info"].pop("source") == f"MCAP bag {bag.stem}"  # the container named, the rest the same
+    assert expected["log_info"].pop("source") == f"ROS 1 bag {bag.stem}" and metadata == expected
+    frames = sorted({*range(0, len(original), max(1, len(original) // 25)), len(original) - 1})
+    for frame in frames:
+        assert_same_message(converted.convert(frame), original.convert(frame), f"frame {frame}")
+
+
+def _recorded_channels(out: dict[str, object]) -> dict[str, tuple[str, str, str]]:
+    """The channels of the file's own topics a Foxglove client got (not the converted /xviz ones): encoding, schema
+    name and schema encoding by topic."""
+    channels: list[dict[str, str]] = out["channels"]  # type: ignore[assignment]
+    return {
+        c["topic"]: (c["encoding"], c["schemaName"], c["schemaEncoding"])
+        for c in channels
+        if not c["topic"].startswith("/xviz/")
+    }
+
+
+@pytest.mark.slow
+async def test_a_ros1_profile_mcap_on_the_foxglove_face(tmp_path: Path):
+    from ros1_profile_mcap import write_ros1_mcap
+
+    path = write_ros1_mcap(OUSTER_CLOUD, tmp_path / "ouster.mcap")
+    out = await foxglove_head(path, "ouster")
+    # The channels as the file declares them: ROS 1 messages, their schemas named as in ROS 1.
+    assert _recorded_channels(out) == {
+        "/ouster/points": ("ros1", "sensor_msgs/PointCloud2", "ros1msg"),
+        "/ouster/imu": ("ros1", "sensor_msgs/Imu", "ros1msg"),
+        "/ouster/metadata": ("ros1", "std_msgs/String", "ros1msg"),
+    }
+    topics = out["topics"]
+    recorded = {
+        topic: [str(t) for t, _ in _recorded(OUSTER_CLOUD, topic)] for topic in ("/ouster/points", "/ouster/imu")
+    }
+    assert {t: topics[t]["timestamps"] for t in recorded} == recorded  # type: ignore[index]
+    bag = await foxglove_head(OUSTER_CLOUD, "cloud")  # the converted cloud as the bag's
+    assert topics["/xviz/ouster/points"]["summaries"] == bag["topics"]["/xviz/ouster/points"]["summaries"]  # type: ignore[index]
+
+
+# -- MCAP without a profile: foxglove schemas in JSON, as Lichtblick's tests write them ----
+
+LICHTBLICK = RECORDINGS / "mcap" / "lichtblick"
+
+
+def _json_messages(path: Path, topic: str) -> list[tuple[int, dict[str, object]]]:
+    """``topic``'s messages as MCAP's reader reads them from ``path``: (log time, the decoded JSON)."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as file:
+        return [(m.log_time, json.loads(m.data)) for _, c, m in make_reader(file).iter_messages() if c.topic == topic]
+
+
+def test_foxglove_logs_in_json_each_shown_in_the_messages_table():
+    path = LICHTBLICK / "example_logs.mcap"
+    logs = _json_messages(path, "/rosout")
+    log = RosBag(path)
+    assert log.bag.container == "MCAP" and log.bag.problems == {}
+    assert {m.topic: m.describe() for m in log.mappings} == {
+        "/rosout": "UI_PRIMITIVE (a table of the recent messages) /rosout",
+        "mouse": "unknown type, not served",
+    }
+    levels = {1: "DEBUG", 2: "INFO", 3: "WARN", 4: "ERROR", 5: "FATAL"}  # foxglove.LogLevel
+    shown: set[tuple[str, str]] = set()
+    for frame in range(len(log)):
+        rows = _text_rows_of(log.convert(frame)["updates"][0], "/rosout")
+        assert 0 < len(rows) <= 200
+        shown |= {(level, text) for _, level, _, text in rows}
+    # Every one of the 1000 messages is in some frame's table, with its level.
+    assert len(logs) == 1000 and shown == {(levels[m["level"]], m["message"]) for _, m in logs}  # type: ignore[index]
+
+
+def _jpegs(path: Path) -> list[tuple[int, bytes]]:
+    """The images of ``/image/compressed``, a JSON channel of ``foxglove.CompressedImage``: (log time, the bytes)."""
+    import base64
+
+    return [(t, base64.b64decode(m["data"])) for t, m in _json_messages(path, "/image/compressed")]  # type: ignore[arg-type]
+
+
+def test_foxglove_compressed_images_in_json_with_their_recorded_times():
+    import io
+
+    from PIL import Image
+
+    path = LICHTBLICK / "custom-camera-model.mcap"
+    images = _jpegs(path)
+    log, wide = RosBag(path), RosBag(path, image_max_width=640)
+    assert {m.topic: m.role for m in log.mappings} == {
+        "/image/compressed": "image",
+        "/camera_calibration": "unknown",
+        "/camera_calibration/custom": "unknown",
+    }
+    # The file's log times are milliseconds written as nanoseconds (1.7e12 ns: 1747 s after the epoch): served as
+    # they are, each image in the first frame at or after it (10 Hz over the file).
+    assert log.bag.topics["/image/compressed"].times.tolist() == [t for t, _ in images]
+    for time, jpeg in images:
+        frame = int(np.searchsorted(log.clock, time))
+        (served,) = log.convert(frame)["updates"][0]["primitives"]["/image/compressed"]["images"]
+        # 520 pixels wide: scaled down to --image-max-width (400), the same picture, still a JPEG ...
+        with Image.open(io.BytesIO(jpeg)) as recorded, Image.open(io.BytesIO(bytes(served["data"]))) as shown:
+            assert (recorded.size, shown.format, shown.size) == ((520, 360), "JPEG", (400, 276))
+            assert (served["width_px"], served["height_px"]) == shown.size
+            expected = np.asarray(recorded.convert("RGB").resize(shown.size, Image.Resampling.BILINEAR), float)
+            assert np.abs(np.asarray(shown.convert("RGB"), float) - expected).mean() < 8
+        # ... and passed through as recorded where 520 pixels fit.
+        (whole,) = wide.convert(frame)["updates"][0]["primitives"]["/image/compressed"]["images"]
+        assert bytes(whole["data"]) == jpeg
+
+
+@pytest.mark.slow
+async def test_foxglove_json_channels_on_the_foxglove_face():
+    path = LICHTBLICK / "custom-camera-model.mcap"
+    out = await foxglove_head(path, "custom-camera-model")
+    assert _recorded_channels(out) == {
+        "/image/compressed": ("json", "foxglove.CompressedImage", "jsonschema"),
+        "/camera_calibration": ("json", "foxglove.CameraCalibration", "jsonschema"),
+        "/camera_calibration/custom": ("json", "foxglove.CameraCalibration", "jsonschema"),
+    }
+    topics = out["topics"]
+    recorded = [str(t) for t, _ in _json_messages(path, "/image/compressed")]
+    assert topics["/image/compressed"]["timestamps"] == recorded  # type: ignore[index]
+    # The originals decode as the JSON they are (the JPEG in base64); the converted images are JPEGs too.
+    originals = topics["/image/compressed"]["summaries"]  # type: ignore[index]
+    assert [s["bytes"] for s in originals] == [len(jpeg) for _, jpeg in _jpegs(path)]
+    converted = topics["/xviz/image/compressed"]["summaries"]  # type: ignore[index]
+    assert len(converted) == len(RosBag(path))  # one a frame
+    assert {(s["format"], s["magic"]) for s in originals + converted} == {("jpeg", "ffd8ffe0")}

@@ -97,8 +97,11 @@ function summary(schemaName, value) {
     case 'foxglove.PointCloud':
       return {points: value.data.length / value.point_stride, stride: value.point_stride, frame_id: value.frame_id,
         fields: (value.fields || []).map(f => f.name)};
-    case 'foxglove.CompressedImage':
-      return {format: value.format, magic: Buffer.from(value.data.subarray(0, 4)).toString('hex'), bytes: value.data.length};
+    case 'foxglove.CompressedImage': {
+      // Bytes in protobuf; base64 text in JSON (foxglove's JSON schemas encode bytes so).
+      const data = typeof value.data === 'string' ? Buffer.from(value.data, 'base64') : value.data;
+      return {format: value.format, magic: Buffer.from(data.subarray(0, 4)).toString('hex'), bytes: data.length};
+    }
     case 'foxglove.FrameTransform':
       return {parent: value.parent_frame_id, child: value.child_frame_id, translation: value.translation || {}};
     case 'foxglove.PoseInFrame': {

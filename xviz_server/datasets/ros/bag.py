@@ -36,6 +36,7 @@ file).
 
 from __future__ import annotations
 
+import abc
 import logging
 import struct
 import threading
@@ -65,10 +66,9 @@ from ...unpack import (
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Reader
 
-    from .mcapbag import McapBag
-
 __all__ = [
     "Bag",
+    "Recording",
     "Topic",
     "open_bag",
     "reason",
@@ -152,6 +152,96 @@ class Topic:
         return int(np.searchsorted(self.times, t, side="right")) - 1
 
 
+class Recording(abc.ABC):
+    """What :class:`Bag` and :class:`~.mcapbag.McapBag` share: topics indexed by record time, read one message at a
+    time. A subclass locates a message's bytes (:meth:`_payload`, for a topic with ``places``) and decodes them;
+    every failure of a reader on a damaged file is a :class:`~xviz_server.exceptions.DatasetError` naming the file
+    and the topic. Safe to use from several threads."""
+
+    path: Path | StorePath
+    #: ``ROS 1``, ``ROS 2 sqlite3``, ``ROS 2 mcap`` or ``MCAP``.
+    container: str
+    topics: dict[str, Topic]
+    #: Topics that cannot be decoded: the reason, by topic.
+    problems: dict[str, str]
+    _lock: threading.Lock
+
+    @abc.abstractmethod
+    def _payload(self, place: np.ndarray, topic: str) -> memoryview:
+        """The serialized bytes of the message at ``place`` (a row of :attr:`Topic.places`)."""
+
+    @abc.abstractmethod
+    def _decode(self, topic: str, msgtype: str, time: int, data: bytes | memoryview) -> Any:
+        """One message of ``topic`` decoded, or a :class:`~xviz_server.exceptions.DatasetError` saying why not."""
+
+    @abc.abstractmethod
+    def declared(self, topic: str, first: int, last: int) -> dict[tuple[Any, ...], int]:
+        """What reading messages ``[first, last)`` of ``topic`` unpacks, read from the index alone: each part that
+        holds them with the bytes it declares."""
+
+    @abc.abstractmethod
+    def original(self, topic: str) -> OriginalTopic | None:
+        """How the file holds ``topic``'s messages (encoding, schema); ``None`` when it cannot be said."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Let go of what is kept in memory."""
+
+    def _unplaced(self, topic: str, start: int | None, stop: int | None) -> list[tuple[int, bytes]]:
+        """The messages of a topic without ``places`` recorded in ``[start, stop)`` ns, in any order."""
+        raise DatasetError(f"{self.path}: topic {topic}: its messages are not indexed", path=self.path)
+
+    def message(self, topic: str, index: int) -> tuple[int, Any]:
+        """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
+        info = self.topics[topic]
+        t = int(info.times[index])
+        if info.places is not None:
+            with self._lock:
+                data = self._guard(topic, lambda: self._payload(info.places[index], topic))
+            return t, self._decode(topic, info.msgtype, t, data)
+        skip = index - int(np.searchsorted(info.times, t, side="left"))
+        for time, message in self.messages(topic, t, t + 1):
+            if skip == 0:
+                return time, message
+            skip -= 1
+        raise DatasetError(
+            f"{self.path}: topic {topic}: message {index} is in the index but not in the bag", path=self.path
+        )
+
+    def messages(self, topic: str, start: int | None, stop: int | None) -> Iterator[tuple[int, Any]]:
+        """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded), decoded, in time order."""
+        for time, msgtype, data in self.serialized(topic, start, stop):
+            yield time, self._decode(topic, msgtype, time, data)
+
+    def serialized(
+        self, topic: str, start: int | None, stop: int | None
+    ) -> Iterator[tuple[int, str, bytes | memoryview]]:
+        """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded) as the file holds them:
+        (record time, message type, serialized bytes), in time order."""
+        info = self.topics[topic]
+        if info.places is not None:
+            first = 0 if start is None else int(np.searchsorted(info.times, start, side="left"))
+            last = len(info) if stop is None else int(np.searchsorted(info.times, stop, side="left"))
+            for index in range(first, last):
+                with self._lock:
+                    data = self._guard(topic, partial(self._payload, info.places[index], topic))
+                yield int(info.times[index]), info.msgtype, data
+            return
+        with self._lock:
+            raw = self._guard(topic, lambda: self._unplaced(topic, start, stop))
+        raw.sort(key=lambda message: message[0])
+        for time, data in raw:
+            yield time, info.msgtype, data
+
+    def _guard(self, topic: str, read: Any) -> Any:
+        try:
+            return read()
+        except (DatasetError, StoreError):  # a store that fails is not a damaged bag: the frame fails, not the topic
+            raise
+        except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
+            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {reason(exc)}", path=self.path) from None
+
+
 def _import_rosbags() -> Any:
     try:
         import rosbags.highlevel
@@ -161,10 +251,8 @@ def _import_rosbags() -> Any:
     return rosbags
 
 
-class Bag:
-    """An open bag. Every failure of the reader on a damaged file is a
-    :class:`~xviz_server.exceptions.DatasetError` naming the file (and the
-    topic, for a message). Safe to use from several threads."""
+class Bag(Recording):
+    """A bag opened through rosbags (see :class:`Recording`)."""
 
     def __init__(self, path: Path | StorePath) -> None:
         self.path = data_path(path)
@@ -191,8 +279,7 @@ class Bag:
         except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
             raise DatasetError(f"{self.path}: cannot open the bag: {reason(exc)}", path=self.path) from None
         self._reader = reader
-        #: Topics that cannot be decoded: the reason, by topic (rosbags refuses a bag whose types do not parse).
-        self.problems: dict[str, str] = {}
+        self.problems = {}  # (rosbags refuses a bag whose types do not parse)
         for ros1 in reader.readers:
             if getattr(ros1, "reindexed", False):
                 cut = f"; the last {ros1.lost} bytes, a record cut short, are left out" if ros1.lost else ""
@@ -207,7 +294,7 @@ class Bag:
             by_topic.setdefault(connection.topic, []).append(connection)
         self._storages: dict[int, Any] = {}  # by number: the rosbags storage readers messages are read from directly
         self._chunks: dict[tuple[int, int], bytes] = {}
-        self.topics: dict[str, Topic] = {}
+        self.topics = {}
         for name, connections in sorted(by_topic.items()):
             try:
                 indexes = [self._index(c) for c in connections]
@@ -231,10 +318,9 @@ class Bag:
                 self.problems[name] = (
                     f"its type {connections[0].msgtype} has no definition in the bag or rosbags' type store"
                 )
+        self.container = self._container()
 
-    @property
-    def container(self) -> str:
-        """``ROS 1``, ``ROS 2 sqlite3``, ``ROS 2 mcap`` or ``MCAP``."""
+    def _container(self) -> str:
         if self.path.suffix == ".bag":
             return "ROS 1"
         if self.path.suffix == ".mcap":
@@ -372,47 +458,8 @@ class Bag:
             )
         return {(topic, row): int(size) for row, size in rows}
 
-    def message(self, topic: str, index: int) -> tuple[int, Any]:
-        """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
-        info = self.topics[topic]
-        t = int(info.times[index])
-        if info.places is not None:
-            with self._lock:
-                data = self._guard(topic, lambda: self._payload(info.places[index], topic))
-            return t, self._decode(topic, info.msgtype, t, data)
-        skip = index - int(np.searchsorted(info.times, t, side="left"))
-        for time, message in self.messages(topic, t, t + 1):
-            if skip == 0:
-                return time, message
-            skip -= 1
-        raise DatasetError(
-            f"{self.path}: topic {topic}: message {index} is in the index but not in the bag", path=self.path
-        )
-
-    def messages(self, topic: str, start: int | None, stop: int | None) -> Iterator[tuple[int, Any]]:
-        """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded), decoded, in time order."""
-        for time, msgtype, data in self.serialized(topic, start, stop):
-            yield time, self._decode(topic, msgtype, time, data)
-
-    def serialized(
-        self, topic: str, start: int | None, stop: int | None
-    ) -> Iterator[tuple[int, str, bytes | memoryview]]:
-        """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded) as the file holds them:
-        (record time, message type, serialized bytes), in time order."""
-        info = self.topics[topic]
-        if info.places is not None:
-            first = 0 if start is None else int(np.searchsorted(info.times, start, side="left"))
-            last = len(info) if stop is None else int(np.searchsorted(info.times, stop, side="left"))
-            for index in range(first, last):
-                with self._lock:
-                    data = self._guard(topic, partial(self._payload, info.places[index], topic))
-                yield int(info.times[index]), info.msgtype, data
-            return
-        with self._lock:
-            raw = self._guard(topic, lambda: [m for c in info.connections for m in _storage_messages(c, start, stop)])
-        raw.sort(key=lambda message: message[0])
-        for time, data in raw:
-            yield time, info.msgtype, data
+    def _unplaced(self, topic: str, start: int | None, stop: int | None) -> list[tuple[int, bytes]]:
+        return [m for c in self.topics[topic].connections for m in _storage_messages(c, start, stop)]
 
     def original(self, topic: str) -> OriginalTopic | None:
         """How the file holds ``topic``'s messages: their encoding and schema, the definition as recorded (or,
@@ -433,14 +480,6 @@ class Bag:
             return OriginalTopic(topic, "ros1", info.msgtype.replace("/msg/", "/", 1), "ros1msg", definition)
         encoding = getattr(first.ext, "serialization_format", "cdr")
         return OriginalTopic(topic, encoding, info.msgtype, "ros2idl" if idl else "ros2msg", definition)
-
-    def _guard(self, topic: str, read: Any) -> Any:
-        try:
-            return read()
-        except (DatasetError, StoreError):  # a store that fails is not a damaged bag: the frame fails, not the topic
-            raise
-        except Exception as exc:  # noqa: BLE001 - the reader fails in many ways on a damaged file
-            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {reason(exc)}", path=self.path) from None
 
     def _decode(self, topic: str, msgtype: str, time: int, data: bytes | memoryview) -> Any:
         try:
@@ -472,7 +511,7 @@ def _storage_messages(connection: Any, start: int | None, stop: int | None) -> I
             yield time, _BoundedZstd.decompress(data) if compressed else data
 
 
-def open_bag(path: Path | StorePath) -> AnyBag:
+def open_bag(path: Path | StorePath) -> Recording:
     """The bag at ``path``: an MCAP file, or a ROS 2 bag folder of MCAP files not compressed by rosbag2, with the
     format's own reader (:class:`~.mcapbag.McapBag`); the rest with rosbags (:class:`Bag`)."""
     path = data_path(path)
@@ -619,9 +658,3 @@ def _ros1_op(header: bytes) -> int | None:
 
 def reason(exc: BaseException) -> str:
     return " ".join(str(arg) for arg in exc.args) or type(exc).__name__
-
-
-if TYPE_CHECKING:
-    from typing import TypeAlias
-
-    AnyBag: TypeAlias = "Bag | McapBag"

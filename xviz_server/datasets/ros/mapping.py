@@ -16,7 +16,7 @@ from .config import RosConfig
 from .tf import TF_TYPES
 
 if TYPE_CHECKING:
-    from .bag import AnyBag
+    from .bag import Recording
 
 __all__ = ["Mapping", "plan", "SERIES", "MARKER_STREAMS", "POSE_TYPES"]
 
@@ -146,7 +146,7 @@ def _stream_name(topic: str, config: RosConfig) -> str:
     return name if name is not None else topic if topic.startswith("/") else "/" + topic
 
 
-def plan(bag: AnyBag, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
+def plan(bag: Recording, config: RosConfig, pose_topic: str | None) -> list[Mapping]:
     """The mapping of every topic of ``bag``; ``pose_topic`` is the topic the pose comes from, if one does."""
     mappings = []
     for topic, info in bag.topics.items():

@@ -36,7 +36,7 @@ import json
 import logging
 import struct
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,7 +47,7 @@ from ...exceptions import DatasetError, StoreError
 from ...records import OriginalTopic
 from ...store.path import StorePath
 from ...unpack import MAX_CHUNK_BYTES, check_declared, unpack
-from .bag import CHUNK_CACHE_BYTES, MCAP_MAGIC, Topic, reason
+from .bag import CHUNK_CACHE_BYTES, MCAP_MAGIC, Recording, Topic, reason
 from .wellknown import ROS_OF, adapt, attributes
 
 __all__ = ["McapBag", "ros_type", "service_event_schema"]
@@ -151,10 +151,9 @@ def _decoder_factories() -> list[Any]:
     return [Ros1(), Ros2(), Protobuf()]
 
 
-class McapBag:
-    """MCAP files read as one bag (a bare ``.mcap`` file, or the files of a ROS 2 bag folder), with the interface of
-    :class:`~.bag.Bag`. Every failure on a damaged file is a :class:`~xviz_server.exceptions.DatasetError` naming
-    ``path``. Safe to use from several threads."""
+class McapBag(Recording):
+    """MCAP files read as one bag (a bare ``.mcap`` file, or the files of a ROS 2 bag folder) with the format's own
+    reader (see :class:`~.bag.Recording`)."""
 
     def __init__(self, path: Path | StorePath, files: Sequence[Path | StorePath] | None = None) -> None:
         try:
@@ -167,8 +166,7 @@ class McapBag:
         self._lock = threading.Lock()
         self._chunks: list[list[_Chunk]] = []
         self._cache: dict[tuple[int, int], bytes] = {}
-        #: Topics that cannot be decoded: the reason, by topic.
-        self.problems: dict[str, str] = {}
+        self.problems = {}
         channels: dict[tuple[int, int], _Channel] = {}
         entries: list[np.ndarray] = []  # rows of storage, channel, time, chunk (-1: top level), offset
         for storage, file_path in enumerate(self._files):
@@ -184,7 +182,7 @@ class McapBag:
         by_topic: dict[str, list[_Channel]] = {}
         for channel in channels.values():
             by_topic.setdefault(self._topic_name(channel, by_topic), []).append(channel)
-        self.topics: dict[str, Topic] = {}
+        self.topics = {}
         for name, members in sorted(by_topic.items()):
             mine = np.zeros(len(table), dtype=bool)
             for channel in members:
@@ -437,33 +435,6 @@ class McapBag:
         parts = {(int(s), int(c)) for s, c in info.places[first:last, :2].tolist() if c >= 0}
         return {(storage, chunk): int(self._chunks[storage][chunk].uncompressed_size) for storage, chunk in parts}
 
-    def message(self, topic: str, index: int) -> tuple[int, Any]:
-        """Message ``index`` of ``topic`` (in record-time order), with its record time in ns."""
-        info = self.topics[topic]
-        assert info.places is not None
-        with self._lock:
-            data = self._guard(topic, lambda: self._payload(info.places[index], topic))
-        time = int(info.times[index])
-        return time, self._decode(topic, info.msgtype, time, data)
-
-    def messages(self, topic: str, start: int | None, stop: int | None) -> Iterator[tuple[int, Any]]:
-        """The messages of ``topic`` recorded in ``[start, stop)`` ns (``None``: unbounded), decoded, in time order."""
-        for time, msgtype, data in self.serialized(topic, start, stop):
-            yield time, self._decode(topic, msgtype, time, data)
-
-    def serialized(
-        self, topic: str, start: int | None, stop: int | None
-    ) -> Iterator[tuple[int, str, bytes | memoryview]]:
-        """The messages of ``topic`` recorded in ``[start, stop)`` ns as the file holds them, in time order."""
-        info = self.topics[topic]
-        assert info.places is not None
-        first = 0 if start is None else int(np.searchsorted(info.times, start, side="left"))
-        last = len(info) if stop is None else int(np.searchsorted(info.times, stop, side="left"))
-        for index in range(first, last):
-            with self._lock:
-                data = self._guard(topic, lambda: self._payload(info.places[index], topic))
-            yield int(info.times[index]), info.msgtype, data
-
     def original(self, topic: str) -> OriginalTopic | None:
         """How the file holds ``topic``: its channel's encoding and schema (binary schemas in base64, as the
         Foxglove WebSocket protocol carries them); ``None`` for a channel without a schema."""
@@ -483,14 +454,6 @@ class McapBag:
     def close(self) -> None:
         with self._lock:
             self._cache.clear()
-
-    def _guard(self, topic: str, read: Any) -> Any:
-        try:
-            return read()
-        except (DatasetError, StoreError):
-            raise
-        except Exception as exc:  # noqa: BLE001 - a damaged file fails in many ways
-            raise DatasetError(f"{self.path}: topic {topic}: cannot read: {reason(exc)}", path=self.path) from None
 
     def _decode(self, topic: str, msgtype: str, time: int, data: bytes | memoryview) -> Any:
         decoder = self._decoders.get(topic)

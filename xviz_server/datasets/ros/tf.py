@@ -16,7 +16,7 @@ import numpy as np
 from .geometry import from_transform, interpolate
 
 if TYPE_CHECKING:
-    from .bag import AnyBag
+    from .bag import Recording
 
 __all__ = ["frame_name", "TransformTree", "Snapshot", "TF", "TF_TYPES"]
 
@@ -76,7 +76,7 @@ class TransformTree:
     else the first other topic of a transform type (``tf``, ``/tf2``).
     """
 
-    bag: AnyBag
+    bag: Recording
     staleness: int  # ns
     static: dict[str, tuple[str, np.ndarray]] = field(init=False)
     moving: dict[str, str] = field(init=False)
