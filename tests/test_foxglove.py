@@ -717,11 +717,11 @@ async def test_a_clip_exports_as_an_indexed_mcap_file_with_the_same_channels(kit
 
 def test_the_chunks_are_cut_by_weight_and_the_messages_held_are_bounded() -> None:
     """Light messages go in chunks of their channel alone, heavy ones share theirs; what is held before it is written
-    stays within ``HELD_BYTES`` and a frame, however many light channels; the reader gets every message in time
-    order."""
+    stays within ``HELD_BYTES`` and a frame, however many light channels, and makes no host of tiny chunks (the
+    light channels held are written together then); the reader gets every message in time order."""
     from mcap.writer import CompressionType, Writer
 
-    from xviz_server.foxglove.export import HELD_BYTES, LIGHT_BYTES, _Chunks
+    from xviz_server.foxglove.export import _SMALLEST, HELD_BYTES, LIGHT_BYTES, _Chunks
 
     out = io.BytesIO()
     writer = Writer(out, chunk_size=1 << 62, compression=CompressionType.ZSTD)
@@ -747,8 +747,16 @@ def test_the_chunks_are_cut_by_weight_and_the_messages_held_are_bounded() -> Non
     ids = {channel.topic: channel.id for channel in summary.channels.values()}
     heavy = {ids["/c0"], ids["/c1"]}
     groups = [set(chunk.message_index_offsets) for chunk in summary.chunk_indexes]
-    assert all(group == heavy or (len(group) == 1 and not group & heavy) for group in groups), groups
+    assert all(group == heavy or not group & heavy for group in groups), groups
     assert len({channel for group in groups for channel in group}) == 202
+    # The light chunks written before a channel's last one, for the bound: none of them small.
+    last = {channel: n for n, group in enumerate(groups) for channel in group}
+    early = [
+        chunk.uncompressed_size
+        for n, (chunk, group) in enumerate(zip(summary.chunk_indexes, groups))
+        if not group & heavy and any(last[channel] > n for channel in group)
+    ]
+    assert early and min(early) >= _SMALLEST, early
     read = [(channel.topic, message.log_time, message.data) for _, channel, message in reader.iter_messages()]
     assert [time for _, time, _ in read] == sorted(time for _, time, _ in read) and sorted(read) == sorted(added)
 

@@ -239,6 +239,9 @@ def _register(writer: Writer, plan: Plan) -> dict[int, int]:
 
 #: The group of the heavy messages, which share their chunks (no MCAP channel has the id 0).
 _SHARED = 0
+#: The least a group written alone to bring the messages held under :data:`HELD_BYTES` holds: below it, all held
+#: groups are written as one chunk (so that many light channels make no host of tiny chunks).
+_SMALLEST = CHUNK_BYTES // 16
 #: A chunk size the writer never reaches: :class:`_Chunks` cuts the chunks.
 _NEVER = 1 << 62
 
@@ -253,7 +256,8 @@ class _Chunks:
     its own bytes, not the log's, and a seek costs the heavy chunk of that
     time and the light chunks that hold it. A group's messages are held until
     they make :data:`CHUNK_BYTES`, or until all held pass :data:`HELD_BYTES`
-    (the group holding the most is written then), or the end: a light chunk
+    (the group holding the most is written then, or, if it holds less than
+    :data:`_SMALLEST`, all groups in one chunk), or the end: a light chunk
     may span the whole log and come after the heavy chunks of its times, as
     MCAP allows (indexed readers merge overlapping chunks in time order).
     """
@@ -277,7 +281,8 @@ class _Chunks:
             if self._sizes[group] >= CHUNK_BYTES:
                 self._write(group)
         while self._held > HELD_BYTES:
-            self._write(max(self._sizes, key=self._sizes.__getitem__))
+            group = max(self._sizes, key=self._sizes.__getitem__)
+            self._write(*([group] if self._sizes[group] >= _SMALLEST else self._groups))
         return sequence
 
     def close(self) -> None:
@@ -285,9 +290,10 @@ class _Chunks:
         for group in sorted(self._groups):
             self._write(group)
 
-    def _write(self, group: int) -> None:
-        """Write ``group``'s held messages as a chunk of their own."""
-        for channel, time, data, sequence in self._groups.pop(group):
-            self._writer.add_message(channel, log_time=time, data=data, publish_time=time, sequence=sequence)
-        self._held -= self._sizes.pop(group)
+    def _write(self, *groups: int) -> None:
+        """Write the held messages of ``groups`` as one chunk."""
+        for group in groups:
+            for channel, time, data, sequence in self._groups.pop(group):
+                self._writer.add_message(channel, log_time=time, data=data, publish_time=time, sequence=sequence)
+            self._held -= self._sizes.pop(group)
         self._writer.flush()
