@@ -355,7 +355,9 @@ async def seek_on_a_link(
 ) -> tuple[dict[str, Any], int, int | None]:
     """:func:`seek` in the KITTI log's file over a link of ``mbps`` Mbit/s, clicked as soon as the app has read the
     file's summary: the report, the bytes the link had carried when clicked, and from the click until the frame
-    showed (``None`` if it did not)."""
+    showed (``None`` if it did not). The link's count, not the server's (``seekBytes``): what the server hands a
+    socket the app then closes (it cuts its ranges short) never crosses the link, and a socket's buffer holds
+    megabytes on loopback."""
     async with shaped_link(server.port, mbps) as link:
         report = await seek(app, server, "kitti", "/vehicle_pose", layout, via=link.port, settle=False)
         clicked = report["clicked"] / 1000
