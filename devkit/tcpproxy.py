@@ -202,7 +202,8 @@ async def running_proxy(target_port: int, delay: float = 0.0) -> AsyncIterator[P
 
 class ShapedLink:
     """Forwards connections to ``target_port`` on 127.0.0.1 from its own :attr:`port`, the server's bytes at
-    :attr:`mbps` Mbit/s at most (``None``: unshaped), with bursts of at most ``burst`` bytes."""
+    :attr:`mbps` Mbit/s at most (``None``: unshaped), with bursts of at most ``burst`` bytes. It notes when each
+    burst went (a few bytes a burst, for :meth:`carried_by`): a link for a test, not for hours of traffic."""
 
     #: Receive buffer of the socket to the server, bytes: how much the link holds in flight.
     RECEIVE_BUFFER = 16 * 1024
