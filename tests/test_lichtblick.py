@@ -44,6 +44,8 @@ DRIVER = REPO / "tests" / "lichtblick.mjs"
 ARTIFACTS = REPO / "tests" / "artifacts"
 APP = os.environ.get("XVIZ_LICHTBLICK_DIR")
 PLACEHOLDER = "/*LICHTBLICK_SUITE_DEFAULT_LAYOUT_PLACEHOLDER*/"
+#: The pixels of its colour a Plot panel shows once it draws a line across it.
+PLOT_PIXELS = 100
 #: The colour of the test's Plot series, counted in the Plot panel's pixels.
 PLOT_COLOUR = "#ff00ff"
 
@@ -178,6 +180,7 @@ async def check_log(app: Any, server: Any, log: str, velocity: str, pose: str, s
         ARTIFACTS / shot,
         panels=["RawMessages!pose", "RawMessages!stamps", "Plot!xviz"],
         until={"RawMessages!stamps": last, "RawMessages!pose": f"x {moved[0]!r}"},
+        plotPixels=PLOT_PIXELS,
     )
     assert report["externalRequests"] == [] and report["pageErrors"] == []
     # Every advertised channel is listed, under its schema; no problem with a schema.
@@ -187,7 +190,7 @@ async def check_log(app: Any, server: Any, log: str, velocity: str, pose: str, s
         "problems"
     ]
     # A Plot of the velocity draws its line.
-    assert report["plots"].get("Plot!xviz", 0) > 100
+    assert report["plots"].get("Plot!xviz", 0) >= PLOT_PIXELS
     # Each velocity message as the app shows it: received at the time the message carries (its XVIZ timestamp).
     shown = [
         (re.search(r"@ (\d+\.\d+) sec", text), re.search(r"timestamp (\d+\.\d+)", text))
