@@ -169,7 +169,7 @@ def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(s
         "/tf": "transforms",
         "/goal": "trajectory",
         "/route": "path",
-        "/wheel_odom": "series",
+        "/wheel_odom": "trajectory",  # an Odometry other than the pose: its trajectory and time series
         "/gps": "origin",
         "/fixes": "origin",
         "/scene": "markers",
@@ -351,6 +351,18 @@ def _recorded(path: Path, topic: str) -> list[tuple[int, object]]:
         return [(t, reader.deserialize(data, c.msgtype)) for c, t, data in reader.messages(connections)]
 
 
+def _assert_the_served_poses_are_the_frames(log: RosBag, out: dict[str, object]) -> None:
+    """Each ``/xviz/vehicle_pose`` transform the Foxglove client got is the XVIZ pose of the frame at its time."""
+    poses = out["topics"]["/xviz/vehicle_pose"]  # type: ignore[index]
+    assert poses["count"] >= 2
+    clock = np.asarray(log.clock, np.int64)
+    for time, summary in zip(poses["timestamps"], poses["summaries"]):
+        frame = int(np.argmin(np.abs(clock - int(time))))
+        assert abs(int(clock[frame]) - int(time)) < 1000  # the frame's time, through the XVIZ float seconds
+        position = log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["position"]
+        assert [summary["translation"].get(axis, 0.0) for axis in "xyz"] == pytest.approx(position)
+
+
 TURTLES = RECORDINGS / "ros1" / "lichtblick" / "example-bz2.bag"
 
 
@@ -387,15 +399,8 @@ async def test_a_tf_tree_on_the_foxglove_face_the_pose_and_the_original_transfor
     channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
     assert (channels["/tf"]["encoding"], channels["/tf"]["schemaName"]) == ("ros1", "tf/tfMessage")
     assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    _assert_the_served_poses_are_the_frames(log, out)
     topics = out["topics"]
-    poses = topics["/xviz/vehicle_pose"]  # type: ignore[index]
-    assert poses["count"] >= 2
-    clock = np.asarray(log.clock, np.int64)
-    for time, summary in zip(poses["timestamps"], poses["summaries"]):
-        frame = int(np.argmin(np.abs(clock - int(time))))
-        assert abs(int(clock[frame]) - int(time)) < 1000  # the frame's time, through the XVIZ float seconds
-        position = log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["position"]
-        assert [summary["translation"].get(axis, 0.0) for axis in "xyz"] == pytest.approx(position)
     recorded = {str(t) for t, _ in _recorded(TURTLES, "/tf")}
     assert topics["/tf"]["count"] > 0 and set(topics["/tf"]["timestamps"]) <= recorded  # type: ignore[index]
 
@@ -429,6 +434,62 @@ async def test_navsat_fixes_on_the_foxglove_face_as_recorded():
     recorded = [str(t) for t, _ in _recorded(HUSKY, "/fix")]
     assert fixes["count"] >= 2 and fixes["timestamps"] == recorded[: fixes["count"]]
     assert {"latitude", "longitude", "altitude", "status"} <= set(fixes["summaries"][0])
+
+
+EKF = RECORDINGS / "ros1" / "robot_pose_ekf" / "gps_data_10s.bag"
+
+
+def test_a_robots_own_tf_tree_rides_on_its_odometry_the_other_odometry_a_trajectory(caplog: pytest.LogCaptureFixture):
+    # A Husky: /tf holds the robot's joints alone (/base_footprint -> /base_link and its parts, republished), the wheel
+    # odometry /encoder (odom_combined -> base_footprint) moves the tree's root, /gps is a second Odometry in /world.
+    encoder = [(t, m.pose.pose.position) for t, m in _recorded(EKF, "/encoder")]  # type: ignore[attr-defined]
+    log = RosBag(EKF)
+    roles = {m.topic: m.role for m in log.mappings}
+    assert (roles["/encoder"], roles["/gps"], roles["/tf"], roles["/fix"]) == (
+        "pose",
+        "trajectory",
+        "transforms",
+        "origin",
+    )
+    assert log.pose_source.describe() == "/encoder (odom_combined -> base_link)"
+    times = np.array([t for t, _ in encoder], float)
+    gps = [t for t, _ in _recorded(EKF, "/gps")]
+    positions = []
+    for frame, tick in enumerate(log.clock):
+        update = log.convert(frame)["updates"][0]
+        position = update["poses"]["/vehicle_pose"]["position"]
+        if times[0] <= tick <= times[-1]:  # interpolated between the odometry recorded either side
+            expected = [np.interp(tick, times, [getattr(p, axis) for _, p in encoder]) for axis in "xy"]
+            np.testing.assert_allclose(position[:2], expected, atol=1e-6)
+        positions.append(position)
+        series = {stream for s in update.get("time_series", []) for stream in s["streams"]}
+        if tick >= gps[0]:  # the other odometry (2.5 Hz): its speed and yaw rate beside the pose's
+            assert {"/gps/speed", "/gps/yaw_rate", "/encoder/speed", "/encoder/yaw_rate"} <= series
+        assert "/gps" not in update.get("primitives", {})  # /world has no transform to odom_combined: named once
+    spread = np.ptp(np.array(positions)[:, :2], axis=0)  # the robot drives about 3 x 2 m, not stuck at the origin
+    assert (spread > 1.5).all(), spread
+    streams = log.metadata()["streams"]
+    assert streams["/gps"]["primitive_type"] == "POLYLINE" and streams["/gps/speed"]["scalar_type"] == "FLOAT"
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warnings == [
+        f"{EKF}: topic /gps: frame '/world' is not connected to the vehicle frame (left out of the frames)"
+    ]
+
+
+@pytest.mark.slow
+async def test_a_robots_odometry_on_the_foxglove_face_the_pose_and_the_original_odometry():
+    log = RosBag(EKF)
+    out = await foxglove_head(EKF, "gps_data_10s", seconds=4.0)
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    for topic in ("/encoder", "/gps"):
+        assert (channels[topic]["encoding"], channels[topic]["schemaName"]) == ("ros1", "nav_msgs/Odometry")
+    assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    _assert_the_served_poses_are_the_frames(log, out)
+    topics = out["topics"]
+    for topic in ("/encoder", "/gps"):  # as recorded, at their record times
+        recorded = [str(t) for t, _ in _recorded(EKF, topic)]
+        got = topics[topic]  # type: ignore[index]
+        assert got["count"] >= 2 and got["timestamps"] == recorded[: got["count"]]
 
 
 CUBE = RECORDINGS / "ros1" / "webviz" / "only-a-cube.bag"
