@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -436,6 +438,21 @@ async def test_navsat_fixes_on_the_foxglove_face_as_recorded():
     assert {"latitude", "longitude", "altitude", "status"} <= set(fixes["summaries"][0])
 
 
+def _frames_posed_like(
+    log: RosBag, recorded: list[tuple[int, Any]], axes: str
+) -> Iterator[tuple[int, dict[str, Any], list[float]]]:
+    """Each frame's time, update and vehicle position, once its position on ``axes`` is checked to be ``recorded``'s
+    positions interpolated at the frame's time (where the frame is within them)."""
+    times = np.array([t for t, _ in recorded], float)
+    for frame, tick in enumerate(log.clock):
+        update = log.convert(frame)["updates"][0]
+        position = update["poses"]["/vehicle_pose"]["position"]
+        if times[0] <= tick <= times[-1]:
+            expected = [np.interp(tick, times, [getattr(p, axis) for _, p in recorded]) for axis in axes]
+            np.testing.assert_allclose(position[: len(axes)], expected, atol=1e-6)
+        yield int(tick), update, position
+
+
 EKF = RECORDINGS / "ros1" / "robot_pose_ekf" / "gps_data_10s.bag"
 
 
@@ -452,15 +469,9 @@ def test_a_robots_own_tf_tree_rides_on_its_odometry_the_other_odometry_a_traject
         "origin",
     )
     assert log.pose_source.describe() == "/encoder (odom_combined -> base_link)"
-    times = np.array([t for t, _ in encoder], float)
     gps = [t for t, _ in _recorded(EKF, "/gps")]
     positions = []
-    for frame, tick in enumerate(log.clock):
-        update = log.convert(frame)["updates"][0]
-        position = update["poses"]["/vehicle_pose"]["position"]
-        if times[0] <= tick <= times[-1]:  # interpolated between the odometry recorded either side
-            expected = [np.interp(tick, times, [getattr(p, axis) for _, p in encoder]) for axis in "xy"]
-            np.testing.assert_allclose(position[:2], expected, atol=1e-6)
+    for tick, update, position in _frames_posed_like(log, encoder, "xy"):
         positions.append(position)
         series = {stream for s in update.get("time_series", []) for stream in s["streams"]}
         if tick >= gps[0]:  # the other odometry (2.5 Hz): its speed and yaw rate beside the pose's
@@ -490,6 +501,45 @@ async def test_a_robots_odometry_on_the_foxglove_face_the_pose_and_the_original_
         recorded = [str(t) for t, _ in _recorded(EKF, topic)]
         got = topics[topic]  # type: ignore[index]
         assert got["count"] >= 2 and got["timestamps"] == recorded[: got["count"]]
+
+
+DRONE = RECORDINGS / "ros1" / "rotors" / "waypoint_example_15s.bag"
+
+
+def test_a_drone_flies_on_its_ground_truth_pose_stamped():
+    # RotorS's simulated quadrotor taking off: geometry_msgs/PoseStamped at 100 Hz, no transform tree.
+    recorded = [(t, m.pose.position) for t, m in _recorded(DRONE, "/ground_truth/pose")]  # type: ignore[attr-defined]
+    twists = _recorded(DRONE, "/ground_truth/twist")
+    log = RosBag(DRONE)
+    roles = {m.topic: m.role for m in log.mappings}
+    assert (roles["/ground_truth/pose"], roles["/ground_truth/twist"]) == ("pose", "series")
+    assert log.pose_source.topic == "/ground_truth/pose" and log.pose_source.kind == "topic"
+    heights = []
+    for tick, update, position in _frames_posed_like(log, recorded, "xyz"):
+        heights.append(position[2])
+        t, twist = [(t, m) for t, m in twists if t <= tick][-1]
+        values = {
+            s: v for series in update["time_series"] for s, v in zip(series["streams"], series["values"]["doubles"])
+        }
+        assert values == {
+            "/ground_truth/twist/linear_x": twist.twist.linear.x,  # type: ignore[attr-defined]
+            "/ground_truth/twist/angular_z": twist.twist.angular.z,  # type: ignore[attr-defined]
+        }
+    assert heights[0] < 0.2 and heights[-1] > 0.9  # it takes off to its first waypoint, 1 m up
+
+
+@pytest.mark.slow
+async def test_a_drone_on_the_foxglove_face_the_pose_and_the_original_pose_stamped():
+    log = RosBag(DRONE)
+    out = await foxglove_head(DRONE, "waypoint_example_15s", seconds=4.0)
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    pose = channels["/ground_truth/pose"]
+    assert (pose["encoding"], pose["schemaName"]) == ("ros1", "geometry_msgs/PoseStamped")
+    assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    _assert_the_served_poses_are_the_frames(log, out)
+    got = out["topics"]["/ground_truth/pose"]  # type: ignore[index]
+    recorded = [str(t) for t, _ in _recorded(DRONE, "/ground_truth/pose")]
+    assert got["count"] >= 2 and got["timestamps"] == recorded[: got["count"]]
 
 
 CUBE = RECORDINGS / "ros1" / "webviz" / "only-a-cube.bag"
