@@ -283,6 +283,7 @@ SOURCES: dict[str, Callable[[Path], Served]] = {
     "ros1-webviz-marker": _recording("ros1/webviz/only-a-cube.bag"),
     "ros1-robot-pose-ekf-odometry": _recording("ros1/robot_pose_ekf/gps_data_10s.bag"),
     "ros1-rotors-pose-stamped": _recording("ros1/rotors/waypoint_example_15s.bag"),
+    "ros1-jsk-marker-array": _recording("ros1/jsk_recognition/bunny_marker_array.bag"),
     "rosbag2-nebula-velodyne-packets": _recording("rosbag2/nebula/vlp32/1713492677464078412"),
     "ros1-ouster-packets": _recording("ros1/ouster/512x10_raw.bag"),
     "ros1-ouster-cloud": _recording("ros1/ouster/cloud.bag"),

@@ -595,6 +595,52 @@ async def test_a_marker_on_the_foxglove_face_converted_and_as_recorded():
     assert topics["/xviz/marker_in_parent_frame/polygons"]["summaries"] == [{"entities": 1, "deletions": 1}]  # type: ignore[index]
 
 
+VOXELS = RECORDINGS / "ros1" / "jsk_recognition" / "bunny_marker_array.bag"
+VOXEL_TOPIC = "/octree_voxel_grid/output_marker_array"
+
+
+def test_a_voxel_grid_marker_array_is_drawn_cube_by_cube_in_its_colours():
+    # jsk_pcl_ros's octree voxel grid: 17 MarkerArrays of one CUBE_LIST in /map, 7 cubes of 10 cm, one colour a cube
+    # (blue below, red above, alpha 0.8) and the marker's own colour fully transparent.
+    recorded = _recorded(VOXELS, VOXEL_TOPIC)
+    log = RosBag(VOXELS)
+    assert {m.topic: m.role for m in log.mappings} == {VOXEL_TOPIC: "markers"}
+    assert log.pose_source.kind == "none"  # no transform tree: /map is the vehicle's frame, at the origin
+    assert log.clock[0] == recorded[0][0] and len(log) == 18  # 10 Hz from the first message to past the last
+    for frame, tick in enumerate(log.clock):  # each frame draws the latest array
+        polygons = log.convert(frame)["updates"][0]["primitives"][f"{VOXEL_TOPIC}/polygons"]
+        (marker,) = [m for t, m in recorded if t <= tick][-1].markers  # type: ignore[attr-defined]
+        assert (marker.type, marker.color.a, marker.header.frame_id) == (6, 0.0, "/map")  # CUBE_LIST
+        drawn = polygons["polygons"]
+        assert len(drawn) == len(marker.points) == 7
+        for cube, point, color in zip(drawn, marker.points, marker.colors):
+            centre = np.array([point.x, point.y, point.z])
+            corners = np.asarray(cube["vertices"])
+            np.testing.assert_allclose(corners.min(axis=0), centre - [0.05, 0.05, 0.05], atol=1e-6)
+            np.testing.assert_allclose(corners.max(axis=0), centre + [0.05, 0.05, -0.05], atol=1e-6)
+            rgba = [round(getattr(color, c) * 255) for c in "rgba"]
+            assert cube["base"] == {"object_id": "0", "style": {"fill_color": rgba, "height": pytest.approx(0.1)}}
+    assert {tuple(c["base"]["style"]["fill_color"]) for c in drawn} == {(0, 0, 255, 204), (255, 0, 0, 204)}
+
+
+@pytest.mark.slow
+async def test_a_marker_array_on_the_foxglove_face_converted_and_as_recorded():
+    out = await foxglove_head(VOXELS, "bunny_marker_array")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert (channels[VOXEL_TOPIC]["encoding"], channels[VOXEL_TOPIC]["schemaName"]) == (
+        "ros1",
+        "visualization_msgs/MarkerArray",
+    )
+    assert channels[f"/xviz{VOXEL_TOPIC}/polygons"]["schemaName"] == "foxglove.SceneUpdate"
+    topics = out["topics"]
+    recorded = [str(t) for t, _ in _recorded(VOXELS, VOXEL_TOPIC)]
+    assert topics[VOXEL_TOPIC]["timestamps"] == recorded  # type: ignore[index]
+    scenes = topics[f"/xviz{VOXEL_TOPIC}/polygons"]["summaries"]  # type: ignore[index]
+    assert len(scenes) == len(RosBag(VOXELS)) and all(scene["entities"] == 7 for scene in scenes), (
+        scenes
+    )  # a frame each
+
+
 VELODYNE = RECORDINGS / "rosbag2" / "nebula" / "vlp32" / "1713492677464078412"
 OUSTER = RECORDINGS / "ros1" / "ouster" / "512x10_raw.bag"
 PACKETS = (
