@@ -428,6 +428,42 @@ def test_a_robots_own_tf_tree_rides_on_the_odometry_of_its_root_the_other_odomet
     assert {"/wheel/speed", "/fused/speed", "/fused/yaw_rate"} <= series
 
 
+def test_list_markers_take_one_colour_a_point_when_given_one_for_each(tmp_path: Path):
+    from dataclasses import replace
+
+    from rosbags.typesys import Stores
+
+    from devkit.rosbag_kitti import marker
+
+    m = Messages(Stores.ROS2_HUMBLE)
+    t0 = 1_700_000_000 * 10**9
+    points = [(1.0, 0.0, 0.0), (2.0, 0.0, 0.0)]
+    each = [m.std_msgs__ColorRGBA(r=0.0, g=0.0, b=1.0, a=1.0), m.std_msgs__ColorRGBA(r=1.0, g=0.0, b=0.0, a=0.5)]
+    kinds = {"/spheres": 7, "/cubes": 6, "/points": 8}  # SPHERE_LIST, CUBE_LIST, POINTS
+    messages = [
+        (
+            topic,
+            "visualization_msgs/msg/Marker",
+            t0,
+            replace(marker(m, t0, action=0, kind=kind, id=1, x=0.0, points=points), colors=each),
+        )
+        for topic, kind in kinds.items()
+    ]
+    short = replace(
+        marker(m, t0, action=0, kind=7, id=2, x=0.0, points=points), colors=each[:1]
+    )  # one colour, two points
+    messages.append(("/fallback", "visualization_msgs/msg/Marker", t0, short))
+    primitives = RosBag(write_bag(tmp_path / "lists.mcap", "mcap", iter(messages))).convert(0)["updates"][0][
+        "primitives"
+    ]
+    blue, red = [0, 0, 255, 255], [255, 0, 0, 128]
+    assert [c["base"]["style"]["fill_color"] for c in primitives["/spheres/circles"]["circles"]] == [blue, red]
+    assert [c["base"]["style"]["fill_color"] for c in primitives["/cubes/polygons"]["polygons"]] == [blue, red]
+    assert np.asarray(primitives["/points/points"]["points"][0]["colors"]).reshape(-1, 4).tolist() == [blue, red]
+    orange = [255, 128, 0, 255]  # the marker's own colour
+    assert [c["base"]["style"]["fill_color"] for c in primitives["/fallback/circles"]["circles"]] == [orange, orange]
+
+
 def test_velodyne_driver_packets_are_named_as_such(tmp_path: Path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
