@@ -19,6 +19,7 @@ waits in the server's send queue, where the server can see it.
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import re
 import socket
@@ -201,7 +202,8 @@ async def running_proxy(target_port: int, delay: float = 0.0) -> AsyncIterator[P
 
 class ShapedLink:
     """Forwards connections to ``target_port`` on 127.0.0.1 from its own :attr:`port`, the server's bytes at
-    :attr:`mbps` Mbit/s at most (``None``: unshaped), with bursts of at most ``burst`` bytes."""
+    :attr:`mbps` Mbit/s at most (``None``: unshaped), with bursts of at most ``burst`` bytes. It notes when each
+    burst went (a few bytes a burst, for :meth:`carried_by`): a link for a test, not for hours of traffic."""
 
     #: Receive buffer of the socket to the server, bytes: how much the link holds in flight.
     RECEIVE_BUFFER = 16 * 1024
@@ -212,6 +214,7 @@ class ShapedLink:
         self.burst = burst
         #: Bytes carried from the server to clients, in all.
         self.carried = 0
+        self._history: list[tuple[float, int]] = []  # (time.time(), carried) after each burst
         self._server: asyncio.Server | None = None
         self._tasks: set[asyncio.Task[None]] = set()
 
@@ -219,6 +222,12 @@ class ShapedLink:
     def port(self) -> int:
         assert self._server is not None
         return self._server.sockets[0].getsockname()[1]
+
+    def carried_by(self, when: float) -> int:
+        """Bytes carried from the server to clients by ``when`` (seconds since the epoch, as :func:`time.time`: a
+        moment another process on this machine tells)."""
+        after = bisect.bisect_right(self._history, (when, self.carried))
+        return self._history[after - 1][1] if after else 0
 
     async def start(self) -> None:
         self._server = await asyncio.start_server(self._handle, "127.0.0.1", 0)
@@ -273,6 +282,7 @@ class ShapedLink:
                 await writer.drain()
                 if shaped:
                     self.carried += len(chunk)
+                    self._history.append((time.time(), self.carried))
         except (ConnectionError, asyncio.IncompleteReadError):
             return
 

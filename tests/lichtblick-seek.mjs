@@ -9,7 +9,8 @@
 // shows a time), it clicks the playback bar at `fraction` of
 // its width, then reads the Raw Messages panel `panel` until its text holds every string of `until` (or the
 // timeout, ms, default 60000). Prints one JSON object: "settledBytes" (sent before the click), "shownMs" (from
-// the click to the text shown, or null), "seekBytes" (sent from the click until then), "texts" (the panel's texts
+// the click to the text shown, or null), "clicked" (when it clicked, ms since the epoch), "seekBytes" (sent from the
+// click until then), "texts" (the panel's texts
 // after the click, in order), "time" (the app's playback time shown after the seek), "requests" (each request for the
 // file the page made: its Range header, or null, and when, in ms from the click: negative before it), "drawn3d" (whether the 3D panel "3D!xviz", if the
 // layout has one, showed a picture after the seek: looked at until it does, before the screenshot), "pageErrors",
@@ -25,7 +26,7 @@ const sent = async () => {
 const sleep = ms => new Promise(resolve => setTimeout(resolve, ms));
 
 const browser = await launch();
-const report = {settledBytes: null, shownMs: null, seekBytes: null, texts: [], time: null, requests: [], drawn3d: null,
+const report = {settledBytes: null, shownMs: null, clicked: null, seekBytes: null, texts: [], time: null, requests: [], drawn3d: null,
   pageErrors: [], externalRequests: []};
 const deadline = Date.now() + options.timeout;
 try {
@@ -76,6 +77,7 @@ try {
     await sleep(10);
   }
   report.seekBytes = (await sent()) - before;
+  report.clicked = clicked;
   for (const request of report.requests) request.at -= clicked;
   if (await page.locator('[data-testid~="3D!xviz"]').count()) {
     report.drawn3d = await drawn(page, '3D!xviz', Math.max(deadline, Date.now() + 10000));

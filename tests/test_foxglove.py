@@ -704,12 +704,61 @@ async def test_a_clip_exports_as_an_indexed_mcap_file_with_the_same_channels(kit
         len(update["primitives"]["/lidar/points"]["points"][0]["points"]) for update in updates[5:11]
     ]
     assert {schema for topic, schema, _, _ in messages if topic == "/camera/image_00"} == {"foxglove.CompressedImage"}
-    # The index: every channel's count in the statistics, chunks that cover the range, in order.
+    # The index: every channel's count in the statistics, chunks that cover the range, each channel's in order.
     counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
     assert counts == {topic: sum(1 for t, _, _, _ in messages if t == topic) for topic in counts}
     assert counts["/lidar/points"] == counts["/camera/image_00"] == 6
     spans = [(chunk.message_start_time, chunk.message_end_time) for chunk in summary.chunk_indexes]
-    assert spans[0][0] == nanoseconds(start) and spans[-1][1] == nanoseconds(end) and spans == sorted(spans)
+    assert (min(spans)[0], max(end for _, end in spans)) == (nanoseconds(start), nanoseconds(end))
+    for channel in summary.channels:
+        held = [span for span, chunk in zip(spans, summary.chunk_indexes) if channel in chunk.message_index_offsets]
+        assert held == sorted(held) and all(a[1] <= b[0] for a, b in zip(held, held[1:])), held
+
+
+def test_the_chunks_are_cut_by_weight_and_the_messages_held_are_bounded() -> None:
+    """Light messages go in chunks of their channel alone, heavy ones share theirs; what is held before it is written
+    stays within ``HELD_BYTES`` and a frame, however many light channels, and makes no host of tiny chunks (the
+    light channels held are written together then); the reader gets every message in time order."""
+    from mcap.writer import CompressionType, Writer
+
+    from xviz_server.foxglove.export import _SMALLEST, HELD_BYTES, LIGHT_BYTES, _Chunks
+
+    out = io.BytesIO()
+    writer = Writer(out, chunk_size=1 << 62, compression=CompressionType.ZSTD)
+    writer.start()
+    schema = writer.register_schema("blob", "jsonschema", b"{}")
+    channels = {i: writer.register_channel(f"/c{i}", "json", schema) for i in range(202)}  # 0, 1 heavy; 200 light
+    chunks = _Chunks(writer, channels)
+    generator = np.random.default_rng(3)  # random bytes: the chunks are no smaller than their messages
+    added: list[tuple[str, int, bytes]] = []
+    sequence = 0
+    for frame in range(150):  # the light channels' 6 MB would all be held until the end without the bound
+        time = 1_000_000_000 + frame * 100_000_000
+        messages = [(i, time, memoryview(generator.bytes(6 * LIGHT_BYTES if i < 2 else 200))) for i in channels]
+        sequence = chunks.add(messages, sequence)
+        added += [(f"/c{i}", time, bytes(data)) for i, time, data in messages]
+        frame_bytes = sum(len(data) for _, _, data in messages)
+        assert sum(len(data) for _, _, data in added) - out.tell() <= HELD_BYTES + frame_bytes
+    chunks.close()
+    writer.finish()
+    reader = make_reader(io.BytesIO(out.getvalue()))
+    summary = reader.get_summary()
+    assert summary is not None
+    ids = {channel.topic: channel.id for channel in summary.channels.values()}
+    heavy = {ids["/c0"], ids["/c1"]}
+    groups = [set(chunk.message_index_offsets) for chunk in summary.chunk_indexes]
+    assert all(group == heavy or not group & heavy for group in groups), groups
+    assert len({channel for group in groups for channel in group}) == 202
+    # The light chunks written before a channel's last one, for the bound: none of them small.
+    last = {channel: n for n, group in enumerate(groups) for channel in group}
+    early = [
+        chunk.uncompressed_size
+        for n, (chunk, group) in enumerate(zip(summary.chunk_indexes, groups))
+        if not group & heavy and any(last[channel] > n for channel in group)
+    ]
+    assert early and min(early) >= _SMALLEST, early
+    read = [(channel.topic, message.log_time, message.data) for _, channel, message in reader.iter_messages()]
+    assert [time for _, time, _ in read] == sorted(time for _, time, _ in read) and sorted(read) == sorted(added)
 
 
 async def test_a_clip_may_be_given_in_seconds_after_the_log_start(kitti_root: Path, kitti_log: Path) -> None:

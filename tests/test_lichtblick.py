@@ -45,6 +45,8 @@ DRIVER = REPO / "tests" / "lichtblick.mjs"
 ARTIFACTS = REPO / "tests" / "artifacts"
 APP = os.environ.get("XVIZ_LICHTBLICK_DIR")
 PLACEHOLDER = "/*LICHTBLICK_SUITE_DEFAULT_LAYOUT_PLACEHOLDER*/"
+#: The pixels of its colour a Plot panel shows once it draws a line across it.
+PLOT_PIXELS = 100
 #: The colour of the test's Plot series, counted in the Plot panel's pixels.
 PLOT_COLOUR = "#ff00ff"
 
@@ -182,6 +184,7 @@ async def check_log(app: Any, server: Any, log: str, velocity: str, pose: str, s
         ARTIFACTS / shot,
         panels=["RawMessages!pose", "RawMessages!stamps", "Plot!xviz"],
         until={"RawMessages!stamps": last, "RawMessages!pose": f"x {moved[0]!r}"},
+        plotPixels=PLOT_PIXELS,
     )
     assert report["externalRequests"] == [] and report["pageErrors"] == []
     # Every advertised channel is listed, under its schema; no problem with a schema.
@@ -191,7 +194,7 @@ async def check_log(app: Any, server: Any, log: str, velocity: str, pose: str, s
         "problems"
     ]
     # A Plot of the velocity draws its line.
-    assert report["plots"].get("Plot!xviz", 0) > 100
+    assert report["plots"].get("Plot!xviz", 0) >= PLOT_PIXELS
     # Each velocity message as the app shows it: received at the time the message carries (its XVIZ timestamp).
     shown = [
         (re.search(r"@ (\d+\.\d+) sec", text), re.search(r"timestamp (\d+\.\d+)", text))
@@ -278,16 +281,14 @@ async def test_lichtblick_shows_the_middle_of_a_kitti_log_file(app: Any, kitti_r
     async with running_server(kitti_root) as server:
         status, _, body = await asyncio.to_thread(http_get, server.port, "/api/logs/kitti/layout.json")
         assert status == 200
-        layout = json.loads(body)
-        layout["layout"] = {
-            "first": "3D!xviz",
-            "second": {"first": "Image!xviz", "second": "RawMessages!seek", "direction": "column"},
-            "direction": "row",
-            "splitPercentage": 60,
-        }
         ARTIFACTS.mkdir(exist_ok=True)
         report = await seek(
-            app, server, "kitti", "/vehicle_pose", layout, screenshot=str(ARTIFACTS / "lichtblick-kitti-file.png")
+            app,
+            server,
+            "kitti",
+            "/vehicle_pose",
+            kitti_file_layout(json.loads(body)),
+            screenshot=str(ARTIFACTS / "lichtblick-kitti-file.png"),
         )
     # The 2.5 s log is shorter than the app's read-ahead (10 s): the app has read it all before the click.
     assert report["shownMs"] is not None and report["seekBytes"] == 0, report
@@ -344,24 +345,74 @@ async def test_lichtblick_seeks_to_the_middle_of_a_long_log_file_reading_a_few_c
     assert [r for r in report["requests"][1:] if r["range"] is None] == [], report["requests"]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="Lichtblick 1.10.8 reads a remote file on from its start and asks for no range at a seek: the frame at the"
-    " middle shows once its reading gets there (5.6-5.8 s and 21 MB after the click at 30 Mbit/s)",
-)
+def kitti_file_layout(served: dict[str, Any]) -> dict[str, Any]:
+    """The server's first layout for the KITTI log (its 3D and Image panels) with ``RawMessages!seek`` beside them."""
+    layout = json.loads(json.dumps(served))
+    layout["layout"] = {
+        "first": "3D!xviz",
+        "second": {"first": "Image!xviz", "second": "RawMessages!seek", "direction": "column"},
+        "direction": "row",
+        "splitPercentage": 60,
+    }
+    return layout
+
+
+async def seek_on_a_link(
+    app: Any, server: Any, mbps: float, layout: dict[str, Any]
+) -> tuple[dict[str, Any], int, int | None]:
+    """:func:`seek` in the KITTI log's file over a link of ``mbps`` Mbit/s, clicked as soon as the app has read the
+    file's summary: the report, the bytes the link had carried when clicked, and from the click until the frame
+    showed (``None`` if it did not). The link's count, not the server's (``seekBytes``): what the server hands a
+    socket the app then closes (it cuts its ranges short) never crosses the link, and a socket's buffer holds
+    megabytes on loopback."""
+    async with shaped_link(server.port, mbps) as link:
+        report = await seek(app, server, "kitti", "/vehicle_pose", layout, via=link.port, settle=False)
+        clicked = report["clicked"] / 1000
+        before = link.carried_by(clicked)
+        shown = None if report["shownMs"] is None else link.carried_by(clicked + report["shownMs"] / 1000) - before
+    print(
+        json.dumps(
+            {"mbps": mbps, "shownMs": report["shownMs"], "carriedBeforeClick": before, "carriedUntilShown": shown}
+        )
+    )
+    return report, before, shown
+
+
+@pytest.mark.parametrize("mbps", [10.0, 30.0])
 async def test_lichtblick_seeks_in_a_kitti_log_file_on_a_slow_link_reading_a_few_chunks(
-    app: Any, kitti_root: Path
+    app: Any, kitti_root: Path, mbps: float
 ) -> None:
-    """The KITTI log's file over a link of 30 Mbit/s, sought to its middle as soon as the app has read its summary,
-    while it still reads the file's start: the frame there should show within a second, the server sending little
-    more than the chunks at that time (as the published ``mcap`` readers read it: tests/test_seekable.py)."""
+    """The KITTI log's file over a slow link, sought to its middle as soon as the app has read its summary, while it
+    still reads the file's start: the frame there shows within a second, the link carrying little more than a chunk
+    meanwhile (as the published ``mcap`` readers read it: tests/test_seekable.py).
+
+    Lichtblick handles a seek only once its first read from the log's start has a second of the subscribed topics
+    (here the pose): in chunks of their own, a few kilobytes (not the chunks of a second of the drive)."""
     layout = {"configById": {}, "globalVariables": {}, "userNodes": {}, "playbackConfig": {"speed": 1}}
     layout["layout"] = "RawMessages!seek"
-    async with running_server(kitti_root) as server, shaped_link(server.port, 30.0) as link:
-        report = await seek(app, server, "kitti", "/vehicle_pose", layout, via=link.port, settle=False)
-    # The app had not read the middle when clicked: it asked for the file from there (Lichtblick asks for ranges to the
-    # file's end, and cuts them short when it needs another place).
-    starts = [int(r["range"].split("=")[1].split("-")[0]) for r in report["requests"] if r["at"] >= 0 and r["range"]]
-    assert starts and report["size"] / 4 < starts[0] < report["size"] * 3 / 4, report["requests"]
+    async with running_server(kitti_root) as server:
+        report, before, shown = await seek_on_a_link(app, server, mbps, layout)
+    # The app had not read the middle when clicked; it showed the frame there within a second, the link carrying at
+    # most a few chunks meanwhile (what the app asks for the seek, and its reading of the rest in the background).
+    assert before < report["size"] / 2, (before, report["requests"])
     assert report["shownMs"] is not None and report["shownMs"] <= 1000, report
-    assert report["seekBytes"] <= 3 * report["chunk"], report
+    assert shown is not None and shown <= 3 * report["chunk"], (shown, report)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="Lichtblick 1.10.8 handles a seek only once its first read from the log's start (IterablePlayer's"
+    " start-play) has a second of every subscribed topic (BufferedIterableSource's minimum read-ahead): with the 3D"
+    " and Image panels, a second of point clouds and images, about 15 MB, so the frame at the middle shows 4.2-5.7 s"
+    " after the click at 30 Mbit/s, whatever the file's layout (docs/foxglove.md)",
+)
+async def test_lichtblick_seeks_at_once_with_clouds_and_images_on_a_slow_link(app: Any, kitti_root: Path) -> None:
+    """As above with the server's first layout (the cloud and a camera): the frame at the middle should show within a
+    second of the click."""
+    async with running_server(kitti_root) as server:
+        status, _, body = await asyncio.to_thread(http_get, server.port, "/api/logs/kitti/layout.json")
+        assert status == 200
+        report, before, shown = await seek_on_a_link(app, server, 30.0, kitti_file_layout(json.loads(body)))
+    assert before < report["size"] / 2, (before, report["requests"])
+    assert report["shownMs"] is not None and report["shownMs"] <= 1000, report
+    assert shown is not None and shown <= 3 * report["chunk"], (shown, report)

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -169,7 +171,7 @@ def test_foxglove_schemas_in_protobuf_and_json_map_like_their_ros_counterparts(s
         "/tf": "transforms",
         "/goal": "trajectory",
         "/route": "path",
-        "/wheel_odom": "series",
+        "/wheel_odom": "trajectory",  # an Odometry other than the pose: its trajectory and time series
         "/gps": "origin",
         "/fixes": "origin",
         "/scene": "markers",
@@ -351,6 +353,18 @@ def _recorded(path: Path, topic: str) -> list[tuple[int, object]]:
         return [(t, reader.deserialize(data, c.msgtype)) for c, t, data in reader.messages(connections)]
 
 
+def _assert_the_served_poses_are_the_frames(log: RosBag, out: dict[str, object]) -> None:
+    """Each ``/xviz/vehicle_pose`` transform the Foxglove client got is the XVIZ pose of the frame at its time."""
+    poses = out["topics"]["/xviz/vehicle_pose"]  # type: ignore[index]
+    assert poses["count"] >= 2
+    clock = np.asarray(log.clock, np.int64)
+    for time, summary in zip(poses["timestamps"], poses["summaries"]):
+        frame = int(np.argmin(np.abs(clock - int(time))))
+        assert abs(int(clock[frame]) - int(time)) < 1000  # the frame's time, through the XVIZ float seconds
+        position = log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["position"]
+        assert [summary["translation"].get(axis, 0.0) for axis in "xyz"] == pytest.approx(position)
+
+
 TURTLES = RECORDINGS / "ros1" / "lichtblick" / "example-bz2.bag"
 
 
@@ -387,15 +401,8 @@ async def test_a_tf_tree_on_the_foxglove_face_the_pose_and_the_original_transfor
     channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
     assert (channels["/tf"]["encoding"], channels["/tf"]["schemaName"]) == ("ros1", "tf/tfMessage")
     assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    _assert_the_served_poses_are_the_frames(log, out)
     topics = out["topics"]
-    poses = topics["/xviz/vehicle_pose"]  # type: ignore[index]
-    assert poses["count"] >= 2
-    clock = np.asarray(log.clock, np.int64)
-    for time, summary in zip(poses["timestamps"], poses["summaries"]):
-        frame = int(np.argmin(np.abs(clock - int(time))))
-        assert abs(int(clock[frame]) - int(time)) < 1000  # the frame's time, through the XVIZ float seconds
-        position = log.convert(frame)["updates"][0]["poses"]["/vehicle_pose"]["position"]
-        assert [summary["translation"].get(axis, 0.0) for axis in "xyz"] == pytest.approx(position)
     recorded = {str(t) for t, _ in _recorded(TURTLES, "/tf")}
     assert topics["/tf"]["count"] > 0 and set(topics["/tf"]["timestamps"]) <= recorded  # type: ignore[index]
 
@@ -429,6 +436,110 @@ async def test_navsat_fixes_on_the_foxglove_face_as_recorded():
     recorded = [str(t) for t, _ in _recorded(HUSKY, "/fix")]
     assert fixes["count"] >= 2 and fixes["timestamps"] == recorded[: fixes["count"]]
     assert {"latitude", "longitude", "altitude", "status"} <= set(fixes["summaries"][0])
+
+
+def _frames_posed_like(
+    log: RosBag, recorded: list[tuple[int, Any]], axes: str
+) -> Iterator[tuple[int, dict[str, Any], list[float]]]:
+    """Each frame's time, update and vehicle position, once its position on ``axes`` is checked to be ``recorded``'s
+    positions interpolated at the frame's time (where the frame is within them)."""
+    times = np.array([t for t, _ in recorded], float)
+    for frame, tick in enumerate(log.clock):
+        update = log.convert(frame)["updates"][0]
+        position = update["poses"]["/vehicle_pose"]["position"]
+        if times[0] <= tick <= times[-1]:
+            expected = [np.interp(tick, times, [getattr(p, axis) for _, p in recorded]) for axis in axes]
+            np.testing.assert_allclose(position[: len(axes)], expected, atol=1e-6)
+        yield int(tick), update, position
+
+
+EKF = RECORDINGS / "ros1" / "robot_pose_ekf" / "gps_data_10s.bag"
+
+
+def test_a_robots_own_tf_tree_rides_on_its_odometry_the_other_odometry_a_trajectory(caplog: pytest.LogCaptureFixture):
+    # A Husky: /tf holds the robot's joints alone (/base_footprint -> /base_link and its parts, republished), the wheel
+    # odometry /encoder (odom_combined -> base_footprint) moves the tree's root, /gps is a second Odometry in /world.
+    encoder = [(t, m.pose.pose.position) for t, m in _recorded(EKF, "/encoder")]  # type: ignore[attr-defined]
+    log = RosBag(EKF)
+    roles = {m.topic: m.role for m in log.mappings}
+    assert (roles["/encoder"], roles["/gps"], roles["/tf"], roles["/fix"]) == (
+        "pose",
+        "trajectory",
+        "transforms",
+        "origin",
+    )
+    assert log.pose_source.describe() == "/encoder (odom_combined -> base_link)"
+    gps = [t for t, _ in _recorded(EKF, "/gps")]
+    positions = []
+    for tick, update, position in _frames_posed_like(log, encoder, "xy"):
+        positions.append(position)
+        series = {stream for s in update.get("time_series", []) for stream in s["streams"]}
+        if tick >= gps[0]:  # the other odometry (2.5 Hz): its speed and yaw rate beside the pose's
+            assert {"/gps/speed", "/gps/yaw_rate", "/encoder/speed", "/encoder/yaw_rate"} <= series
+        assert "/gps" not in update.get("primitives", {})  # /world has no transform to odom_combined: named once
+    spread = np.ptp(np.array(positions)[:, :2], axis=0)  # the robot drives about 3 x 2 m, not stuck at the origin
+    assert (spread > 1.5).all(), spread
+    streams = log.metadata()["streams"]
+    assert streams["/gps"]["primitive_type"] == "POLYLINE" and streams["/gps/speed"]["scalar_type"] == "FLOAT"
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warnings == [
+        f"{EKF}: topic /gps: frame '/world' is not connected to the vehicle frame (left out of the frames)"
+    ]
+
+
+@pytest.mark.slow
+async def test_a_robots_odometry_on_the_foxglove_face_the_pose_and_the_original_odometry():
+    log = RosBag(EKF)
+    out = await foxglove_head(EKF, "gps_data_10s", seconds=4.0)
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    for topic in ("/encoder", "/gps"):
+        assert (channels[topic]["encoding"], channels[topic]["schemaName"]) == ("ros1", "nav_msgs/Odometry")
+    assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    _assert_the_served_poses_are_the_frames(log, out)
+    topics = out["topics"]
+    for topic in ("/encoder", "/gps"):  # as recorded, at their record times
+        recorded = [str(t) for t, _ in _recorded(EKF, topic)]
+        got = topics[topic]  # type: ignore[index]
+        assert got["count"] >= 2 and got["timestamps"] == recorded[: got["count"]]
+
+
+DRONE = RECORDINGS / "ros1" / "rotors" / "waypoint_example_15s.bag"
+
+
+def test_a_drone_flies_on_its_ground_truth_pose_stamped():
+    # RotorS's simulated quadrotor taking off: geometry_msgs/PoseStamped at 100 Hz, no transform tree.
+    recorded = [(t, m.pose.position) for t, m in _recorded(DRONE, "/ground_truth/pose")]  # type: ignore[attr-defined]
+    twists = _recorded(DRONE, "/ground_truth/twist")
+    log = RosBag(DRONE)
+    roles = {m.topic: m.role for m in log.mappings}
+    assert (roles["/ground_truth/pose"], roles["/ground_truth/twist"]) == ("pose", "series")
+    assert log.pose_source.topic == "/ground_truth/pose" and log.pose_source.kind == "topic"
+    heights = []
+    for tick, update, position in _frames_posed_like(log, recorded, "xyz"):
+        heights.append(position[2])
+        t, twist = [(t, m) for t, m in twists if t <= tick][-1]
+        values = {
+            s: v for series in update["time_series"] for s, v in zip(series["streams"], series["values"]["doubles"])
+        }
+        assert values == {
+            "/ground_truth/twist/linear_x": twist.twist.linear.x,  # type: ignore[attr-defined]
+            "/ground_truth/twist/angular_z": twist.twist.angular.z,  # type: ignore[attr-defined]
+        }
+    assert heights[0] < 0.2 and heights[-1] > 0.9  # it takes off to its first waypoint, 1 m up
+
+
+@pytest.mark.slow
+async def test_a_drone_on_the_foxglove_face_the_pose_and_the_original_pose_stamped():
+    log = RosBag(DRONE)
+    out = await foxglove_head(DRONE, "waypoint_example_15s", seconds=4.0)
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    pose = channels["/ground_truth/pose"]
+    assert (pose["encoding"], pose["schemaName"]) == ("ros1", "geometry_msgs/PoseStamped")
+    assert channels["/xviz/vehicle_pose"]["schemaName"] == "foxglove.FrameTransform"
+    _assert_the_served_poses_are_the_frames(log, out)
+    got = out["topics"]["/ground_truth/pose"]  # type: ignore[index]
+    recorded = [str(t) for t, _ in _recorded(DRONE, "/ground_truth/pose")]
+    assert got["count"] >= 2 and got["timestamps"] == recorded[: got["count"]]
 
 
 CUBE = RECORDINGS / "ros1" / "webviz" / "only-a-cube.bag"
@@ -482,6 +593,52 @@ async def test_a_marker_on_the_foxglove_face_converted_and_as_recorded():
     assert topics["/marker_in_parent_frame"]["timestamps"] == [str(recorded)]  # type: ignore[index]
     # The last frame's scene: the cube, after a deletion of what the frame before drew.
     assert topics["/xviz/marker_in_parent_frame/polygons"]["summaries"] == [{"entities": 1, "deletions": 1}]  # type: ignore[index]
+
+
+VOXELS = RECORDINGS / "ros1" / "jsk_recognition" / "bunny_marker_array.bag"
+VOXEL_TOPIC = "/octree_voxel_grid/output_marker_array"
+
+
+def test_a_voxel_grid_marker_array_is_drawn_cube_by_cube_in_its_colours():
+    # jsk_pcl_ros's octree voxel grid: 17 MarkerArrays of one CUBE_LIST in /map, 7 cubes of 10 cm, one colour a cube
+    # (blue below, red above, alpha 0.8) and the marker's own colour fully transparent.
+    recorded = _recorded(VOXELS, VOXEL_TOPIC)
+    log = RosBag(VOXELS)
+    assert {m.topic: m.role for m in log.mappings} == {VOXEL_TOPIC: "markers"}
+    assert log.pose_source.kind == "none"  # no transform tree: /map is the vehicle's frame, at the origin
+    assert log.clock[0] == recorded[0][0] and len(log) == 18  # 10 Hz from the first message to past the last
+    for frame, tick in enumerate(log.clock):  # each frame draws the latest array
+        polygons = log.convert(frame)["updates"][0]["primitives"][f"{VOXEL_TOPIC}/polygons"]
+        (marker,) = [m for t, m in recorded if t <= tick][-1].markers  # type: ignore[attr-defined]
+        assert (marker.type, marker.color.a, marker.header.frame_id) == (6, 0.0, "/map")  # CUBE_LIST
+        drawn = polygons["polygons"]
+        assert len(drawn) == len(marker.points) == 7
+        for cube, point, color in zip(drawn, marker.points, marker.colors):
+            centre = np.array([point.x, point.y, point.z])
+            corners = np.asarray(cube["vertices"])
+            np.testing.assert_allclose(corners.min(axis=0), centre - [0.05, 0.05, 0.05], atol=1e-6)
+            np.testing.assert_allclose(corners.max(axis=0), centre + [0.05, 0.05, -0.05], atol=1e-6)
+            rgba = [round(getattr(color, c) * 255) for c in "rgba"]
+            assert cube["base"] == {"object_id": "0", "style": {"fill_color": rgba, "height": pytest.approx(0.1)}}
+    assert {tuple(c["base"]["style"]["fill_color"]) for c in drawn} == {(0, 0, 255, 204), (255, 0, 0, 204)}
+
+
+@pytest.mark.slow
+async def test_a_marker_array_on_the_foxglove_face_converted_and_as_recorded():
+    out = await foxglove_head(VOXELS, "bunny_marker_array")
+    channels = {c["topic"]: c for c in out["channels"]}  # type: ignore[attr-defined]
+    assert (channels[VOXEL_TOPIC]["encoding"], channels[VOXEL_TOPIC]["schemaName"]) == (
+        "ros1",
+        "visualization_msgs/MarkerArray",
+    )
+    assert channels[f"/xviz{VOXEL_TOPIC}/polygons"]["schemaName"] == "foxglove.SceneUpdate"
+    topics = out["topics"]
+    recorded = [str(t) for t, _ in _recorded(VOXELS, VOXEL_TOPIC)]
+    assert topics[VOXEL_TOPIC]["timestamps"] == recorded  # type: ignore[index]
+    scenes = topics[f"/xviz{VOXEL_TOPIC}/polygons"]["summaries"]  # type: ignore[index]
+    assert len(scenes) == len(RosBag(VOXELS)) and all(scene["entities"] == 7 for scene in scenes), (
+        scenes
+    )  # a frame each
 
 
 VELODYNE = RECORDINGS / "rosbag2" / "nebula" / "vlp32" / "1713492677464078412"

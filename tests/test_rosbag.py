@@ -391,6 +391,79 @@ def test_several_pose_topics_the_earliest_is_the_pose_the_others_trajectories(tm
     assert RosBag(path, config=str(config)).pose_source.topic == "/late"
 
 
+def test_a_robots_own_tf_tree_rides_on_the_odometry_of_its_root_the_other_odometry_a_trajectory(tmp_path: Path):
+    from rosbags.typesys import Stores
+
+    m = Messages(Stores.ROS1_NOETIC)
+    t0 = 1_700_000_000 * 10**9
+    messages = []
+    for i in range(4):
+        t = t0 + i * 10**9
+        joint = m.transform(t, "base_footprint", "base_link", (0.0, 0.0, 0.1), (0.0, 0.0, 0.0, 1.0))
+        messages.append(("/tf", "tf2_msgs/msg/TFMessage", t, m.tf2_msgs__TFMessage(transforms=[joint])))
+        for topic, y, delay in (("/wheel", 0.0, 0), ("/fused", 3.0, 10**6)):
+            pose = m.geometry_msgs__Pose(
+                position=m.geometry_msgs__Point(x=float(i), y=y, z=0.0), orientation=m.rotation((0.0, 0.0, 0.0, 1.0))
+            )
+            twist = m.geometry_msgs__Twist(linear=m.vector(1.0, 0.0, 0.0), angular=m.vector(0.0, 0.0, 0.0))
+            odometry = m.nav_msgs__Odometry(
+                header=m.header(t + delay, "odom"),
+                child_frame_id="base_footprint",
+                pose=m.geometry_msgs__PoseWithCovariance(pose=pose, covariance=np.zeros(36)),
+                twist=m.geometry_msgs__TwistWithCovariance(twist=twist, covariance=np.zeros(36)),
+            )
+            messages.append((topic, "nav_msgs/msg/Odometry", t + delay, odometry))
+    path = write_bag(tmp_path / "husky.bag", "ros1", iter(sorted(messages, key=lambda e: e[2])))
+    bag = RosBag(path)
+    # /tf moves base_link in base_footprint alone; the odometry whose child is that root moves the robot.
+    assert bag.pose_source.describe() == "/wheel (odom -> base_link)"
+    assert {m.topic: m.role for m in bag.mappings} == {"/wheel": "pose", "/fused": "trajectory", "/tf": "transforms"}
+    last = bag.convert(len(bag) - 1)["updates"][0]
+    assert last["poses"]["/vehicle_pose"]["position"][:2] == [3.0, 0.0]
+    (line,) = last["primitives"]["/fused"]["polylines"]  # drawn so far, in the vehicle frame (at x=3, y=0)
+    np.testing.assert_allclose(
+        np.asarray(line["vertices"]).reshape(-1, 3)[:, :2], [[-3.0, 3.0], [-2.0, 3.0], [-1.0, 3.0], [0.0, 3.0]]
+    )
+    series = {stream for entry in last["time_series"] for stream in entry["streams"]}
+    assert {"/wheel/speed", "/fused/speed", "/fused/yaw_rate"} <= series
+
+
+def test_list_markers_take_one_colour_a_point_when_given_one_for_each(tmp_path: Path):
+    from dataclasses import replace
+
+    from rosbags.typesys import Stores
+
+    from devkit.rosbag_kitti import marker
+
+    m = Messages(Stores.ROS2_HUMBLE)
+    t0 = 1_700_000_000 * 10**9
+    points = [(1.0, 0.0, 0.0), (2.0, 0.0, 0.0)]
+    each = [m.std_msgs__ColorRGBA(r=0.0, g=0.0, b=1.0, a=1.0), m.std_msgs__ColorRGBA(r=1.0, g=0.0, b=0.0, a=0.5)]
+    kinds = {"/spheres": 7, "/cubes": 6, "/points": 8}  # SPHERE_LIST, CUBE_LIST, POINTS
+    messages = [
+        (
+            topic,
+            "visualization_msgs/msg/Marker",
+            t0,
+            replace(marker(m, t0, action=0, kind=kind, id=1, x=0.0, points=points), colors=each),
+        )
+        for topic, kind in kinds.items()
+    ]
+    short = replace(
+        marker(m, t0, action=0, kind=7, id=2, x=0.0, points=points), colors=each[:1]
+    )  # one colour, two points
+    messages.append(("/fallback", "visualization_msgs/msg/Marker", t0, short))
+    primitives = RosBag(write_bag(tmp_path / "lists.mcap", "mcap", iter(messages))).convert(0)["updates"][0][
+        "primitives"
+    ]
+    blue, red = [0, 0, 255, 255], [255, 0, 0, 128]
+    assert [c["base"]["style"]["fill_color"] for c in primitives["/spheres/circles"]["circles"]] == [blue, red]
+    assert [c["base"]["style"]["fill_color"] for c in primitives["/cubes/polygons"]["polygons"]] == [blue, red]
+    assert np.asarray(primitives["/points/points"]["points"][0]["colors"]).reshape(-1, 4).tolist() == [blue, red]
+    orange = [255, 128, 0, 255]  # the marker's own colour
+    assert [c["base"]["style"]["fill_color"] for c in primitives["/fallback/circles"]["circles"]] == [orange, orange]
+
+
 def test_velodyne_driver_packets_are_named_as_such(tmp_path: Path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore

@@ -161,13 +161,17 @@ def all_messages(data: bytes) -> list[tuple[str, int, bytes]]:
     return [(channel.topic, message.log_time, message.data) for _, channel, message in reader.iter_messages()]
 
 
-def mcap_ranges(url: str, start: int, end: int) -> dict[str, Any]:
-    """What the published TypeScript reader (``@mcap/core``, ``interop/mcap-ranges.js``) read of ``url`` by ranges."""
+def mcap_ranges(url: str, start: int, end: int, topics: list[str] | None = None) -> dict[str, Any]:
+    """What the published TypeScript reader (``@mcap/core``, ``interop/mcap-ranges.js``) read of ``url`` by ranges
+    (the messages of ``topics``, else all)."""
     node = shutil.which("node")
     assert node, "node is required for the interop tests"
     assert (INTEROP / "node_modules" / "@mcap" / "core").is_dir(), "run `npm ci --prefix tests/interop`"
     done = subprocess.run(
-        [node, str(INTEROP / "mcap-ranges.js"), url, str(start), str(end)], capture_output=True, text=True, timeout=120
+        [node, str(INTEROP / "mcap-ranges.js"), url, str(start), str(end), *([",".join(topics)] if topics else [])],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert done.returncode == 0, done.stdout + done.stderr
     result: dict[str, Any] = json.loads(done.stdout)
@@ -212,6 +216,50 @@ async def test_a_seek_to_the_middle_reads_the_summary_and_a_few_chunks_with_the_
         (topic, time, len(data)) for topic, time, data in expected
     )
     assert node["bytes"] <= summary_bytes + 3 * max(chunk_bytes), (node["bytes"], summary_bytes, chunk_bytes)
+
+
+def read_topic(file: RangeFile, topic: str) -> tuple[Any, list[tuple[str, int, bytes]], int]:
+    """Read the summary, then the messages of ``topic`` over the whole log: the summary, the messages (topic, log
+    time, payload) and the bytes received for them (after the summary's)."""
+    reader = make_reader(io.BufferedReader(file, buffer_size=1))
+    summary = reader.get_summary()
+    before = file.received
+    messages = [
+        (channel.topic, message.log_time, message.data) for _, channel, message in reader.iter_messages(topics=[topic])
+    ]
+    return summary, messages, file.received - before
+
+
+@pytest.mark.slow
+async def test_a_light_channel_is_read_over_the_whole_log_without_the_heavy_ones(kitti_root: Path) -> None:
+    """The file's chunks are cut by weight (each light channel's messages in chunks of their own): the published
+    readers read a pose over the whole log (as Lichtblick preloads poses, transforms and plots) for a few kilobytes,
+    and every message of the file in log time order."""
+    path = FILE.format("kitti")
+    async with running_server(kitti_root) as server:
+        status, _, whole = await asyncio.to_thread(http_get, server.port, path)
+        assert status == 200
+        every = all_messages(whole)
+        start, end = min(time for _, time, _ in every), max(time for _, time, _ in every)
+        file = await asyncio.to_thread(RangeFile, server.port, path, 1024)
+        summary, poses, pose_bytes = await asyncio.to_thread(read_topic, file, "/vehicle_pose")
+        url = f"http://127.0.0.1:{server.port}{path}"
+        node = await asyncio.to_thread(mcap_ranges, url, start, end, ["/vehicle_pose"])
+        everything = await asyncio.to_thread(mcap_ranges, url, start, end)
+    assert poses == [message for message in every if message[0] == "/vehicle_pose"] and len(poses) == 25
+    # Python's reader: after the summary, the pose's chunk and its message index, read by ranges of 1 KiB.
+    assert pose_bytes <= 8 * 1024, pose_bytes
+    # The TypeScript reader, the apps' own: the same messages, for the summary and a few kilobytes.
+    summary_bytes = len(whole) - summary.chunk_indexes[-1].chunk_start_offset - summary.chunk_indexes[-1].chunk_length
+    assert [(m["topic"], int(m["logTime"]), m["bytes"]) for m in node["messages"]] == [
+        (topic, time, len(data)) for topic, time, data in poses
+    ]
+    assert node["bytes"] <= summary_bytes + 8 * 1024, (node["bytes"], summary_bytes)
+    # Read whole, each reader gives every message in log time order.
+    assert [time for _, time, _ in every] == sorted(time for _, time, _ in every)
+    assert [(m["topic"], int(m["logTime"]), m["bytes"]) for m in everything["messages"]] == [
+        (topic, time, len(data)) for topic, time, data in every
+    ]
 
 
 def random_updates(count: int, points: int = 20_000) -> list[dict[str, Any]]:

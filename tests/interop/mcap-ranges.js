@@ -4,9 +4,10 @@
 // answer must be 206 with the Content-Range asked for). zstd chunks are
 // decompressed with fzstd.
 //
-//   node mcap-ranges.js URL START_NS END_NS
+//   node mcap-ranges.js URL START_NS END_NS [TOPIC,TOPIC...]
 //
-// It reads the file's summary, then the messages logged in [START_NS, END_NS].
+// It reads the file's summary, then the messages logged in [START_NS, END_NS] (of the topics given, else all), in
+// the reader's order: log time.
 // Output: {"size", "requests", "bytes" (body bytes received, every request),
 // "chunks" (count in the chunk index), "channels": [topics],
 // "messages": [{"topic", "logTime" (ns as a string), "bytes"}], "error"}.
@@ -16,7 +17,7 @@ const { McapIndexedReader } = require('@mcap/core');
 const { decompress } = require('fzstd');
 
 async function main() {
-  const [url, start, end] = process.argv.slice(2);
+  const [url, start, end, topics] = process.argv.slice(2);
   let requests = 0;
   let bytes = 0;
   const head = await fetch(url, { method: 'HEAD' });
@@ -45,7 +46,11 @@ async function main() {
     decompressHandlers: { zstd: (data, decompressedSize) => decompress(data, new Uint8Array(Number(decompressedSize))) },
   });
   const messages = [];
-  for await (const message of reader.readMessages({ startTime: BigInt(start), endTime: BigInt(end) })) {
+  for await (const message of reader.readMessages({
+    startTime: BigInt(start),
+    endTime: BigInt(end),
+    topics: topics ? topics.split(',') : undefined,
+  })) {
     const channel = reader.channelsById.get(message.channelId);
     messages.push({ topic: channel.topic, logTime: message.logTime.toString(), bytes: message.data.length });
   }

@@ -48,6 +48,8 @@ from .translate import Plan
 __all__ = [
     "FORMATS",
     "CHUNK_BYTES",
+    "LIGHT_BYTES",
+    "HELD_BYTES",
     "CUT_SHORT",
     "ExportRange",
     "export_path",
@@ -148,6 +150,10 @@ def _instant(name: str, text: str) -> Instant:
 
 #: Bytes of messages an MCAP chunk holds before it is compressed and sent (the writer's default).
 CHUNK_BYTES = 1 << 20
+#: A message of at most this many bytes is light: it goes in chunks of its channel alone (see :class:`_Chunks`).
+LIGHT_BYTES = 16 * 1024
+#: Bytes of messages held for the chunks being filled at most (the group holding the most is written then).
+HELD_BYTES = 4 * CHUNK_BYTES
 
 
 async def first_error(log: Log, plan: Plan, positions: np.ndarray) -> XVIZError | None:
@@ -172,10 +178,11 @@ async def export(
     raises the frame's :class:`~xviz_server.exceptions.XVIZError` instead.
     """
     out = _Pieces()
-    writer = Writer(cast(IO[bytes], out), chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+    # The chunks are cut by _Chunks, not by the writer's own size.
+    writer = Writer(cast(IO[bytes], out), chunk_size=_NEVER, compression=CompressionType.ZSTD)
     writer.start(profile="", library="xviz-server")
     yield out.take()
-    channels = _register(writer, plan)
+    chunks = _Chunks(writer, _register(writer, plan))
     sequence = 0
     for number in log.index.frames[positions].tolist():
         messages, errors = await frame_messages(log, plan, number)
@@ -187,8 +194,9 @@ async def export(
             )
             writer.add_metadata(CUT_SHORT, {"frame": str(number), "error": str(errors[0])})
             break
-        sequence = await workers.io(_add, writer, channels, messages, sequence)
+        sequence = await workers.io(chunks.add, messages, sequence)
         yield out.take()
+    await workers.io(chunks.close)
     writer.add_metadata("xviz", {"log": log.name})
     await workers.io(writer.finish)
     yield out.take()
@@ -229,11 +237,63 @@ def _register(writer: Writer, plan: Plan) -> dict[int, int]:
     return channels
 
 
-def _add(writer: Writer, channels: Mapping[int, int], messages: list[Message], sequence: int) -> int:
-    """Add a frame's messages (see :func:`~xviz_server.foxglove.frame.frame_messages`); the next sequence number."""
-    for channel_id, time, payload in messages:
-        writer.add_message(
-            channels[channel_id], log_time=time, data=bytes(payload), publish_time=time, sequence=sequence
-        )
-        sequence += 1
-    return sequence
+#: The group of the heavy messages, which share their chunks (no MCAP channel has the id 0).
+_SHARED = 0
+#: The least a group written alone to bring the messages held under :data:`HELD_BYTES` holds: below it, all held
+#: groups are written as one chunk (so that many light channels make no host of tiny chunks).
+_SMALLEST = CHUNK_BYTES // 16
+#: A chunk size the writer never reaches: :class:`_Chunks` cuts the chunks.
+_NEVER = 1 << 62
+
+
+class _Chunks:
+    """A file's messages cut into chunks by weight: each light message (at most :data:`LIGHT_BYTES`: a pose, a
+    transform, a value) in chunks of its channel alone, the heavy ones (point clouds, images) together, in time order.
+
+    Readers read only the chunks whose index lists a channel they want
+    (``@mcap/core``'s indexed reader, which Foxglove and Lichtblick use, and
+    ``mcap``'s Python reader): a light channel read over the whole log costs
+    its own bytes, not the log's, and a seek costs the heavy chunk of that
+    time and the light chunks that hold it. A group's messages are held until
+    they make :data:`CHUNK_BYTES`, or until all held pass :data:`HELD_BYTES`
+    (the group holding the most is written then, or, if it holds less than
+    :data:`_SMALLEST`, all groups in one chunk), or the end: a light chunk
+    may span the whole log and come after the heavy chunks of its times, as
+    MCAP allows (indexed readers merge overlapping chunks in time order).
+    """
+
+    def __init__(self, writer: Writer, channels: Mapping[int, int]) -> None:
+        self._writer, self._channels = writer, channels
+        self._groups: dict[int, list[tuple[int, int, bytes, int]]] = {}
+        self._sizes: dict[int, int] = {}
+        self._held = 0
+
+    def add(self, messages: list[Message], sequence: int) -> int:
+        """Add a frame's messages (see :func:`~xviz_server.foxglove.frame.frame_messages`), numbered from
+        ``sequence``; the next sequence number. Writes the chunks that are full (it blocks)."""
+        for channel_id, time, payload in messages:
+            channel = self._channels[channel_id]
+            group = channel if len(payload) <= LIGHT_BYTES else _SHARED
+            self._groups.setdefault(group, []).append((channel, time, bytes(payload), sequence))
+            self._sizes[group] = self._sizes.get(group, 0) + len(payload)
+            self._held += len(payload)
+            sequence += 1
+            if self._sizes[group] >= CHUNK_BYTES:
+                self._write(group)
+        while self._held > HELD_BYTES:
+            group = max(self._sizes, key=self._sizes.__getitem__)
+            self._write(*([group] if self._sizes[group] >= _SMALLEST else self._groups))
+        return sequence
+
+    def close(self) -> None:
+        """Write the chunks of the messages held: the heavy ones', then each light channel's (it blocks)."""
+        for group in sorted(self._groups):
+            self._write(group)
+
+    def _write(self, *groups: int) -> None:
+        """Write the held messages of ``groups`` as one chunk."""
+        for group in groups:
+            for channel, time, data, sequence in self._groups.pop(group):
+                self._writer.add_message(channel, log_time=time, data=data, publish_time=time, sequence=sequence)
+            self._held -= self._sizes.pop(group)
+        self._writer.flush()

@@ -9,10 +9,12 @@ interpolated at the tick. The first frame also shows what was recorded
 before it, however old, and the last what was recorded after it.
 
 The pose comes from, in this order: ``/tf`` or another transform topic (the
-vehicle frame in the root of its tree: map, odom, world), a
+vehicle frame in the root of its tree: map, odom, world; a tree whose root
+is the child frame of a ``nav_msgs/Odometry`` topic is the robot's alone,
+and that topic moves it), a
 ``nav_msgs/Odometry`` topic, a ``geometry_msgs/PoseStamped`` or
-``PoseWithCovarianceStamped`` topic (the earliest of a type; the others are
-drawn as trajectories), and
+``PoseWithCovarianceStamped`` topic (the earliest of a type; the other pose
+topics, Odometry too, are drawn as trajectories), and
 last a ``sensor_msgs/NavSatFix`` topic (east-north-up metres from the first
 fix, heading from a ``sensor_msgs/Imu`` topic if there is one). The first
 fix of a NavSatFix topic is the ``map_origin``: the origin of the pose's
@@ -178,14 +180,18 @@ class RosBag:
         )
         if choice == "none":
             return PoseSource("none", vehicle or self._first_cloud_frame())
+        carrier = None
         if choice in (None, TF):
             source = self._tf_source(vehicle) if self.tree.has_tf else None
-            if source is not None:
+            carrier = self._odometry_of(source.fixed_frame) if source is not None and choice is None else None
+            if source is not None and carrier is None:
                 return source
             if choice == TF:
                 raise DatasetError(f"{self.config}: pose: /tf does not move {vehicle or 'any frame'}", path=self.config)
         topics = self.bag.topics
-        if choice not in (None, TF):
+        if carrier is not None:  # the tree is the robot's alone: the odometry moves its root
+            candidates = [carrier]
+        elif choice not in (None, TF):
             if choice not in topics or topics[choice].msgtype not in POSE_TYPES:
                 raise DatasetError(
                     f"{self.config}: pose: {choice} is not a topic of {', '.join(POSE_TYPES)}", path=self.config
@@ -214,6 +220,17 @@ class RosBag:
         return PoseSource(
             "topic", vehicle or child or self._first_cloud_frame(), topic, frame_name(first.header.frame_id)
         )
+
+    def _odometry_of(self, frame: str | None) -> str | None:
+        """The earliest ``Odometry`` topic whose child frame is ``frame`` (the root of a transform tree), if any."""
+        topics = self.bag.topics
+        odometry = (
+            t for t, info in topics.items() if info.msgtype == ODOMETRY and len(info) and self.settings.wants(t)
+        )
+        for topic in sorted(odometry, key=lambda t: int(topics[t].times[0])):
+            if frame_name(self.bag.message(topic, 0)[1].child_frame_id) == frame:
+                return topic
+        return None
 
     def _tf_source(self, vehicle: str | None) -> PoseSource | None:
         moving = self.tree.moving

@@ -167,6 +167,8 @@ def plan(bag: Recording, config: RosConfig, pose_topic: str | None) -> list[Mapp
             role = "markers"
         elif msgtype == PATH:
             role = "path"
+        elif msgtype in POSE_TYPES and msgtype != NAV_SAT_FIX:  # Odometry too: a trajectory and its time series
+            role = "trajectory"
         elif msgtype in SERIES:
             role = "series"
         elif msgtype in TEXT_TYPES:
@@ -175,8 +177,6 @@ def plan(bag: Recording, config: RosConfig, pose_topic: str | None) -> list[Mapp
             role = "origin"
         elif msgtype in TF_TYPES:
             role = "transforms"
-        elif msgtype in POSE_TYPES and msgtype != NAV_SAT_FIX:
-            role = "trajectory"
         else:
             role = "unknown"
         mappings.append(

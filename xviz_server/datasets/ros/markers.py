@@ -73,20 +73,24 @@ def draw_marker(builder: FrameBuilder, stream: str, marker: Any, to_vehicle: np.
     scale = marker.scale
     local = _points(marker.points)
     kind = marker.type
+    # One colour a point (lists and POINTS) when the marker gives as many as it has points, as RViz draws them.
+    each = [_color(c) for c in marker.colors] if len(local) and len(marker.colors) == len(local) else None
     if kind in (CUBE, CUBE_LIST):
         centers = np.zeros((1, 3)) if kind == CUBE else local
-        for corners in _boxes(centers, scale):
+        fills = each if kind == CUBE_LIST and each else [color] * len(centers)
+        for corners, fill in zip(_boxes(centers, scale), fills):
             builder.polygon(
                 f"{stream}/polygons",
                 apply(pose, corners),
                 id=object_id,
-                style={"fill_color": color, "height": float(scale.z)},
+                style={"fill_color": fill, "height": float(scale.z)},
             )
     elif kind in (SPHERE, CYLINDER, SPHERE_LIST):
         centers = np.zeros((1, 3)) if kind != SPHERE_LIST else local
-        for center in apply(pose, centers):
+        fills = each if kind == SPHERE_LIST and each else [color] * len(centers)
+        for center, fill in zip(apply(pose, centers), fills):
             builder.circle(
-                f"{stream}/circles", center.tolist(), float(scale.x) / 2, id=object_id, style={"fill_color": color}
+                f"{stream}/circles", center.tolist(), float(scale.x) / 2, id=object_id, style={"fill_color": fill}
             )
     elif kind == ARROW:
         ends = local[:2] if len(local) >= 2 else np.array([[0.0, 0.0, 0.0], [scale.x, 0.0, 0.0]])
@@ -97,9 +101,7 @@ def draw_marker(builder: FrameBuilder, stream: str, marker: Any, to_vehicle: np.
         for pair in apply(pose, local[: len(local) // 2 * 2]).reshape(-1, 2, 3):
             builder.polyline(f"{stream}/polylines", pair, id=object_id, style={"stroke_color": color})
     elif kind == POINTS and len(local):
-        colors = (
-            np.array([_color(c) for c in marker.colors], dtype=np.uint8) if len(marker.colors) == len(local) else None
-        )
+        colors = np.array(each, dtype=np.uint8) if each else None
         builder.points(f"{stream}/points", apply(pose, local), colors, id=object_id)
     elif kind == TEXT_VIEW_FACING:
         builder.text(f"{stream}/texts", pose[:3, 3].tolist(), marker.text, id=object_id, style={"fill_color": color})
