@@ -79,8 +79,28 @@ try {
   if (await tab('Topics')) {
     const rows = page.locator('[data-testid="TopicListDragHandle"]');
     await rows.first().waitFor({timeout: Math.max(1000, deadline - Date.now())}).catch(() => {});
-    report.topics = await page.evaluate(() => [...document.querySelectorAll('[data-testid="TopicListDragHandle"]')]
-      .map(handle => handle.parentElement.innerText.split('\n').map(line => line.trim()).filter(Boolean)));
+    // The list draws only the rows in view (react-window): scroll it through, gathering each row once.
+    report.topics = await page.evaluate(async () => {
+      const seen = new Map();
+      const gather = () => document.querySelectorAll('[data-testid="TopicListDragHandle"]').forEach(handle => {
+        const row = handle.parentElement.innerText.split('\n').map(line => line.trim()).filter(Boolean);
+        if (row.length && !seen.has(row[0])) seen.set(row[0], row);
+      });
+      const first = document.querySelector('[data-testid="TopicListDragHandle"]');
+      let list = first && first.parentElement;
+      while (list && !(list.scrollHeight > list.clientHeight && getComputedStyle(list).overflowY !== 'visible')) {
+        list = list.parentElement;
+      }
+      gather();
+      for (let top = 0; list && top + list.clientHeight < list.scrollHeight; ) {
+        top += list.clientHeight / 2;
+        list.scrollTop = top;
+        await new Promise(resolve => requestAnimationFrame(() => requestAnimationFrame(resolve)));
+        gather();
+      }
+      if (list) list.scrollTop = 0;
+      return [...seen.values()];
+    });
     report.steps.push('topics');
   }
   if (await tab('Problems')) {
