@@ -74,10 +74,11 @@ def draw_marker(builder: FrameBuilder, stream: str, marker: Any, to_vehicle: np.
     local = _points(marker.points)
     kind = marker.type
     # One colour a point (lists and POINTS) when the marker gives as many as it has points, as RViz draws them.
-    each = [_color(c) for c in marker.colors] if len(local) and len(marker.colors) == len(local) else None
+    listed = kind in (CUBE_LIST, SPHERE_LIST, POINTS) and len(local) and len(marker.colors) == len(local)
+    each = [_color(c) for c in marker.colors] if listed else None
     if kind in (CUBE, CUBE_LIST):
         centers = np.zeros((1, 3)) if kind == CUBE else local
-        fills = each if kind == CUBE_LIST and each else [color] * len(centers)
+        fills = each or [color] * len(centers)
         for corners, fill in zip(_boxes(centers, scale), fills):
             builder.polygon(
                 f"{stream}/polygons",
@@ -87,7 +88,7 @@ def draw_marker(builder: FrameBuilder, stream: str, marker: Any, to_vehicle: np.
             )
     elif kind in (SPHERE, CYLINDER, SPHERE_LIST):
         centers = np.zeros((1, 3)) if kind != SPHERE_LIST else local
-        fills = each if kind == SPHERE_LIST and each else [color] * len(centers)
+        fills = each or [color] * len(centers)
         for center, fill in zip(apply(pose, centers), fills):
             builder.circle(
                 f"{stream}/circles", center.tolist(), float(scale.x) / 2, id=object_id, style={"fill_color": fill}
